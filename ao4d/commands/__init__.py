@@ -1,0 +1,1 @@
+"""Subcommands of the ``ao4d`` command line, one module each (see ``ao4d.cli``)."""
