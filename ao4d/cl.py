@@ -81,13 +81,16 @@ class Runtime:
 
 
 def _icd_library_candidates() -> list[Path]:
-    """Vendor libraries installed by PyPI runtimes into this Python's prefix."""
-    found = []
+    """Vendor libraries installed by PyPI runtimes into this Python's prefix.
+
+    A venv's own copy wins over the base interpreter's: registering both would list the same
+    device twice.
+    """
     for prefix in dict.fromkeys((sys.prefix, sys.base_prefix)):
         lib = Path(prefix) / "lib" / "libintelocl.so"
         if lib.is_file():
-            found.append(lib.resolve())
-    return found
+            return [lib.resolve()]
+    return []
 
 
 def register_bundled_runtimes() -> str | None:
