@@ -1,0 +1,253 @@
+"""Reading and writing :class:`~ao4d.mesh.SimplexMesh` files.
+
+Three formats, every write atomic (an interrupted write leaves the old file or the new one):
+
+``.npz`` (:func:`save_npz`, :func:`load_npz`)
+    Lossless: ``vertices``, ``simplices`` and every point/cell data array (stored under
+    ``point_data/<name>`` and ``cell_data/<name>``), plus a format version.
+``.vtu`` (:func:`save_vtu`, :func:`load_vtu`)
+    For ParaView. Points need three coordinates: a 4D mesh writes x, y, z as the points, the
+    fourth coordinate as point array ``"w"`` and its tetrahedra as ``VTK_TETRA``; a 3D mesh writes
+    triangles (``VTK_TRIANGLE``), a 2D mesh line segments (``VTK_LINE``, z = 0). Point and cell
+    data go along as arrays. :func:`load_vtu` rebuilds the mesh (w from ``"w"``).
+Plain text (:func:`save_text`, :func:`load_text`)
+    Human-readable geometry (no data arrays)::
+
+        # ao4d simplex mesh (text format 1)     <- lines starting with '#' are comments
+        ao4d-mesh 1
+        dim 4
+        vertices V
+        x y z w                                  <- V lines, floats in shortest repr form
+        simplices S
+        i j k l                                  <- S lines, 0-based vertex indices
+
+    Floats are written with ``repr`` precision, so a round trip is exact.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ._atomic import atomic_open, atomic_path
+from .mesh import SimplexMesh
+
+__all__ = ["save_npz", "load_npz", "save_vtu", "load_vtu", "save_text", "load_text", "load"]
+
+NPZ_FORMAT = 1
+TEXT_FORMAT = 1
+_TEXT_MAGIC = "ao4d-mesh"
+
+
+def _check_mesh(mesh: Any) -> SimplexMesh:
+    if not isinstance(mesh, SimplexMesh):
+        raise TypeError(f"`mesh` must be a SimplexMesh, got {type(mesh).__name__}")
+    return mesh
+
+
+def _existing(path: str | os.PathLike) -> Path:
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"`path` {str(p)!r} does not exist or is not a file")
+    return p
+
+
+# ------------------------------------------------------------------------------------ npz
+def save_npz(mesh: SimplexMesh, path: str | os.PathLike) -> None:
+    """Write a mesh with all its data to a compressed ``.npz`` file, atomically.
+
+    Parameters
+    ----------
+    mesh : SimplexMesh
+        The mesh.
+    path : path-like
+        Destination; ``.npz`` is not appended automatically.
+    """
+    mesh = _check_mesh(mesh)
+    arrays = {
+        "format": np.array(NPZ_FORMAT),
+        "vertices": mesh.vertices,
+        "simplices": mesh.simplices,
+    }
+    for kind in ("point_data", "cell_data"):
+        for name, value in getattr(mesh, kind).items():
+            arr = np.asarray(value)
+            if arr.dtype == object:
+                raise TypeError(f"`mesh.{kind}[{name!r}]` has dtype object, which .npz cannot store safely")
+            arrays[f"{kind}/{name}"] = arr
+    with atomic_open(path, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+
+
+def load_npz(path: str | os.PathLike) -> SimplexMesh:
+    """Read a mesh written by :func:`save_npz`.
+
+    Returns
+    -------
+    mesh : SimplexMesh
+    """
+    p = _existing(path)
+    try:
+        with np.load(p, allow_pickle=False) as data:
+            files = dict(data.items())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"`path` {str(p)!r} is not a readable .npz file: {exc}") from None
+    missing = {"format", "vertices", "simplices"} - set(files)
+    if missing:
+        raise ValueError(f"`path` {str(p)!r} is not an ao4d mesh file (missing {sorted(missing)})")
+    version = int(files.pop("format"))
+    if version > NPZ_FORMAT:
+        raise ValueError(f"`path` {str(p)!r} has mesh format {version}; this ao4d reads up to {NPZ_FORMAT}")
+    point_data = {k.split("/", 1)[1]: v for k, v in files.items() if k.startswith("point_data/")}
+    cell_data = {k.split("/", 1)[1]: v for k, v in files.items() if k.startswith("cell_data/")}
+    return SimplexMesh(files["vertices"], files["simplices"], point_data=point_data, cell_data=cell_data)
+
+
+# ------------------------------------------------------------------------------------ vtu
+def _vtk_cell_type(dim: int) -> int:
+    import pyvista as pv
+
+    return {2: pv.CellType.LINE, 3: pv.CellType.TRIANGLE, 4: pv.CellType.TETRA}[dim]
+
+
+def to_pyvista(mesh: SimplexMesh):
+    """The mesh as a ``pyvista.UnstructuredGrid`` (layout as in the module docstring)."""
+    import pyvista as pv
+
+    mesh = _check_mesh(mesh)
+    points = np.zeros((mesh.n_vertices, 3))
+    points[:, : min(3, mesh.dim)] = mesh.vertices[:, :3]
+    grid = pv.UnstructuredGrid({_vtk_cell_type(mesh.dim): mesh.simplices}, points)
+    if mesh.dim == 4:
+        if "w" in mesh.point_data:
+            raise ValueError("`mesh.point_data` must not use the name 'w': it holds the 4th coordinate in .vtu")
+        grid.point_data["w"] = mesh.vertices[:, 3]
+    for name, value in mesh.point_data.items():
+        grid.point_data[name] = np.asarray(value)
+    for name, value in mesh.cell_data.items():
+        grid.cell_data[name] = np.asarray(value)
+    return grid
+
+
+def save_vtu(mesh: SimplexMesh, path: str | os.PathLike) -> None:
+    """Write a VTK unstructured grid (``.vtu``, binary) for ParaView, atomically.
+
+    Parameters
+    ----------
+    mesh : SimplexMesh
+        Any dimension (see the module docstring for the layout).
+    path : path-like
+        Destination ending in ``.vtu``.
+    """
+    if Path(path).suffix.lower() != ".vtu":
+        raise ValueError(f"`path` must end in .vtu, got {str(path)!r}")
+    grid = to_pyvista(mesh)
+    with atomic_path(path) as tmp:
+        grid.save(tmp, binary=True)
+
+
+def load_vtu(path: str | os.PathLike) -> SimplexMesh:
+    """Read a ``.vtu`` written by :func:`save_vtu` (a tetrahedral grid with ``"w"`` is 4D).
+
+    Returns
+    -------
+    mesh : SimplexMesh
+        Point and cell data arrays are restored (``"w"`` becomes the 4th coordinate).
+    """
+    import pyvista as pv
+
+    p = _existing(path)
+    grid = pv.read(p)
+    kinds = {int(c) for c in np.unique(grid.celltypes)}
+    known = {int(pv.CellType.TETRA): 4, int(pv.CellType.TRIANGLE): 3, int(pv.CellType.LINE): 2}
+    if len(kinds) != 1 or next(iter(kinds)) not in known:
+        raise ValueError(f"`path` {str(p)!r} must hold cells of one type (tetra, triangle or line), got {sorted(kinds)}")
+    cell_type = next(iter(kinds))
+    d = known[cell_type]
+    simplices = grid.cells_dict[cell_type]
+    points = np.asarray(grid.points, dtype=np.float64)
+    point_data = {k: np.asarray(v) for k, v in grid.point_data.items()}
+    if d == 4:
+        if "w" not in point_data:
+            raise ValueError(f"`path` {str(p)!r} holds tetrahedra without a 'w' point array: not a 4D ao4d mesh")
+        vertices = np.column_stack([points, point_data.pop("w")])
+    else:
+        vertices = points[:, :d]
+    cell_data = {k: np.asarray(v) for k, v in grid.cell_data.items()}
+    return SimplexMesh(vertices, simplices, point_data=point_data, cell_data=cell_data)
+
+
+# ------------------------------------------------------------------------------------ text
+def save_text(mesh: SimplexMesh, path: str | os.PathLike) -> None:
+    """Write the plain-text format (geometry only; see the module docstring), atomically."""
+    mesh = _check_mesh(mesh)
+    with atomic_open(path, "w", encoding="ascii", newline="\n") as fh:
+        fh.write(f"# ao4d simplex mesh (text format {TEXT_FORMAT}); '#' starts a comment\n")
+        fh.write(f"{_TEXT_MAGIC} {TEXT_FORMAT}\ndim {mesh.dim}\nvertices {mesh.n_vertices}\n")
+        # repr() of a Python float is the shortest string that reads back to the same double
+        fh.writelines(" ".join(map(repr, row)) + "\n" for row in mesh.vertices.tolist())
+        fh.write(f"simplices {mesh.n_simplices}\n")
+        fh.writelines(" ".join(map(str, row)) + "\n" for row in mesh.simplices.tolist())
+
+
+def load_text(path: str | os.PathLike) -> SimplexMesh:
+    """Read the plain-text format written by :func:`save_text`.
+
+    Returns
+    -------
+    mesh : SimplexMesh
+    """
+    p = _existing(path)
+    with open(p, encoding="ascii") as fh:
+        lines = [ln.split("#", 1)[0].strip() for ln in fh]
+    lines = [ln for ln in lines if ln]
+    where = f"`path` {str(p)!r}"
+
+    def header(index: int, word: str) -> int:
+        if index >= len(lines):
+            raise ValueError(f"{where}: file ends before the '{word}' line")
+        m = re.fullmatch(rf"{word}\s+(\d+)", lines[index])
+        if not m:
+            raise ValueError(f"{where}: expected '{word} <count>', got {lines[index]!r}")
+        return int(m.group(1))
+
+    version = header(0, _TEXT_MAGIC)
+    if version > TEXT_FORMAT:
+        raise ValueError(f"{where} has text format {version}; this ao4d reads up to {TEXT_FORMAT}")
+    dim = header(1, "dim")
+    n_vertices = header(2, "vertices")
+    vertex_lines = lines[3:3 + n_vertices]
+    n_simplices = header(3 + n_vertices, "simplices")
+    simplex_lines = lines[4 + n_vertices:4 + n_vertices + n_simplices]
+    if len(simplex_lines) != n_simplices or len(lines) != 4 + n_vertices + n_simplices:
+        raise ValueError(f"{where}: expected {n_simplices} simplex lines after the header, file has {len(lines) - 4 - n_vertices}")
+    vertices = _parse_rows(vertex_lines, dim, float, where, "vertex")
+    simplices = _parse_rows(simplex_lines, dim, int, where, "simplex")
+    return SimplexMesh(vertices, simplices)
+
+
+def _parse_rows(rows: list[str], width: int, kind: type, where: str, what: str) -> np.ndarray:
+    out = np.empty((len(rows), width), dtype=np.float64 if kind is float else np.int64)
+    for i, row in enumerate(rows):
+        parts = row.split()
+        if len(parts) != width:
+            raise ValueError(f"{where}: {what} line {i} must have {width} numbers, got {row!r}")
+        try:
+            out[i] = [kind(x) for x in parts]
+        except ValueError:
+            raise ValueError(f"{where}: {what} line {i} is not {width} numbers: {row!r}") from None
+    return out
+
+
+def load(path: str | os.PathLike) -> SimplexMesh:
+    """Read any of the three formats, chosen by extension (``.npz``, ``.vtu``, else text)."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".npz":
+        return load_npz(path)
+    if suffix == ".vtu":
+        return load_vtu(path)
+    return load_text(path)
