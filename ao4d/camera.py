@@ -1,0 +1,334 @@
+"""A 4D camera whose image is a 3D grid of voxels (Hollasch's From/To/Up/Over viewing model).
+
+The eye sits at ``eye`` and looks at ``target``. The image is a 3D grid of voxels lying in the
+hyperplane through ``target`` perpendicular to the view direction; one primary ray goes through
+each voxel centre. ``up`` tilts the image's second axis and ``over`` its third, exactly as a 3D
+camera's up vector fixes the picture's vertical.
+
+Basis (rows of :attr:`Camera4D.basis`): ``a``, ``b``, ``c`` (image axes x, y, z) and ``d`` (view
+direction). It is orthonormal and positively oriented in the DESIGN.md determinant convention:
+``det[a; b; c; d] = +1``, i.e. ``d`` is the normal of the image hyperplane in the sense of
+``n . x = det[a; b; c; x]``. So a camera looking along +w with ``up = +y``, ``over = +z`` has image
+axes +x, +y, +z: the rendered volume is oriented like a hyperplane slice ``w = const``.
+
+References
+----------
+S. R. Hollasch, "Four-Space Visualization of 4D Objects", MSc thesis, Arizona State University,
+1991, ch. 4 (4D viewing model and ray tracing). https://hollasch.github.io/ray4/
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from ._validate import as_array, check_choice, check_memory, check_positive_int
+
+__all__ = ["Camera4D", "cross", "ImageGeometry"]
+
+# |sin| of the angle below which two directions count as parallel (about 0.06 degrees)
+_PARALLEL_TOL = 1e-3
+
+
+def cross(*vectors: np.ndarray) -> np.ndarray:
+    """Generalised cross product of ``d - 1`` vectors in R^d (DESIGN.md orientation).
+
+    Returns ``n`` with ``n . x = det[v_1; ...; v_{d-1}; x]`` for every ``x`` (cofactors of the
+    last row); in 3D this is the usual cross product.
+
+    Parameters
+    ----------
+    *vectors : (..., d) array_like
+        ``d - 1`` vectors (broadcast together).
+
+    Returns
+    -------
+    n : (..., d) float64
+        Orthogonal to every input; its length is the (d-1)-volume of their parallelotope.
+
+    Examples
+    --------
+    >>> cross([1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0])
+    array([0., 0., 0., 1.])
+    """
+    rows = np.stack(np.broadcast_arrays(*[np.asarray(v, dtype=np.float64) for v in vectors]), -2)
+    d = rows.shape[-1]
+    if rows.shape[-2] != d - 1:
+        raise ValueError(f"`vectors` must be {d - 1} vectors of length {d}, got {rows.shape[-2]}")
+    out = np.empty(rows.shape[:-2] + (d,))
+    for k in range(d):
+        minor = np.delete(rows, k, axis=-1)
+        out[..., k] = (-1) ** (d - 1 + k) * np.linalg.det(minor)
+    return out + 0.0  # turn -0.0 into 0.0 for readable output
+
+
+@dataclass(frozen=True)
+class ImageGeometry:
+    """Where the voxels of an image of a given shape sit, in image-hyperplane coordinates.
+
+    Coordinate k of voxel ``(i, j, l)`` along image axis k is ``origin[k] + spacing * index_k``,
+    measured from ``target`` along the basis vectors ``a``, ``b``, ``c`` (world units at the
+    target distance). These are what volume files store as Offset/ElementSpacing.
+    """
+
+    shape: tuple[int, int, int]
+    spacing: float
+    origin: tuple[float, float, float]
+
+
+class Camera4D:
+    """A 4D pinhole (or orthographic) camera producing a 3D image.
+
+    Parameters
+    ----------
+    eye : (4,) array_like
+        Eye position ("From").
+    target : (4,) array_like
+        Point looked at ("To"); the image hyperplane passes through it.
+    up : (4,) array_like
+        Direction that appears as the image's +y axis ("Up"); must not be parallel to the view
+        direction.
+    over : (4,) array_like
+        Direction that appears as the image's +z axis ("Over"); must not lie in the plane of
+        ``up`` and the view direction.
+    fov : float
+        Full viewing angle in degrees across the longest image axis, in (0, 180). For
+        ``projection="orthographic"`` it only sets the default ``half_width``.
+    projection : {"perspective", "orthographic"}
+        Perspective rays start at the eye; orthographic rays are parallel to the view
+        direction and start on the hyperplane through the eye.
+    half_width : float, optional
+        Half the image extent along its longest axis, in world units at the target. Default
+        ``|target - eye| * tan(fov / 2)``, so both projections frame the target alike.
+
+    Attributes
+    ----------
+    basis : (4, 4) float64
+        Rows ``a, b, c, d``: image axes x, y, z and the view direction; orthonormal with
+        ``det = +1``.
+
+    Raises
+    ------
+    ValueError
+        ``eye`` equal to ``target``; ``up`` or ``over`` (nearly) parallel to the view direction;
+        ``over`` in the plane of ``up`` and the view direction (e.g. parallel to ``up``); a
+        non-finite or wrongly shaped vector; ``fov`` or ``half_width`` out of range.
+
+    References
+    ----------
+    S. R. Hollasch, "Four-Space Visualization of 4D Objects", MSc thesis, Arizona State
+    University, 1991.
+
+    Examples
+    --------
+    >>> cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0])
+    >>> bool(np.allclose(cam.basis, np.eye(4)))  # looking along +w: image axes are x, y, z
+    True
+    >>> origins, directions = cam.rays((8, 8, 8))
+    >>> directions.shape
+    (8, 8, 8, 4)
+    """
+
+    def __init__(
+        self,
+        eye,
+        target,
+        up=(0.0, 1.0, 0.0, 0.0),
+        over=(0.0, 0.0, 1.0, 0.0),
+        *,
+        fov: float = 45.0,
+        projection: Literal["perspective", "orthographic"] = "perspective",
+        half_width: float | None = None,
+    ) -> None:
+        self.eye = _vector4(eye, "eye")
+        self.target = _vector4(target, "target")
+        up_v = _vector4(up, "up")
+        over_v = _vector4(over, "over")
+        self.projection = check_choice(projection, "projection", ("perspective", "orthographic"))
+        fov = float(fov)
+        if not (0.0 < fov < 180.0):
+            raise ValueError(f"`fov` must be in (0, 180) degrees, got {fov}")
+        self.fov = fov
+        self.basis = _hollasch_basis(self.eye, self.target, up_v, over_v)
+        self.up = up_v
+        self.over = over_v
+        self.distance = float(np.linalg.norm(self.target - self.eye))
+        if half_width is None:
+            half_width = self.distance * math.tan(math.radians(fov) / 2)
+        half_width = float(half_width)
+        if not (math.isfinite(half_width) and half_width > 0):
+            raise ValueError(f"`half_width` must be a positive finite number, got {half_width}")
+        self.half_width = half_width
+
+    # basis vectors by name
+    @property
+    def view(self) -> np.ndarray:
+        """(4,) float64: unit view direction ``d``."""
+        return self.basis[3]
+
+    def __repr__(self) -> str:
+        fmt = lambda v: "(" + ", ".join(f"{x:g}" for x in v) + ")"  # noqa: E731
+        return (
+            f"Camera4D(eye={fmt(self.eye)}, target={fmt(self.target)}, up={fmt(self.up)}, "
+            f"over={fmt(self.over)}, fov={self.fov:g}, projection={self.projection!r}, "
+            f"half_width={self.half_width:g})"
+        )
+
+    def geometry(self, shape) -> ImageGeometry:
+        """Voxel spacing and origin of an image of ``shape`` in image-hyperplane coordinates.
+
+        Voxels are cubes; the longest axis spans ``2 * half_width``, and the grid is centred on
+        ``target``.
+
+        Parameters
+        ----------
+        shape : (3,) tuple of int
+            Voxels along the image axes x, y, z.
+
+        Returns
+        -------
+        ImageGeometry
+        """
+        shape = _image_shape(shape)
+        spacing = 2.0 * self.half_width / max(shape)
+        origin = tuple(-0.5 * spacing * (n - 1) for n in shape)
+        return ImageGeometry(shape=shape, spacing=spacing, origin=origin)
+
+    def voxel_centers(self, shape) -> np.ndarray:
+        """World positions of the voxel centres on the image hyperplane.
+
+        Parameters
+        ----------
+        shape : (3,) tuple of int
+
+        Returns
+        -------
+        centers : (nx, ny, nz, 4) float64
+            ``target + u_x a + u_y b + u_z c`` with ``u`` from :meth:`geometry`.
+        """
+        geo = self.geometry(shape)
+        check_memory(8 * 4 * 3 * math.prod(geo.shape), "camera rays for this image shape")
+        axes = [o + geo.spacing * np.arange(n) for o, n in zip(geo.origin, geo.shape)]
+        u = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)  # (nx, ny, nz, 3)
+        return self.target + u @ self.basis[:3]
+
+    def rays(self, shape) -> tuple[np.ndarray, np.ndarray]:
+        """One primary ray per voxel centre.
+
+        Parameters
+        ----------
+        shape : (3,) tuple of int
+            Image size ``(nx, ny, nz)``.
+
+        Returns
+        -------
+        origins : (nx, ny, nz, 4) float64
+            The eye (perspective), or the voxel centre moved back to the eye's hyperplane
+            (orthographic).
+        directions : (nx, ny, nz, 4) float64
+            Unit directions; each ray passes through its voxel centre at parameter
+            ``t = |centre - origin|``.
+        """
+        centers = self.voxel_centers(shape)
+        if self.projection == "orthographic":
+            directions = np.broadcast_to(self.view, centers.shape).copy()
+            origins = centers - self.distance * self.view
+        else:
+            origins = np.broadcast_to(self.eye, centers.shape).copy()
+            directions = centers - self.eye
+            directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
+        return origins, directions
+
+    def project(self, points) -> np.ndarray:
+        """Image-hyperplane coordinates ``(x, y, z)`` of world points (where they appear).
+
+        Parameters
+        ----------
+        points : (..., 4) array_like
+            Points in front of the eye.
+
+        Returns
+        -------
+        coords : (..., 3) float64
+            Coordinates along ``a, b, c`` on the image hyperplane, in the units of
+            :meth:`geometry`; NaN for points not in front of the eye (perspective).
+        """
+        p = as_array(points, "points", shape_tail=(4,), dtype=np.float64)
+        rel = p - self.eye
+        depth = rel @ self.view
+        lateral = rel @ self.basis[:3].T
+        if self.projection == "orthographic":
+            return lateral
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scale = np.where(depth > 0, self.distance / depth, np.nan)
+        return lateral * scale[..., None]
+
+
+def _vector4(value, name: str) -> np.ndarray:
+    v = as_array(value, name, ndim=1, shape_tail=(4,), dtype=np.float64, finite=True)
+    return v.copy()
+
+
+def _image_shape(shape) -> tuple[int, int, int]:
+    try:
+        items = tuple(shape)
+    except TypeError:
+        raise TypeError(f"`shape` must be a tuple of 3 integers, got {shape!r}") from None
+    if len(items) != 3:
+        raise ValueError(f"`shape` must have 3 entries (nx, ny, nz), got {len(items)}")
+    return tuple(check_positive_int(n, "shape") for n in items)  # type: ignore[return-value]
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+def _hollasch_basis(eye, target, up, over) -> np.ndarray:
+    """Rows ``a, b, c, d``: orthonormal, ``det = +1``, ``b`` toward ``up``, ``c`` toward ``over``."""
+    view = target - eye
+    dist = np.linalg.norm(view)
+    scale = max(np.linalg.norm(eye), np.linalg.norm(target), 1.0)
+    if dist <= 1e-12 * scale:
+        raise ValueError("`eye` and `target` must differ: the view direction is undefined")
+    d = view / dist
+    for vec, name in ((up, "up"), (over, "over")):
+        n = np.linalg.norm(vec)
+        if n == 0:
+            raise ValueError(f"`{name}` must be a non-zero vector")
+        sin = np.linalg.norm(vec / n - (vec @ d) * d / n)
+        if sin < _PARALLEL_TOL:
+            raise ValueError(f"`{name}` is parallel to the view direction (target - eye)")
+    u = up / np.linalg.norm(up)
+    o = over / np.linalg.norm(over)
+    # |cross(up, over, d)| is the 3-volume spanned; near zero means over lies in span(up, d)
+    a_raw = cross(u, o, d)
+    if np.linalg.norm(a_raw) < _PARALLEL_TOL:
+        raise ValueError(
+            "`over` lies in the plane spanned by `up` and the view direction (e.g. parallel "
+            "to `up`); it must add a third independent direction"
+        )
+    # Hollasch's construction with repeated cross products: a is orthogonal to up, over and d;
+    # b to over, d, a (the part of up the others leave free); c to d, a, b. Each line is fixed
+    # by the cross product; the signs are chosen so that b follows up, c follows over and
+    # det[a; b; c; d] = +1 (DESIGN.md: d = cross(a, b, c)).
+    a = _unit(a_raw)
+    b = _unit(cross(o, d, a))
+    b = b if b @ u > 0 else -b
+    c = _unit(cross(d, a, b))
+    c = c if c @ o > 0 else -c
+    if np.linalg.det(np.stack([a, b, c, d])) < 0:
+        a = -a
+    basis = np.stack([a, b, c, d])
+    _check_basis(basis)
+    return basis
+
+
+def _check_basis(basis: np.ndarray) -> None:
+    """The invariants every camera relies on; a failure here is a bug, not bad input."""
+    gram_err = np.abs(basis @ basis.T - np.eye(4)).max()
+    det = np.linalg.det(basis)
+    if gram_err > 1e-9 or abs(det - 1.0) > 1e-9:
+        raise RuntimeError(f"camera basis is not orthonormal/positive (err {gram_err}, det {det})")
