@@ -1,0 +1,360 @@
+"""Bounding volume hierarchy over the simplices of a mesh in R^d, built on the host with numpy.
+
+The tree is built top-down, one level at a time for all nodes at once (vectorised): every node
+whose range holds more than ``leaf_size`` simplices is split at the median centroid along the
+longest axis of its centroid bounds. Nodes are numbered breadth first; each covers a contiguous
+range of the reordered simplices, so a leaf is ``(start, count)``. Median splits give a balanced
+tree of depth ``ceil(log2(S / leaf_size))``, which bounds the traversal stack of ``kernels/bvh.h``.
+
+Each simplex is stored as the inverse of the matrix ``[e1 .. e_{d-1} | n]`` (edges from vertex 0
+and the normal, as columns) plus vertex 0, so a ray test costs d+1 dot products: the last row
+gives the signed height over the simplex's hyperplane, the others the barycentric coordinates
+(``kernels/geometry.h`` and :func:`intersect` use the same formula). Degenerate simplices (zero
+(d-1)-measure) can never be hit by a ray and are left out of the tree.
+
+Boxes are stored in float32, rounded outwards and enlarged by the barycentric tolerance and
+``1e-5`` of the scene diagonal, so that the float32 box tests never reject a ray that the
+primitive test (float32 on the device, float64 in numpy) would accept: the BVH answer equals the
+brute-force answer exactly.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import weakref
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ._validate import as_array, check_positive_int
+
+__all__ = ["BVH", "build", "get_bvh", "intersect", "barycentric", "simplex_normals", "BARY_EPS"]
+
+# Barycentric tolerance: a ray through a face shared by two simplices counts for at least one of
+# them despite rounding (float32 dot products of O(1) barycentrics err by ~1e-7).
+BARY_EPS = 1e-5
+_BOX_MARGIN = 1e-5  # of the scene diagonal: covers float32 error of slab tests
+_DEGENERATE_RTOL = 1e-12  # |n| below this times (longest edge)^(d-1): zero measure
+
+
+@dataclass
+class BVH:
+    """A flattened BVH, ready for the OpenCL kernels and the numpy traversal.
+
+    Attributes
+    ----------
+    dim : int
+        Ambient dimension d.
+    lo, hi : (K, 4) float32
+        Node bounds (coordinates beyond d are zero).
+    meta : (K, 2) int32
+        Internal node: ``(left, right)`` child indices. Leaf: ``(-(start + 1), count)``.
+    inverse : (P, d, d) float64
+        Per simplex in tree order, the inverse of ``[e1 .. e_{d-1} | n]``.
+    origin : (P, d) float64
+        Vertex 0 of each simplex in tree order.
+    prim : (P,) int64
+        Index into the mesh's simplices of each simplex in tree order.
+    n_skipped : int
+        Degenerate simplices left out.
+    depth : int
+        Number of levels (root = 1).
+    diagonal : float
+        Length of the scene's bounding box diagonal.
+    device : dict
+        Device buffers cached per OpenCL context (filled by :mod:`ao4d.ao`).
+    """
+
+    dim: int
+    lo: np.ndarray
+    hi: np.ndarray
+    meta: np.ndarray
+    inverse: np.ndarray
+    origin: np.ndarray
+    prim: np.ndarray
+    n_skipped: int
+    depth: int
+    diagonal: float
+    device: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.meta)
+
+    @property
+    def n_prims(self) -> int:
+        return len(self.prim)
+
+    def packed_simplices(self) -> np.ndarray:
+        """Simplex data for the kernels: ``(P, d + 1, 4)`` float32, rows of the inverse then vertex 0."""
+        d = self.dim
+        out = np.zeros((self.n_prims, d + 1, 4), dtype=np.float32)
+        out[:, :d, :d] = self.inverse
+        out[:, d, :d] = self.origin
+        return out
+
+    def nbytes_device(self) -> int:
+        """Bytes the kernels' copy of the tree needs on the device."""
+        return self.n_nodes * (16 + 16 + 8) + self.n_prims * (self.dim + 1) * 16
+
+
+def simplex_normals(corners: np.ndarray) -> np.ndarray:
+    """Unnormalised normals ``n`` with ``n . x = det[p1-p0; ...; p_{d-1}-p0; x]`` (DESIGN.md).
+
+    Parameters
+    ----------
+    corners : (S, d, d) float64
+        Vertex coordinates of each simplex.
+
+    Returns
+    -------
+    normals : (S, d) float64
+        Length equals (d-1)! times the simplex's (d-1)-measure.
+    """
+    d = corners.shape[-1]
+    edges = corners[:, 1:, :] - corners[:, :1, :]  # (S, d-1, d)
+    normals = np.empty(corners.shape[:1] + (d,), dtype=np.float64)
+    for k in range(d):
+        cols = [c for c in range(d) if c != k]
+        minor = edges[:, :, cols]
+        det = minor[:, 0, 0] if d == 2 else np.linalg.det(minor)
+        # cofactor expansion of the determinant along its last row (x)
+        normals[:, k] = (-1.0) ** (d - 1 + k) * det
+    return normals
+
+
+def _prepare(vertices: np.ndarray, simplices: np.ndarray):
+    """Per-simplex inverse matrices, bounds and centroids; drop degenerate simplices."""
+    corners = vertices[simplices]  # (S, d, d)
+    d = corners.shape[-1]
+    normals = simplex_normals(corners)
+    edges = corners[:, 1:, :] - corners[:, :1, :]
+    longest = np.sqrt((edges**2).sum(-1).max(-1)) if d > 1 else np.zeros(len(corners))
+    norm = np.sqrt((normals**2).sum(-1))
+    keep = norm > _DEGENERATE_RTOL * longest ** (d - 1)
+    keep &= norm > 0
+    idx = np.flatnonzero(keep)
+    corners, edges, normals = corners[idx], edges[idx], normals[idx]
+    matrix = np.concatenate([edges, normals[:, None, :]], axis=1).transpose(0, 2, 1)
+    inverse = np.linalg.inv(matrix)
+    return idx, corners, inverse
+
+
+def _split_levels(centroids: np.ndarray, leaf_size: int):
+    """Top-down median splits, all nodes of a level at once.
+
+    Returns the primitive order, per node ``start``, ``count``, ``left``, ``right`` (-1 for
+    leaves) and the node ids of each level.
+    """
+    n = len(centroids)
+    order = np.arange(n)
+    cap = 2 * n + 1  # a binary tree with non-empty leaves has fewer than 2n nodes
+    start = np.zeros(cap, dtype=np.int64)
+    count = np.zeros(cap, dtype=np.int64)
+    left = np.full(cap, -1, dtype=np.int64)
+    right = np.full(cap, -1, dtype=np.int64)
+    count[0] = n
+    levels = [np.array([0])]
+    n_nodes = 1
+    while True:
+        ids = levels[-1]
+        ids = ids[count[ids] > leaf_size]
+        if ids.size == 0:
+            break
+        s_start, s_count = start[ids], count[ids]
+        seg = np.repeat(np.arange(ids.size), s_count)
+        first = np.cumsum(s_count) - s_count
+        pos = np.repeat(s_start, s_count) + (np.arange(seg.size) - first[seg])
+        prims = order[pos]
+        c = centroids[prims]
+        c_lo = np.minimum.reduceat(c, first, axis=0)
+        c_hi = np.maximum.reduceat(c, first, axis=0)
+        axis = np.argmax(c_hi - c_lo, axis=1)
+        ext = (c_hi - c_lo)[np.arange(ids.size), axis]
+        ext = np.where(ext > 0, ext, 1.0)
+        # one float64 key sorts by segment, then by centroid (<= 2^20 segments leave 32 bits)
+        frac = (c[np.arange(seg.size), axis[seg]] - c_lo[seg, axis[seg]]) / ext[seg]
+        key = seg + 0.5 * np.clip(frac, 0.0, 1.0)
+        order[pos] = prims[np.argsort(key)]
+        half = s_count // 2
+        ids_l = n_nodes + 2 * np.arange(ids.size)
+        ids_r = ids_l + 1
+        n_nodes += 2 * ids.size
+        left[ids], right[ids] = ids_l, ids_r
+        start[ids_l], count[ids_l] = s_start, half
+        start[ids_r], count[ids_r] = s_start + half, s_count - half
+        levels.append(np.stack([ids_l, ids_r], 1).ravel())
+    sl = slice(0, n_nodes)
+    return order, start[sl], count[sl], left[sl], right[sl], levels
+
+
+def _node_bounds(prim_lo, prim_hi, start, count, left, right, levels):
+    """Bounds of every node: leaves reduce their ranges, parents merge children bottom-up."""
+    n_nodes, d = len(start), prim_lo.shape[1]
+    lo = np.empty((n_nodes, d))
+    hi = np.empty((n_nodes, d))
+    leaves = np.flatnonzero(left < 0)
+    leaves = leaves[np.argsort(start[leaves])]  # leaves partition the primitive range in order
+    lo[leaves] = np.minimum.reduceat(prim_lo, start[leaves], axis=0)
+    hi[leaves] = np.maximum.reduceat(prim_hi, start[leaves], axis=0)
+    for ids in reversed(levels):
+        ids = ids[left[ids] >= 0]
+        lo[ids] = np.minimum(lo[left[ids]], lo[right[ids]])
+        hi[ids] = np.maximum(hi[left[ids]], hi[right[ids]])
+    return lo, hi
+
+
+def _pad4(a: np.ndarray) -> np.ndarray:
+    out = np.zeros((len(a), 4), dtype=a.dtype)
+    out[:, : a.shape[1]] = a
+    return out
+
+
+def build(vertices: Any, simplices: Any, *, leaf_size: int = 4) -> BVH:
+    """Build the BVH of a simplex mesh.
+
+    Parameters
+    ----------
+    vertices : (V, d) array_like of float
+        d in {2, 3, 4}.
+    simplices : (S, d) array_like of int
+        Vertex indices per simplex.
+    leaf_size : int
+        Most simplices per leaf.
+
+    Returns
+    -------
+    BVH
+
+    Raises
+    ------
+    ValueError
+        If the mesh is empty, has non-finite vertices or out-of-range indices, or every simplex
+        is degenerate.
+
+    Examples
+    --------
+    >>> tree = build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    >>> tree.n_prims, tree.n_nodes
+    (1, 1)
+    """
+    vertices = as_array(vertices, "vertices", ndim=2, dtype=np.float64, finite=True)
+    d = vertices.shape[1]
+    if d not in (2, 3, 4):
+        raise ValueError(f"`vertices` must have 2, 3 or 4 columns, got shape {vertices.shape}")
+    simplices = as_array(simplices, "simplices", ndim=2, shape_tail=(d,))
+    if simplices.shape[0] == 0:
+        raise ValueError("`simplices` is empty: a mesh without simplices has nothing to hit")
+    if simplices.dtype.kind not in "iu":
+        raise TypeError(f"`simplices` must hold integers, got dtype {simplices.dtype}")
+    if simplices.min() < 0 or simplices.max() >= len(vertices):
+        raise ValueError(
+            f"`simplices` indices must be in [0, {len(vertices)}), "
+            f"got range [{simplices.min()}, {simplices.max()}]"
+        )
+    leaf_size = check_positive_int(leaf_size, "leaf_size")
+    idx, corners, inverse = _prepare(vertices, simplices.astype(np.int64))
+    if idx.size == 0:
+        raise ValueError(f"all {len(simplices)} simplices are degenerate (zero measure)")
+    scene_lo, scene_hi = corners.min((0, 1)), corners.max((0, 1))
+    diagonal = float(np.linalg.norm(scene_hi - scene_lo))
+    p_lo, p_hi = corners.min(1), corners.max(1)
+    # an accepted hit lies within BARY_EPS (barycentric) of the simplex: grow boxes to match
+    margin = 2 * BARY_EPS * (p_hi - p_lo).max(1, keepdims=True) + _BOX_MARGIN * max(diagonal, 1e-30)
+    p_lo, p_hi = p_lo - margin, p_hi + margin
+    order, start, count, left, right, levels = _split_levels(corners.mean(1), leaf_size)
+    lo, hi = _node_bounds(p_lo[order], p_hi[order], start, count, left, right, levels)
+    meta = np.where((left >= 0)[:, None], np.stack([left, right], 1), np.stack([-(start + 1), count], 1))
+    lo32 = np.nextafter(lo.astype(np.float32), np.float32(-np.inf))
+    hi32 = np.nextafter(hi.astype(np.float32), np.float32(np.inf))
+    return BVH(
+        dim=d,
+        lo=_pad4(lo32),
+        hi=_pad4(hi32),
+        meta=meta.astype(np.int32),
+        inverse=inverse[order],
+        origin=corners[order, 0, :],
+        prim=idx[order].astype(np.int64),
+        n_skipped=len(simplices) - idx.size,
+        depth=len(levels),
+        diagonal=diagonal,
+    )
+
+
+def intersect(inverse: np.ndarray, origin: np.ndarray, ray_o: np.ndarray, ray_w: np.ndarray,
+              t_max: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ray-simplex tests for matched pairs (float64; the formula of ``kernels/geometry.h``).
+
+    Parameters
+    ----------
+    inverse : (P, d, d) float64
+    origin : (P, d) float64
+        Vertex 0 of each simplex.
+    ray_o, ray_w : (P, d) float64
+        Ray origins and directions.
+    t_max : (P,) float64
+        Hits count for ``0 < t <= t_max``.
+
+    Returns
+    -------
+    hit : (P,) bool
+    t : (P,) float64
+        Ray parameter of the hyperplane crossing (meaningful where ``hit``).
+    """
+    rel = ray_o - origin
+    normal_row = inverse[:, -1, :]
+    q = np.einsum("pk,pk->p", normal_row, rel)
+    r = np.einsum("pk,pk->p", normal_row, ray_w)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -q / r
+        ok = (t > 0) & (t <= t_max) & np.isfinite(t)
+        x = rel + t[:, None] * ray_w
+        beta = np.einsum("pik,pk->pi", inverse[:, :-1, :], x)
+        ok &= (beta >= -BARY_EPS).all(1) & (1.0 - beta.sum(1) >= -BARY_EPS)
+    return ok, t
+
+
+def barycentric(inverse: np.ndarray, origin: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Barycentric weights ``(P, d)`` of points lying on simplices (vertex 0 first)."""
+    beta = np.einsum("pik,pk->pi", inverse[:, :-1, :], points - origin)
+    return np.concatenate([1.0 - beta.sum(1, keepdims=True), beta], axis=1)
+
+
+# -- caching on meshes -----------------------------------------------------------------------
+
+_fallback_cache: "weakref.WeakKeyDictionary[Any, dict]" = weakref.WeakKeyDictionary()
+
+
+def _fingerprint(vertices: np.ndarray, simplices: np.ndarray) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    for a in (vertices, simplices):
+        a = np.ascontiguousarray(a)
+        h.update(str((a.shape, a.dtype.str)).encode())
+        h.update(memoryview(a).cast("B"))
+    return h.hexdigest()
+
+
+def get_bvh(mesh: Any, *, leaf_size: int = 4) -> BVH:
+    """The BVH of ``mesh``, built once and cached on it.
+
+    Uses the mesh's ``cache`` dict when it has one (dropped when the mesh changes); otherwise a
+    weak-keyed cache checked against a hash of the vertex and simplex arrays.
+    """
+    key = f"ao4d.bvh/leaf={int(leaf_size)}"
+    cache = getattr(mesh, "cache", None)
+    if cache is not None:
+        tree = cache.get(key)
+        if tree is None:
+            tree = build(mesh.vertices, mesh.simplices, leaf_size=leaf_size)
+            cache[key] = tree
+        return tree
+    vertices, simplices = np.asarray(mesh.vertices), np.asarray(mesh.simplices)
+    stamp = _fingerprint(vertices, simplices)
+    try:
+        entry = _fallback_cache.setdefault(mesh, {})
+    except TypeError:  # not weak-referenceable: build every time
+        return build(vertices, simplices, leaf_size=leaf_size)
+    if entry.get(key, (None, None))[0] != stamp:
+        entry[key] = (stamp, build(vertices, simplices, leaf_size=leaf_size))
+    return entry[key][1]

@@ -1,0 +1,84 @@
+// Ambient occlusion and ray casting on simplex meshes in R^DIM (DIM = 2, 3 or 4).
+// Host side: ao4d/ao.py. Vectors are float4 with zeros beyond DIM.
+#include "bvh.h"
+#include "sampling.h"
+
+inline int trace(const int use_bvh, __global const float4 *lo, __global const float4 *hi,
+                 __global const int2 *meta, __global const float4 *simplices,
+                 const int n_simplices, const float4 o, const float4 w, const float t_max,
+                 const int any_hit, float *t_out)
+{
+    if (use_bvh) return trace_bvh(lo, hi, meta, simplices, o, w, t_max, any_hit, t_out);
+    return trace_brute(simplices, n_simplices, o, w, t_max, any_hit, t_out);
+}
+
+// occluded-ray count of point i over `samples` cosine-weighted directions
+inline int occlusion_count(const int use_bvh, __global const float4 *lo,
+                           __global const float4 *hi, __global const int2 *meta,
+                           __global const float4 *simplices, const int n_simplices,
+                           const float4 p, const float4 n, const uint index,
+                           __global const uint *table, const int samples, const uint seed,
+                           const float offset, const float max_distance)
+{
+    uint shift[DIM - 1];
+    for (int k = 0; k < DIM - 1; ++k) shift[k] = point_shift(index, seed, (uint)k);
+    // start above the surface: a ray must not hit the simplices the point lies on
+    const float4 o = p + offset * n;
+    int hits = 0;
+    for (int s = 0; s < samples; ++s) {
+        const float4 w = cosine_direction(n, table, s, shift);
+        float t;
+        hits += trace(use_bvh, lo, hi, meta, simplices, n_simplices, o, w, max_distance, 1, &t)
+                >= 0;
+    }
+    return hits;
+}
+
+__kernel void ao_bvh(__global const float4 *lo, __global const float4 *hi,
+                     __global const int2 *meta, __global const float4 *simplices,
+                     __global const float4 *points, __global const float4 *normals,
+                     __global const uint *index, __global const uint *table, const int samples,
+                     const uint seed, const float offset, const float max_distance,
+                     __global int *counts)
+{
+    const size_t i = get_global_id(0);
+    counts[i] = occlusion_count(1, lo, hi, meta, simplices, 0, points[i], normals[i], index[i],
+                                table, samples, seed, offset, max_distance);
+}
+
+__kernel void ao_brute(__global const float4 *simplices, const int n_simplices,
+                       __global const float4 *points, __global const float4 *normals,
+                       __global const uint *index, __global const uint *table, const int samples,
+                       const uint seed, const float offset, const float max_distance,
+                       __global int *counts)
+{
+    const size_t i = get_global_id(0);
+    counts[i] = occlusion_count(0, 0, 0, 0, simplices, n_simplices, points[i], normals[i],
+                                index[i], table, samples, seed, offset, max_distance);
+}
+
+// one ray per work-item: closest (any_hit = 0) or any hit within max_distance
+__kernel void cast_bvh(__global const float4 *lo, __global const float4 *hi,
+                       __global const int2 *meta, __global const float4 *simplices,
+                       __global const float4 *origins, __global const float4 *directions,
+                       const float max_distance, const int any_hit, __global float *t_out,
+                       __global int *hit_out)
+{
+    const size_t i = get_global_id(0);
+    float t;
+    hit_out[i] = trace_bvh(lo, hi, meta, simplices, origins[i], directions[i], max_distance,
+                           any_hit, &t);
+    t_out[i] = t;
+}
+
+__kernel void cast_brute(__global const float4 *simplices, const int n_simplices,
+                         __global const float4 *origins, __global const float4 *directions,
+                         const float max_distance, const int any_hit, __global float *t_out,
+                         __global int *hit_out)
+{
+    const size_t i = get_global_id(0);
+    float t;
+    hit_out[i] = trace_brute(simplices, n_simplices, origins[i], directions[i], max_distance,
+                             any_hit, &t);
+    t_out[i] = t;
+}

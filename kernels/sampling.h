@@ -1,0 +1,91 @@
+// Cosine-weighted hemisphere directions: the float32 twin of ao4d/sampling.py (same integers,
+// same formulas), so both backends trace the same rays. Needs DIM in {2, 3, 4}.
+#ifndef AO4D_SAMPLING_H
+#define AO4D_SAMPLING_H
+
+#define SAMPLE_BITS 24
+#define SAMPLE_MASK 0xFFFFFFu
+#define SAMPLE_SCALE (1.0f / 16777216.0f)
+
+// "lowbias32" integer hash (C. Wellons); ao4d.sampling.hash32
+inline uint hash32(uint x)
+{
+    x ^= x >> 16;
+    x *= 0x7FEB352Du;
+    x ^= x >> 15;
+    x *= 0x846CA68Bu;
+    x ^= x >> 16;
+    return x;
+}
+
+// Cranley-Patterson offset of coordinate k for the point with global index `index`
+inline uint point_shift(uint index, uint seed, uint k)
+{
+    const uint base = hash32(hash32(index) ^ seed);
+    return hash32(base + k) >> (32 - SAMPLE_BITS);
+}
+
+inline float unit_coordinate(uint table_value, uint shift)
+{
+    return ((float)((table_value + shift) & SAMPLE_MASK) + 0.5f) * SAMPLE_SCALE;
+}
+
+// Householder tangent frame of unit n: t_j = e_j - n_j (n + s e_last) / (1 + |n_last|)
+inline float4 tangent(const float4 n, const int j)
+{
+#if DIM == 2
+    const float nl = n.y;
+#elif DIM == 3
+    const float nl = n.z;
+#else
+    const float nl = n.w;
+#endif
+    const float s = nl >= 0.0f ? 1.0f : -1.0f;
+    const float a = 1.0f / (1.0f + fabs(nl));
+    float4 v = n;
+#if DIM == 2
+    v.y += s;
+#elif DIM == 3
+    v.z += s;
+#else
+    v.w += s;
+#endif
+    const float nj = j == 0 ? n.x : (j == 1 ? n.y : n.z);
+    float4 t = -(nj * a) * v;
+    if (j == 0) t.x += 1.0f;
+    else if (j == 1) t.y += 1.0f;
+    else t.z += 1.0f;
+    return t;
+}
+
+// direction of sample `s` for a point with normal n; table holds (samples, DIM-1) 24-bit ints
+inline float4 cosine_direction(const float4 n, __global const uint *table, const int s,
+                               const uint *shift)
+{
+#if DIM == 2
+    const float b0 = 2.0f * unit_coordinate(table[s], shift[0]) - 1.0f;
+    const float up = sqrt(fmax(0.0f, 1.0f - b0 * b0));
+    return b0 * tangent(n, 0) + up * n;
+#elif DIM == 3
+    const float u0 = unit_coordinate(table[2 * s], shift[0]);
+    const float u1 = unit_coordinate(table[2 * s + 1], shift[1]);
+    const float r = sqrt(u0);
+    const float phi = 6.283185307179586f * u1;
+    const float b0 = r * cos(phi), b1 = r * sin(phi);
+    const float up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1)));
+    return b0 * tangent(n, 0) + b1 * tangent(n, 1) + up * n;
+#else
+    const float u0 = unit_coordinate(table[3 * s], shift[0]);
+    const float u1 = unit_coordinate(table[3 * s + 1], shift[1]);
+    const float u2 = unit_coordinate(table[3 * s + 2], shift[2]);
+    const float r = cbrt(u0);
+    const float z = 1.0f - 2.0f * u1;
+    const float sz = sqrt(fmax(0.0f, 1.0f - z * z));
+    const float phi = 6.283185307179586f * u2;
+    const float b0 = r * sz * cos(phi), b1 = r * sz * sin(phi), b2 = r * z;
+    const float up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1 + b2 * b2)));
+    return b0 * tangent(n, 0) + b1 * tangent(n, 1) + b2 * tangent(n, 2) + up * n;
+#endif
+}
+
+#endif
