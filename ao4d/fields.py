@@ -1,0 +1,869 @@
+"""Shape library: scalar fields on R^d (mostly d = 4), negative inside, and grid sampling.
+
+A field is a callable taking an ``(..., d)`` array of points and returning an ``(...)`` array.
+The fields built here are :class:`Field` objects: besides being callable they carry their
+dimension, a bounding box of the solid (``extent``) and, where a closed form exists, the enclosed
+d-volume (``volume``) and the boundary (d-1)-volume (``boundary_measure``), which the tests use to
+check extraction accuracy.
+
+Analytic values (derived with Pappus-type integrals; see each function's Notes):
+
+==============  ====================================  ======================================
+shape           enclosed 4-volume                     boundary 3-volume
+==============  ====================================  ======================================
+hypersphere     pi^2 r^4 / 2                          2 pi^2 r^3
+spheritorus     4 pi^2 R^2 r^2 + pi^2 r^4             8 pi^2 R^2 r + 4 pi^2 r^3
+torisphere      8/3 pi^2 R r^3                        8 pi^2 R r^2
+ditorus         4 pi^3 R r1 r2^2                      8 pi^3 R r1 r2
+tiger           4 pi^3 R1 R2 r^2                      8 pi^3 R1 R2 r
+duocylinder     pi^2 r1^2 r2^2                        2 pi^2 r1 r2 (r1 + r2)
+tesseract       16 h^4 (sharp; Steiner sum if round)  64 h^3 (sharp)
+==============  ====================================  ======================================
+
+References
+----------
+.. [1] J. C. Hart, "Sphere tracing: a geometric method for the antialiased ray tracing of
+   implicit surfaces", The Visual Computer 12 (1996), doi:10.1007/s003710050084.
+.. [2] S. R. Hollasch, "Four-space visualization of 4D objects", MSc thesis, Arizona State
+   University (1991).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from ._validate import as_array, check_memory, check_positive_int
+
+__all__ = [
+    "Field",
+    "sample",
+    "grid_axes",
+    "hypersphere",
+    "spheritorus",
+    "torisphere",
+    "ditorus",
+    "tiger",
+    "duocylinder",
+    "tesseract",
+    "indented_cube",
+    "metaballs",
+    "gyroid",
+    "ground",
+    "union",
+    "intersection",
+    "difference",
+    "smooth_union",
+    "translate",
+    "scale",
+    "rotate",
+    "PRESETS",
+    "preset",
+]
+
+# Points evaluated per call of a field while sampling a grid: bounds the temporary (..., d) array.
+_POINTS_PER_BLOCK = 1 << 21
+
+
+class Field:
+    """A scalar field on R^d, negative inside the solid it describes.
+
+    Parameters
+    ----------
+    func : callable
+        Maps an ``(..., d)`` float64 array to an ``(...)`` array. Called only through
+        :meth:`__call__`, which validates the points.
+    dim : int or None
+        Dimension d of the points, or ``None`` when the field works in any dimension.
+    name : str
+        Short description used by ``repr``.
+    volume, boundary_measure : float, optional
+        Analytic enclosed d-volume and boundary (d-1)-volume of the solid ``{f < 0}``.
+    extent : (2, d) array_like, optional
+        A box ``(lo, hi)`` containing the solid; ``None`` when unbounded or unknown.
+    """
+
+    __slots__ = ("_func", "dim", "name", "volume", "boundary_measure", "extent")
+
+    def __init__(
+        self,
+        func: Callable[[np.ndarray], np.ndarray],
+        *,
+        dim: int | None,
+        name: str,
+        volume: float | None = None,
+        boundary_measure: float | None = None,
+        extent: Any = None,
+    ) -> None:
+        self._func = func
+        self.dim = dim
+        self.name = name
+        self.volume = None if volume is None else float(volume)
+        self.boundary_measure = None if boundary_measure is None else float(boundary_measure)
+        self.extent = None if extent is None else np.array(extent, dtype=float).reshape(2, -1)
+        if self.extent is not None:
+            self.extent.setflags(write=False)
+
+    def __call__(self, points: Any) -> np.ndarray:
+        """Evaluate at ``points`` ((..., d) array_like); returns an (...) float64 array."""
+        pts = as_array(points, "points", dtype=np.float64)
+        if pts.ndim == 0 or (self.dim is not None and pts.shape[-1] != self.dim):
+            want = "d" if self.dim is None else str(self.dim)
+            raise ValueError(f"`points` must have shape (..., {want}), got {pts.shape}")
+        out = np.asarray(self._func(pts), dtype=np.float64)
+        return np.broadcast_to(out, pts.shape[:-1]) if out.shape != pts.shape[:-1] else out
+
+    def __repr__(self) -> str:
+        return f"<Field {self.name} dim={self.dim}>"
+
+
+def _dim_of(field: Any) -> int | None:
+    return getattr(field, "dim", None)
+
+
+def _common_dim(fields: Sequence[Any]) -> int | None:
+    dims = {d for d in map(_dim_of, fields) if d is not None}
+    if len(dims) > 1:
+        raise ValueError(f"`fields` mix dimensions {sorted(dims)}")
+    return dims.pop() if dims else None
+
+
+def _extent_of(field: Any) -> np.ndarray | None:
+    return getattr(field, "extent", None)
+
+
+def _vector(value: Any, name: str, dim: int) -> np.ndarray:
+    arr = as_array(value, name, ndim=(0, 1), dtype=np.float64, finite=True)
+    if arr.ndim == 1 and arr.shape[0] != dim:
+        raise ValueError(f"`{name}` must be a scalar or have length {dim}, got length {arr.shape[0]}")
+    return np.broadcast_to(arr, (dim,)).copy()
+
+
+def _positive(value: Any, name: str) -> float:
+    v = float(value)
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"`{name}` must be a finite number > 0, got {value!r}")
+    return v
+
+
+def _ball_volume(dim: int, radius: float) -> float:
+    return math.pi ** (dim / 2) / math.gamma(dim / 2 + 1) * radius**dim
+
+
+def _norm(points: np.ndarray, axes: slice | list[int]) -> np.ndarray:
+    sub = points[..., axes]
+    return np.sqrt(np.einsum("...i,...i->...", sub, sub))
+
+
+# --------------------------------------------------------------------------------------------
+# primitives
+# --------------------------------------------------------------------------------------------
+
+
+def hypersphere(radius: float = 1.0, center: Any = 0.0, *, dim: int | None = None) -> Field:
+    """Ball of ``radius`` about ``center`` as a signed distance ``|x - c| - r``.
+
+    Parameters
+    ----------
+    radius : float
+        Radius r > 0.
+    center : float or (d,) array_like
+        Center; a scalar is broadcast to every axis.
+    dim : int, optional
+        Dimension d; defaults to ``len(center)`` or 4.
+
+    Returns
+    -------
+    Field
+        ``volume`` = pi^(d/2) r^d / Gamma(d/2 + 1) (pi^2 r^4 / 2 in 4D) and
+        ``boundary_measure`` = d volume / r (2 pi^2 r^3 in 4D).
+
+    Examples
+    --------
+    >>> f = hypersphere(2.0)
+    >>> float(f([2.0, 0, 0, 0]))
+    0.0
+    """
+    r = _positive(radius, "radius")
+    c_arr = np.asarray(center, dtype=float)
+    if dim is None:
+        dim = c_arr.shape[0] if c_arr.ndim == 1 else 4
+    dim = check_positive_int(dim, "dim")
+    c = _vector(center, "center", dim)
+    vol = _ball_volume(dim, r)
+    return Field(
+        lambda p: _norm(p - c, slice(None)) - r,
+        dim=dim,
+        name=f"hypersphere(r={r:g})",
+        volume=vol,
+        boundary_measure=dim * vol / r,
+        extent=(c - r, c + r),
+    )
+
+
+def spheritorus(R: float = 1.0, r: float = 0.4) -> Field:
+    """Spheritorus ``(sqrt(x^2 + y^2 + z^2) - R)^2 + w^2 = r^2`` (a 2-sphere swept disk).
+
+    Parameters
+    ----------
+    R, r : float
+        Major radius R (distance from the origin to the core 2-sphere) and minor radius r < R.
+
+    Returns
+    -------
+    Field
+        Signed distance to the surface.
+
+    Notes
+    -----
+    In coordinates (rho = |(x, y, z)|, w) the solid is the disk (rho - R)^2 + w^2 <= r^2 swept
+    by 2-spheres of area 4 pi rho^2. With rho = R + u the 4-volume is
+    ``4 pi * int_disk (R + u)^2 = 4 pi (pi R^2 r^2 + pi r^4 / 4) = 4 pi^2 R^2 r^2 + pi^2 r^4``
+    and the boundary 3-volume ``4 pi * int_0^2pi (R + r cos t)^2 r dt = 8 pi^2 R^2 r + 4 pi^2 r^3``.
+    """
+    R, r = _positive(R, "R"), _positive(r, "r")
+    if r >= R:
+        raise ValueError(f"`r` must be smaller than `R` (got r={r:g}, R={R:g})")
+    a = R + r
+    return Field(
+        lambda p: np.hypot(_norm(p, slice(0, 3)) - R, p[..., 3]) - r,
+        dim=4,
+        name=f"spheritorus(R={R:g}, r={r:g})",
+        volume=4 * math.pi**2 * R**2 * r**2 + math.pi**2 * r**4,
+        boundary_measure=8 * math.pi**2 * R**2 * r + 4 * math.pi**2 * r**3,
+        extent=([-a, -a, -a, -r], [a, a, a, r]),
+    )
+
+
+def torisphere(R: float = 1.0, r: float = 0.4) -> Field:
+    """Torisphere ``(sqrt(x^2 + y^2) - R)^2 + z^2 + w^2 = r^2`` (a circle swept 3-ball).
+
+    Parameters
+    ----------
+    R, r : float
+        Radius R of the core circle in the xy plane and radius r < R of the swept ball.
+
+    Returns
+    -------
+    Field
+        Signed distance to the surface.
+
+    Notes
+    -----
+    In (rho = |(x, y)|, z, w) the solid is a 3-ball of radius r centred at rho = R, swept by
+    circles of length 2 pi rho. Pappus (centroid at rho = R): 4-volume
+    ``2 pi R * 4/3 pi r^3 = 8/3 pi^2 R r^3``, boundary 3-volume ``2 pi R * 4 pi r^2 = 8 pi^2 R r^2``.
+    """
+    R, r = _positive(R, "R"), _positive(r, "r")
+    if r >= R:
+        raise ValueError(f"`r` must be smaller than `R` (got r={r:g}, R={R:g})")
+    a = R + r
+    return Field(
+        lambda p: np.sqrt((_norm(p, slice(0, 2)) - R) ** 2 + p[..., 2] ** 2 + p[..., 3] ** 2) - r,
+        dim=4,
+        name=f"torisphere(R={R:g}, r={r:g})",
+        volume=8 / 3 * math.pi**2 * R * r**3,
+        boundary_measure=8 * math.pi**2 * R * r**2,
+        extent=([-a, -a, -r, -r], [a, a, r, r]),
+    )
+
+
+def ditorus(R: float = 1.0, r1: float = 0.45, r2: float = 0.2) -> Field:
+    """Ditorus ``(sqrt((sqrt(x^2 + y^2) - R)^2 + z^2) - r1)^2 + w^2 = r2^2``.
+
+    Parameters
+    ----------
+    R, r1, r2 : float
+        Major radius R, radius r1 of the 3D torus tube, and radius r2 of the swept disk;
+        requires r1 + r2 < R and r2 < r1.
+
+    Returns
+    -------
+    Field
+        Signed distance to the surface.
+
+    Notes
+    -----
+    With rho = |(x, y)|, (rho - R, z) = q (cos phi, sin phi), the volume element is
+    ``2 pi rho q dq dphi dw`` with rho = R + q cos phi; the cos phi term integrates to 0.
+    The solid is the disk (q - r1)^2 + w^2 <= r2^2, so the 4-volume is
+    ``4 pi^2 R * int_disk q = 4 pi^2 R * r1 * pi r2^2 = 4 pi^3 R r1 r2^2`` and the boundary
+    3-volume ``4 pi^2 R * int_circle q ds = 4 pi^2 R * r1 * 2 pi r2 = 8 pi^3 R r1 r2``.
+    """
+    R, r1, r2 = _positive(R, "R"), _positive(r1, "r1"), _positive(r2, "r2")
+    if not (r2 < r1 and r1 + r2 < R):
+        raise ValueError(f"need r2 < r1 and r1 + r2 < R (got R={R:g}, r1={r1:g}, r2={r2:g})")
+
+    def f(p: np.ndarray) -> np.ndarray:
+        q = np.hypot(_norm(p, slice(0, 2)) - R, p[..., 2])
+        return np.hypot(q - r1, p[..., 3]) - r2
+
+    a, b = R + r1 + r2, r1 + r2
+    return Field(
+        f,
+        dim=4,
+        name=f"ditorus(R={R:g}, r1={r1:g}, r2={r2:g})",
+        volume=4 * math.pi**3 * R * r1 * r2**2,
+        boundary_measure=8 * math.pi**3 * R * r1 * r2,
+        extent=([-a, -a, -b, -r2], [a, a, b, r2]),
+    )
+
+
+def tiger(R1: float = 0.8, R2: float = 0.8, r: float = 0.35) -> Field:
+    """Tiger ``(sqrt(x^2 + y^2) - R1)^2 + (sqrt(z^2 + w^2) - R2)^2 = r^2``.
+
+    Parameters
+    ----------
+    R1, R2 : float
+        Radii of the two core circles (xy and zw planes).
+    r : float
+        Tube radius, r < min(R1, R2).
+
+    Returns
+    -------
+    Field
+        Signed distance to the surface.
+
+    Notes
+    -----
+    In (rho1, rho2) the solid is a disk of radius r about (R1, R2), swept by the torus of
+    circles with area element ``(2 pi rho1)(2 pi rho2)``; the cross terms vanish over the disk:
+    4-volume ``4 pi^2 R1 R2 pi r^2 = 4 pi^3 R1 R2 r^2``, boundary ``8 pi^3 R1 R2 r``.
+    """
+    R1, R2, r = _positive(R1, "R1"), _positive(R2, "R2"), _positive(r, "r")
+    if r >= min(R1, R2):
+        raise ValueError(f"`r` must be smaller than `R1` and `R2` (got r={r:g})")
+    a, b = R1 + r, R2 + r
+    return Field(
+        lambda p: np.hypot(_norm(p, slice(0, 2)) - R1, _norm(p, slice(2, 4)) - R2) - r,
+        dim=4,
+        name=f"tiger(R1={R1:g}, R2={R2:g}, r={r:g})",
+        volume=4 * math.pi**3 * R1 * R2 * r**2,
+        boundary_measure=8 * math.pi**3 * R1 * R2 * r,
+        extent=([-a, -a, -b, -b], [a, a, b, b]),
+    )
+
+
+def duocylinder(r1: float = 1.0, r2: float = 1.0) -> Field:
+    """Duocylinder: product of the disks ``x^2 + y^2 <= r1^2`` and ``z^2 + w^2 <= r2^2``.
+
+    Parameters
+    ----------
+    r1, r2 : float
+        Radii of the two disks.
+
+    Returns
+    -------
+    Field
+        Exact signed distance (the boundary has a sharp ridge, a flat 2-torus).
+        ``volume = pi^2 r1^2 r2^2``; ``boundary_measure = 2 pi^2 r1 r2 (r1 + r2)``
+        (two solid tori: circle 2 pi r1 times disk pi r2^2, and vice versa).
+    """
+    r1, r2 = _positive(r1, "r1"), _positive(r2, "r2")
+
+    def f(p: np.ndarray) -> np.ndarray:
+        a = _norm(p, slice(0, 2)) - r1
+        b = _norm(p, slice(2, 4)) - r2
+        return np.minimum(np.maximum(a, b), 0.0) + np.hypot(np.maximum(a, 0.0), np.maximum(b, 0.0))
+
+    return Field(
+        f,
+        dim=4,
+        name=f"duocylinder(r1={r1:g}, r2={r2:g})",
+        volume=math.pi**2 * r1**2 * r2**2,
+        boundary_measure=2 * math.pi**2 * r1 * r2 * (r1 + r2),
+        extent=([-r1, -r1, -r2, -r2], [r1, r1, r2, r2]),
+    )
+
+
+def _box_distance(p: np.ndarray, half: float) -> np.ndarray:
+    q = np.abs(p) - half
+    outside = np.sqrt(np.einsum("...i,...i->...", np.maximum(q, 0.0), np.maximum(q, 0.0)))
+    return outside + np.minimum(q.max(axis=-1), 0.0)
+
+
+def tesseract(half: float = 1.0, rounding: float = 0.0, *, dim: int = 4) -> Field:
+    """Axis-aligned hypercube ``[-half, half]^d``, optionally with rounded edges.
+
+    Parameters
+    ----------
+    half : float
+        Half the side length h.
+    rounding : float
+        Radius rho in [0, half) of the rounding: the solid is the cube of half side
+        ``h - rho`` grown by a ball of radius rho (same outer size as the sharp cube).
+    dim : int
+        Dimension d.
+
+    Returns
+    -------
+    Field
+        Exact signed distance. ``volume`` and ``boundary_measure`` follow Steiner's formula:
+        with a = h - rho, the cube has C(d,k) 2^k faces of dimension d-k, each of
+        (d-k)-volume (2a)^(d-k) with an orthant (1/2^k) of a k-ball as normal cone, so
+        ``V = sum_k C(d,k) (2a)^(d-k) omega_k rho^k`` (omega_k: unit k-ball volume) and the
+        boundary is dV/drho; the sharp 4-cube gives 16 h^4 and 64 h^3.
+    """
+    h = _positive(half, "half")
+    rho = float(rounding)
+    if not (math.isfinite(rho) and 0.0 <= rho < h):
+        raise ValueError(f"`rounding` must be in [0, half) = [0, {h:g}), got {rounding!r}")
+    dim = check_positive_int(dim, "dim")
+    a = h - rho
+    terms = [(math.comb(dim, k) * (2 * a) ** (dim - k), _ball_volume(k, 1.0), k) for k in range(dim + 1)]
+    vol = sum(c * w * rho**k for c, w, k in terms)
+    area = sum(c * w * k * rho ** (k - 1) for c, w, k in terms if k > 0)
+    return Field(
+        lambda p: _box_distance(p, a) - rho,
+        dim=dim,
+        name=f"tesseract(half={h:g}, rounding={rho:g})",
+        volume=vol,
+        boundary_measure=area,
+        extent=(np.full(dim, -h), np.full(dim, h)),
+    )
+
+
+def indented_cube(half: float = 1.0, indent: float = 0.6, *, axis: int = 3) -> Field:
+    """The thesis' "cube-like structure with an indent": a tesseract with a spherical dent.
+
+    A ball of radius ``indent`` centred on the middle of the facet ``x[axis] = +half`` is
+    removed from the tesseract ``[-half, half]^4``: the facet gets a round 4D crater, a
+    shape whose inner faces occlude each other (a test scene for ambient occlusion).
+
+    Parameters
+    ----------
+    half : float
+        Half side h of the tesseract.
+    indent : float
+        Radius rho < h of the removed ball.
+    axis : int
+        Axis {0, 1, 2, 3} normal to the indented facet.
+
+    Returns
+    -------
+    Field
+        ``max(cube, -ball)``. Half of the ball lies inside the cube, so
+        ``volume = 16 h^4 - pi^2 rho^4 / 4`` and the boundary loses a 3-ball (4/3 pi rho^3) of
+        the facet and gains a half 3-sphere (pi^2 rho^3):
+        ``boundary_measure = 64 h^3 - 4/3 pi rho^3 + pi^2 rho^3``.
+    """
+    h = _positive(half, "half")
+    rho = _positive(indent, "indent")
+    if rho >= h:
+        raise ValueError(f"`indent` must be smaller than `half` ({h:g}), got {indent!r}")
+    if axis not in range(4):
+        raise ValueError(f"`axis` must be one of 0, 1, 2, 3; got {axis!r}")
+    center = np.zeros(4)
+    center[axis] = h
+    cube = tesseract(h)
+    ball = hypersphere(rho, center)
+    return Field(
+        lambda p: np.maximum(cube(p), -ball(p)),
+        dim=4,
+        name=f"indented_cube(half={h:g}, indent={rho:g})",
+        volume=16 * h**4 - math.pi**2 * rho**4 / 4,
+        boundary_measure=64 * h**3 - 4 / 3 * math.pi * rho**3 + math.pi**2 * rho**3,
+        extent=cube.extent,
+    )
+
+
+def metaballs(centers: Any, radii: Any = 0.5, *, sharpness: float = 2.0) -> Field:
+    """Blobby union of balls: ``1 - sum_i exp(-s (|x - c_i|^2 / r_i^2 - 1))``.
+
+    Parameters
+    ----------
+    centers : (k, d) array_like
+        Ball centers.
+    radii : float or (k,) array_like
+        Ball radii: a lone ball's zero set is exactly the sphere of radius r_i.
+    sharpness : float
+        s > 0; larger values blend less.
+
+    Returns
+    -------
+    Field
+        Negative inside the blended solid (not a distance). Its extent uses that a point
+        farther than ``r_i sqrt(1 + ln(k) / s)`` from every center has each term below 1/k.
+    """
+    c = as_array(centers, "centers", ndim=2, dtype=np.float64, finite=True, min_size=1)
+    k, dim = c.shape
+    r = as_array(radii, "radii", ndim=(0, 1), dtype=np.float64, finite=True)
+    if r.ndim == 1 and r.shape[0] != k:
+        raise ValueError(f"`radii` must be a scalar or have length {k}, got {r.shape[0]}")
+    r = np.broadcast_to(r, (k,)).copy()
+    if (r <= 0).any():
+        raise ValueError("`radii` must be > 0")
+    s = _positive(sharpness, "sharpness")
+    inv_r2 = 1.0 / r**2
+
+    def f(p: np.ndarray) -> np.ndarray:
+        total = np.zeros(p.shape[:-1])
+        for ci, wi in zip(c, inv_r2):
+            d2 = np.einsum("...i,...i->...", p - ci, p - ci)
+            total += np.exp(-s * (d2 * wi - 1.0))
+        return 1.0 - total
+
+    reach = r * math.sqrt(1.0 + math.log(k) / s)
+    return Field(
+        f,
+        dim=dim,
+        name=f"metaballs(k={k})",
+        extent=((c - reach[:, None]).min(axis=0), (c + reach[:, None]).max(axis=0)),
+    )
+
+
+def gyroid(period: float = 1.0, thickness: float = 0.3) -> Field:
+    """A 4D gyroid-like periodic sheet: ``|g(x)| - thickness`` with
+    ``g = sin x cos y + sin y cos z + sin z cos w + sin w cos x`` (angles ``2 pi x / period``).
+
+    Unbounded: intersect it with a bounded field (e.g. :func:`hypersphere`) to get a closed mesh.
+
+    Parameters
+    ----------
+    period : float
+        Spatial period along each axis.
+    thickness : float
+        Half-thickness of the sheet in units of g (a sum of four products, so |g| <= 4).
+
+    Returns
+    -------
+    Field
+        Negative inside the sheet (not a distance).
+    """
+    k = 2 * math.pi / _positive(period, "period")
+    t = _positive(thickness, "thickness")
+
+    def f(p: np.ndarray) -> np.ndarray:
+        s, c = np.sin(k * p), np.cos(k * p)
+        g = sum(s[..., i] * c[..., (i + 1) % 4] for i in range(4))
+        return np.abs(g) - t
+
+    return Field(f, dim=4, name=f"gyroid(period={period:g}, thickness={t:g})")
+
+
+def ground(height: float = 0.0, *, axis: int = 1, dim: int = 4) -> Field:
+    """Half-space ``x[axis] < height`` (the floor of a scene), as signed distance.
+
+    Parameters
+    ----------
+    height : float
+        Level of the plane.
+    axis : int
+        Axis normal to the plane (default 1, "y up").
+    dim : int
+        Dimension d.
+
+    Returns
+    -------
+    Field
+        ``x[axis] - height``; unbounded (intersect with a box to extract it).
+    """
+    h = float(height)
+    if not math.isfinite(h):
+        raise ValueError(f"`height` must be finite, got {height!r}")
+    dim = check_positive_int(dim, "dim")
+    if axis not in range(dim):
+        raise ValueError(f"`axis` must be in 0..{dim - 1}, got {axis!r}")
+    return Field(lambda p: p[..., axis] - h, dim=dim, name=f"ground(height={h:g}, axis={axis})")
+
+
+# --------------------------------------------------------------------------------------------
+# combinations and transforms
+# --------------------------------------------------------------------------------------------
+
+
+def _hull(extents: Sequence[np.ndarray | None]) -> np.ndarray | None:
+    if any(e is None for e in extents):
+        return None
+    return np.stack([np.min([e[0] for e in extents], axis=0), np.max([e[1] for e in extents], axis=0)])
+
+
+def _check_fields(fields: Sequence[Any], name: str) -> None:
+    if len(fields) == 0:
+        raise ValueError(f"`{name}` needs at least one field")
+    for f in fields:
+        if not callable(f):
+            raise TypeError(f"`{name}` must be callables on (..., d) points, got {type(f).__name__}")
+
+
+def union(*fields: Callable) -> Field:
+    """Union of solids: pointwise ``min`` (exact distance outside, a bound inside)."""
+    _check_fields(fields, "fields")
+    dim = _common_dim(fields)
+    return Field(
+        lambda p: np.min([np.asarray(f(p), dtype=float) for f in fields], axis=0),
+        dim=dim,
+        name="union(" + ", ".join(map(repr, fields)) + ")",
+        extent=_hull([_extent_of(f) for f in fields]),
+    )
+
+
+def intersection(*fields: Callable) -> Field:
+    """Intersection of solids: pointwise ``max``."""
+    _check_fields(fields, "fields")
+    dim = _common_dim(fields)
+    boxes = [_extent_of(f) for f in fields if _extent_of(f) is not None]
+    extent = None
+    if boxes:
+        extent = np.stack([np.max([b[0] for b in boxes], axis=0), np.min([b[1] for b in boxes], axis=0)])
+    return Field(
+        lambda p: np.max([np.asarray(f(p), dtype=float) for f in fields], axis=0),
+        dim=dim,
+        name="intersection(" + ", ".join(map(repr, fields)) + ")",
+        extent=extent,
+    )
+
+
+def difference(a: Callable, b: Callable) -> Field:
+    """Solid ``a`` minus solid ``b``: ``max(a, -b)``."""
+    _check_fields((a, b), "a, b")
+    return Field(
+        lambda p: np.maximum(a(p), -np.asarray(b(p), dtype=float)),
+        dim=_common_dim((a, b)),
+        name=f"difference({a!r}, {b!r})",
+        extent=_extent_of(a),
+    )
+
+
+def smooth_union(a: Callable, b: Callable, k: float = 0.2) -> Field:
+    """Union with a fillet of width ``k`` (polynomial smooth minimum).
+
+    ``h = clip(0.5 + 0.5 (b - a) / k, 0, 1)``; ``f = b (1 - h) + a h - k h (1 - h)``.
+    Equals ``min(a, b)`` where ``|a - b| >= k``, is smooth elsewhere and never above min.
+    """
+    _check_fields((a, b), "a, b")
+    k = _positive(k, "k")
+
+    def f(p: np.ndarray) -> np.ndarray:
+        fa, fb = np.asarray(a(p), dtype=float), np.asarray(b(p), dtype=float)
+        h = np.clip(0.5 + 0.5 * (fb - fa) / k, 0.0, 1.0)
+        return fb * (1 - h) + fa * h - k * h * (1 - h)
+
+    hull = _hull([_extent_of(a), _extent_of(b)])
+    # the fillet lies where both fields are below k/4 (the largest dip), within k/4 of the hull
+    return Field(
+        f,
+        dim=_common_dim((a, b)),
+        name=f"smooth_union({a!r}, {b!r}, k={k:g})",
+        extent=None if hull is None else hull + np.array([[-k / 4], [k / 4]]),
+    )
+
+
+def translate(field: Callable, offset: Any) -> Field:
+    """Move the solid by ``offset`` ((d,) array_like): ``f(x - offset)``."""
+    _check_fields((field,), "field")
+    off = as_array(offset, "offset", ndim=1, dtype=np.float64, finite=True, min_size=1)
+    dim = _dim_of(field)
+    if dim is not None and off.shape[0] != dim:
+        raise ValueError(f"`offset` must have length {dim}, got {off.shape[0]}")
+    ext = _extent_of(field)
+    return Field(
+        lambda p: field(p - off),
+        dim=off.shape[0],
+        name=f"translate({field!r})",
+        volume=getattr(field, "volume", None),
+        boundary_measure=getattr(field, "boundary_measure", None),
+        extent=None if ext is None else ext + off,
+    )
+
+
+def scale(field: Callable, factor: float) -> Field:
+    """Scale the solid uniformly by ``factor`` > 0 about the origin: ``factor * f(x / factor)``.
+
+    Distances stay distances; the volume scales by factor^d and the boundary by factor^(d-1).
+    """
+    _check_fields((field,), "field")
+    s = _positive(factor, "factor")
+    dim = _dim_of(field)
+    vol, area, ext = getattr(field, "volume", None), getattr(field, "boundary_measure", None), _extent_of(field)
+    return Field(
+        lambda p: s * np.asarray(field(p / s), dtype=float),
+        dim=dim,
+        name=f"scale({field!r}, {s:g})",
+        volume=None if vol is None or dim is None else vol * s**dim,
+        boundary_measure=None if area is None or dim is None else area * s ** (dim - 1),
+        extent=None if ext is None else ext * s,
+    )
+
+
+def rotate(field: Callable, plane: tuple[int, int] = (0, 3), angle: float = 0.0) -> Field:
+    """Rotate the solid by ``angle`` radians in the coordinate plane ``(i, j)``, from axis i
+    towards axis j (4D has six planes: (0,1), (0,2), (0,3), (1,2), (1,3), (2,3)).
+
+    Parameters
+    ----------
+    field : callable
+        Field to rotate.
+    plane : (int, int)
+        Two distinct axes.
+    angle : float
+        Angle in radians.
+
+    Returns
+    -------
+    Field
+        ``f(R^-1 x)``; volume and boundary measure are unchanged.
+    """
+    _check_fields((field,), "field")
+    try:
+        i, j = (int(v) for v in plane)
+    except (TypeError, ValueError):
+        raise ValueError(f"`plane` must be two axis indices (i, j), got {plane!r}") from None
+    dim = _dim_of(field)
+    top = dim if dim is not None else max(i, j) + 1
+    if i == j or not (0 <= i < top and 0 <= j < top):
+        raise ValueError(f"`plane` must be two distinct axes in 0..{top - 1}, got {plane!r}")
+    a = float(angle)
+    if not math.isfinite(a):
+        raise ValueError(f"`angle` must be finite, got {angle!r}")
+    c, s = math.cos(a), math.sin(a)
+
+    def f(p: np.ndarray) -> np.ndarray:
+        q = p.copy()
+        q[..., i] = c * p[..., i] + s * p[..., j]  # R^-1 = rotation by -angle
+        q[..., j] = -s * p[..., i] + c * p[..., j]
+        return field(q)
+
+    ext = _extent_of(field)
+    if ext is not None:  # bounding box of the rotated box's corners
+        corners = np.array(list(itertools.product(*ext.T)))
+        rot = corners.copy()
+        rot[:, i] = c * corners[:, i] - s * corners[:, j]
+        rot[:, j] = s * corners[:, i] + c * corners[:, j]
+        ext = np.stack([rot.min(axis=0), rot.max(axis=0)])
+    return Field(
+        f,
+        dim=dim,
+        name=f"rotate({field!r}, plane=({i}, {j}), angle={a:g})",
+        volume=getattr(field, "volume", None),
+        boundary_measure=getattr(field, "boundary_measure", None),
+        extent=ext,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# presets (command line) and grid sampling
+# --------------------------------------------------------------------------------------------
+
+PRESETS: dict[str, Callable[[], Field]] = {
+    "hypersphere": lambda: hypersphere(1.0),
+    "spheritorus": lambda: spheritorus(1.0, 0.4),
+    "torisphere": lambda: torisphere(1.0, 0.4),
+    "ditorus": lambda: ditorus(1.0, 0.45, 0.2),
+    "tiger": lambda: tiger(0.8, 0.8, 0.35),
+    "duocylinder": lambda: duocylinder(1.0, 1.0),
+    "tesseract": lambda: tesseract(1.0, 0.25),
+    "indented_cube": lambda: indented_cube(1.0, 0.6),
+    "metaballs": lambda: metaballs([[-0.5, 0, 0, 0], [0.5, 0, 0, 0], [0, 0.6, 0, 0.3]], 0.5),
+    "gyroid": lambda: intersection(gyroid(1.0, 0.3), hypersphere(1.0)),
+}
+
+
+def preset(name: str) -> Field:
+    """One of the named shapes in :data:`PRESETS` with default parameters."""
+    if name not in PRESETS:
+        raise ValueError(f"`shape` must be one of {', '.join(PRESETS)}; got {name!r}")
+    return PRESETS[name]()
+
+
+def grid_axes(shape: Any, bounds: Any, *, dim: int | None = None) -> list[np.ndarray]:
+    """Coordinates of the grid points along each axis: ``lo + (hi - lo) * i / (n - 1)``.
+
+    Parameters
+    ----------
+    shape : int or sequence of int
+        Points per axis (each >= 2); an int needs ``dim``.
+    bounds : (lo, hi)
+        Each a scalar or a (d,) sequence, lo < hi.
+    dim : int, optional
+        Dimension when ``shape`` is an int.
+
+    Returns
+    -------
+    list of (n_k,) float64 arrays
+    """
+    if isinstance(shape, (int, np.integer)) and not isinstance(shape, bool):
+        if dim is None:
+            raise ValueError("`shape` is an int but the field's dimension is unknown; pass a tuple")
+        shape = (int(shape),) * dim
+    try:
+        shape = tuple(int(n) for n in shape)
+    except (TypeError, ValueError):
+        raise TypeError(f"`shape` must be an int or a sequence of ints, got {shape!r}") from None
+    if dim is not None and len(shape) != dim:
+        raise ValueError(f"`shape` must have {dim} entries for this {dim}D field, got {shape}")
+    if not shape or any(n < 2 for n in shape):
+        raise ValueError(f"`shape` needs at least 2 points along every axis, got {shape}")
+    try:
+        lo, hi = bounds
+    except (TypeError, ValueError):
+        raise ValueError(f"`bounds` must be a pair (lo, hi), got {bounds!r}") from None
+    lo = _vector(lo, "bounds", len(shape))
+    hi = _vector(hi, "bounds", len(shape))
+    if not (hi > lo).all():
+        raise ValueError(f"`bounds` must have lo < hi on every axis, got lo={lo}, hi={hi}")
+    return [l + (h - l) * np.arange(n) / (n - 1) for l, h, n in zip(lo, hi, shape)]
+
+
+def evaluate_layers(field: Callable, axes: Sequence[np.ndarray], start: int, stop: int) -> np.ndarray:
+    """Evaluate ``field`` on the grid points with last-axis index in ``[start, stop)``.
+
+    Returns the values laid out with the last grid axis first, shape ``(stop - start, n_0, ...,
+    n_{d-2})`` (C order), so that each layer is contiguous. Evaluates in blocks of layers to
+    bound the (..., d) temporary.
+    """
+    d = len(axes)
+    inner = axes[:-1]
+    out = np.empty((stop - start, *(len(a) for a in inner)), dtype=np.float64)
+    per_layer = max(1, int(np.prod([len(a) for a in inner])))
+    step = max(1, _POINTS_PER_BLOCK // per_layer)
+    grids = np.meshgrid(*inner, indexing="ij") if inner else []
+    for k0 in range(start, stop, step):
+        k1 = min(stop, k0 + step)
+        pts = np.empty((k1 - k0, *out.shape[1:], d))
+        for k, g in enumerate(grids):
+            pts[..., k] = g
+        pts[..., d - 1] = axes[-1][k0:k1].reshape((-1,) + (1,) * (d - 1))
+        vals = np.asarray(field(pts), dtype=np.float64)
+        if vals.shape != pts.shape[:-1]:
+            raise ValueError(f"`field` returned shape {vals.shape} for points of shape {pts.shape}")
+        out[k0 - start : k1 - start] = vals
+    return out
+
+
+def sample(field: Callable, shape: Any, bounds: Any) -> np.ndarray:
+    """Sample ``field`` on a regular grid including both bounds.
+
+    Parameters
+    ----------
+    field : callable
+        Maps (..., d) points to (...) values.
+    shape : int or sequence of int
+        Grid points per axis (each >= 2); an int means the same on every axis (needs a
+        :class:`Field` with known ``dim``).
+    bounds : (lo, hi)
+        Box corners, scalars or (d,) sequences. Grid point i sits at
+        ``lo + (hi - lo) * i / (n - 1)`` per axis.
+
+    Returns
+    -------
+    values : (n_0, ..., n_{d-1}) float64 ndarray
+        ``values[i0, ..., i_{d-1}] = field(point(i))``; axis k is coordinate k.
+
+    Examples
+    --------
+    >>> v = sample(hypersphere(1.0), 3, (-1, 1))
+    >>> v.shape, float(v[1, 1, 1, 1])
+    ((3, 3, 3, 3), -1.0)
+    """
+    if not callable(field):
+        raise TypeError(f"`field` must be callable on (..., d) points, got {type(field).__name__}")
+    axes = grid_axes(shape, bounds, dim=_dim_of(field))
+    n = [len(a) for a in axes]
+    check_memory(8.0 * math.prod(n), f"sampling a grid of shape {tuple(n)}")
+    layers = evaluate_layers(field, axes, 0, n[-1])
+    return np.ascontiguousarray(np.moveaxis(layers, 0, -1))
