@@ -225,6 +225,18 @@ def _lexsort_rows(rows: np.ndarray, base: int) -> np.ndarray:
     return np.lexsort(rows.T[::-1])
 
 
+def _unique_ints(values: np.ndarray) -> np.ndarray:
+    """Sorted distinct values (a sort is several times faster than numpy 2's hash-based unique
+    on tens of millions of int64 keys)."""
+    values = np.sort(values)
+    if len(values) == 0:
+        return values
+    keep = np.empty(len(values), dtype=bool)
+    keep[0] = True
+    np.not_equal(values[1:], values[:-1], out=keep[1:])
+    return values[keep]
+
+
 def _pairs_within_groups(starts: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Consecutive entries (in sorted order) of every group: a chain linking each group."""
     n = len(order)
@@ -522,6 +534,13 @@ class SimplexMesh:
     def __len__(self) -> int:
         return self.n_simplices
 
+    def __reduce__(self) -> tuple:
+        # pickle/deepcopy rebuild through __init__ (validated), never with stale caches
+        return (
+            _restore,
+            (self._vertices, self._simplices, dict(self._point_data), dict(self._cell_data)),
+        )
+
     def __repr__(self) -> str:
         data = ""
         if self._point_data:
@@ -688,17 +707,20 @@ class SimplexMesh:
         )
 
     def _singular_vertices(self) -> int:
-        """Vertices whose star is not connected through (d-2)-faces containing the vertex.
+        """Vertices whose link is not a sphere (or, on the boundary, a disk), as far as we test.
 
-        Nodes are (simplex, local vertex) incidences; two incidences of the same vertex are
-        joined when their simplices share a face through that vertex. A vertex whose incidences
-        form more than one group is a pinch point (or lies on a pinched edge in 4D). This does
-        not prove that a vertex link is a sphere (a link with handles would pass).
+        Two tests. (1) The star must be connected through (d-2)-faces containing the vertex:
+        nodes are (simplex, local vertex) incidences, joined when their simplices share a face
+        through that vertex; more than one group is a pinch point (or, in 4D, a pinched edge).
+        With manifold faces this settles 3D, where a connected 2-regular link is a circle. (2) In
+        4D the link is a closed surface (boundary vertices: a surface with boundary), so we also
+        require its Euler characteristic #edges - #triangles + #tetrahedra through the vertex to
+        be 2 (1 on the boundary): a connected closed surface with chi = 2 is a sphere.
         """
         d = self.dim
         faces = self._faces
         if self.n_simplices == 0 or d == 2:
-            return 0  # in 2D a vertex star is its (at most two) segments: faces cover it
+            return 0  # in 2D the faces are the vertices: face counts already say everything
         counts = faces.counts
         # only manifold pairs: a face used by >2 simplices is already reported as non-manifold
         manifold_groups = np.flatnonzero(counts == 2)
@@ -708,9 +730,53 @@ class SimplexMesh:
         b = (second // d)[:, None] * d + faces.local[second]
         _, labels = _connected_labels(self.n_simplices * d, a.ravel(), b.ravel())
         vertex = self._simplices.ravel()
-        pairs = np.unique(vertex.astype(np.int64) * (labels.max() + 1) + labels)
-        n_groups = np.bincount(pairs // (labels.max() + 1), minlength=self.n_vertices)
-        return int(np.count_nonzero(n_groups > 1))
+        n_labels = int(labels.max()) + 1
+        pairs = _unique_ints(vertex * n_labels + labels)
+        singular = np.bincount(pairs // n_labels, minlength=self.n_vertices) > 1
+        if d == 4:
+            singular |= self._link_euler_defect()
+        return int(np.count_nonzero(singular))
+
+    def _link_euler_defect(self) -> np.ndarray:
+        """(V,) bool: used 4D vertices whose link's Euler characteristic is not 2 (1 on the boundary)."""
+        n = self.n_vertices
+        simplices = self._simplices
+        faces = self._faces
+        # one representative entry per distinct triangle: its three vertices
+        reps = faces.order[faces.starts[:-1]]
+        tri_vertices = np.take_along_axis(simplices[reps // 4], faces.local[reps].astype(np.int64), axis=1)
+        pairs = [(i, j) for i in range(4) for j in range(i + 1, 4)]
+        lo = np.concatenate([np.minimum(simplices[:, i], simplices[:, j]) for i, j in pairs])
+        hi = np.concatenate([np.maximum(simplices[:, i], simplices[:, j]) for i, j in pairs])
+        edges = _unique_ints(lo * n + hi)
+        chi = (
+            np.bincount(edges // n, minlength=n) + np.bincount(edges % n, minlength=n)
+            - np.bincount(tri_vertices.ravel(), minlength=n)
+            + np.bincount(simplices.ravel(), minlength=n)
+        )
+        on_boundary = np.zeros(n, dtype=bool)
+        on_boundary[tri_vertices[faces.counts == 1].ravel()] = True
+        used = np.zeros(n, dtype=bool)
+        used[simplices.ravel()] = True
+        return used & (chi != np.where(on_boundary, 1, 2))
+
+    def boundary_faces(self) -> np.ndarray:
+        """(B, d-1) int64: vertex indices of the (d-2)-faces used by only one simplex.
+
+        Each face is listed in the orientation its simplex induces on it (the boundary operator),
+        so the boundary of an oriented open mesh comes out oriented; empty for a closed mesh.
+        """
+        d = self.dim
+        faces = self._faces
+        entries = faces.order[faces.starts[:-1][faces.counts == 1]]
+        opposite = entries % d
+        rows = self._simplices[entries // d]
+        keep = np.arange(d)[None, :] != opposite[:, None]
+        out = rows[keep].reshape(-1, d - 1)
+        # (-1)^i times the face in increasing local order; fix odd signs by swapping two entries
+        odd = (opposite % 2 == 1) & (d - 1 >= 2)
+        out[odd, :2] = out[odd, 1::-1]
+        return out
 
     def check(self, *, rtol: float = 1e-12) -> MeshReport:
         """Topology and orientation report: closed, manifold, oriented, degenerate simplices.
@@ -889,6 +955,10 @@ class SimplexMesh:
         from . import meshio
 
         return meshio.load_text(path)
+
+
+def _restore(vertices, simplices, point_data, cell_data) -> SimplexMesh:
+    return SimplexMesh(vertices, simplices, point_data=point_data, cell_data=cell_data)
 
 
 # --------------------------------------------------------------------------------------------
