@@ -339,6 +339,33 @@ def test_pinched_meshes_are_singular(d, shared):
     assert mesh.volume == pytest.approx(2 / math.factorial(d), rel=1e-12)
 
 
+def test_vertex_with_torus_link_is_singular():
+    """The suspension of a triangulated torus: a closed, oriented 3-pseudo-manifold whose two
+    apexes have a torus as link (Euler characteristic 0, not 2). Their stars are connected, so
+    only the link Euler test can catch them; torus vertices have links that are suspended
+    circles (spheres) and pass."""
+    k = 6
+    a, b = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    vid = lambda i, j: (i % k) * k + (j % k)  # noqa: E731
+    triangles = np.concatenate([
+        np.stack([vid(a, b), vid(a + 1, b), vid(a + 1, b + 1)], axis=-1).reshape(-1, 3),
+        np.stack([vid(a, b), vid(a + 1, b + 1), vid(a, b + 1)], axis=-1).reshape(-1, 3),
+    ])
+    angle = 2 * np.pi * np.arange(k) / k
+    u, v = np.meshgrid(angle, angle, indexing="ij")
+    torus = np.stack([np.cos(u), np.sin(u), np.cos(v), np.sin(v)], axis=-1).reshape(-1, 4) / math.sqrt(2)
+    top, bottom = k * k, k * k + 1
+    vertices = np.vstack([torus, [[0.1, 0.2, 0.3, 0.9], [-0.2, 0.1, -0.3, -0.8]]])
+    # apex first; the bottom cone reversed so the shared torus triangles get opposite orientations
+    tets = np.concatenate([
+        np.column_stack([np.full(len(triangles), top), triangles]),
+        np.column_stack([np.full(len(triangles), bottom), triangles[:, [0, 2, 1]]]),
+    ])
+    report = SimplexMesh(vertices, tets).check()
+    assert report.closed and report.oriented and report.n_nonmanifold_faces == 0
+    assert report.n_singular_vertices == 2 and not report.manifold
+
+
 # --------------------------------------------------------------------------------------------
 # components, split, concatenate
 # --------------------------------------------------------------------------------------------
