@@ -163,6 +163,59 @@ class Camera4D:
             raise ValueError(f"`half_width` must be a positive finite number, got {half_width}")
         self.half_width = half_width
 
+    @classmethod
+    def framing(
+        cls,
+        bounds,
+        *,
+        view=(0.0, 0.0, 0.0, 1.0),
+        up=(0.0, 1.0, 0.0, 0.0),
+        over=(0.0, 0.0, 1.0, 0.0),
+        fov: float = 40.0,
+        projection: Literal["perspective", "orthographic"] = "perspective",
+        margin: float = 1.1,
+    ) -> Camera4D:
+        """A camera looking along ``view`` at the centre of ``bounds`` with all of it in view.
+
+        The eye is placed so that the bounding 3-sphere of the box (radius r) fits into the
+        image: at distance ``margin * r / sin(fov / 2)`` (perspective); orthographic uses
+        ``half_width = margin * r``.
+
+        Parameters
+        ----------
+        bounds : (2, 4) array_like
+            ``(lo, hi)`` of what must be seen, e.g. ``mesh.bounds``.
+        view : (4,) array_like
+            View direction.
+        up, over, fov, projection
+            As in :class:`Camera4D`.
+        margin : float
+            Extra room around the object (>= 1).
+
+        Returns
+        -------
+        Camera4D
+        """
+        box = as_array(bounds, "bounds", shape_tail=(2, 4), ndim=2, dtype=np.float64, finite=True)
+        if (box[1] < box[0]).any():
+            raise ValueError("`bounds` must be (lo, hi) with lo <= hi")
+        margin = float(margin)
+        if not margin >= 1.0:
+            raise ValueError(f"`margin` must be >= 1, got {margin}")
+        direction = _vector4(view, "view")
+        if not np.linalg.norm(direction) > 0:
+            raise ValueError("`view` must be a non-zero direction")
+        direction /= np.linalg.norm(direction)
+        centre = box.mean(axis=0)
+        radius = max(0.5 * float(np.linalg.norm(box[1] - box[0])), 1e-9)
+        fov = float(fov)
+        if not (0.0 < fov < 180.0):
+            raise ValueError(f"`fov` must be in (0, 180) degrees, got {fov}")
+        distance = margin * radius / math.sin(math.radians(fov) / 2)
+        half_width = margin * radius if projection == "orthographic" else None
+        return cls(centre - distance * direction, centre, up, over, fov=fov,
+                   projection=projection, half_width=half_width)
+
     # basis vectors by name
     @property
     def view(self) -> np.ndarray:

@@ -587,12 +587,12 @@ def _volume_png_pyvista(path, arr, lo, hi, *, title, label, cmap, spacing, origi
                              "position_x": 0.86, "position_y": 0.15, "height": 0.7,
                              "width": 0.07, "fmt": "%.2f"},
         )
-        plotter.add_title(title, font_size=9, color="black")
+        plotter.add_title(title, font_size=7, color="black")
         plotter.show_bounds(color="black", font_size=8, xtitle="x", ytitle="y", ztitle="z",
                             location="outer", ticks="outside", minor_ticks=False)
-        plotter.camera_position = "iso"
-        plotter.camera.azimuth = 15
-        plotter.camera.zoom(0.9)
+        # from the front (+z), above (+y) and a little to the right: x right, y up on screen
+        plotter.view_vector((0.45, 0.55, 1.0), viewup=(0.0, 1.0, 0.0))
+        plotter.camera.zoom(0.85)
         with atomic_path(path) as tmp:
             plotter.screenshot(str(tmp))
     finally:
@@ -738,11 +738,11 @@ def save_slice_png(
                                  "position_x": 0.86, "position_y": 0.15, "height": 0.7,
                                  "width": 0.07, "fmt": "%.1f"},
             )
-        plotter.add_title(title, font_size=9, color="black")
+        plotter.add_title(title, font_size=7, color="black")
         plotter.show_bounds(color="black", font_size=8, xtitle="x", ytitle="y", ztitle="z",
                             location="outer", minor_ticks=False)
-        plotter.camera_position = "iso"
-        plotter.camera.zoom(0.9)
+        plotter.view_vector((0.45, 0.55, 1.0), viewup=(0.0, 1.0, 0.0))
+        plotter.camera.zoom(0.85)
         with atomic_path(path) as tmp:
             plotter.screenshot(str(tmp))
     finally:

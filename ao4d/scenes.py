@@ -1,0 +1,181 @@
+"""Embedded scenes: the default demo scene (objects on a ground hyperplane) and its camera.
+
+A :class:`Scene` is a list of named fields, each with the box it is extracted in, plus a camera
+and a light. Each object is extracted separately (fine grids where it is, none where it is not)
+and the meshes are joined so that every simplex knows its object id.
+
+The default scene, in world units with y up: a ground slab (the 4D analogue of a floor: a thin
+box spanning x, z and w), and resting on it a hypersphere, a torisphere lying flat (a circle of
+3-balls: in every w-slice near 0 a 3D ring torus) and a tesseract with a round indent facing
+the viewer. Contacts and the indent make ambient occlusion visible.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ._validate import check_choice
+from .camera import Camera4D
+
+__all__ = ["SceneObject", "Scene", "default_scene", "box", "extract_scene", "QUALITY"]
+
+# Settings per quality: grid cell size (world units), image voxels per axis, AO samples.
+QUALITY: dict[str, dict[str, Any]] = {
+    "tiny": {"cell": 0.2, "image": 16, "samples": 8},
+    "default": {"cell": 0.085, "image": 64, "samples": 32},
+    "high": {"cell": 0.045, "image": 128, "samples": 128},
+}
+
+
+@dataclass(frozen=True)
+class SceneObject:
+    """One object: a field (negative inside) and the box ``(lo, hi)`` it is extracted in.
+
+    The box must contain the solid with a margin, so that the extracted surface is closed.
+    """
+
+    name: str
+    field: Callable[[np.ndarray], np.ndarray]
+    lo: tuple[float, float, float, float]
+    hi: tuple[float, float, float, float]
+    coarseness: float = 1.0  # grid cell = coarseness * the scene's cell (flat objects need few)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Objects, a camera and a light (direction towards it)."""
+
+    name: str
+    objects: tuple[SceneObject, ...]
+    camera: Camera4D
+    light: np.ndarray | None = None
+    max_distance: float = math.inf
+    notes: dict = field(default_factory=dict)
+
+
+def box(lo, hi) -> Callable[[np.ndarray], np.ndarray]:
+    """Signed distance to the axis-aligned box ``[lo, hi]`` (any dimension).
+
+    Parameters
+    ----------
+    lo, hi : (d,) array_like
+
+    Returns
+    -------
+    callable
+        ``(..., d) -> (...)`` exact Euclidean signed distance (negative inside).
+
+    Examples
+    --------
+    >>> f = box([0, 0, 0, 0], [2, 1, 1, 1])
+    >>> float(f(np.array([1.0, 0.5, 0.5, 0.5]))), float(f(np.array([3.0, 0.5, 0.5, 0.5])))
+    (-0.5, 1.0)
+    """
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    if lo.shape != hi.shape or lo.ndim != 1 or (hi <= lo).any():
+        raise ValueError(f"`lo` and `hi` must be (d,) with lo < hi, got {lo} and {hi}")
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+
+    def distance(p: np.ndarray) -> np.ndarray:
+        q = np.abs(np.asarray(p, dtype=np.float64) - centre) - half
+        outside = np.linalg.norm(np.maximum(q, 0.0), axis=-1)
+        return outside + np.minimum(q.max(axis=-1), 0.0)
+
+    return distance
+
+
+def _padded(lo, hi, pad: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    return tuple(float(x) - pad for x in lo), tuple(float(x) + pad for x in hi)
+
+
+def default_scene() -> Scene:
+    """The demo scene: hypersphere, torisphere and indented tesseract on a ground slab.
+
+    Returns
+    -------
+    Scene
+        Objects in the order ground, hypersphere, torisphere, indented tesseract (their
+        object ids 0..3), a perspective camera looking along +w from above, and a light.
+    """
+    from . import fields
+
+    pad = 0.25
+    # the slab is flat: linear interpolation reproduces its faces exactly on a coarse grid
+    ground_lo, ground_hi = (-2.7, -0.24, -1.7, -0.95), (2.7, 0.0, 1.7, 0.95)
+    ground = SceneObject("ground", box(ground_lo, ground_hi), *_padded(ground_lo, ground_hi, pad),
+                         coarseness=1.6)
+
+    r_sphere = 0.75
+    c_sphere = np.array([-1.45, r_sphere, 0.35, 0.0])
+    sphere = SceneObject(
+        "hypersphere", fields.hypersphere(r_sphere, c_sphere),
+        *_padded(c_sphere - r_sphere, c_sphere + r_sphere, pad),
+    )
+
+    # torisphere: core circle of radius R in the xy plane, swept 3-ball of radius r; turned
+    # into the xz plane (lying flat), resting on the ground at y = 0
+    big, small = 0.55, 0.24
+    c_torus = np.array([0.15, small, -0.55, 0.0])
+    torus_field = fields.translate(fields.rotate(fields.torisphere(big, small), (1, 2), math.pi / 2),
+                                   c_torus)
+    reach = np.array([big + small, small, big + small, small])
+    torus = SceneObject("torisphere", torus_field, *_padded(c_torus - reach, c_torus + reach, pad))
+
+    # tesseract of half side h with a round indent in its +z facet, which faces the viewer of
+    # the 3D image (camera over = +z)
+    half, indent = 0.55, 0.38
+    c_cube = np.array([1.5, half, 0.25, 0.0])
+    cube_field = fields.translate(fields.indented_cube(half, indent, axis=2), c_cube)
+    cube = SceneObject("indented tesseract", cube_field,
+                       *_padded(c_cube - half, c_cube + half, pad))
+
+    camera = Camera4D(eye=[0.0, 1.6, -0.6, -5.5], target=[0.0, 0.45, 0.0, 0.0],
+                      up=[0, 1, 0, 0], over=[0, 0, 1, 0], fov=40.0)
+    light = np.array([-0.35, 1.0, -0.25, -0.45])
+    return Scene("default", (ground, sphere, torus, cube), camera, light / np.linalg.norm(light))
+
+
+def extract_scene(
+    scene: Scene,
+    *,
+    cell: float = 0.085,
+    method: str = "cubes",
+    progress: bool | None = None,
+) -> list:
+    """Extract every object of ``scene`` on a grid of (about) ``cell`` world units.
+
+    Parameters
+    ----------
+    scene : Scene
+    cell : float
+        Target grid spacing; each object's box gets ``ceil(extent / cell) + 1`` points per
+        axis (at least 4).
+    method : {"cubes", "simplices"}
+        Passed to :func:`ao4d.extract_field`.
+    progress : bool, optional
+        Passed to :func:`ao4d.extract_field`.
+
+    Returns
+    -------
+    list of SimplexMesh
+        One closed mesh per object, in scene order.
+    """
+    from .march import extract_field
+
+    cell = float(cell)
+    if not (math.isfinite(cell) and cell > 0):
+        raise ValueError(f"`cell` must be a positive number, got {cell}")
+    check_choice(method, "method", ("cubes", "simplices"))
+    meshes = []
+    for obj in scene.objects:
+        lo, hi = np.asarray(obj.lo), np.asarray(obj.hi)
+        step = cell * obj.coarseness
+        shape = tuple(max(4, int(math.ceil((h - l) / step)) + 1) for l, h in zip(lo, hi))
+        meshes.append(extract_field(obj.field, shape, (lo, hi), method=method, progress=progress))
+    return meshes
