@@ -1,0 +1,316 @@
+"""Dataset configurations: TOML files naming shape families, parameter distributions and settings.
+
+A configuration (see ``datasets_gen/configs/*.toml``)::
+
+    name = "tori"
+    seed = 0                      # default run seed (--seed overrides)
+
+    [defaults]                    # settings every family inherits (each may override them)
+    grid = 32                     # grid points per axis
+    method = "cubes"              # extraction: "cubes" | "simplices"
+    padding = 0.15                # margin around the shape's extent, as a fraction of its size
+    rotation = "random"           # "none" | "random" (uniform in SO(4))
+    ao = { samples = 64, max_distance = inf, at = "vertices" }   # or ao = false
+    renders = [{ name = "front", shape = [32, 32, 32], samples = 32 }]
+
+    [[family]]
+    kind = "spheritorus"          # see datasets_gen.families.KINDS
+    count = 10
+    params = { R = { uniform = [0.6, 0.9] }, r = { uniform = [0.15, 0.3] } }
+
+A parameter is a constant (number, string, bool, list) or one table naming a distribution:
+``{uniform = [a, b]}``, ``{loguniform = [a, b]}``, ``{normal = [mean, std]}``,
+``{integers = [lo, hi]}`` (both inclusive) or ``{choice = [v1, v2, ...]}``. Parameters are drawn
+in sorted name order from the item's own generator, so an item depends only on (seed, index).
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import math
+import sys
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = ["Config", "Family", "ItemSpec", "load_config", "shipped_configs", "sample_params",
+           "ConfigError"]
+
+DISTRIBUTIONS = ("uniform", "loguniform", "normal", "integers", "choice")
+_TOP_KEYS = {"name", "description", "seed", "backend", "defaults", "family"}
+_SETTING_KEYS = {"grid", "method", "padding", "bounds", "rotation", "ao", "renders", "tetrahedra"}
+_FAMILY_KEYS = _SETTING_KEYS | {"kind", "count", "params", "name"}
+_AO_KEYS = {"samples", "max_distance", "at"}
+_RENDER_KEYS = {"name", "shape", "samples", "distance", "fov"}
+DEFAULTS: dict[str, Any] = {
+    "grid": 24,
+    "method": "cubes",
+    "padding": 0.15,
+    "bounds": None,
+    "rotation": "none",
+    "ao": {"samples": 64, "max_distance": math.inf, "at": "vertices"},
+    "renders": [],
+    "tetrahedra": "star",
+}
+
+
+class ConfigError(ValueError):
+    """A configuration file is malformed; the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class Family:
+    """One ``[[family]]`` table with the defaults merged in."""
+
+    name: str
+    kind: str
+    count: int
+    params: dict[str, Any]
+    settings: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class ItemSpec:
+    """Item ``index`` of a run: the ``number``-th item of ``family``."""
+
+    index: int
+    family: Family
+    number: int
+
+
+@dataclass(frozen=True)
+class Config:
+    """A parsed, validated configuration.
+
+    Attributes
+    ----------
+    name : str
+    source : str
+        Where it was read from (path or ``shipped:<name>``).
+    text : str
+        The TOML text (kept verbatim in the run's ``run.json``).
+    seed : int
+    backend : {"auto", "opencl", "numpy"}
+    families : list of Family
+    """
+
+    name: str
+    source: str
+    text: str
+    seed: int
+    backend: str
+    families: list[Family] = field(default_factory=list)
+
+    @property
+    def sha256(self) -> str:
+        """Hash of the TOML text."""
+        return hashlib.sha256(self.text.encode("utf-8")).hexdigest()
+
+    def items(self) -> list[ItemSpec]:
+        """Every item of the run, in index order."""
+        out: list[ItemSpec] = []
+        for fam in self.families:
+            base = len(out)
+            out.extend([ItemSpec(base + n, fam, n) for n in range(fam.count)])
+        return out
+
+
+def shipped_configs() -> list[str]:
+    """Names of the configurations shipped in ``datasets_gen/configs``."""
+    folder = resources.files("datasets_gen").joinpath("configs")
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def load_config(config: str | Path) -> Config:
+    """Read and validate a configuration by path or by shipped name (``"smoke"``, ``"tori"``...).
+
+    Raises
+    ------
+    FileNotFoundError
+        Neither a file nor a shipped name.
+    ConfigError
+        Malformed TOML, unknown keys, bad values or distributions (the message says where).
+    """
+    path = Path(config)
+    if path.is_file():
+        text, source = path.read_text(encoding="utf-8"), str(path)
+    else:
+        name = str(config).removesuffix(".toml")
+        res = resources.files("datasets_gen").joinpath("configs", f"{name}.toml")
+        if "/" in name or not res.is_file():
+            raise FileNotFoundError(
+                f"`config` {str(config)!r} is neither a file nor a shipped configuration "
+                f"({', '.join(shipped_configs())})")
+        text, source = res.read_text(encoding="utf-8"), f"shipped:{name}"
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML: {exc}") from None
+    return _parse(data, text, source)
+
+
+def _parse(data: dict, text: str, source: str) -> Config:
+    from .families import KINDS
+
+    _no_unknown(data, _TOP_KEYS, source, "top level")
+    seed = data.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"{source}: `seed` must be an integer >= 0, got {seed!r}")
+    backend = data.get("backend", "auto")
+    if backend not in ("auto", "opencl", "numpy"):
+        raise ConfigError(f"{source}: `backend` must be 'auto', 'opencl' or 'numpy', got {backend!r}")
+    defaults = copy.deepcopy(DEFAULTS)
+    user_defaults = data.get("defaults", {})
+    _no_unknown(user_defaults, _SETTING_KEYS, source, "[defaults]")
+    defaults.update(user_defaults)
+    families = data.get("family")
+    if not isinstance(families, list) or not families:
+        raise ConfigError(f"{source}: needs at least one [[family]] table")
+    parsed = []
+    for n, fam in enumerate(families):
+        where = f"[[family]] #{n + 1}"
+        _no_unknown(fam, _FAMILY_KEYS, source, where)
+        kind = fam.get("kind")
+        if kind not in KINDS:
+            raise ConfigError(f"{source}: {where}: `kind` must be one of {', '.join(KINDS)}; "
+                              f"got {kind!r}")
+        count = fam.get("count", 1)
+        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+            raise ConfigError(f"{source}: {where}: `count` must be an integer >= 1, got {count!r}")
+        params = fam.get("params", {})
+        allowed = KINDS[kind].params
+        _no_unknown(params, set(allowed), source, f"{where} params of kind {kind!r}")
+        for pname, spec in params.items():
+            _check_distribution(spec, f"{source}: {where}: params.{pname}")
+        settings = copy.deepcopy(defaults)
+        settings.update({k: v for k, v in fam.items() if k in _SETTING_KEYS})
+        _check_settings(settings, f"{source}: {where}")
+        parsed.append(Family(str(fam.get("name", kind)), kind, count, dict(params), settings))
+    return Config(str(data.get("name", Path(source).stem)), source, text, seed, backend, parsed)
+
+
+def _no_unknown(table: Any, allowed: set[str], source: str, where: str) -> None:
+    if not isinstance(table, dict):
+        raise ConfigError(f"{source}: {where} must be a table, got {type(table).__name__}")
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise ConfigError(f"{source}: {where}: unknown key(s) {', '.join(map(repr, unknown))}; "
+                          f"allowed: {', '.join(sorted(allowed))}")
+
+
+def _check_settings(s: dict[str, Any], where: str) -> None:
+    grid = s["grid"]
+    if isinstance(grid, bool) or not isinstance(grid, int) or not 4 <= grid <= 512:
+        raise ConfigError(f"{where}: `grid` must be an integer in [4, 512], got {grid!r}")
+    if s["method"] not in ("cubes", "simplices"):
+        raise ConfigError(f"{where}: `method` must be 'cubes' or 'simplices', got {s['method']!r}")
+    if not isinstance(s["padding"], (int, float)) or not 0 <= s["padding"] <= 2:
+        raise ConfigError(f"{where}: `padding` must be a number in [0, 2], got {s['padding']!r}")
+    if s["bounds"] is not None:
+        b = s["bounds"]
+        if not (isinstance(b, list) and len(b) == 2 and all(isinstance(v, (int, float)) for v in b)
+                and b[0] < b[1]):
+            raise ConfigError(f"{where}: `bounds` must be [lo, hi] with lo < hi, got {b!r}")
+    if s["rotation"] not in ("none", "random"):
+        raise ConfigError(f"{where}: `rotation` must be 'none' or 'random', got {s['rotation']!r}")
+    if s["tetrahedra"] not in ("star", "auto", "tetwild"):
+        raise ConfigError(f"{where}: `tetrahedra` must be 'star', 'auto' or 'tetwild', "
+                          f"got {s['tetrahedra']!r}")
+    ao = s["ao"]
+    if ao is not False:
+        if ao is True:
+            ao = s["ao"] = copy.deepcopy(DEFAULTS["ao"])
+        _no_unknown(ao, _AO_KEYS, where, "ao")
+        ao = s["ao"] = {**DEFAULTS["ao"], **ao}
+        if isinstance(ao["samples"], bool) or not isinstance(ao["samples"], int) or ao["samples"] < 1:
+            raise ConfigError(f"{where}: `ao.samples` must be an integer >= 1, got {ao['samples']!r}")
+        if not isinstance(ao["max_distance"], (int, float)) or not ao["max_distance"] > 0:
+            raise ConfigError(f"{where}: `ao.max_distance` must be > 0, got {ao['max_distance']!r}")
+        if ao["at"] not in ("vertices", "simplices"):
+            raise ConfigError(f"{where}: `ao.at` must be 'vertices' or 'simplices', got {ao['at']!r}")
+    renders = s["renders"]
+    if not isinstance(renders, list):
+        raise ConfigError(f"{where}: `renders` must be a list of tables")
+    names = set()
+    for r in renders:
+        _no_unknown(r, _RENDER_KEYS, where, "renders[]")
+        name = r.get("name")
+        if not isinstance(name, str) or not name.isidentifier() or name in names:
+            raise ConfigError(f"{where}: every render needs a distinct identifier `name`, got {name!r}")
+        names.add(name)
+        shape = r.get("shape", [32, 32, 32])
+        if not (isinstance(shape, list) and len(shape) == 3
+                and all(isinstance(v, int) and 2 <= v <= 512 for v in shape)):
+            raise ConfigError(f"{where}: render {name!r}: `shape` must be 3 integers in [2, 512]")
+
+
+def _check_distribution(spec: Any, where: str) -> None:
+    if not isinstance(spec, dict):
+        return  # a constant
+    if len(spec) != 1 or next(iter(spec)) not in DISTRIBUTIONS:
+        raise ConfigError(f"{where}: a distribution is one key of {', '.join(DISTRIBUTIONS)}, "
+                          f"got {sorted(spec)}")
+    (kind, args), = spec.items()
+    if kind == "choice":
+        if not isinstance(args, list) or not args:
+            raise ConfigError(f"{where}: `choice` needs a non-empty list")
+        return
+    if not (isinstance(args, list) and len(args) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in args)):
+        raise ConfigError(f"{where}: `{kind}` needs two numbers, got {args!r}")
+    a, b = args
+    if kind == "normal":
+        if b < 0:
+            raise ConfigError(f"{where}: `normal` std must be >= 0, got {b}")
+    elif kind == "integers":
+        if not (isinstance(a, int) and isinstance(b, int) and a <= b):
+            raise ConfigError(f"{where}: `integers` needs integers lo <= hi, got {args!r}")
+    elif not a <= b or (kind == "loguniform" and a <= 0):
+        raise ConfigError(f"{where}: `{kind}` needs {'0 < ' if kind == 'loguniform' else ''}"
+                          f"a <= b, got {args!r}")
+
+
+def sample_params(specs: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
+    """Draw every parameter (in sorted name order) from ``rng``; constants pass through.
+
+    Returns plain Python values (float, int, str, list), ready for JSON.
+    """
+    out: dict[str, Any] = {}
+    for name in sorted(specs):
+        spec = specs[name]
+        if not isinstance(spec, dict):
+            out[name] = copy.deepcopy(spec)
+            continue
+        (kind, args), = spec.items()
+        if kind == "uniform":
+            out[name] = float(rng.uniform(*args))
+        elif kind == "loguniform":
+            out[name] = float(math.exp(rng.uniform(math.log(args[0]), math.log(args[1]))))
+        elif kind == "normal":
+            out[name] = float(rng.normal(*args))
+        elif kind == "integers":
+            out[name] = int(rng.integers(args[0], args[1], endpoint=True))
+        else:  # choice
+            out[name] = copy.deepcopy(args[int(rng.integers(len(args)))])
+    return out
+
+
+def describe(config: Config) -> str:
+    """One line per family: name, kind, count, grid."""
+    return "\n".join(f"  {f.name}: {f.count} x {f.kind} (grid {f.settings['grid']}, "
+                     f"{f.settings['method']})" for f in config.families)
+
+
+def canonical(config: Config) -> str:
+    """JSON of what determines the output (the TOML text and seed), for run.json comparisons."""
+    return json.dumps({"config_sha256": config.sha256, "seed": config.seed}, sort_keys=True)

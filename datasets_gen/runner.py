@@ -1,0 +1,463 @@
+"""Make a dataset: every item of a configuration, reproducibly, resumably, in parallel.
+
+Layout of an output folder::
+
+    run.json                  configuration text, seed, ao4d version, lut checksum
+    items/00000/mesh.npz      the closed 4D mesh (ao4d.meshio npz layout: SimplexMesh.load reads it)
+    items/00000/ao.npz        occlusion per vertex (or per simplex), float64
+    items/00000/<render>.png  optional renders (z-slice montage of the shaded 3D image)
+    items/00000/record.json   parameters, seeds, versions, mesh check, measures, file hashes
+    items/00000/timing.json   wall-clock seconds per stage        (not hashed)
+    items.csv                 one line per item
+    manifest.json             sha256 and size of every file above except timing/summary
+    summary.json              run statistics: made/skipped/failed, items per minute (not hashed)
+
+Reproducibility: item ``i`` draws everything from ``np.random.SeedSequence([seed, i])`` (its
+parameters, its rotation and its AO seed from three spawned children), so items can be made in
+any order or process and give the same bytes. Files carry no timestamps (npz members are dated
+1980-01-01, JSON is canonical), and wall-clock data lives only in ``timing.json`` and
+``summary.json``, which the manifest leaves out: two runs of the same configuration and seed
+have byte-identical manifests.
+
+Resumability: ``record.json`` is written last, holding the sha256 of the item's other files; an
+item counts as finished only when its record exists and every hash matches. Every file is
+written atomically, so a killed run leaves finished items intact and at most stray temporary
+files in the unfinished ones, which a rerun deletes before redoing them.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import multiprocessing
+import os
+import signal
+import sys
+import time
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ao4d._atomic import atomic_open
+
+from ._files import save_mesh_npz, sha256_file, write_json, write_npz
+from .config import Config, ItemSpec, load_config, sample_params
+
+__all__ = ["run", "RunSummary", "item_seed", "item_complete", "RUN_FORMAT", "UNHASHED"]
+
+RUN_FORMAT = 1
+UNHASHED = ("timing.json", "summary.json", "manifest.json")
+
+
+@dataclass
+class RunSummary:
+    """What a run did.
+
+    Attributes
+    ----------
+    out : Path
+    n_items, made, skipped : int
+    failed : dict of int to str
+        Item index -> error message.
+    seconds : float
+        Wall-clock time of the run.
+    bytes : int
+        Size of every hashed file in the folder.
+    """
+
+    out: Path
+    n_items: int
+    made: int = 0
+    skipped: int = 0
+    failed: dict[int, str] = field(default_factory=dict)
+    seconds: float = 0.0
+    bytes: int = 0
+
+    @property
+    def items_per_minute(self) -> float:
+        """Items made per minute of wall-clock time (skipped items not counted)."""
+        return 60.0 * self.made / self.seconds if self.seconds > 0 else math.nan
+
+    def __str__(self) -> str:
+        rate = f"{self.items_per_minute:.1f} items/min" if self.made else "nothing to make"
+        lines = [f"{self.out}: {self.made} made, {self.skipped} skipped (already complete), "
+                 f"{len(self.failed)} failed of {self.n_items}; {self.seconds:.1f} s, {rate}, "
+                 f"{self.bytes / 2**20:.2f} MiB"]
+        lines += [f"  item {i}: {msg}" for i, msg in sorted(self.failed.items())]
+        return "\n".join(lines)
+
+
+def item_seed(seed: int, index: int) -> np.random.SeedSequence:
+    """The seed sequence of item ``index`` of a run with ``seed``."""
+    return np.random.SeedSequence([int(seed), int(index)])
+
+
+def item_dir(out: Path, index: int) -> Path:
+    return Path(out) / "items" / f"{index:05d}"
+
+
+def item_complete(folder: Path) -> bool:
+    """True when ``folder/record.json`` exists and every file it lists has the recorded hash."""
+    record_path = Path(folder) / "record.json"
+    try:
+        record = json.loads(record_path.read_text(encoding="utf-8"))
+        files = record["files"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    for name, digest in files.items():
+        path = Path(folder) / name
+        if not path.is_file() or sha256_file(path) != digest:
+            return False
+    return True
+
+
+def _versions() -> dict[str, str]:
+    """ao4d version and the lookup tables' checksum (sha256 of lut/manifest.json)."""
+    import ao4d
+    from ao4d._resources import data_dir
+
+    manifest = data_dir("lut") / "manifest.json"
+    tables = json.loads(manifest.read_text(encoding="utf-8")).get("files", {})
+    return {
+        "ao4d": ao4d.__version__,
+        "lut_manifest_sha256": sha256_file(manifest),
+        "lut_cube_4d_sha256": tables.get("cube_4d.npz", {}).get("sha256", ""),
+        "lut_simplex_4d_sha256": tables.get("simplex_4d.npz", {}).get("sha256", ""),
+    }
+
+
+# --------------------------------------------------------------------------- one item
+
+
+@dataclass(frozen=True)
+class _Job:
+    spec: ItemSpec
+    seed: int
+    out: str
+    backend: str
+
+
+def make_item(job: _Job) -> dict[str, Any]:
+    """Make item ``job.spec.index`` in its folder; returns its timing. Top-level: spawn-safe."""
+    from .families import build_shape, random_rotation
+
+    spec, folder = job.spec, item_dir(Path(job.out), job.spec.index)
+    folder.mkdir(parents=True, exist_ok=True)
+    for stale in folder.iterdir():  # leftovers of an interrupted attempt (no valid record)
+        if stale.is_file():
+            stale.unlink()
+    settings = spec.family.settings
+    params_ss, rotation_ss, ao_ss = item_seed(job.seed, spec.index).spawn(3)
+    rng = np.random.default_rng(params_ss)
+    params = sample_params(spec.family.params, rng)
+    rotation = (random_rotation(np.random.default_rng(rotation_ss))
+                if settings["rotation"] == "random" else None)
+    ao_seed = int(ao_ss.generate_state(1)[0])
+    timing: dict[str, float] = {}
+
+    t0 = time.perf_counter()
+    shape = build_shape(spec.family.kind, params, settings, rng, rotation)
+    mesh = shape.mesh
+    timing["build"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    report = mesh.check()
+    volume, measure = float(mesh.volume), float(mesh.measure)
+    timing["check"] = time.perf_counter() - t0
+    files = [save_mesh_npz(folder / "mesh.npz", mesh).name]
+
+    occlusion = None
+    if settings["ao"]:
+        import ao4d
+
+        ao = settings["ao"]
+        t0 = time.perf_counter()
+        occlusion = ao4d.ambient_occlusion(mesh, samples=ao["samples"], max_distance=ao["max_distance"],
+                                           at=ao["at"], seed=ao_seed, backend=job.backend,
+                                           progress=False)
+        timing["ao"] = time.perf_counter() - t0
+        files.append(write_npz(folder / "ao.npz", {"occlusion": np.asarray(occlusion, np.float64)}).name)
+
+    for render in settings["renders"]:
+        t0 = time.perf_counter()
+        files.append(_render(folder, render, mesh, occlusion, settings, ao_seed, job.backend).name)
+        timing[f"render_{render['name']}"] = time.perf_counter() - t0
+
+    expected = shape.volume_expected
+    record = {
+        "format": RUN_FORMAT,
+        "index": spec.index,
+        "family": spec.family.name,
+        "kind": spec.family.kind,
+        "number": spec.number,
+        "seed": {"run": job.seed, "entropy": [job.seed, spec.index], "ao": ao_seed},
+        "params": params,
+        "derived": shape.derived,
+        "rotation": rotation,
+        "settings": {k: v for k, v in settings.items() if k != "renders"},
+        "renders": settings["renders"],
+        "grid": shape.grid,
+        "versions": _versions(),
+        "mesh": {
+            "vertices": mesh.n_vertices,
+            "simplices": mesh.n_simplices,
+            "check": {**asdict(report), "ok": report.ok},
+            "volume": volume,
+            "measure": measure,
+            "volume_expected": expected,
+            "volume_rel_error": None if not expected else volume / expected - 1.0,
+            "bounds": mesh.bounds,
+        },
+        "ao": None if occlusion is None else {
+            "mean": float(np.mean(occlusion)), "min": float(np.min(occlusion)),
+            "max": float(np.max(occlusion)), "values": len(occlusion), "backend": job.backend},
+        "files": {name: sha256_file(folder / name) for name in files},
+    }
+    write_json(folder / "timing.json", {"seconds": timing, "pid": os.getpid()})
+    write_json(folder / "record.json", record)  # last: marks the item complete
+    return {"index": spec.index, "seconds": timing}
+
+
+def _render(folder: Path, render: dict, mesh: Any, occlusion: Any, settings: dict, seed: int,
+            backend: str) -> Path:
+    """Render the item looking along +w at its centre; save a z-slice montage PNG."""
+    import ao4d
+    from ao4d import io as aio
+
+    lo, hi = mesh.bounds
+    centre, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) / 2
+    distance = float(render.get("distance", 3.0)) * radius
+    camera = ao4d.Camera4D(centre - [0, 0, 0, distance], centre, up=(0, 1, 0, 0), over=(0, 0, 1, 0),
+                           fov=float(render.get("fov", 45.0)))
+    scene = mesh.copy()
+    vertex_ao = occlusion is not None and settings["ao"]["at"] == "vertices"
+    if vertex_ao:
+        scene.point_data["ao"] = occlusion
+    result = ao4d.render(scene, camera, tuple(render.get("shape", (32, 32, 32))),
+                         ao="vertices" if vertex_ao else "hits",
+                         samples=int(render.get("samples", 32)), seed=seed, backend=backend,
+                         progress=False)
+    path = folder / f"{render['name']}.png"
+    aio.save_montage(path, result.shade, background=~result.hit, label="shade (1 - A)",
+                     title=f"item {folder.name}: 3D image looking along +w",
+                     spacing=result.geometry.spacing, origin=result.geometry.origin)
+    return path
+
+
+# --------------------------------------------------------------------------- the run
+
+
+def _check_out(out: Path, config: Config, seed: int) -> None:
+    """Create ``out/run.json`` or refuse an output folder made by another config or seed."""
+    run_path = out / "run.json"
+    if run_path.is_file():
+        try:
+            previous = json.loads(run_path.read_text(encoding="utf-8"))
+        except ValueError:
+            previous = {}
+        if previous.get("config_sha256") != config.sha256 or previous.get("seed") != seed:
+            raise FileExistsError(
+                f"`out` {str(out)!r} holds a run of config {previous.get('config_name')!r} with seed "
+                f"{previous.get('seed')!r}, not of {config.name!r} with seed {seed}; choose another "
+                "folder or delete it")
+        return
+    if out.exists() and any(out.iterdir()):
+        raise FileExistsError(f"`out` {str(out)!r} exists, is not empty and holds no run.json; "
+                              "choose an empty or new folder")
+    write_json(run_path, {
+        "format": RUN_FORMAT, "config_name": config.name, "config_source": config.source,
+        "config_sha256": config.sha256, "config_text": config.text, "seed": seed,
+        "versions": _versions(), "n_items": len(config.items()),
+    })
+
+
+def run(
+    config: str | os.PathLike | Config,
+    out: str | os.PathLike,
+    *,
+    workers: int = 1,
+    seed: int | None = None,
+    progress: bool | None = None,
+) -> RunSummary:
+    """Make (or finish) the dataset of ``config`` in the folder ``out``.
+
+    Parameters
+    ----------
+    config : str, path or Config
+        A configuration file, a shipped configuration's name (``"smoke"``, ``"tori"``, ...) or
+        a loaded :class:`~datasets_gen.config.Config`.
+    out : path-like
+        Output folder: new, empty, or holding an earlier (partial) run of the same config/seed.
+    workers : int
+        Processes (spawned); 1 runs in this process.
+    seed : int, optional
+        Run seed; default the configuration's ``seed``.
+    progress : bool, optional
+        tqdm bar over items; default when stderr is a terminal.
+
+    Returns
+    -------
+    RunSummary
+
+    Raises
+    ------
+    FileExistsError
+        ``out`` holds something else (another config or seed, or unrelated files).
+    """
+    from ao4d._validate import check_positive_int
+
+    cfg = config if isinstance(config, Config) else load_config(config)
+    workers = check_positive_int(workers, "workers")
+    seed = cfg.seed if seed is None else check_positive_int(seed, "seed", minimum=0)
+    out = Path(out)
+    _check_out(out, cfg, seed)
+    items = cfg.items()
+    summary = RunSummary(out, len(items))
+    start = time.perf_counter()
+    todo = []
+    for spec in items:
+        if item_complete(item_dir(out, spec.index)):
+            summary.skipped += 1
+        else:
+            todo.append(_Job(spec, seed, str(out), cfg.backend))
+
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=len(items), initial=summary.skipped, desc=f"{cfg.name} items", unit="item",
+               disable=(not sys.stderr.isatty()) if progress is None else not progress)
+    try:
+        if workers == 1 or len(todo) <= 1:
+            for job in todo:
+                _collect(summary, job, lambda job=job: make_item(job))
+                bar.update()
+        else:
+            _run_parallel(todo, workers, summary, bar)
+    except KeyboardInterrupt:
+        bar.close()
+        print(f"\ninterrupted: finished items are kept; rerun the same command to resume "
+              f"({summary.made + summary.skipped} of {len(items)} complete)", file=sys.stderr)
+        raise
+    bar.close()
+    summary.seconds = time.perf_counter() - start
+    summary.bytes = _write_index(out, items, summary)
+    return summary
+
+
+def _collect(summary: RunSummary, job: _Job, call) -> None:
+    try:
+        call()
+        summary.made += 1
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except Exception as exc:  # one bad item must not stop the dataset; reported at the end
+        summary.failed[job.spec.index] = f"{type(exc).__name__}: {exc}"
+
+
+def _run_parallel(todo: list[_Job], workers: int, summary: RunSummary, bar) -> None:
+    context = multiprocessing.get_context("spawn")  # no fork: OpenCL state must not be copied
+    with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=context,
+                             initializer=_ignore_sigint) as pool:
+        pending: dict[Future, _Job] = {pool.submit(make_item, job): job for job in todo}
+        try:
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    job = pending.pop(fut)
+                    _collect(summary, job, fut.result)
+                    bar.update()
+        except KeyboardInterrupt:
+            pool.shutdown(wait=False, cancel_futures=True)
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.terminate()  # unfinished items are redone on the next run
+            raise
+
+
+def _ignore_sigint() -> None:
+    """Workers leave Ctrl-C to the parent, which cancels and terminates them."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _write_index(out: Path, items: list[ItemSpec], summary: RunSummary) -> int:
+    """Write items.csv, manifest.json (hashes) and summary.json; return the hashed bytes."""
+    rows = []
+    for spec in items:
+        folder = item_dir(out, spec.index)
+        if spec.index in summary.failed or not (folder / "record.json").is_file():
+            continue
+        rec = json.loads((folder / "record.json").read_text(encoding="utf-8"))
+        m = rec["mesh"]
+        rows.append([spec.index, rec["family"], rec["kind"], m["vertices"], m["simplices"],
+                     m["check"]["ok"], repr(m["volume"]), repr(m["volume_expected"]),
+                     repr(m["volume_rel_error"]), repr(rec["ao"]["mean"]) if rec["ao"] else ""])
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(["index", "family", "kind", "vertices", "simplices", "ok", "volume",
+                     "volume_expected", "volume_rel_error", "ao_mean"])
+    writer.writerows(rows)
+    with atomic_open(out / "items.csv", "w", encoding="utf-8") as fh:
+        fh.write(text.getvalue())
+
+    files = {}
+    for path in sorted(out.rglob("*")):
+        if path.is_file() and path.name not in UNHASHED and not path.name.startswith("."):
+            files[path.relative_to(out).as_posix()] = {"sha256": sha256_file(path),
+                                                       "bytes": path.stat().st_size}
+    run_info = json.loads((out / "run.json").read_text(encoding="utf-8"))
+    write_json(out / "manifest.json", {
+        "format": RUN_FORMAT,
+        "config_sha256": run_info["config_sha256"],
+        "seed": run_info["seed"],
+        "n_items": len(items),
+        "complete": len(rows) == len(items),
+        "unhashed": list(UNHASHED),
+        "files": files,
+    })
+    size = sum(f["bytes"] for f in files.values())
+    write_json(out / "summary.json", {
+        "made": summary.made, "skipped": summary.skipped, "failed": summary.failed,
+        "seconds": summary.seconds, "items_per_minute": summary.items_per_minute,
+        "bytes": size,
+    })
+    return size
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: ``python -m datasets_gen CONFIG --out DIR [--workers N] [--seed S]``."""
+    import argparse
+
+    from .config import ConfigError, describe, shipped_configs
+
+    parser = argparse.ArgumentParser(
+        prog="python -m datasets_gen",
+        description="Make a reproducible procedural 4D dataset (meshes, AO, renders, manifest).",
+        epilog="shipped configs: " + ", ".join(shipped_configs()) + "\nexamples:\n"
+               "  python -m datasets_gen smoke --out /tmp/smoke\n"
+               "  python -m datasets_gen tori --out data/tori --workers 2 --seed 7\n"
+               "  python -m datasets_gen my.toml --out data/mine   # rerun to resume",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("config", help="a TOML file or the name of a shipped config")
+    parser.add_argument("--out", required=True, help="output folder (created; reruns resume)")
+    parser.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    parser.add_argument("--seed", type=int, default=None, help="run seed (default: the config's)")
+    parser.add_argument("--list", action="store_true", help="show the items' families and exit")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+    try:
+        cfg = load_config(args.config)
+        if args.list:
+            print(f"{cfg.name} ({cfg.source}): {len(cfg.items())} items\n{describe(cfg)}")
+            return 0
+        summary = run(cfg, args.out, workers=args.workers, seed=args.seed,
+                      progress=False if args.no_progress else None)
+    except (FileNotFoundError, FileExistsError, ConfigError, ValueError, TypeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    print(summary)
+    return 1 if summary.failed else 0
