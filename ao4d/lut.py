@@ -24,8 +24,8 @@ Tables ship in ``lut/`` (see ``lut/README.md``); ``load`` reads them, ``build`` 
 References
 ----------
 .. [1] P. Bhaniramka, R. Wenger, R. Crawfis, "Isosurfacing in higher dimensions", Proc. IEEE
-   Visualization 2000, 267-273, doi:10.1109/VISUAL.2000.885704; and "Isosurface construction in
-   any dimension using convex hulls", IEEE TVCG 10(2), 2004, 130-141, doi:10.1109/TVCG.2004.1260765.
+   Visualization 2000, 267-273; and "Isosurface construction in any dimension using convex
+   hulls", IEEE Trans. Vis. Comput. Graph. 10(2), 2004, 130-141.
 .. [2] H. W. Kuhn, "Some combinatorial lemmas in topology", IBM J. Res. Dev. 4(5), 1960, 518-524,
    doi:10.1147/rd.45.0518.
 """
@@ -56,6 +56,7 @@ __all__ = [
     "KINDS",
     "load",
     "build",
+    "read",
     "save",
     "write_tables",
     "verify",
@@ -460,7 +461,7 @@ def _orient(cell: _Cell, entries: np.ndarray, simplices: np.ndarray) -> np.ndarr
     configs = np.arange(1 << n)
     positive = (configs[:, None] >> np.arange(n)) & 1  # (N, n)
     bipolar = (positive[:, cell.edges[:, 0]] != positive[:, cell.edges[:, 1]]).astype(np.int64)
-    coords2 = cell.coords2
+    coords2 = cell.coords2.astype(np.int32)  # |entries| <= 2: int32 products cannot overflow
     total = positive @ coords2[:n] + bipolar @ coords2[n:]  # (N, d)
     count = positive.sum(1) + bipolar.sum(1)
     p = coords2[n + simplices]  # (M, d, d)
@@ -504,8 +505,12 @@ def _det(m: np.ndarray) -> np.ndarray:
 
 
 def _assemble(cell: _Cell, entries: np.ndarray, simplices: np.ndarray) -> tuple[np.ndarray, ...]:
-    keys = np.sort(simplices, axis=1)
-    order = np.lexsort([keys[:, k] for k in reversed(range(cell.dim))] + [entries])
+    """Offsets per entry and rows sorted by (entry, sorted labels): one int64 key, base E."""
+    base = len(cell.edges)
+    key = entries.astype(np.int64)
+    for column in np.sort(simplices, axis=1).T:
+        key = key * base + column  # < 2^16 * 32^4 in 4D
+    order = np.argsort(key, kind="stable")
     counts = np.bincount(entries, minlength=1 << cell.n)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     return offsets, simplices[order]
@@ -642,10 +647,27 @@ def _table_bytes(table: Table) -> bytes:
     return buffer.getvalue()
 
 
-def _read_table(path: Path, dim: int, kind: str) -> Table:
+def read(path: str | os.PathLike) -> Table:
+    """Read a table file written by :func:`save` (dimension and kind come from its arrays).
+
+    Parameters
+    ----------
+    path : path
+        A ``<kind>_<dim>d.npz`` file.
+
+    Returns
+    -------
+    table : Table
+        Arrays read-only, in the in-memory dtypes (int64 indices).
+    """
+    path = Path(path)
     with np.load(path, allow_pickle=False) as data:
+        missing = {"vertices", "edges", "offsets", "simplices"} - set(data.files)
+        if missing:
+            raise ValueError(f"`path` {path} is not a lookup table: no {sorted(missing)}")
         arrays = {name: data[name].astype(_MEMORY_DTYPES[name]) for name in data.files}
-    return _freeze(Table(dim=dim, kind=kind, **arrays))
+    kind = "simplex" if "cells" in arrays else "cube"
+    return _freeze(Table(dim=int(arrays["vertices"].shape[1]), kind=kind, **arrays))
 
 
 def save(table: Table, folder: str | os.PathLike) -> Path:
@@ -731,7 +753,7 @@ def _load_cached(dim: int, kind: str) -> Table:
     path = _lut_folder() / table_filename(dim, kind)
     if not path.is_file():
         raise FileNotFoundError(f"lookup table {path} is missing; run `ao4d lut build`")
-    return _read_table(path, dim, kind)
+    return read(path)
 
 
 def load(dim: int, kind: str = "cube") -> Table:
@@ -805,7 +827,7 @@ def verify(
                 start = time.perf_counter()
                 fresh = build(dim, kind, progress=False)
                 took = time.perf_counter() - start
-                if not fresh.equals(_read_table(path, dim, kind)):
+                if not fresh.equals(read(path)):
                     report.fail(f"{name}: rebuild differs from the file")
                     continue
                 if _table_bytes(fresh) != path.read_bytes():
