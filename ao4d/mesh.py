@@ -221,7 +221,7 @@ def _lexsort_rows(rows: np.ndarray, base: int) -> np.ndarray:
         key = np.zeros(len(rows), dtype=np.int64)
         for k in range(m):
             key = key * base + rows[:, k]
-        return np.argsort(key, kind="stable")
+        return np.argsort(key)
     return np.lexsort(rows.T[::-1])
 
 
@@ -764,7 +764,8 @@ class SimplexMesh:
         """(B, d-1) int64: vertex indices of the (d-2)-faces used by only one simplex.
 
         Each face is listed in the orientation its simplex induces on it (the boundary operator),
-        so the boundary of an oriented open mesh comes out oriented; empty for a closed mesh.
+        so the boundary of an oriented open mesh comes out oriented (in 2D a face is one vertex
+        and its sign is not represented); empty for a closed mesh.
         """
         d = self.dim
         faces = self._faces
@@ -849,7 +850,9 @@ class SimplexMesh:
         """
         d = self.dim
         m = as_array(matrix, "matrix", ndim=2, shape_tail=(d, d), dtype=np.float64, finite=True)
-        t = np.broadcast_to(as_array(offset, "offset", dtype=np.float64, finite=True), (d,))
+        t = as_array(offset, "offset", ndim=(0, 1), dtype=np.float64, finite=True)
+        if t.shape not in ((), (d,)):
+            raise ValueError(f"`offset` must be a scalar or have shape ({d},), got {t.shape}")
         det = float(np.linalg.det(m))
         if det == 0.0:
             raise ValueError("`matrix` must be invertible (its determinant is 0)")

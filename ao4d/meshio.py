@@ -36,7 +36,7 @@ import numpy as np
 from ._atomic import atomic_open, atomic_path
 from .mesh import SimplexMesh
 
-__all__ = ["save_npz", "load_npz", "save_vtu", "load_vtu", "save_text", "load_text", "load"]
+__all__ = ["save_npz", "load_npz", "save_vtu", "load_vtu", "to_pyvista", "save_text", "load_text", "load"]
 
 NPZ_FORMAT = 1
 TEXT_FORMAT = 1
