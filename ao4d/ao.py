@@ -262,6 +262,27 @@ def _ao_opencl(tree, runtime, points, normals, samples, seed, max_distance, acce
     return out
 
 
+def _directions_opencl(runtime, normals: np.ndarray, samples: int, seed: int) -> np.ndarray:
+    """The directions the AO kernels trace, computed on the device (used by the tests)."""
+    import pyopencl as cl
+
+    n, d = normals.shape
+    ctx, queue = runtime.context, runtime.queue
+    ro = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
+    out = np.empty((n * samples, 4), dtype=np.float32)
+    buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
+    _kernels(runtime, d)["sample_directions"](
+        queue, (n,), None,
+        cl.Buffer(ctx, ro, hostbuf=_pad4(normals)),
+        cl.Buffer(ctx, ro, hostbuf=np.arange(n, dtype=np.uint32)),
+        cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(sobol_table(samples, d - 1, seed=seed))),
+        np.int32(samples), np.uint32(seed & 0xFFFFFFFF), buf,
+    )
+    cl.enqueue_copy(queue, out, buf)
+    queue.finish()
+    return out[:, :d].reshape(n, samples, d).astype(np.float64)
+
+
 # -- numpy side -------------------------------------------------------------------------------
 
 

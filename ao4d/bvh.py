@@ -36,6 +36,8 @@ __all__ = ["BVH", "build", "get_bvh", "intersect", "barycentric", "simplex_norma
 BARY_EPS = 1e-5
 _BOX_MARGIN = 1e-5  # of the scene diagonal: covers float32 error of slab tests
 _DEGENERATE_RTOL = 1e-12  # |n| below this times (longest edge)^(d-1): zero measure
+_SAH_BINS = 16
+_SAH_MAX_LEVEL = 40  # deeper levels split at the median: depth <= 40 + log2(P) < 64
 
 
 @dataclass
@@ -141,11 +143,47 @@ def _prepare(vertices: np.ndarray, simplices: np.ndarray):
     return idx, corners, inverse
 
 
-def _split_levels(centroids: np.ndarray, leaf_size: int):
-    """Top-down median splits, all nodes of a level at once.
+def _box_area(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Boundary (d-1)-measure of boxes: the chance that a random ray meets a convex body is
+    proportional to it (Cauchy), which makes it the SAH weight in any dimension."""
+    ext = np.maximum(hi - lo, 0.0)
+    d = ext.shape[-1]
+    area = np.zeros(ext.shape[:-1])
+    for k in range(d):
+        area += np.prod(np.delete(ext, k, axis=-1), axis=-1)
+    return 2.0 * area
 
-    Returns the primitive order, per node ``start``, ``count``, ``left``, ``right`` (-1 for
-    leaves) and the node ids of each level.
+
+def _sah_split_counts(key_bins, seg, n_seg, p_lo, p_hi, s_count):
+    """Binned SAH: how many of each segment's sorted primitives go left (0 = no good split)."""
+    d = p_lo.shape[1]
+    flat = seg * _SAH_BINS + key_bins
+    counts = np.bincount(flat, minlength=n_seg * _SAH_BINS).reshape(n_seg, _SAH_BINS)
+    runs = np.flatnonzero(np.r_[True, flat[1:] != flat[:-1]])  # sorted: bins are runs
+    b_lo = np.full((n_seg * _SAH_BINS, d), np.inf)
+    b_hi = np.full((n_seg * _SAH_BINS, d), -np.inf)
+    b_lo[flat[runs]] = np.minimum.reduceat(p_lo, runs, axis=0)
+    b_hi[flat[runs]] = np.maximum.reduceat(p_hi, runs, axis=0)
+    b_lo = b_lo.reshape(n_seg, _SAH_BINS, d)
+    b_hi = b_hi.reshape(n_seg, _SAH_BINS, d)
+    left_n = np.cumsum(counts, axis=1)[:, :-1]
+    right_n = s_count[:, None] - left_n
+    left_a = _box_area(np.minimum.accumulate(b_lo, 1), np.maximum.accumulate(b_hi, 1))[:, :-1]
+    right_a = _box_area(
+        np.minimum.accumulate(b_lo[:, ::-1], 1)[:, ::-1], np.maximum.accumulate(b_hi[:, ::-1], 1)[:, ::-1]
+    )[:, 1:]
+    with np.errstate(invalid="ignore"):
+        cost = np.where((left_n > 0) & (right_n > 0), left_a * left_n + right_a * right_n, np.inf)
+    best = np.argmin(cost, axis=1)
+    return np.where(np.isfinite(cost[np.arange(n_seg), best]), left_n[np.arange(n_seg), best], 0)
+
+
+def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, leaf_size: int):
+    """Top-down binned-SAH splits along the longest centroid axis, all nodes of a level at once.
+
+    Falls back to the median where SAH finds no split and below ``_SAH_MAX_LEVEL`` levels,
+    which bounds the depth by ``_SAH_MAX_LEVEL + log2(P)``. Returns the primitive order, per
+    node ``start``, ``count``, ``left``, ``right`` (-1 for leaves) and the node ids per level.
     """
     n = len(centroids)
     order = np.arange(n)
@@ -173,11 +211,16 @@ def _split_levels(centroids: np.ndarray, leaf_size: int):
         axis = np.argmax(c_hi - c_lo, axis=1)
         ext = (c_hi - c_lo)[np.arange(ids.size), axis]
         ext = np.where(ext > 0, ext, 1.0)
-        # one float64 key sorts by segment, then by centroid (<= 2^20 segments leave 32 bits)
-        frac = (c[np.arange(seg.size), axis[seg]] - c_lo[seg, axis[seg]]) / ext[seg]
-        key = seg + 0.5 * np.clip(frac, 0.0, 1.0)
-        order[pos] = prims[np.argsort(key)]
+        frac = np.clip((c[np.arange(seg.size), axis[seg]] - c_lo[seg, axis[seg]]) / ext[seg], 0.0, 1.0)
+        # one float64 key sorts by segment, then by centroid (2^22 segments leave 30 bits)
+        sort = np.argsort(seg + 0.5 * frac)
+        prims, frac = prims[sort], frac[sort]
+        order[pos] = prims
         half = s_count // 2
+        if len(levels) <= _SAH_MAX_LEVEL:
+            bins = np.minimum((frac * _SAH_BINS).astype(np.int64), _SAH_BINS - 1)
+            sah = _sah_split_counts(bins, seg, ids.size, p_lo[prims], p_hi[prims], s_count)
+            half = np.where(sah > 0, sah, half)
         ids_l = n_nodes + 2 * np.arange(ids.size)
         ids_r = ids_l + 1
         n_nodes += 2 * ids.size
@@ -263,7 +306,7 @@ def build(vertices: Any, simplices: Any, *, leaf_size: int = 4) -> BVH:
     # an accepted hit lies within BARY_EPS (barycentric) of the simplex: grow boxes to match
     margin = 2 * BARY_EPS * (p_hi - p_lo).max(1, keepdims=True) + _BOX_MARGIN * max(diagonal, 1e-30)
     p_lo, p_hi = p_lo - margin, p_hi + margin
-    order, start, count, left, right, levels = _split_levels(corners.mean(1), leaf_size)
+    order, start, count, left, right, levels = _split_levels(corners.mean(1), p_lo, p_hi, leaf_size)
     lo, hi = _node_bounds(p_lo[order], p_hi[order], start, count, left, right, levels)
     meta = np.where((left >= 0)[:, None], np.stack([left, right], 1), np.stack([-(start + 1), count], 1))
     lo32 = np.nextafter(lo.astype(np.float32), np.float32(-np.inf))

@@ -82,3 +82,15 @@ __kernel void cast_brute(__global const float4 *simplices, const int n_simplices
                              any_hit, &t);
     t_out[i] = t;
 }
+
+// the directions ao_* trace for each point (for tests: must equal ao4d.sampling.cosine_hemisphere)
+__kernel void sample_directions(__global const float4 *normals, __global const uint *index,
+                                __global const uint *table, const int samples, const uint seed,
+                                __global float4 *out)
+{
+    const size_t i = get_global_id(0);
+    uint shift[DIM - 1];
+    for (int k = 0; k < DIM - 1; ++k) shift[k] = point_shift(index[i], seed, (uint)k);
+    for (int s = 0; s < samples; ++s)
+        out[i * samples + s] = cosine_direction(normals[i], table, s, shift);
+}
