@@ -409,3 +409,48 @@ def test_nan_in_memmap_is_reported(tmp_path):
 def test_extract_field_bad_input_is_named(args, kwargs, error, match):
     with pytest.raises(error, match=match):
         ao4d.extract_field(*args, **kwargs)
+
+
+# --------------------------------------------------------------------------------------------
+# command line
+# --------------------------------------------------------------------------------------------
+
+
+def test_cli_extract_shape_writes_a_checked_mesh(tmp_path, capsys):
+    from ao4d.cli import main
+
+    out, vtu = tmp_path / "torus.npz", tmp_path / "torus.vtu"
+    assert main(["extract", "--shape", "spheritorus", "--grid", "14", "--out", str(out), "--vtu", str(vtu)]) == 0
+    text = capsys.readouterr().out
+    assert "=> OK" in text and "analytic 6.56921" in text
+    mesh = ao4d.SimplexMesh.load(out)
+    assert mesh.check().ok and vtu.stat().st_size > 0
+    field = F.preset("spheritorus")
+    lo, hi = field.extent
+    ref = ao4d.extract_field(field, 14, (lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo)))
+    _assert_same_mesh(ref, mesh)
+
+
+def test_cli_extract_npy_input(tmp_path, capsys):
+    from ao4d.cli import main
+
+    v = _noise(np.random.default_rng(40), (8, 7, 9))
+    np.save(tmp_path / "v.npy", -v)
+    out = tmp_path / "m.npz"
+    args = ["extract", "--input", str(tmp_path / "v.npy"), "--level", "-0.1", "--inside", "above",
+            "--spacing", "0.5", "1", "2", "--method", "simplices", "--out", str(out)]
+    assert main(args) == 0
+    assert "=> OK" in capsys.readouterr().out
+    ref = ao4d.extract(v, 0.1, spacing=(0.5, 1, 2), method="simplices")
+    _assert_same_mesh(ref, ao4d.SimplexMesh.load(out))
+
+
+def test_cli_extract_reports_bad_input(tmp_path, capsys):
+    from ao4d.cli import main
+
+    np.save(tmp_path / "v.npy", np.ones(5))
+    assert main(["extract", "--input", str(tmp_path / "v.npy"), "--out", str(tmp_path / "m.npz")]) == 2
+    assert "`values` must be a 2D, 3D or 4D array" in capsys.readouterr().err
+    assert not (tmp_path / "m.npz").exists()
+    with pytest.raises(SystemExit):
+        main(["extract", "--shape", "klein", "--out", str(tmp_path / "m.npz")])
