@@ -50,7 +50,7 @@ def write_npz(path: str | os.PathLike, arrays: Mapping[str, Any], *, compress: b
             if arr.dtype == object:
                 raise TypeError(f"`arrays[{name!r}]` has dtype object, which .npz cannot store safely")
             buffer = io.BytesIO()
-            np.lib.format.write_array(buffer, np.ascontiguousarray(arr), allow_pickle=False)
+            np.lib.format.write_array(buffer, np.asarray(arr, order="C"), allow_pickle=False)
             info = zipfile.ZipInfo(f"{name}.npy", date_time=_EPOCH)
             info.compress_type = method
             info.external_attr = 0o644 << 16

@@ -307,8 +307,12 @@ def sample_params(specs: dict[str, Any], rng: np.random.Generator) -> dict[str, 
 
 def describe(config: Config) -> str:
     """One line per family: name, kind, count, grid."""
-    return "\n".join(f"  {f.name}: {f.count} x {f.kind} (grid {f.settings['grid']}, "
-                     f"{f.settings['method']})" for f in config.families)
+    def how(f: Family) -> str:
+        if f.kind == "lifted":
+            return f"lifted with ao4d.lift, caps cut by {f.settings['tetrahedra']!r}"
+        return f"grid {f.settings['grid']}^4, {f.settings['method']}"
+
+    return "\n".join(f"  {f.name}: {f.count} x {f.kind} ({how(f)})" for f in config.families)
 
 
 def canonical(config: Config) -> str:
