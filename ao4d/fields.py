@@ -115,7 +115,12 @@ class Field:
             want = "d" if self.dim is None else str(self.dim)
             raise ValueError(f"`points` must have shape (..., {want}), got {pts.shape}")
         out = np.asarray(self._func(pts), dtype=np.float64)
-        return np.broadcast_to(out, pts.shape[:-1]) if out.shape != pts.shape[:-1] else out
+        if out.shape == pts.shape[:-1]:
+            return out
+        try:  # constant parts (e.g. a scalar) broadcast to the points' shape
+            return np.broadcast_to(out, pts.shape[:-1])
+        except ValueError:
+            raise ValueError(f"field {self.name} returned shape {out.shape} for points {pts.shape}") from None
 
     def __repr__(self) -> str:
         return f"<Field {self.name} dim={self.dim}>"
@@ -864,6 +869,7 @@ def sample(field: Callable, shape: Any, bounds: Any) -> np.ndarray:
         raise TypeError(f"`field` must be callable on (..., d) points, got {type(field).__name__}")
     axes = grid_axes(shape, bounds, dim=_dim_of(field))
     n = [len(a) for a in axes]
-    check_memory(8.0 * math.prod(n), f"sampling a grid of shape {tuple(n)}")
+    # the layers are evaluated last-axis-first, then reordered: two float64 grids at the peak
+    check_memory(16.0 * math.prod(n), f"sampling a grid of shape {tuple(n)}")
     layers = evaluate_layers(field, axes, 0, n[-1])
     return np.ascontiguousarray(np.moveaxis(layers, 0, -1))

@@ -247,7 +247,8 @@ def _march(
             top = (lin >= (z1 - z0) * layer) & in_plane_dir[dir_]
             carry[used[top] - (z1 - z0) * layer * n_dirs] = index[top]
             # key -> vertex index through a dense map (np.empty: only the used keys are read)
-            key_map = np.empty(slab.size * n_dirs, dtype=np.int64)
+            # int32 per-slab simplices halve the memory held until the final concatenation
+            key_map = np.empty(slab.size * n_dirs, dtype=np.int32 if n_vertices < 2**31 else np.int64)
             key_map[used] = index
             simps.append(key_map[keys])
             del keys, key_map
@@ -257,7 +258,9 @@ def _march(
         z0 = z1
     if not simps:
         return np.zeros((0, d)), np.zeros((0, d), dtype=np.int64)
-    return np.concatenate(verts), np.concatenate(simps)
+    vertices = np.concatenate(verts)
+    del verts
+    return vertices, np.concatenate(simps, dtype=np.int64)
 
 
 def _interpolate(

@@ -332,6 +332,13 @@ def test_field_is_evaluated_slab_by_slab():
     assert sum(int(np.prod(s)) for s in calls) == 9 * 10 * 11 * 12
 
 
+def test_progress_bar_is_shown_on_request(capsys):
+    ao4d.extract_field(F.hypersphere(1.0), 8, (-1.2, 1.2), progress=True)
+    assert "extract" in capsys.readouterr().err
+    ao4d.extract_field(F.hypersphere(1.0), 8, (-1.2, 1.2))  # small grid: silent by default
+    assert capsys.readouterr().err == ""
+
+
 def test_level_outside_the_data_gives_an_empty_mesh():
     v = _noise(np.random.default_rng(0), (5, 5, 5, 5))
     for level in (-5.0, 5.0):
