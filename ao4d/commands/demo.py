@@ -186,11 +186,11 @@ def _write_files(out: Path, scene, image, settings, aio, np) -> list[Path]:
     files.append(out / "image.raw")
     files.append(image.save(out / "image.vti"))
     files.append(aio.save_montage(
-        out / "image_slices.png", image.shade, background=~image.hit, cmap="gray",
+        out / "image_slices.png", image.shade, background=~image.hit, cmap="magma",
         title=f"ao4d demo: z-slices of the 3D image, shade = 0.8 (1 - AO) + 0.2 Lambert ({params})",
         label="shade", spacing=geo.spacing, origin=geo.origin))
     aio.save_volume_png(
-        out / "image_volume.png", image.shade, background=~image.hit, cmap="gray",
+        out / "image_volume.png", image.shade, background=~image.hit, cmap="magma",
         title=f"ao4d demo: 3D image of a 4D scene ({params})",
         label="shade", spacing=geo.spacing, origin=geo.origin)
     files.append(out / "image_volume.png")
