@@ -1,0 +1,493 @@
+"""Ambient occlusion and ray casting: analytic 2D/3D/4D cases, Embree, BVH vs brute force,
+OpenCL vs numpy, symmetry, grading, convergence and bad input."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial import ConvexHull
+
+import ao4d
+from ao4d import ao, bvh, sampling
+
+DIMS = (2, 3, 4)
+
+
+@pytest.fixture(params=["numpy", "opencl"])
+def backend(request):
+    if request.param == "opencl":
+        request.getfixturevalue("cl_runtime")  # skips (saying why) without a device
+    return request.param
+
+
+# -- scenes -----------------------------------------------------------------------------------
+
+
+def oriented(vertices, simplices, direction):
+    """Swap two vertices of simplices whose normal points against ``direction`` (V, d) or (d,)."""
+    simplices = np.array(simplices)
+    n = bvh.simplex_normals(vertices[simplices])
+    ref = np.broadcast_to(direction, n.shape) if np.ndim(direction) == 1 else direction
+    flip = np.einsum("sd,sd->s", n, ref) < 0
+    simplices[flip, :2] = simplices[flip, 1::-1]
+    return simplices
+
+
+def flat_patch(d, lo, hi, height, n=4, axis=None):
+    """A Kuhn-triangulated axis-aligned (d-1)-box at ``x[axis] = height`` (default: last axis).
+
+    ``lo``/``hi`` bound the other d-1 coordinates; normals point towards +axis.
+    """
+    axis = d - 1 if axis is None else axis
+    others = [k for k in range(d) if k != axis]
+    lo = np.broadcast_to(np.asarray(lo, float), (d - 1,))
+    hi = np.broadcast_to(np.asarray(hi, float), (d - 1,))
+    ticks = [np.linspace(a, b, n + 1) for a, b in zip(lo, hi)]
+    grid = np.stack(np.meshgrid(*ticks, indexing="ij"), -1).reshape(-1, d - 1)
+    vertices = np.zeros((len(grid), d))
+    vertices[:, others] = grid
+    vertices[:, axis] = height
+    strides = (n + 1) ** np.arange(d - 2, -1, -1)
+    cells = np.stack(np.meshgrid(*[np.arange(n)] * (d - 1), indexing="ij"), -1).reshape(-1, d - 1)
+    simplices = []
+    for perm in itertools.permutations(range(d - 1)):
+        corner, ids = cells.copy(), [cells @ strides]
+        for k in perm:
+            corner = corner.copy()
+            corner[:, k] += 1
+            ids.append(corner @ strides)
+        simplices.append(np.stack(ids, 1))
+    up = np.eye(d)[axis]
+    return vertices, oriented(vertices, np.concatenate(simplices), up)
+
+
+def sphere_hull(rng, d, n_points, radius=1.0, centre=0.0):
+    """Outward-oriented convex hull of points on a sphere: a closed (d-1)-manifold."""
+    points = rng.normal(size=(n_points, d))
+    points /= np.linalg.norm(points, axis=1, keepdims=True)
+    hull = ConvexHull(points)
+    simplices = oriented(points, hull.simplices, hull.equations[:, :d])
+    return radius * points + centre, simplices
+
+
+def merge(*parts):
+    vertices, simplices, offset = [], [], 0
+    for v, s in parts:
+        vertices.append(v)
+        simplices.append(s + offset)
+        offset += len(v)
+    return ao4d.SimplexMesh(np.concatenate(vertices), np.concatenate(simplices))
+
+
+def sphere_over_ground(rng, d, *, mirrored=False):
+    """A sphere of radius 0.5 at height 0.6 over a ground patch [-2, 2]^(d-1) at height 0."""
+    ground = flat_patch(d, -2.0, 2.0, 0.0, n=6 if d < 4 else 4)
+    v, s = sphere_hull(rng, d, {2: 40, 3: 300, 4: 400}[d])
+    if mirrored:  # make the point set symmetric in x so the hull is a mirror-symmetric solid
+        v = np.concatenate([v, v * np.r_[-1.0, np.ones(d - 1)]])
+        hull = ConvexHull(v)
+        s = oriented(v, hull.simplices, hull.equations[:, :d])
+    centre = np.zeros(d)
+    centre[-1] = 0.6
+    return merge(ground, (0.5 * v + centre, s))
+
+
+def up_points(rng, d, n, half):
+    """Points on the ground plane within ``half`` of the origin, with normal +e_last."""
+    p = np.zeros((n, d))
+    p[:, :-1] = rng.uniform(-half, half, size=(n, d - 1))
+    normals = np.tile(np.eye(d)[-1], (n, 1))
+    return p, normals
+
+
+def binomial_tolerance(expected, n_rays, k=4.0):
+    # randomised QMC is at least as accurate as i.i.d. sampling: k binomial standard errors
+    return k * math.sqrt(max(expected * (1 - expected), 1e-4) / n_rays)
+
+
+# -- analytic cases ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_open_plane_is_unoccluded(d, backend):
+    rng = np.random.default_rng(200 + d)
+    mesh = ao4d.SimplexMesh(*flat_patch(d, -1.0, 1.0, 0.0))
+    # the vertices of a flat open patch see nothing: exactly zero, no self-hits
+    a = ao4d.ambient_occlusion(mesh, samples=64, backend=backend)
+    assert (a == 0).all()
+    p, n = up_points(rng, d, 50, 0.9)
+    assert (ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=64, backend=backend) == 0).all()
+
+
+def parallel_plane_occlusion(d, h, L):
+    """A under an infinite parallel plane at height h, counting hits within L (derivation).
+
+    A ray at angle theta from n meets the plane at distance h / cos(theta); it counts when
+    t = cos(theta) >= c = h / L. Under the cosine-weighted density t = sqrt(1 - r^2) with r the
+    radius of a uniform point of the unit (d-1)-ball, P(r <= s) = s^(d-1), so
+    A = P(r <= sqrt(1 - c^2)) = (1 - c^2)^((d-1)/2): 3D 1 - c^2, 4D (1 - c^2)^(3/2).
+    """
+    c = min(h / L, 1.0)
+    return (1 - c * c) ** ((d - 1) / 2)
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("h, L", [(1.0, 2.0), (1.0, 1.25), (0.5, 4.0), (1.0, 0.9)])
+def test_parallel_plane(d, h, L, backend):
+    rng = np.random.default_rng(300 + d)
+    reach = math.sqrt(max(L * L - h * h, 0.0)) + 0.5  # the plane covers every ray hit within L
+    mesh = ao4d.SimplexMesh(*flat_patch(d, -reach, reach, h, n=3))
+    p, n = up_points(rng, d, 64, 0.2)
+    samples = 256
+    a = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=samples, max_distance=L, backend=backend)
+    # rays start ORIGIN_OFFSET diagonals above the point: the plane is that much closer
+    eps = ao.ORIGIN_OFFSET * bvh.get_bvh(mesh).diagonal
+    expected = parallel_plane_occlusion(d, h - eps, L)
+    assert abs(a.mean() - expected) <= binomial_tolerance(expected, a.size * samples)
+    if d == 4 and (h, L) == (1.0, 2.0):
+        assert expected == pytest.approx((3 / 4) ** 1.5, abs=1e-3)
+
+
+def wall_occlusion(d, a, L):
+    """A at a point with normal e_last from the wall x_0 = a (perpendicular), hits within L.
+
+    The wall is met at distance a / w_0, so the ray counts when w_0 >= c = a / L. The tangential
+    part of a cosine-weighted direction is a uniform point b of the unit (d-1)-ball (Malley) and
+    w_0 = b_0, so A = P(b_0 >= c) = volume of a ball cap / ball volume:
+    2D: (1 - c) / 2; 3D: (arccos c - c sqrt(1 - c^2)) / pi; 4D: (1 - c)^2 (2 + c) / 4.
+    """
+    c = min(a / L, 1.0)
+    if d == 2:
+        return (1 - c) / 2
+    if d == 3:
+        return (math.acos(c) - c * math.sqrt(1 - c * c)) / math.pi
+    return (1 - c) ** 2 * (2 + c) / 4
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("a, L", [(0.5, 1.0), (0.2, 2.0), (1.0, 1.5)])
+def test_perpendicular_wall(d, a, L, backend):
+    rng = np.random.default_rng(400 + d)
+    lo = np.full(d - 1, -L - 0.5)
+    hi = np.full(d - 1, L + 0.5)
+    lo[-1] = -0.1  # the last of the other coordinates is the height
+    mesh = ao4d.SimplexMesh(*flat_patch(d, lo, hi, a, n=3, axis=0))
+    p = np.zeros((64, d))
+    p[:, 1:-1] = rng.uniform(-0.1, 0.1, size=(64, d - 2))  # along the wall: A does not change
+    n = np.tile(np.eye(d)[-1], (64, 1))
+    samples = 256
+    occ = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=samples, max_distance=L, backend=backend)
+    expected = wall_occlusion(d, a, L)
+    assert abs(occ.mean() - expected) <= binomial_tolerance(expected, occ.size * samples)
+    if d == 4:
+        # cross-check the closed form with a quadrature of the cap: (3/4) int_c^1 (1 - x^2) dx
+        from scipy.integrate import quad
+
+        c = a / L
+        assert expected == pytest.approx(0.75 * quad(lambda x: 1 - x * x, c, 1)[0], rel=1e-9)
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_points_inside_a_closed_surface_are_fully_occluded(d, backend):
+    # also the leak test: every ray from inside must hit a simplex, including rays through
+    # shared edges and vertices of the hull
+    rng = np.random.default_rng(500 + d)
+    mesh = ao4d.SimplexMesh(*sphere_hull(rng, d, {2: 30, 3: 200, 4: 300}[d]))
+    p = rng.normal(size=(100, d))
+    p *= (0.6 * rng.random(100) ** (1 / d) / np.linalg.norm(p, axis=1))[:, None]
+    n = rng.normal(size=(100, d))
+    a = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=128, backend=backend)
+    assert (a == 1.0).all()
+    # aimed exactly at the hull's vertices (shared by many simplices): still no leak
+    target = mesh.vertices[rng.choice(len(mesh.vertices), 200)]
+    hits = ao.cast_rays(mesh, np.zeros((200, d)), target, backend=backend)
+    assert hits.hit.all()
+    np.testing.assert_allclose(hits.t, 1.0, atol=1e-9)  # the vertices lie on the unit sphere
+    # from outside, a convex surface does not occlude itself: exactly zero at its vertices
+    assert (ao4d.ambient_occlusion(mesh, samples=32, backend=backend) == 0).all()
+
+
+# -- symmetry, grading, convergence ---------------------------------------------------------
+
+
+@pytest.mark.parametrize("d", (3, 4))
+def test_mirror_symmetric_scene_gives_mirror_symmetric_ao(d, backend):
+    rng = np.random.default_rng(600 + d)
+    mesh = sphere_over_ground(rng, d, mirrored=True)
+    p, n = up_points(rng, d, 150, 1.2)
+    mirror = p * np.r_[-1.0, np.ones(d - 1)]
+    samples = 128
+    a = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=samples, backend=backend)
+    b = ao4d.ambient_occlusion(mesh, points=mirror, normals=n, samples=samples, backend=backend, seed=1)
+    sigma = math.sqrt(0.25 / samples)  # binomial standard error bound per point
+    diff = a - b
+    assert np.abs(diff).max() <= 5 * math.sqrt(2) * sigma
+    # no systematic left/right bias (the 2021 thesis had one): mean difference within 4 SE
+    assert abs(diff.mean()) <= 4 * math.sqrt(2) * sigma / math.sqrt(len(diff))
+
+
+@pytest.mark.parametrize("d", (3, 4))
+def test_ao_near_a_sphere_is_graded(d, backend):
+    rng = np.random.default_rng(700 + d)
+    mesh = sphere_over_ground(rng, d)
+    p, n = up_points(rng, d, 200, 0.8)
+    g = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=128, backend=backend)
+    inner = g[(g > 0) & (g < 1)]
+    # the 2021 thesis' values stuck at 0 or 1; here the ground is shaded smoothly
+    assert inner.size >= 0.9 * g.size
+    assert len(np.unique(inner)) >= 20
+    assert g.max() - g.min() > 0.3
+    # closer to the sphere's foot means more occlusion (radial trend)
+    r = np.linalg.norm(p[:, :-1], axis=1)
+    assert np.corrcoef(r, g)[0, 1] < -0.8
+    a = ao4d.ambient_occlusion(mesh, samples=32, backend=backend)  # at the vertices
+    assert np.all((a >= 0) & (a <= 1))
+
+
+def test_error_falls_like_inverse_sqrt_samples(cl_runtime):
+    rng = np.random.default_rng(800)
+    mesh = sphere_over_ground(rng, 4)
+    p, n = up_points(rng, 4, 40, 0.8)
+    reference = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=16384, seed=99, backend="opencl")
+    counts = np.array([16, 64, 256, 1024])
+    errors = [
+        np.sqrt(np.mean((ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=int(s), backend="opencl") - reference) ** 2))
+        for s in counts
+    ]
+    slope = np.polyfit(np.log(counts), np.log(errors), 1)[0]
+    # Monte Carlo gives -1/2; the reference's own error (~0.002) only flattens the last point
+    assert slope < -0.4, (slope, errors)
+
+
+# -- backends and trusted tools ---------------------------------------------------------------
+
+
+def random_rays(rng, d, n, spread=1.5):
+    o = rng.uniform(-spread, spread, size=(n, d))
+    w = rng.normal(size=(n, d))
+    return o, w / np.linalg.norm(w, axis=1, keepdims=True)
+
+
+def soup_scene(rng, d, n=300):
+    centres = rng.uniform(-1, 1, size=(n, 1, d))
+    v = (centres + 0.25 * rng.normal(size=(n, d, d))).reshape(-1, d)
+    return ao4d.SimplexMesh(v, np.arange(n * d).reshape(n, d))
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("closest", [True, False])
+def test_bvh_equals_brute_force(d, closest, backend):
+    rng = np.random.default_rng(900 + d)
+    mesh = soup_scene(rng, d)
+    o, w = random_rays(rng, d, 3000)
+    for max_distance in (np.inf, 0.7):
+        fast = ao.cast_rays(mesh, o, w, closest=closest, backend=backend, max_distance=max_distance)
+        slow = ao.cast_rays(mesh, o, w, closest=closest, backend=backend, accel="brute", max_distance=max_distance)
+        # same primitive test on the same data; the boxes are conservative: identical answers
+        np.testing.assert_array_equal(fast.hit, slow.hit)
+        assert 0.01 < fast.hit.mean() < 0.95  # a scene where the question is not trivial
+        if closest:
+            np.testing.assert_array_equal(fast.t, slow.t)
+            same = fast.simplex == slow.simplex
+            # a different simplex only on exact ties (a ray through a shared point)
+            np.testing.assert_array_equal(fast.t[~same], slow.t[~same])
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_hits_are_consistent(d, backend):
+    rng = np.random.default_rng(1000 + d)
+    mesh = soup_scene(rng, d)
+    o, w = random_rays(rng, d, 2000)
+    hits = ao.cast_rays(mesh, o, w, backend=backend)
+    anyhit = ao.cast_rays(mesh, o, w, backend=backend, closest=False)
+    np.testing.assert_array_equal(hits.hit, anyhit.hit)
+    assert (anyhit.t[anyhit.hit] >= hits.t[hits.hit]).all()
+    h = hits.hit
+    assert np.isinf(hits.t[~h]).all() and (hits.barycentric[~h] == 0).all()
+    np.testing.assert_allclose(hits.barycentric[h].sum(1), 1.0, atol=1e-12)
+    assert (hits.barycentric[h] > -2 * bvh.BARY_EPS).all()
+    corners = mesh.vertices[mesh.simplices[hits.simplex[h]]]
+    points = np.einsum("si,sid->sd", hits.barycentric[h], corners)
+    np.testing.assert_allclose(points, o[h] + hits.t[h, None] * w[h], atol=1e-9)
+    # nothing closer: the closest hit of a ray shortened to just below t is a miss
+    short = ao.cast_rays(mesh, o[h], w[h], backend=backend, max_distance=1.0)
+    assert (short.hit == (hits.t[h] <= 1.0)).all()
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_opencl_and_numpy_agree(d, cl_runtime):
+    rng = np.random.default_rng(1100 + d)
+    mesh = soup_scene(rng, d)
+    o, w = random_rays(rng, d, 5000)
+    gpu = ao.cast_rays(mesh, o, w, backend="opencl")
+    cpu = ao.cast_rays(mesh, o, w, backend="numpy")
+    # float32 vs float64 decide differently only for rays grazing an edge: < 0.1%
+    assert (gpu.hit != cpu.hit).mean() <= 1e-3
+    both = gpu.hit & cpu.hit & (gpu.simplex == cpu.simplex)
+    assert both.mean() > 0.99 * min(gpu.hit.mean(), cpu.hit.mean())
+    np.testing.assert_allclose(gpu.t[both], cpu.t[both], rtol=1e-12)  # refined in float64
+    scene = sphere_over_ground(rng, d)
+    a = ao4d.ambient_occlusion(scene, samples=64, backend="opencl")
+    b = ao4d.ambient_occlusion(scene, samples=64, backend="numpy")
+    # same seed: same directions; a point may differ by a grazing ray or two
+    assert np.mean(a == b) >= 0.97
+    assert np.abs(a - b).max() <= 2 / 64
+
+
+def embree_scene(rng):
+    import trimesh
+
+    parts = [
+        trimesh.creation.icosphere(subdivisions=3, radius=0.6),
+        trimesh.creation.box(extents=(0.5, 0.4, 0.3)).apply_translation((0.9, 0.0, 0.0)),
+    ]
+    tri = rng.uniform(-1.2, 1.2, size=(1000, 1, 3)) + 0.12 * rng.normal(size=(1000, 3, 3))
+    parts.append(trimesh.Trimesh(tri.reshape(-1, 3), np.arange(3000).reshape(-1, 3), process=False))
+    scene = trimesh.util.concatenate(parts)
+    return scene, ao4d.SimplexMesh(scene.vertices, scene.faces)
+
+
+def test_closest_hits_match_embree(backend):
+    pytest.importorskip("embreex")
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    rng = np.random.default_rng(1200)
+    scene, mesh = embree_scene(rng)
+    o, w = random_rays(rng, 3, 20000)
+    ours = ao.cast_rays(mesh, o, w, backend=backend)
+    locations, index_ray, index_tri = RayMeshIntersector(scene).intersects_location(o, w, multiple_hits=False)
+    theirs = np.zeros(len(o), dtype=bool)
+    theirs[index_ray] = True
+    # Embree and we disagree only on rays grazing an edge: at most 0.1%
+    assert np.mean(ours.hit != theirs) <= 1e-3
+    t_embree = np.full(len(o), np.inf)
+    t_embree[index_ray] = np.einsum("nd,nd->n", locations - o[index_ray], w[index_ray])
+    both = ours.hit & theirs
+    # Embree works in float32: distances of order 1 agree to ~1e-5
+    close = np.isclose(ours.t[both], t_embree[both], atol=1e-4)
+    assert close.mean() >= 0.999
+
+
+def test_ao_matches_embree_with_the_same_directions(backend):
+    pytest.importorskip("embreex")
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    rng = np.random.default_rng(1300)
+    scene, mesh = embree_scene(rng)
+    idx = rng.choice(len(scene.vertices), 300, replace=False)
+    p, n = scene.vertices[idx], scene.vertex_normals[idx]
+    samples = 64
+    ours = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=samples, backend=backend)
+    w = sampling.cosine_hemisphere(n, samples).reshape(-1, 3)
+    origins = np.repeat(p + ao.ORIGIN_OFFSET * bvh.get_bvh(mesh).diagonal * n, samples, axis=0)
+    theirs = RayMeshIntersector(scene).intersects_any(origins, w).reshape(-1, samples).mean(1)
+    # identical rays: per point at most a couple of grazing rays differ, and no bias
+    assert np.abs(ours - theirs).max() <= 3 / samples
+    assert abs(ours.mean() - theirs.mean()) <= 1e-3
+    assert 0.05 < ours.mean() < 0.95
+
+
+# -- modes, chunking, bad input ---------------------------------------------------------------
+
+
+def test_simplex_mode_equals_explicit_centroids():
+    rng = np.random.default_rng(1400)
+    mesh = sphere_over_ground(rng, 3)
+    a = ao4d.ambient_occlusion(mesh, at="simplices", samples=32, backend="numpy")
+    assert a.shape == (mesh.n_simplices,)
+    b = ao4d.ambient_occlusion(
+        mesh, points=mesh.simplex_centroids, normals=mesh.simplex_normals, samples=32, backend="numpy"
+    )
+    np.testing.assert_array_equal(a, b)
+
+
+def test_launch_size_does_not_change_results(monkeypatch, cl_runtime):
+    rng = np.random.default_rng(1500)
+    mesh = sphere_over_ground(rng, 4)
+    whole = ao4d.ambient_occlusion(mesh, samples=32, backend="opencl")
+    monkeypatch.setattr(ao, "RAYS_PER_LAUNCH", 1000)
+    np.testing.assert_array_equal(whole, ao4d.ambient_occlusion(mesh, samples=32, backend="opencl"))
+
+
+def test_numpy_step_size_does_not_change_results(monkeypatch):
+    rng = np.random.default_rng(1600)
+    mesh = sphere_over_ground(rng, 3)
+    whole = ao4d.ambient_occlusion(mesh, samples=16, backend="numpy")
+    monkeypatch.setattr(ao, "_NUMPY_RAYS_PER_STEP", 100)
+    np.testing.assert_array_equal(whole, ao4d.ambient_occlusion(mesh, samples=16, backend="numpy"))
+
+
+def test_undefined_normals_give_nan():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5], [2, 0, 0]], dtype=float)
+    mesh = ao4d.SimplexMesh(v, [[0, 1, 2], [0, 1, 4], [0, 2, 1]])
+    a = ao4d.ambient_occlusion(mesh, samples=8, backend="numpy")
+    assert np.isnan(a[3])  # unreferenced vertex
+    s = ao4d.ambient_occlusion(mesh, samples=8, at="simplices", backend="numpy")
+    assert np.isnan(s[1]) and not np.isnan(s[0])  # (0, 1, 4) is degenerate (collinear)
+
+
+def test_device_memory_is_checked_before_work():
+    class Device:
+        max_mem_alloc_size = 1000
+        global_mem_size = 4000
+
+    class Runtime:
+        device = Device()
+        name = "tiny device"
+
+    with pytest.raises(MemoryError, match="tiny device"):
+        ao._check_device_memory(Runtime(), {"the BVH": 2000})
+    with pytest.raises(MemoryError, match="80%"):
+        ao._check_device_memory(Runtime(), {"a": 900, "b": 900, "c": 900, "d": 900})
+    ao._check_device_memory(Runtime(), {"a": 900})
+
+
+def test_bad_inputs():
+    rng = np.random.default_rng(1700)
+    mesh = sphere_over_ground(rng, 3)
+    p, n = up_points(rng, 3, 4, 0.5)
+    run = ao4d.ambient_occlusion
+    with pytest.raises(ValueError, match="`samples` must be >= 1"):
+        run(mesh, samples=0, backend="numpy")
+    with pytest.raises(TypeError, match="`samples`"):
+        run(mesh, samples=1.5, backend="numpy")
+    with pytest.raises(ValueError, match="`normals` has 1 zero-length"):
+        run(mesh, points=p, normals=np.r_[n[:3], [[0, 0, 0]]], backend="numpy")
+    with pytest.raises(ValueError, match="`points` contains 1 non-finite"):
+        run(mesh, points=np.r_[p[:3], [[np.nan, 0, 0]]], normals=n, backend="numpy")
+    with pytest.raises(ValueError, match="given together"):
+        run(mesh, points=p, backend="numpy")
+    with pytest.raises(ValueError, match="same length"):
+        run(mesh, points=p, normals=n[:2], backend="numpy")
+    with pytest.raises(ValueError, match="`points` must have shape"):
+        run(mesh, points=p[:, :2], normals=n[:, :2], backend="numpy")
+    with pytest.raises(ValueError, match="`at`"):
+        run(mesh, at="corners", backend="numpy")
+    with pytest.raises(ValueError, match="`backend`"):
+        run(mesh, backend="cuda")
+    with pytest.raises(ValueError, match="`accel`"):
+        run(mesh, accel="kdtree", backend="numpy")
+    with pytest.raises(ValueError, match="`max_distance`"):
+        run(mesh, max_distance=0.0, backend="numpy")
+    with pytest.raises(ValueError, match="`max_distance`"):
+        run(mesh, max_distance=np.nan, backend="numpy")
+    with pytest.raises(TypeError, match="`seed`"):
+        run(mesh, seed=1.5, backend="numpy")
+    with pytest.raises(TypeError, match="`mesh`"):
+        run(np.zeros((3, 3)), backend="numpy")
+    with pytest.raises(ValueError, match="`mesh` has no simplices"):
+        run(ao4d.SimplexMesh(np.zeros((0, 4)), np.zeros((0, 4), dtype=int)), backend="numpy")
+    with pytest.raises(ValueError, match="all 1 simplices are degenerate"):
+        run(ao4d.SimplexMesh(np.eye(3), [[0, 1, 1]]), backend="numpy")
+    with pytest.raises(TypeError, match="unexpected keyword"):
+        run(mesh, sample=4)  # typo: unknown options are errors
+    o, w = random_rays(rng, 3, 5)
+    with pytest.raises(ValueError, match="`directions` has 1 zero-length"):
+        ao.cast_rays(mesh, o, np.r_[w[:4], [[0, 0, 0]]], backend="numpy")
+    with pytest.raises(ValueError, match="`origins` and `directions` must have the same length"):
+        ao.cast_rays(mesh, o, w[:3], backend="numpy")
+    with pytest.raises(TypeError, match="`closest`"):
+        ao.cast_rays(mesh, o, w, closest="yes", backend="numpy")

@@ -1,0 +1,163 @@
+"""BVH build (structure, bounds, degenerate simplices, caching) and the ray-simplex test."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+import ao4d
+from ao4d import bvh
+
+DIMS = (2, 3, 4)
+
+
+def random_soup(rng, d, n, size=0.15):
+    """n random (d-1)-simplices with corners near uniform centres in the unit cube."""
+    centres = rng.random((n, 1, d))
+    vertices = (centres + size * rng.normal(size=(n, d, d))).reshape(-1, d)
+    return vertices, np.arange(n * d).reshape(n, d)
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("leaf_size", [1, 4, 7])
+def test_tree_structure_and_bounds(d, leaf_size):
+    rng = np.random.default_rng(100 * d + leaf_size)
+    vertices, simplices = random_soup(rng, d, 500)
+    tree = bvh.build(vertices, simplices, leaf_size=leaf_size)
+    assert sorted(tree.prim.tolist()) == list(range(500))  # every simplex exactly once
+    corners = vertices[simplices[tree.prim]]
+    lo, hi = tree.lo[:, :d], tree.hi[:, :d]
+    seen = np.zeros(tree.n_prims, dtype=int)
+    reached = np.zeros(tree.n_nodes, dtype=int)
+    reached[0] = 1
+    for k, (a, b) in enumerate(tree.meta):
+        if a < 0:
+            first, count = -a - 1, b
+            assert 1 <= count <= leaf_size
+            seen[first : first + count] += 1
+            box = corners[first : first + count]
+            assert (box.min((0, 1)) >= lo[k]).all() and (box.max((0, 1)) <= hi[k]).all()
+        else:
+            reached[[a, b]] += 1
+            for c in (a, b):
+                assert (lo[c] >= lo[k]).all() and (hi[c] <= hi[k]).all()
+    assert (seen == 1).all()  # leaves partition the primitive range
+    assert (reached == 1).all()  # a tree: every node has exactly one parent
+    assert (tree.lo[:, d:] == 0).all() and (tree.hi[:, d:] == 0).all()  # float4 padding
+    assert tree.depth < 64  # the kernels' stack bound
+    # the stored inverse really inverts [e1 .. e_{d-1} | n]
+    edges = corners[:, 1:] - corners[:, :1]
+    normals = bvh.simplex_normals(corners)
+    matrix = np.concatenate([edges, normals[:, None]], axis=1).transpose(0, 2, 1)
+    np.testing.assert_allclose(tree.inverse @ matrix, np.broadcast_to(np.eye(d), matrix.shape), atol=1e-8)
+
+
+def test_degenerate_simplices_are_skipped():
+    rng = np.random.default_rng(7)
+    vertices, simplices = random_soup(rng, 4, 50)
+    flat = simplices.copy()
+    flat[:5, 1] = flat[:5, 0]  # repeated vertex: zero volume
+    tree = bvh.build(vertices, flat)
+    assert tree.n_skipped == 5 and tree.n_prims == 45
+    assert set(tree.prim.tolist()) == set(range(5, 50))
+
+
+def test_simplex_normals_follow_the_design_convention():
+    rng = np.random.default_rng(8)
+    tri = rng.normal(size=(20, 3, 3))
+    expected = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    np.testing.assert_allclose(bvh.simplex_normals(tri), expected, atol=1e-12)
+    tets = rng.normal(size=(20, 4, 4))
+    n = bvh.simplex_normals(tets)
+    edges = tets[:, 1:] - tets[:, :1]
+    np.testing.assert_allclose(np.einsum("sid,sd->si", edges, n), 0, atol=1e-10)
+    # n . x = det[e1; e2; e3; x]: with x = n this is |n|^2 > 0
+    dets = np.linalg.det(np.concatenate([edges, n[:, None]], axis=1))
+    np.testing.assert_allclose(dets, (n**2).sum(1), rtol=1e-10)
+    # the mesh module computes the same normals
+    mesh = ao4d.SimplexMesh(tets.reshape(-1, 4), np.arange(80).reshape(20, 4))
+    raw = mesh.simplex_normals * (mesh.simplex_measures * 6)[:, None]  # |n| = 3! * measure
+    np.testing.assert_allclose(raw, n, atol=1e-9)
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    d=st.sampled_from(DIMS),
+    seed=st.integers(0, 2**32 - 1),
+    distance=st.floats(0.01, 10.0),
+)
+def test_ray_hits_the_point_it_aims_at(d, seed, distance):
+    rng = np.random.default_rng(seed)
+    corners = rng.normal(size=(1, d, d))
+    n = bvh.simplex_normals(corners)[0]
+    edges = corners[0, 1:] - corners[0, :1]
+    # well-shaped simplices only: the tolerance is relative to barycentric units
+    assume(np.linalg.norm(n) > 0.05 * np.prod(np.linalg.norm(edges, axis=1)))
+    weights = rng.dirichlet(np.ones(d))
+    assume(weights.min() > 1e-3)
+    target = weights @ corners[0]
+    w = rng.normal(size=d)
+    w /= np.linalg.norm(w)
+    assume(abs(w @ n) > 0.05 * np.linalg.norm(n))  # not grazing
+    origin = target - distance * w
+    tree = bvh.build(corners[0], [list(range(d))])
+    hit, t = bvh.intersect(tree.inverse, tree.origin, origin[None], w[None], np.array([np.inf]))
+    assert hit[0]
+    assert t[0] == pytest.approx(distance, rel=1e-9, abs=1e-9)
+    np.testing.assert_allclose(bvh.barycentric(tree.inverse, tree.origin, target[None])[0], weights, atol=1e-9)
+    # shorter max distance, or the ray pointing away: no hit
+    assert not bvh.intersect(tree.inverse, tree.origin, origin[None], w[None], np.array([0.99 * distance]))[0][0]
+    assert not bvh.intersect(tree.inverse, tree.origin, origin[None], -w[None], np.array([np.inf]))[0][0]
+    # aimed clearly outside the simplex (one barycentric at -0.05): no hit
+    outside = weights.copy()
+    outside[0] -= 0.05 + weights[0]
+    outside[1:] += (0.05 + weights[0]) / (d - 1)
+    miss_target = outside @ corners[0]
+    assert not bvh.intersect(tree.inverse, tree.origin, (miss_target - distance * w)[None], w[None], np.array([np.inf]))[0][0]
+
+
+def test_bvh_is_cached_on_the_mesh_and_rebuilt_after_edits():
+    rng = np.random.default_rng(9)
+    vertices, simplices = random_soup(rng, 3, 40)
+    mesh = ao4d.SimplexMesh(vertices, simplices)
+    first = bvh.get_bvh(mesh)
+    assert bvh.get_bvh(mesh) is first
+    mesh.vertices = vertices + 1.0
+    second = bvh.get_bvh(mesh)
+    assert second is not first
+    np.testing.assert_allclose(second.origin, first.origin + 1.0)
+
+
+def test_fallback_cache_for_plain_objects():
+    class Plain:
+        pass
+
+    rng = np.random.default_rng(10)
+    obj = Plain()
+    obj.vertices, obj.simplices = random_soup(rng, 3, 10)
+    first = bvh.get_bvh(obj)
+    assert bvh.get_bvh(obj) is first
+    obj.vertices = obj.vertices * 2  # arrays replaced: the fingerprint changes
+    assert bvh.get_bvh(obj) is not first
+
+
+def test_bad_inputs():
+    good_v = np.eye(3)
+    with pytest.raises(ValueError, match="`simplices` is empty"):
+        bvh.build(good_v, np.zeros((0, 3), dtype=int))
+    with pytest.raises(ValueError, match="`vertices`.*non-finite"):
+        bvh.build([[0, 0, np.nan], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    with pytest.raises(ValueError, match="`simplices` indices"):
+        bvh.build(good_v, [[0, 1, 3]])
+    with pytest.raises(ValueError, match="`vertices` must have 2, 3 or 4 columns"):
+        bvh.build(np.eye(5), [[0, 1, 2, 3, 4]])
+    with pytest.raises(ValueError, match="`simplices` must have shape"):
+        bvh.build(good_v, [[0, 1]])
+    with pytest.raises(ValueError, match="all 1 simplices are degenerate"):
+        bvh.build(good_v, [[0, 1, 1]])
+    with pytest.raises(ValueError, match="leaf_size"):
+        bvh.build(good_v, [[0, 1, 2]], leaf_size=0)
+    with pytest.raises(TypeError, match="`simplices` must hold integers"):
+        bvh.build(good_v, [[0.0, 1.0, 2.0]])
