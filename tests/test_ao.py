@@ -491,3 +491,39 @@ def test_bad_inputs():
         ao.cast_rays(mesh, o, w[:3], backend="numpy")
     with pytest.raises(TypeError, match="`closest`"):
         ao.cast_rays(mesh, o, w, closest="yes", backend="numpy")
+
+
+# -- command line -----------------------------------------------------------------------------
+
+
+def test_cli_stores_ao_and_reports_rate(tmp_path, capsys):
+    from ao4d import cli
+
+    rng = np.random.default_rng(1800)
+    mesh = sphere_over_ground(rng, 3)
+    mesh.save(tmp_path / "scene.npz")
+    out = tmp_path / "scene_ao.npz"
+    argv = ["ao", str(tmp_path / "scene.npz"), "--samples", "16", "--out", str(out), "--backend", "numpy"]
+    assert cli.main(argv) == 0
+    text = capsys.readouterr().out
+    assert "M rays/s" in text and "numpy backend" in text
+    stored = ao4d.SimplexMesh.load(out).point_data["ao"]
+    np.testing.assert_array_equal(stored, ao4d.ambient_occlusion(mesh, samples=16, backend="numpy"))
+    argv = ["ao", str(tmp_path / "scene.npz"), "--at", "simplices", "--samples", "4", "--out", str(out), "--backend", "numpy"]
+    assert cli.main(argv) == 0
+    assert ao4d.SimplexMesh.load(out).cell_data["ao"].shape == (mesh.n_simplices,)
+
+
+def test_cli_errors_and_help(tmp_path, capsys):
+    from ao4d import cli
+
+    assert cli.main(["ao", str(tmp_path / "missing.npz"), "--out", str(tmp_path / "x.npz")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    rng = np.random.default_rng(1900)
+    sphere_over_ground(rng, 3).save(tmp_path / "s.npz")
+    assert cli.main(["ao", str(tmp_path / "s.npz"), "--samples", "0", "--out", str(tmp_path / "x.npz")]) == 2
+    assert "--samples" in capsys.readouterr().err
+    assert not (tmp_path / "x.npz").exists()
+    with pytest.raises(SystemExit):
+        cli.main(["ao", "--help"])
+    assert "ao4d ao torus.npz --samples 64" in capsys.readouterr().out
