@@ -66,7 +66,7 @@ __all__ = [
 ]
 
 # Points evaluated per call of a field while sampling a grid: bounds the temporary (..., d) array.
-_POINTS_PER_BLOCK = 1 << 21
+_POINTS_PER_BLOCK = 1 << 18
 
 
 class Field:
@@ -818,25 +818,33 @@ def evaluate_layers(field: Callable, axes: Sequence[np.ndarray], start: int, sto
     """Evaluate ``field`` on the grid points with last-axis index in ``[start, stop)``.
 
     Returns the values laid out with the last grid axis first, shape ``(stop - start, n_0, ...,
-    n_{d-2})`` (C order), so that each layer is contiguous. Evaluates in blocks of layers to
-    bound the (..., d) temporary.
+    n_{d-2})`` (C order), so that each layer is contiguous. The field is called on blocks of at
+    most about ``_POINTS_PER_BLOCK`` points (whole layers, or rows of one layer), which bounds the
+    (..., d) point array and the field's own temporaries.
     """
     d = len(axes)
-    inner = axes[:-1]
-    out = np.empty((stop - start, *(len(a) for a in inner)), dtype=np.float64)
-    per_layer = max(1, int(np.prod([len(a) for a in inner])))
-    step = max(1, _POINTS_PER_BLOCK // per_layer)
-    grids = np.meshgrid(*inner, indexing="ij") if inner else []
-    for k0 in range(start, stop, step):
-        k1 = min(stop, k0 + step)
-        pts = np.empty((k1 - k0, *out.shape[1:], d))
-        for k, g in enumerate(grids):
-            pts[..., k] = g
-        pts[..., d - 1] = axes[-1][k0:k1].reshape((-1,) + (1,) * (d - 1))
-        vals = np.asarray(field(pts), dtype=np.float64)
-        if vals.shape != pts.shape[:-1]:
-            raise ValueError(f"`field` returned shape {vals.shape} for points of shape {pts.shape}")
-        out[k0 - start : k1 - start] = vals
+    inner = [len(a) for a in axes[:-1]]
+    out = np.empty((stop - start, *inner), dtype=np.float64)
+    rows = inner[0] if inner else 1
+    per_row = math.prod(inner[1:])
+    per_layer = rows * per_row
+    if per_layer <= _POINTS_PER_BLOCK:
+        layer_step, row_step = max(1, _POINTS_PER_BLOCK // max(per_layer, 1)), rows
+    else:
+        layer_step, row_step = 1, max(1, _POINTS_PER_BLOCK // per_row)
+    for k0 in range(start, stop, layer_step):
+        k1 = min(stop, k0 + layer_step)
+        for r0 in range(0, rows, row_step):
+            r1 = min(rows, r0 + row_step)
+            block = [axes[-1][k0:k1]] + ([axes[0][r0:r1]] if inner else []) + list(axes[1:-1])
+            pts = np.empty((*(len(b) for b in block), d))
+            for pos, coords in enumerate(block):  # pts axis `pos` runs along `coords`
+                axis = d - 1 if pos == 0 else pos - 1
+                pts[..., axis] = coords.reshape([-1 if q == pos else 1 for q in range(d)])
+            vals = np.asarray(field(pts), dtype=np.float64)
+            if vals.shape != pts.shape[:-1]:
+                raise ValueError(f"`field` returned shape {vals.shape} for points of shape {pts.shape}")
+            out[k0 - start : k1 - start, r0:r1] = vals
     return out
 
 

@@ -55,9 +55,9 @@ METHODS = ("cubes", "simplices")
 _INSIDE = ("below", "above")
 _KIND = {"cubes": "cube", "simplices": "simplex"}
 
-# Dense key-map entries per slab (points x directions). 2^24 keeps the per-slab working set
-# (key map, mark array, case array, values) near 150 MB in 4D.
-_KEYS_PER_SLAB = 1 << 24
+# Dense key-map entries per slab (points x directions). 2^23 keeps the per-slab working set
+# (key map, mark array, case array, values) near 100 MB in 4D.
+_KEYS_PER_SLAB = 1 << 23
 # Show a progress bar by default from this many cells on (about a 40^4 grid).
 _PROGRESS_CELLS = 1 << 21
 
@@ -391,7 +391,7 @@ def extract(
         Which side is the solid: ``"below"`` means ``{f < level}`` (signed distances);
         ``"above"`` means ``{f > level}`` (bright objects, CT data).
     chunk : int, optional
-        Cell layers per slab along the slab axis; by default sized to bound memory near 150 MB.
+        Cell layers per slab along the slab axis; by default sized to bound memory near 100 MB.
     progress : bool, optional
         Show a tqdm bar; by default only for grids of 2^21 cells or more.
 
@@ -487,7 +487,7 @@ def extract_field(
         As in :func:`extract`.
     chunk : int, optional
         Cell layers per slab along the last axis (slabs share one layer of grid points, whose
-        vertices are welded by global edge key). By default about 150 MB of working memory.
+        vertices are welded by global edge key). By default about 100 MB of working memory.
     progress : bool, optional
         tqdm bar; by default from 2^21 cells on.
 

@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--spacing", type=float, nargs="+", default=[1.0], help="grid step(s) for --input")
     parser.add_argument("--origin", type=float, nargs="+", default=[0.0], help="grid origin for --input")
-    parser.add_argument("--chunk", type=int, help="cell layers per slab (default: ~150 MB slabs)")
+    parser.add_argument("--chunk", type=int, help="cell layers per slab (default: ~100 MB slabs)")
     parser.add_argument("--no-check", action="store_true", help="skip the closedness check")
 
 
