@@ -1,0 +1,78 @@
+"""Shared pieces of the experiment scripts: command line, CSV and figure output, timing."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import platform
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from ao4d._atomic import atomic_open, atomic_path
+
+__all__ = ["parse_args", "write_csv", "figure", "save_figure", "best_time", "machine"]
+
+
+def parse_args(name: str, description: str, argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """``--out DIR`` (required) and ``--quick``."""
+    parser = argparse.ArgumentParser(prog=f"python -m datasets_gen.experiments.{name}",
+                                     description=description)
+    parser.add_argument("--out", required=True, type=Path, help="folder for NAME.csv and NAME.png")
+    parser.add_argument("--quick", action="store_true", help="small sizes (seconds), for tests")
+    return parser.parse_args(argv)
+
+
+def write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
+    """Write dict rows (same keys, in order) as CSV, atomically; floats with repr precision."""
+    if not rows:
+        raise ValueError("`rows` is empty: nothing to write")
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=list(rows[0]), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    with atomic_open(path, "w", encoding="utf-8") as fh:
+        fh.write(text.getvalue())
+    return path
+
+
+def figure(n_panels: int = 1, *, width: float = 5.0, height: float = 3.8):
+    """A matplotlib Figure on an Agg canvas (no pyplot state) and its axes."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width * n_panels, height), dpi=110, layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = [fig.add_subplot(1, n_panels, i + 1) for i in range(n_panels)]
+    return fig, axes
+
+
+def save_figure(fig, path: Path) -> Path:
+    """Save a PNG atomically."""
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    return path
+
+
+def best_time(func: Callable[[], Any], repeats: int) -> tuple[float, Any]:
+    """Smallest wall-clock time of ``repeats`` calls (the least disturbed by other load), and the
+    last result."""
+    best, result = float("inf"), None
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        result = func()
+        best = min(best, time.perf_counter() - t0)
+    return best, result
+
+
+def machine() -> str:
+    """One line naming the machine and the OpenCL device, for plot footnotes."""
+    import os
+
+    from ao4d import cl
+
+    runtime = cl.get_runtime(warn=False)
+    device = runtime.name if runtime else "no OpenCL device"
+    return f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores; {device}"
