@@ -516,6 +516,42 @@ def _assemble(cell: _Cell, entries: np.ndarray, simplices: np.ndarray) -> tuple[
     return offsets, simplices[order]
 
 
+def _build_arrays(cell: _Cell, *, show: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets and oriented, sorted simplices of every entry of ``cell``'s table.
+
+    One hull per class of ``cell.group``; its facets' flags are pulled in the labels of every
+    entry of the class at once.
+    """
+    from tqdm.auto import tqdm
+
+    n = cell.n
+    rep, elem = _orbits(cell.group[:, :n])
+    reps = np.unique(rep[1:-1])  # all-negative and all-positive cases are empty
+    members = np.argsort(rep, kind="stable")  # cases grouped by class
+    starts = np.searchsorted(rep[members], reps, side="left")
+    stops = np.searchsorted(rep[members], reps, side="right")
+    sentinel = cell.group.shape[1]
+    # labels of point ids under each symmetry: edge index of the image midpoint; the padding id
+    # maps to a label larger than any edge
+    big = np.int64(1 << 20)
+    edge_labels = np.concatenate([cell.group - n, np.full((len(cell.group), 1), big)], axis=1)
+
+    entries_out, simplices_out = [], []
+    progress = tqdm(
+        zip(reps, starts, stops), total=len(reps), disable=not show,
+        desc=f"lut {cell.kind} {cell.dim}D", unit="class",
+    )
+    for rep_c, lo, hi in progress:
+        flags = _class_flags(cell, int(rep_c))
+        cases = members[lo:hi]
+        rows, simplices = _pull(flags, edge_labels[elem[cases]], sentinel)
+        entries_out.append(cases[rows])
+        simplices_out.append(simplices)
+    entries = np.concatenate(entries_out)
+    simplices = _orient(cell, entries, np.concatenate(simplices_out))
+    return _assemble(cell, entries, simplices)
+
+
 def build(dim: int, kind: str = "cube", *, progress: bool | None = None) -> Table:
     """Generate the lookup table for a d-cube or the reference Kuhn d-simplex.
 
@@ -542,37 +578,9 @@ def build(dim: int, kind: str = "cube", *, progress: bool | None = None) -> Tabl
     """
     dim = _check_dim(dim)
     kind = check_choice(kind, "kind", KINDS)
-    from tqdm.auto import tqdm
-
     cell = _cell(dim, kind)
-    n = cell.n
-    corner_maps = cell.group[:, :n]
-    rep, elem = _orbits(corner_maps)
-    reps = np.unique(rep[1:-1])  # all-negative and all-positive cases are empty
-    members = np.argsort(rep, kind="stable")
-    bounds = np.searchsorted(rep[members], reps, side="left"), np.searchsorted(
-        rep[members], reps, side="right"
-    )
-    sentinel = cell.group.shape[1]
-    # labels of point ids under each symmetry: edge index of the image midpoint; the padding id
-    # maps to a label larger than any edge
-    big = np.int64(1 << 20)
-    edge_labels = np.concatenate([cell.group - n, np.full((len(cell.group), 1), big)], axis=1)
-
     show = (dim == 4 and kind == "cube") if progress is None else bool(progress)
-    entries_out, simplices_out = [], []
-    for rep_c, lo, hi in tqdm(
-        zip(reps, *bounds), total=len(reps), disable=not show, desc=f"lut {kind} {dim}D",
-        unit="class",
-    ):
-        flags = _class_flags(cell, int(rep_c))
-        cases = members[lo:hi]
-        rows, simplices = _pull(flags, edge_labels[elem[cases]], sentinel)
-        entries_out.append(cases[rows])
-        simplices_out.append(simplices)
-    entries = np.concatenate(entries_out)
-    simplices = _orient(cell, entries, np.concatenate(simplices_out))
-    offsets, simplices = _assemble(cell, entries, simplices)
+    offsets, simplices = _build_arrays(cell, show=show)
     cells = parity = None
     if kind == "simplex":
         cells, parity = _kuhn_cells(dim)
