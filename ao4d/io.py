@@ -131,7 +131,7 @@ def write_mhd(path: str | os.PathLike, data, *, spacing=1.0, origin=0.0) -> Path
     >>> import tempfile, pathlib
     >>> p = pathlib.Path(tempfile.mkdtemp()) / "v.mhd"
     >>> _ = write_mhd(p, np.arange(24, dtype=np.float32).reshape(2, 3, 4), spacing=0.5)
-    >>> read_mhd(p).data[1, 2, 3]
+    >>> float(read_mhd(p).data[1, 2, 3])
     23.0
     """
     path = Path(path)

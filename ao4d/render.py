@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import math
 import os
+import sys
+import types
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -335,3 +337,15 @@ def _scatter(shape, hit, values, fill, dtype) -> np.ndarray:
     out = np.full(hit.shape, fill, dtype=dtype)
     out[hit] = values
     return out.reshape(shape)
+
+
+class _CallableModule(types.ModuleType):
+    """``ao4d.render`` is both this module and the function: importing the submodule makes
+    Python bind the module to the package attribute ``ao4d.render``, replacing the lazily
+    exported function, so the module forwards calls to :func:`render`."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> RenderResult:
+        return render(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule
