@@ -176,6 +176,97 @@ def _cases(positive: np.ndarray, perm: tuple[int, ...]) -> np.ndarray:
     return c
 
 
+@dataclass
+class _Plan:
+    """Per-grid constants of the core: table edges as key offsets, directions, shared layers."""
+
+    table: _CellTable
+    geom: _Geometry
+    offs: np.ndarray  # (2^d,) engine offset of each user corner / mask
+    dirs: np.ndarray  # (n_dirs,) edge direction masks used by the table
+    key_off: np.ndarray  # (E,) key offset of each table edge from its cell's lowest corner
+    in_plane: np.ndarray  # (n_dirs,) direction lies inside a layer (no slab-axis bit)
+    mask_bits: np.ndarray  # (2^d, d) float: user bits of each mask
+
+    @classmethod
+    def make(cls, table: _CellTable, geom: _Geometry) -> _Plan:
+        d = len(geom.shape)
+        offs = _corner_offsets(geom, d)
+        dirs = np.unique(table.mask)
+        dir_of = np.zeros(1 << d, dtype=np.int64)
+        dir_of[dirs] = np.arange(len(dirs))
+        key_off = offs[table.corner] * len(dirs) + dir_of[table.mask]
+        in_plane = (dirs & (1 << geom.perm[0])) == 0
+        mask_bits = ((np.arange(1 << d)[:, None] >> np.arange(d)) & 1).astype(np.float64)
+        return cls(table, geom, offs, dirs, key_off, in_plane, mask_bits)
+
+    @property
+    def n_dirs(self) -> int:
+        return len(self.dirs)
+
+
+def _slab_keys(case: np.ndarray, plan: _Plan, n_keys: int) -> np.ndarray | None:
+    """(M, d) edge keys of the simplices of all active cells of one slab, or None if empty.
+
+    ``case`` holds every cell's case at its lowest corner (flat slab index).
+    """
+    table, n_dirs = plan.table, plan.n_dirs
+    full = (1 << (1 << table.dim)) - 1
+    active = np.flatnonzero((case != 0) & (case != full))
+    case = case[active].astype(np.int64)
+    counts = table.counts[case]
+    n_simp = int(counts.sum())
+    if n_simp == 0:
+        return None
+    first = np.cumsum(counts) - counts
+    rows = np.repeat(table.offsets[case] - first, counts) + np.arange(n_simp)
+    # int32 keys halve the memory traffic of the hottest lines when the slab allows
+    kt = np.int32 if n_keys < 2**31 else np.int64
+    base = np.repeat((active * n_dirs).astype(kt), counts)
+    return base[:, None] + plan.key_off.astype(kt)[table.simplices[rows]]
+
+
+class _Welder:
+    """Numbers the crossed edges (vertices) of successive slabs, sharing the layer between two
+    slabs: keys of the top layer are remembered (``carry``) and reused by the next slab."""
+
+    def __init__(self, plan: _Plan) -> None:
+        self.plan = plan
+        self.carry = np.full(plan.geom.layer * plan.n_dirs, -1, dtype=np.int64)
+        self.n_vertices = 0
+
+    def number(self, keys: np.ndarray | None, n_keys: int, n_layers: int):
+        """Vertex index of every key. Returns (simplices (M, d), new_keys (K,)): ``new_keys``
+        are the sorted keys of the vertices first seen in this slab, in index order."""
+        plan, carry = self.plan, self.carry
+        layer_keys = plan.geom.layer * plan.n_dirs
+        if keys is None:
+            carry.fill(-1)
+            return None, None
+        mark = np.zeros(n_keys, dtype=bool)  # sorted unique keys without sorting
+        mark[keys] = True
+        used = np.flatnonzero(mark)
+        del mark
+        in_plane = plan.in_plane[used % plan.n_dirs]
+        shared = np.zeros(len(used), dtype=bool)
+        bottom = (used < layer_keys) & in_plane
+        shared[bottom] = carry[used[bottom]] >= 0
+        index = np.empty(len(used), dtype=np.int64)
+        index[shared] = carry[used[shared]]
+        new = ~shared
+        n_new = int(np.count_nonzero(new))
+        index[new] = self.n_vertices + np.arange(n_new)
+        self.n_vertices += n_new
+        carry.fill(-1)
+        top = (used >= n_layers * layer_keys) & in_plane
+        carry[used[top] - n_layers * layer_keys] = index[top]
+        # key -> index through a dense map (np.empty: only the used keys are touched);
+        # int32 halves the memory the slabs hold until the final concatenation
+        key_map = np.empty(n_keys, dtype=np.int32 if self.n_vertices < 2**31 else np.int64)
+        key_map[used] = index
+        return key_map[keys], used[new]
+
+
 def _march(
     read: Callable[[int, int], np.ndarray],
     geom: _Geometry,
@@ -189,21 +280,10 @@ def _march(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Extract the mesh slab by slab; returns (vertices (V, d) float64, simplices (S, d) int64)."""
     d = len(geom.shape)
-    full = (1 << (1 << d)) - 1
-    offs = _corner_offsets(geom, d)
-    dirs = np.unique(table.mask)
-    n_dirs = len(dirs)
-    dir_of = np.zeros(1 << d, dtype=np.int64)
-    dir_of[dirs] = np.arange(n_dirs)
-    key_off = offs[table.corner] * n_dirs + dir_of[table.mask]  # per table edge
-    mask_bits = ((np.arange(1 << d)[:, None] >> np.arange(d)) & 1).astype(np.float64)
-    slab_bit = 1 << geom.perm[0]
-    in_plane_dir = (dirs & slab_bit) == 0  # directions lying inside a layer
-    layer = geom.layer
-    carry = np.full(layer * n_dirs, -1, dtype=np.int64)  # shared-layer key -> vertex index
+    plan = _Plan.make(table, geom)
+    welder = _Welder(plan)
     verts: list[np.ndarray] = []
     simps: list[np.ndarray] = []
-    n_vertices = 0
     n0 = geom.shape[0]
     z0 = 0
     while z0 < n0 - 1:
@@ -211,48 +291,13 @@ def _march(
         slab = read(z0, z1 + 1)
         if check_values:
             check_finite(slab, "values")
-        pos = slab >= level if inside == "below" else slab <= level
-        case = _cases(pos, geom.perm).ravel()
-        del pos
-        active = np.flatnonzero((case != 0) & (case != full))
-        case = case[active].astype(np.int64)
-        counts = table.counts[case]
-        n_simp = int(counts.sum())
-        if n_simp:
-            first = np.cumsum(counts) - counts
-            rows = np.repeat(table.offsets[case] - first, counts) + np.arange(n_simp)
-            # int32 keys halve the memory traffic of the hottest lines when the slab allows
-            kt = np.int32 if slab.size * n_dirs < 2**31 else np.int64
-            base = np.repeat((active * n_dirs).astype(kt), counts)
-            keys = base[:, None] + key_off.astype(kt)[table.simplices[rows]]
-            del base
-            del rows, first
-            # weld: sorted unique keys through a dense mark array (no sort needed)
-            mark = np.zeros(slab.size * n_dirs, dtype=bool)
-            mark[keys] = True
-            used = np.flatnonzero(mark)
-            del mark
-            lin, dir_ = np.divmod(used, n_dirs)
-            index = np.empty(len(used), dtype=np.int64)
-            shared = np.zeros(len(used), dtype=bool)
-            if z0 > 0:
-                bottom = (lin < layer) & in_plane_dir[dir_]
-                shared[bottom] = carry[used[bottom]] >= 0
-                index[shared] = carry[used[shared]]
-            new = ~shared
-            n_new = int(new.sum())
-            index[new] = n_vertices + np.arange(n_new)
-            n_vertices += n_new
-            carry.fill(-1)
-            top = (lin >= (z1 - z0) * layer) & in_plane_dir[dir_]
-            carry[used[top] - (z1 - z0) * layer * n_dirs] = index[top]
-            # key -> vertex index through a dense map (np.empty: only the used keys are read)
-            # int32 per-slab simplices halve the memory held until the final concatenation
-            key_map = np.empty(slab.size * n_dirs, dtype=np.int32 if n_vertices < 2**31 else np.int64)
-            key_map[used] = index
-            simps.append(key_map[keys])
-            del keys, key_map
-            verts.append(_interpolate(slab, lin[new], dirs[dir_[new]], z0, level, geom, offs, mask_bits))
+        case = _cases(slab >= level if inside == "below" else slab <= level, geom.perm).ravel()
+        n_keys = slab.size * plan.n_dirs
+        simplices, new_keys = welder.number(_slab_keys(case, plan, n_keys), n_keys, z1 - z0)
+        if simplices is not None:
+            simps.append(simplices)
+            lin, dir_ = np.divmod(new_keys, plan.n_dirs)
+            verts.append(_interpolate(slab, lin, plan.dirs[dir_], z0, level, plan))
         if progress is not None:
             progress.update(z1 - z0)
         z0 = z1
@@ -264,26 +309,20 @@ def _march(
 
 
 def _interpolate(
-    slab: np.ndarray,
-    lin: np.ndarray,
-    masks: np.ndarray,
-    z0: int,
-    level: float,
-    geom: _Geometry,
-    offs: np.ndarray,
-    mask_bits: np.ndarray,
+    slab: np.ndarray, lin: np.ndarray, masks: np.ndarray, z0: int, level: float, plan: _Plan
 ) -> np.ndarray:
     """Positions (K, d) of the crossings on edges (slab point ``lin``, direction ``masks``)."""
+    geom = plan.geom
     flat = slab.reshape(-1)
     f0 = flat[lin].astype(np.float64)
-    f1 = flat[lin + offs[masks]].astype(np.float64)
+    f1 = flat[lin + plan.offs[masks]].astype(np.float64)
     # exactly one end is positive, so f1 != f0 and fl(level - f0) lies between 0 and fl(f1 - f0)
     t = np.clip((level - f0) / (f1 - f0), 0.0, 1.0)
     eidx = np.unravel_index(lin, slab.shape)
     idx = np.empty((len(lin), len(geom.shape)))
     for e, axis in enumerate(geom.perm):
         idx[:, axis] = eidx[e] + (z0 if e == 0 else 0)
-    idx += t[:, None] * mask_bits[masks]
+    idx += t[:, None] * plan.mask_bits[masks]
     return geom.origin + geom.spacing * idx
 
 
