@@ -79,7 +79,8 @@ GENERATOR = {
     "cube_edge_order": "by (axis, index of the lower corner)",
     "simplex_edge_order": "pairs (i, j), i < j of Kuhn chain positions, lexicographic",
     "symmetry": "hyperoctahedral group (2^d d!) for cubes; none for the simplex",
-    "orientation": "n . x = det[p1-p0; ...; p_{d-1}-p0; x] points to the positive side (f >= level)",
+    "orientation": "n . x = det[p1-p0; ...; p_{d-1}-p0; x] points to the positive side "
+    "(f >= level)",
     "simplex_rows": "vertices ascending, first two swapped when that orientation is wrong; "
     "rows sorted by their sorted vertex labels",
 }
@@ -828,7 +829,8 @@ def verify(
                 continue
             digest = _sha256(path)
             if digest != files[name]["sha256"]:
-                report.fail(f"{name}: sha256 {digest[:12]} != manifest {files[name]['sha256'][:12]}")
+                want = files[name]["sha256"]
+                report.fail(f"{name}: sha256 {digest[:12]} != manifest {want[:12]}")
                 continue
             line = f"{name}: sha256 ok"
             if rebuild:

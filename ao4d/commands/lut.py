@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 HELP = "build, verify or describe the marching lookup tables (d-cubes and Kuhn simplices)"
-EXAMPLES = """  ao4d lut verify                 checksums + rebuild-and-compare of every shipped table
+EXAMPLES = """  ao4d lut verify                 checksums, then rebuild and compare every shipped table
   ao4d lut stats --dim 4          entries, symmetry classes, tets per entry, build time
   ao4d lut build --out /tmp/lut   regenerate all tables into a folder (atomic writes)
   ao4d lut build --dim 3 --kind cube
