@@ -11,7 +11,7 @@ A configuration (see ``datasets_gen/configs/*.toml``)::
     padding = 0.15                # margin around the shape's extent, as a fraction of its size
     rotation = "random"           # "none" | "random" (uniform in SO(4))
     ao = { samples = 64, max_distance = inf, at = "vertices" }   # or ao = false
-    renders = [{ name = "front", shape = [32, 32, 32], samples = 32 }]
+    renders = [{ name = "front", shape = [32, 32, 32], samples = 32 }]   # projection, fov
 
     [[family]]
     kind = "spheritorus"          # see datasets_gen.families.KINDS
@@ -51,7 +51,7 @@ _TOP_KEYS = {"name", "description", "seed", "backend", "defaults", "family"}
 _SETTING_KEYS = {"grid", "method", "padding", "bounds", "rotation", "ao", "renders", "tetrahedra"}
 _FAMILY_KEYS = _SETTING_KEYS | {"kind", "count", "params", "name"}
 _AO_KEYS = {"samples", "max_distance", "at"}
-_RENDER_KEYS = {"name", "shape", "samples", "distance", "fov"}
+_RENDER_KEYS = {"name", "shape", "samples", "projection", "fov"}
 DEFAULTS: dict[str, Any] = {
     "grid": 24,
     "method": "cubes",
@@ -248,6 +248,9 @@ def _check_settings(s: dict[str, Any], where: str) -> None:
         if not isinstance(name, str) or not name.isidentifier() or name in names:
             raise ConfigError(f"{where}: every render needs a distinct identifier `name`, got {name!r}")
         names.add(name)
+        if r.get("projection", "orthographic") not in ("orthographic", "perspective"):
+            raise ConfigError(f"{where}: render {name!r}: `projection` must be 'orthographic' or "
+                              f"'perspective', got {r['projection']!r}")
         shape = r.get("shape", [32, 32, 32])
         if not (isinstance(shape, list) and len(shape) == 3
                 and all(isinstance(v, int) and 2 <= v <= 512 for v in shape)):

@@ -185,7 +185,9 @@ def make_item(job: _Job) -> dict[str, Any]:
 
     for render in settings["renders"]:
         t0 = time.perf_counter()
-        files.append(_render(folder, render, mesh, occlusion, settings, ao_seed, job.backend).name)
+        title = f"item {spec.index}: {spec.family.name} ({spec.family.kind}), looking along +w"
+        files.append(_render(folder, render, mesh, occlusion, settings, ao_seed, job.backend,
+                             title).name)
         timing[f"render_{render['name']}"] = time.perf_counter() - t0
 
     expected = shape.volume_expected
@@ -224,16 +226,24 @@ def make_item(job: _Job) -> dict[str, Any]:
 
 
 def _render(folder: Path, render: dict, mesh: Any, occlusion: Any, settings: dict, seed: int,
-            backend: str) -> Path:
-    """Render the item looking along +w at its centre; save a z-slice montage PNG."""
+            backend: str, title: str) -> Path:
+    """Render the item looking along +w at its centre; save a z-slice montage PNG.
+
+    Orthographic by default, framed tightly on the mesh's x, y, z extent (a perspective
+    camera framing the whole 4D bounding sphere leaves most of the image empty).
+    """
     import ao4d
     from ao4d import io as aio
 
     lo, hi = mesh.bounds
-    centre, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) / 2
-    distance = float(render.get("distance", 3.0)) * radius
-    camera = ao4d.Camera4D(centre - [0, 0, 0, distance], centre, up=(0, 1, 0, 0), over=(0, 0, 1, 0),
-                           fov=float(render.get("fov", 45.0)))
+    if render.get("projection", "orthographic") == "orthographic":
+        centre = (lo + hi) / 2
+        eye = centre - [0, 0, 0, (hi[3] - lo[3]) + 1.0]
+        camera = ao4d.Camera4D(eye, centre, up=(0, 1, 0, 0), over=(0, 0, 1, 0),
+                               projection="orthographic",
+                               half_width=1.05 * float(np.max(hi[:3] - lo[:3])) / 2)
+    else:
+        camera = ao4d.Camera4D.framing(mesh.bounds, fov=float(render.get("fov", 40.0)), margin=1.0)
     scene = mesh.copy()
     vertex_ao = occlusion is not None and settings["ao"]["at"] == "vertices"
     if vertex_ao:
@@ -244,7 +254,7 @@ def _render(folder: Path, render: dict, mesh: Any, occlusion: Any, settings: dic
                          progress=False)
     path = folder / f"{render['name']}.png"
     aio.save_montage(path, result.shade, background=~result.hit, label="shade (1 - A)",
-                     title=f"item {folder.name}: 3D image looking along +w",
+                     title=title,
                      spacing=result.geometry.spacing, origin=result.geometry.origin)
     return path
 

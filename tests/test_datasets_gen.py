@@ -22,9 +22,12 @@ from datasets_gen.config import sample_params
 from datasets_gen.families import build_shape, random_rotation
 
 # A run small enough for tests (a few seconds): implicit, CSG and lifted items, AO, one render.
+# The numpy AO backend spares every spawned worker an OpenCL kernel build; the OpenCL path is
+# covered by the slow test on the shipped smoke config.
 TINY = """
 name = "tiny"
 seed = 3
+backend = "numpy"
 
 [defaults]
 grid = 10
@@ -315,3 +318,11 @@ def test_command_line(tiny_config, tmp_path, capsys):
     assert "tiny" in capsys.readouterr().out
     assert runner_mod.main(["nonexistent", "--out", str(tmp_path / "o")]) == 2
     assert "neither a file nor a shipped" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_smoke_config_with_opencl_is_reproducible_across_workers(tmp_path, cl_runtime):
+    one = run("smoke", tmp_path / "one", workers=1, progress=False)
+    two = run("smoke", tmp_path / "two", workers=2, progress=False)
+    assert one.made == two.made == len(load_config("smoke").items())
+    assert _manifest(tmp_path / "one") == _manifest(tmp_path / "two")
