@@ -23,6 +23,7 @@ _LAZY = {
     "fields": "fields:",
     "cl": "cl:",
     "mesh": "mesh:",
+    "meshio": "meshio:",
     "march": "march:",
     "bvh": "bvh:",
     "ao": "ao:",
