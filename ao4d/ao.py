@@ -153,22 +153,24 @@ def _check_device_memory(runtime, nbytes: dict[str, int]) -> None:
 
 
 def _device_tree(tree: _bvh.BVH, runtime) -> dict[str, Any]:
-    """Device copies of the tree, uploaded once per context and cached on the tree."""
+    """Device copies of the wide tree, uploaded once per context and cached on the tree."""
     key = id(runtime.context)
     if key not in tree.device:
         import pyopencl as cl
 
+        wide = tree.wide()
         _check_device_memory(
             runtime,
-            {"the BVH simplex data": tree.n_prims * (tree.dim + 1) * 16, "the BVH": tree.nbytes_device()},
+            {"the BVH leaf blocks": wide.blocks.nbytes, "the BVH nodes": wide.boxes.nbytes, "the BVH": wide.nbytes()},
         )
         flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
         ctx = runtime.context
         tree.device[key] = {
-            "lo": cl.Buffer(ctx, flags, hostbuf=np.ascontiguousarray(tree.lo)),
-            "hi": cl.Buffer(ctx, flags, hostbuf=np.ascontiguousarray(tree.hi)),
-            "meta": cl.Buffer(ctx, flags, hostbuf=np.ascontiguousarray(tree.meta)),
-            "simplices": cl.Buffer(ctx, flags, hostbuf=tree.packed_simplices()),
+            "boxes": cl.Buffer(ctx, flags, hostbuf=np.ascontiguousarray(wide.boxes)),
+            "children": cl.Buffer(ctx, flags, hostbuf=np.ascontiguousarray(wide.children)),
+            "blocks": cl.Buffer(ctx, flags, hostbuf=np.ascontiguousarray(wide.blocks)),
+            "n_blocks": np.int32(len(wide.blocks)),
+            "slot_prim": wide.block_prim.ravel(),
         }
     return tree.device[key]
 
@@ -203,10 +205,10 @@ def _trace_opencl(tree, runtime, origins, directions, max_distance, any_hit, acc
     kernels = _kernels(runtime, tree.dim)
     if accel == "bvh":
         kernel = kernels["cast_bvh"]
-        head = [dev["lo"], dev["hi"], dev["meta"], dev["simplices"]]
+        head = [dev["boxes"], dev["children"], dev["blocks"]]
     else:
         kernel = kernels["cast_brute"]
-        head = [dev["simplices"], np.int32(tree.n_prims)]
+        head = [dev["blocks"], dev["n_blocks"]]
     args = head + [buf_o, buf_w, np.float32(max_distance), np.int32(any_hit), buf_t, buf_h]
     for start in range(0, n, RAYS_PER_LAUNCH):
         count = min(RAYS_PER_LAUNCH, n - start)
@@ -215,7 +217,9 @@ def _trace_opencl(tree, runtime, origins, directions, max_distance, any_hit, acc
     cl.enqueue_copy(queue, t, buf_t)
     cl.enqueue_copy(queue, hit, buf_h)
     queue.finish()
-    return t, hit
+    # kernels report 4 * leaf block + lane: map to tree-order simplices
+    prim = np.where(hit >= 0, dev["slot_prim"][np.maximum(hit, 0)], -1)
+    return t, prim
 
 
 def _ao_opencl(tree, runtime, points, normals, samples, seed, max_distance, accel, bar):
@@ -241,10 +245,10 @@ def _ao_opencl(tree, runtime, points, normals, samples, seed, max_distance, acce
     kernels = _kernels(runtime, tree.dim)
     if accel == "bvh":
         kernel = kernels["ao_bvh"]
-        head = [dev["lo"], dev["hi"], dev["meta"], dev["simplices"]]
+        head = [dev["boxes"], dev["children"], dev["blocks"]]
     else:
         kernel = kernels["ao_brute"]
-        head = [dev["simplices"], np.int32(tree.n_prims)]
+        head = [dev["blocks"], dev["n_blocks"]]
     offset = ORIGIN_OFFSET * tree.diagonal
     args = head + buffers + [
         np.int32(samples), np.uint32(seed & 0xFFFFFFFF), np.float32(offset),

@@ -88,17 +88,115 @@ class BVH:
     def n_prims(self) -> int:
         return len(self.prim)
 
-    def packed_simplices(self) -> np.ndarray:
-        """Simplex data for the kernels: ``(P, d + 1, 4)`` float32, rows of the inverse then vertex 0."""
-        d = self.dim
-        out = np.zeros((self.n_prims, d + 1, 4), dtype=np.float32)
-        out[:, :d, :d] = self.inverse
-        out[:, d, :d] = self.origin
-        return out
+    def wide(self) -> WideBVH:
+        """The 8-wide, structure-of-arrays form the OpenCL kernels traverse (built once)."""
+        if "wide" not in self.device:
+            self.device["wide"] = widen(self)
+        return self.device["wide"]
 
-    def nbytes_device(self) -> int:
-        """Bytes the kernels' copy of the tree needs on the device."""
-        return self.n_nodes * (16 + 16 + 8) + self.n_prims * (self.dim + 1) * 16
+
+WIDTH = 8  # children per node of the kernels' tree: one float8 per box coordinate
+LANES = 4  # simplices per leaf block: one float4 per simplex coordinate
+STACK_SIZE = 256  # must match kernels/bvh.h
+
+
+@dataclass
+class WideBVH:
+    """The kernels' form of a :class:`BVH`: 8-wide nodes and 4-simplex leaf blocks (SoA).
+
+    Attributes
+    ----------
+    boxes : (K, 2, d, 8) float32
+        Node k's child boxes: ``boxes[k, 0, j, s]`` is the low bound of coordinate j of child s,
+        ``boxes[k, 1]`` the high bounds (the binary tree's float32 boxes, unchanged).
+    children : (K, 8) int32
+        Child s of node k: a node index > 0, ``-(b + 1)`` for leaf block b, or 0 for no child.
+    blocks : (B, d + 1, d, 4) float32
+        Leaf block b: ``blocks[b, i, j, l]`` is entry (i, j) of lane l's inverse matrix for
+        i < d and coordinate j of its vertex 0 for i = d; unused lanes are all zero (never hit).
+    block_prim : (B, 4) int64
+        Tree-order simplex of each lane (-1 for unused lanes).
+    depth : int
+        Levels of wide nodes.
+    """
+
+    boxes: np.ndarray
+    children: np.ndarray
+    blocks: np.ndarray
+    block_prim: np.ndarray
+    depth: int
+
+    def nbytes(self) -> int:
+        return self.boxes.nbytes + self.children.nbytes + self.blocks.nbytes
+
+
+def widen(tree: BVH) -> WideBVH:
+    """Collapse the binary tree into 8-wide nodes (open the child of largest box area first)."""
+    d = tree.dim
+    left = np.where(tree.meta[:, 0] >= 0, tree.meta[:, 0], -1).astype(np.int64)
+    right = np.where(tree.meta[:, 0] >= 0, tree.meta[:, 1], -1).astype(np.int64)
+    is_leaf = left < 0
+    if (tree.meta[is_leaf, 1] > LANES).any():
+        raise ValueError(f"the OpenCL kernels need leaves of at most {LANES} simplices")
+    leaves = np.flatnonzero(is_leaf)
+    block_of = np.full(tree.n_nodes, -1, dtype=np.int64)
+    block_of[leaves] = np.arange(leaves.size)
+    area = _box_area(tree.lo[:, :d].astype(np.float64), tree.hi[:, :d].astype(np.float64))
+
+    # wide nodes level by level; each holds up to 8 binary nodes (its children)
+    level = np.array([0]) if not is_leaf[0] else np.array([-1])
+    all_slots, depth = [], 0
+    while level.size:
+        slots = np.full((level.size, WIDTH), -1, dtype=np.int64)
+        if level[0] == -1:  # the whole tree is one leaf: a root with a single leaf child
+            slots[0, 0] = 0
+        else:
+            slots[:, 0], slots[:, 1] = left[level], right[level]
+        rows = np.arange(level.size)
+        for _ in range(WIDTH - 2):
+            valid = slots >= 0
+            inner = valid & ~is_leaf[np.where(valid, slots, 0)]
+            score = np.where(inner, area[np.where(valid, slots, 0)], -1.0)
+            j = np.argmax(score, axis=1)
+            free = valid.sum(1)
+            grow = inner[rows, j] & (free < WIDTH)
+            r, jj = rows[grow], j[grow]
+            node = slots[r, jj]
+            slots[r, jj] = left[node]
+            slots[r, free[grow]] = right[node]
+        all_slots.append(slots)
+        valid = slots >= 0
+        level = slots[valid & ~is_leaf[np.where(valid, slots, 0)]]
+        depth += 1
+    slots = np.concatenate(all_slots)
+    valid = slots >= 0
+    safe = np.where(valid, slots, 0)
+    inner = valid & ~is_leaf[safe]
+    # wide ids follow creation order: the inner slots in row-major order are nodes 1, 2, ...
+    children = np.zeros(slots.shape, dtype=np.int64)
+    children[inner] = 1 + np.arange(inner.sum())
+    leafy = valid & is_leaf[safe]
+    children[leafy] = -(block_of[slots[leafy]] + 1)
+    boxes = np.zeros((len(slots), 2, d, WIDTH), dtype=np.float32)
+    boxes[:, 0] = tree.lo[safe][..., :d].transpose(0, 2, 1)
+    boxes[:, 1] = tree.hi[safe][..., :d].transpose(0, 2, 1)
+    boxes[~np.broadcast_to(valid[:, None, None, :], boxes.shape)] = 0.0
+
+    first = -tree.meta[leaves, 0].astype(np.int64) - 1
+    count = tree.meta[leaves, 1].astype(np.int64)
+    lane = np.arange(LANES)
+    block_prim = np.where(lane < count[:, None], first[:, None] + lane, -1)
+    blocks = np.zeros((leaves.size, d + 1, d, LANES), dtype=np.float32)
+    used = block_prim >= 0
+    b, l = np.nonzero(used)
+    prim = block_prim[used]
+    blocks[b, :d, :, l] = tree.inverse[prim]
+    blocks[b, d, :, l] = tree.origin[prim]
+    if depth * (WIDTH - 1) + 1 > STACK_SIZE:
+        raise RuntimeError(f"BVH too deep for the kernels' stack ({depth} levels)")
+    return WideBVH(
+        boxes=boxes, children=children.astype(np.int32), blocks=blocks, block_prim=block_prim, depth=depth
+    )
 
 
 def simplex_normals(corners: np.ndarray) -> np.ndarray:

@@ -1,22 +1,23 @@
 // Ambient occlusion and ray casting on simplex meshes in R^DIM (DIM = 2, 3 or 4).
 // Host side: ao4d/ao.py. Vectors are float4 with zeros beyond DIM.
+// vec_type_hint(float4) keeps CPU runtimes (Intel's) from vectorising across work-items: rays
+// traverse the tree divergently, and 16 masked lanes ran 8x slower than scalar work-items that
+// use float4/float8 within one ray. GPUs ignore the hint.
 #include "bvh.h"
 #include "sampling.h"
 
-inline int trace(const int use_bvh, __global const float4 *lo, __global const float4 *hi,
-                 __global const int2 *meta, __global const float4 *simplices,
-                 const int n_simplices, const float4 o, const float4 w, const float t_max,
-                 const int any_hit, float *t_out)
+inline int trace(const int use_bvh, __global const float8 *boxes, __global const int *children,
+                 __global const float4 *blocks, const int n_blocks, const float4 o,
+                 const float4 w, const float t_max, const int any_hit, float *t_out)
 {
-    if (use_bvh) return trace_bvh(lo, hi, meta, simplices, o, w, t_max, any_hit, t_out);
-    return trace_brute(simplices, n_simplices, o, w, t_max, any_hit, t_out);
+    if (use_bvh) return trace_bvh(boxes, children, blocks, o, w, t_max, any_hit, t_out);
+    return trace_brute(blocks, n_blocks, o, w, t_max, any_hit, t_out);
 }
 
 // occluded-ray count of point i over `samples` cosine-weighted directions
-inline int occlusion_count(const int use_bvh, __global const float4 *lo,
-                           __global const float4 *hi, __global const int2 *meta,
-                           __global const float4 *simplices, const int n_simplices,
-                           const float4 p, const float4 n, const uint index,
+inline int occlusion_count(const int use_bvh, __global const float8 *boxes,
+                           __global const int *children, __global const float4 *blocks,
+                           const int n_blocks, const float4 p, const float4 n, const uint index,
                            __global const uint *table, const int samples, const uint seed,
                            const float offset, const float max_distance)
 {
@@ -28,58 +29,56 @@ inline int occlusion_count(const int use_bvh, __global const float4 *lo,
     for (int s = 0; s < samples; ++s) {
         const float4 w = cosine_direction(n, table, s, shift);
         float t;
-        hits += trace(use_bvh, lo, hi, meta, simplices, n_simplices, o, w, max_distance, 1, &t)
-                >= 0;
+        hits += trace(use_bvh, boxes, children, blocks, n_blocks, o, w, max_distance, 1, &t) >= 0;
     }
     return hits;
 }
 
-__kernel void ao_bvh(__global const float4 *lo, __global const float4 *hi,
-                     __global const int2 *meta, __global const float4 *simplices,
-                     __global const float4 *points, __global const float4 *normals,
+__kernel __attribute__((vec_type_hint(float4))) void ao_bvh(__global const float8 *boxes, __global const int *children,
+                     __global const float4 *blocks, __global const float4 *points, __global const float4 *normals,
                      __global const uint *index, __global const uint *table, const int samples,
                      const uint seed, const float offset, const float max_distance,
                      __global int *counts)
 {
     const size_t i = get_global_id(0);
-    counts[i] = occlusion_count(1, lo, hi, meta, simplices, 0, points[i], normals[i], index[i],
+    counts[i] = occlusion_count(1, boxes, children, blocks, 0, points[i], normals[i], index[i],
                                 table, samples, seed, offset, max_distance);
 }
 
-__kernel void ao_brute(__global const float4 *simplices, const int n_simplices,
+__kernel __attribute__((vec_type_hint(float4))) void ao_brute(__global const float4 *blocks, const int n_blocks,
                        __global const float4 *points, __global const float4 *normals,
                        __global const uint *index, __global const uint *table, const int samples,
                        const uint seed, const float offset, const float max_distance,
                        __global int *counts)
 {
     const size_t i = get_global_id(0);
-    counts[i] = occlusion_count(0, 0, 0, 0, simplices, n_simplices, points[i], normals[i],
-                                index[i], table, samples, seed, offset, max_distance);
+    counts[i] = occlusion_count(0, 0, 0, blocks, n_blocks, points[i], normals[i], index[i],
+                                table, samples, seed, offset, max_distance);
 }
 
-// one ray per work-item: closest (any_hit = 0) or any hit within max_distance
-__kernel void cast_bvh(__global const float4 *lo, __global const float4 *hi,
-                       __global const int2 *meta, __global const float4 *simplices,
-                       __global const float4 *origins, __global const float4 *directions,
+// one ray per work-item: closest (any_hit = 0) or any hit within max_distance; hit_out is
+// 4 * leaf block + lane (the host maps it to a simplex) or -1
+__kernel __attribute__((vec_type_hint(float4))) void cast_bvh(__global const float8 *boxes, __global const int *children,
+                       __global const float4 *blocks, __global const float4 *origins, __global const float4 *directions,
                        const float max_distance, const int any_hit, __global float *t_out,
                        __global int *hit_out)
 {
     const size_t i = get_global_id(0);
     float t;
-    hit_out[i] = trace_bvh(lo, hi, meta, simplices, origins[i], directions[i], max_distance,
+    hit_out[i] = trace_bvh(boxes, children, blocks, origins[i], directions[i], max_distance,
                            any_hit, &t);
     t_out[i] = t;
 }
 
-__kernel void cast_brute(__global const float4 *simplices, const int n_simplices,
+__kernel __attribute__((vec_type_hint(float4))) void cast_brute(__global const float4 *blocks, const int n_blocks,
                          __global const float4 *origins, __global const float4 *directions,
                          const float max_distance, const int any_hit, __global float *t_out,
                          __global int *hit_out)
 {
     const size_t i = get_global_id(0);
     float t;
-    hit_out[i] = trace_brute(simplices, n_simplices, origins[i], directions[i], max_distance,
-                             any_hit, &t);
+    hit_out[i] = trace_brute(blocks, n_blocks, origins[i], directions[i], max_distance, any_hit,
+                             &t);
     t_out[i] = t;
 }
 

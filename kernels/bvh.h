@@ -1,34 +1,60 @@
-// BVH traversal with a small per-ray stack (ao4d/bvh.py builds and flattens the tree).
-// Node k: bounds lo[k], hi[k]; meta[k] = (left, right) for an inner node, (-(start+1), count)
-// for a leaf over simplices start .. start+count-1 (rows of `simplices`, tree order).
+// Traversal of the 8-wide BVH built by ao4d/bvh.py (widen): node k has its children's boxes
+// at boxes[k * 2 * DIM ...] (float8, one lane per child) and children[8 k + s]: a node index
+// > 0, -(b + 1) for leaf block b, 0 for none. Hits are reported as 4 * block + lane.
 #ifndef AO4D_BVH_H
 #define AO4D_BVH_H
 
 #include "geometry.h"
 
-// median splits give depth ceil(log2(P / leaf)) + 1; 64 levels hold any mesh that fits memory
-#define STACK_SIZE 64
+// ao4d.bvh.STACK_SIZE; the host refuses trees with depth * 7 + 1 > STACK_SIZE
+#define STACK_SIZE 256
 
-// closest (any_hit = 0) or any (any_hit = 1) hit with 0 < t <= t_max; returns the tree-order
-// simplex index or -1, and the distance in *t_out
-inline int trace_bvh(__global const float4 *lo, __global const float4 *hi,
-                     __global const int2 *meta, __global const float4 *simplices,
-                     const float4 o, const float4 w, float t_max, const int any_hit,
-                     float *t_out)
+inline void load_ray(const float4 o4, const float4 w4, float *o, float *w, float *inv_w)
 {
-    const float4 inv_w = 1.0f / w;
+    float a[4], b[4];
+    vstore4(o4, 0, a);
+    vstore4(w4, 0, b);
+    for (int j = 0; j < DIM; ++j) {
+        o[j] = a[j];
+        w[j] = b[j];
+        inv_w[j] = 1.0f / b[j];
+    }
+}
+
+// closest (any_hit = 0) or any (any_hit = 1) hit with 0 < t <= t_max: 4 * block + lane or -1
+inline int trace_bvh(__global const float8 *boxes, __global const int *children,
+                     __global const float4 *blocks, const float4 o4, const float4 w4,
+                     float t_max, const int any_hit, float *t_out)
+{
+    float o[DIM], w[DIM], inv_w[DIM];
+    load_ray(o4, w4, o, w, inv_w);
     int stack[STACK_SIZE];
+    float stack_t[STACK_SIZE];
     int sp = 0;
     int node = 0;
     int best = -1;
     for (;;) {
-        const int2 m = meta[node];
-        if (m.x < 0) {
-            const int first = -m.x - 1;
-            for (int k = first; k < first + m.y; ++k) {
+        float8 tn8;
+        const int8 hit8 = hit_boxes8(boxes + (size_t)node * 2 * DIM, o, inv_w, t_max, &tn8);
+        if (any(hit8)) {
+            int hits[8];
+            float tn[8];
+            vstore8(hit8, 0, hits);
+            vstore8(tn8, 0, tn);
+            __global const int *child = children + (size_t)node * 8;
+            for (int s = 0; s < 8; ++s) {
+                const int c = child[s];
+                if (!hits[s] || c == 0) continue;
+                if (c > 0) {
+                    stack_t[sp] = tn[s];
+                    stack[sp++] = c;
+                    continue;
+                }
                 float t;
-                if (hit_simplex(simplices + (size_t)k * SIMPLEX_ROWS, o, w, t_max, &t)) {
-                    best = k;
+                const int b = -c - 1;
+                const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, o, w, t_max, &t);
+                if (lane >= 0) {
+                    best = 4 * b + lane;
                     t_max = t;
                     if (any_hit) {
                         *t_out = t;
@@ -36,35 +62,34 @@ inline int trace_bvh(__global const float4 *lo, __global const float4 *hi,
                     }
                 }
             }
-        } else {
-            float tl, tr;
-            const bool hl = hit_box(lo[m.x], hi[m.x], o, inv_w, t_max, &tl);
-            const bool hr = hit_box(lo[m.y], hi[m.y], o, inv_w, t_max, &tr);
-            if (hl && hr) {
-                const bool right_first = tr < tl;
-                stack[sp++] = right_first ? m.x : m.y;
-                node = right_first ? m.y : m.x;
-                continue;
-            }
-            if (hl) { node = m.x; continue; }
-            if (hr) { node = m.y; continue; }
         }
-        if (sp == 0) break;
-        node = stack[--sp];
+        // next node whose box is still in reach
+        node = -1;
+        while (sp > 0) {
+            --sp;
+            if (stack_t[sp] <= t_max) {
+                node = stack[sp];
+                break;
+            }
+        }
+        if (node < 0) break;
     }
     *t_out = t_max;
     return best;
 }
 
-// the same answer by testing every simplex (for tests and the speed-up benchmark)
-inline int trace_brute(__global const float4 *simplices, const int n_simplices, const float4 o,
-                       const float4 w, float t_max, const int any_hit, float *t_out)
+// the same answer by testing every leaf block (for tests and the speed-up benchmark)
+inline int trace_brute(__global const float4 *blocks, const int n_blocks, const float4 o4,
+                       const float4 w4, float t_max, const int any_hit, float *t_out)
 {
+    float o[DIM], w[DIM], inv_w[DIM];
+    load_ray(o4, w4, o, w, inv_w);
     int best = -1;
-    for (int k = 0; k < n_simplices; ++k) {
+    for (int b = 0; b < n_blocks; ++b) {
         float t;
-        if (hit_simplex(simplices + (size_t)k * SIMPLEX_ROWS, o, w, t_max, &t)) {
-            best = k;
+        const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, o, w, t_max, &t);
+        if (lane >= 0) {
+            best = 4 * b + lane;
             t_max = t;
             if (any_hit) break;
         }

@@ -1,7 +1,8 @@
-// Ray vs (d-1)-simplex in R^d, the float32 twin of ao4d.bvh.intersect.
-// A simplex is DIM+1 float4 rows: the rows of inverse([e1 .. e_{d-1} | n]) and then vertex 0.
-// Row DIM-1 gives the height over the hyperplane, rows 0..DIM-2 the barycentrics of vertices
-// 1..DIM-1. Coordinates beyond DIM are zero everywhere, so float4 dot products are exact.
+// Ray tests in R^DIM, the float32 twins of ao4d.bvh.intersect and of the numpy box test.
+// Leaf blocks hold 4 simplices as structure of arrays: float4 number i*DIM + j is entry (i, j)
+// of the four inverse matrices inverse([e1 .. e_{d-1} | n]) for i < DIM, and coordinate j of
+// their vertex 0 for i = DIM. Row DIM-1 gives the height over the hyperplane, rows 0..DIM-2
+// the barycentrics of vertices 1..DIM-1. Unused lanes are all zero: t = 0/0 is never a hit.
 #ifndef AO4D_GEOMETRY_H
 #define AO4D_GEOMETRY_H
 
@@ -11,46 +12,67 @@
 #ifndef BARY_EPS
 #define BARY_EPS 1e-5f
 #endif
-#define SIMPLEX_ROWS (DIM + 1)
+#define BLOCK_ROWS ((DIM + 1) * DIM)
 
-// true when the ray o + t w hits the simplex with 0 < t <= t_max; *t_hit receives t
-inline bool hit_simplex(__global const float4 *s, const float4 o, const float4 w,
-                        const float t_max, float *t_hit)
+// no fused multiply-adds chosen per call site: the BVH and brute-force kernels must round alike
+#pragma OPENCL FP_CONTRACT OFF
+
+// hits of one leaf block: returns the lane of the nearest hit with 0 < t <= t_max, or -1
+inline int hit_block(__global const float4 *blk, const float *o, const float *w,
+                     const float t_max, float *t_hit)
 {
-    const float4 rel = o - s[DIM];
-    const float4 nrow = s[DIM - 1];
-    const float t = -dot(nrow, rel) / dot(nrow, w);
-    if (!(t > 0.0f && t <= t_max && isfinite(t))) return false;
-    const float4 x = rel + t * w;
-    float sum = 0.0f;
+    float4 rel[DIM];
+    float4 q = (float4)(0.0f), r = (float4)(0.0f);
+    for (int j = 0; j < DIM; ++j) {
+        rel[j] = (float4)(o[j]) - blk[DIM * DIM + j];
+        q += blk[(DIM - 1) * DIM + j] * rel[j];
+        r += blk[(DIM - 1) * DIM + j] * w[j];
+    }
+    const float4 t = -q / r;
+    int4 ok = isgreater(t, (float4)(0.0f)) & islessequal(t, (float4)(t_max)) & isfinite(t);
+    if (!any(ok)) return -1;
+    float4 x[DIM];
+    for (int j = 0; j < DIM; ++j) x[j] = rel[j] + t * w[j];
+    float4 sum = (float4)(0.0f);
     for (int i = 0; i < DIM - 1; ++i) {
-        const float b = dot(s[i], x);
-        if (b < -BARY_EPS) return false;
+        float4 b = (float4)(0.0f);
+        for (int j = 0; j < DIM; ++j) b += blk[i * DIM + j] * x[j];
+        ok &= isgreaterequal(b, (float4)(-BARY_EPS));
         sum += b;
     }
-    if (1.0f - sum < -BARY_EPS) return false;
-    *t_hit = t;
-    return true;
+    ok &= isgreaterequal((float4)(1.0f) - sum, (float4)(-BARY_EPS));
+    if (!any(ok)) return -1;
+    float ts[4];
+    int oks[4];
+    vstore4(t, 0, ts);
+    vstore4(ok, 0, oks);
+    int lane = -1;
+    float best = t_max;
+    for (int l = 0; l < 4; ++l) {
+        if (oks[l] && (lane < 0 || ts[l] < best)) {
+            lane = l;
+            best = ts[l];
+        }
+    }
+    *t_hit = best;
+    return lane;
 }
 
-// slab test of a box against the ray segment (0, t_max]; *t_near receives the entry distance
-inline bool hit_box(const float4 lo, const float4 hi, const float4 o, const float4 inv_w,
-                    const float t_max, float *t_near)
+// slab test of the 8 child boxes of a wide node against the ray segment (0, t_max]:
+// boxes[j] / boxes[DIM + j] hold the low / high bound of coordinate j of the 8 children.
+// fmin/fmax drop the NaN of 0 * inf (a ray in a slab plane, parallel to it): conservative.
+inline int8 hit_boxes8(__global const float8 *boxes, const float *o, const float *inv_w,
+                       const float t_max, float8 *t_near)
 {
-    // fmin/fmax drop the NaN of 0 * inf (ray in a slab plane, parallel to it): conservative
-    const float4 t0 = (lo - o) * inv_w, t1 = (hi - o) * inv_w;
-    const float4 a = fmin(t0, t1), b = fmax(t0, t1);
-#if DIM == 2
-    float tn = fmax(a.x, a.y), tf = fmin(b.x, b.y);
-#elif DIM == 3
-    float tn = fmax(fmax(a.x, a.y), a.z), tf = fmin(fmin(b.x, b.y), b.z);
-#else
-    float tn = fmax(fmax(a.x, a.y), fmax(a.z, a.w)), tf = fmin(fmin(b.x, b.y), fmin(b.z, b.w));
-#endif
-    tn = fmax(tn, 0.0f);
-    tf = fmin(tf, t_max);
+    float8 tn = (float8)(0.0f), tf = (float8)(t_max);
+    for (int j = 0; j < DIM; ++j) {
+        const float8 t0 = (boxes[j] - o[j]) * inv_w[j];
+        const float8 t1 = (boxes[DIM + j] - o[j]) * inv_w[j];
+        tn = fmax(tn, fmin(t0, t1));
+        tf = fmin(tf, fmax(t0, t1));
+    }
     *t_near = tn;
-    return tn <= tf;
+    return islessequal(tn, tf);
 }
 
 #endif
