@@ -193,12 +193,13 @@ def render_pair(meshes, size: int, *, samples: int = 64, seed: int = 0, backend:
 
 
 def _middle_slice(result) -> int:
-    counts = result.hit.sum(axis=(0, 1))
-    return int(np.argmax(counts))
+    """The z-slice through the centre of the hit voxels (where the objects' middles are)."""
+    k = np.nonzero(result.hit)[2]
+    return int(round(k.mean())) if k.size else result.hit.shape[2] // 2
 
 
 def side_by_side_png(path: Path, results: dict, size: int, samples: int) -> Path:
-    """One row per scene: raw without/with AO, closed without/with AO (z-slice with most hits)."""
+    """One row per scene: raw without/with AO, closed without/with AO (middle z-slice)."""
     import matplotlib
 
     from ao4d.io import _figure, _save_figure
