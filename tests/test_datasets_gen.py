@@ -290,7 +290,8 @@ def test_killed_process_resumes(reference, tiny_config, tmp_path):
     proc.wait()
     assert first.exists()
     summary = run(tiny_config, out, progress=False)
-    assert summary.skipped >= 1 and summary.made + summary.skipped == 5
+    # killed 10 ms after item 0 completed, long before the other items (~0.1 s each) were done
+    assert summary.skipped >= 1 and summary.made >= 1 and summary.made + summary.skipped == 5
     assert _manifest(out) == _manifest(reference)
 
 
