@@ -278,7 +278,7 @@ def _march(
     check_values: bool,
     progress: Any,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Extract the mesh slab by slab; returns (vertices (V, d) float64, simplices (S, d) int64)."""
+    """Extract the mesh slab by slab: (vertices (V, d) float64, simplices (S, d) int32|int64)."""
     d = len(geom.shape)
     plan = _Plan.make(table, geom)
     welder = _Welder(plan)
@@ -305,7 +305,8 @@ def _march(
         return np.zeros((0, d)), np.zeros((0, d), dtype=np.int64)
     vertices = np.concatenate(verts)
     del verts
-    return vertices, np.concatenate(simps, dtype=np.int64)
+    # kept int32 when it fits: SimplexMesh converts to int64 in its own (unavoidable) copy
+    return vertices, np.concatenate(simps)
 
 
 def _interpolate(
