@@ -481,15 +481,17 @@ def extract(
     check_choice(inside, "inside", _INSIDE)
     if progress is not None and not isinstance(progress, bool):
         raise TypeError(f"`progress` must be True, False or None, got {progress!r}")
-    on_disk = isinstance(arr, np.memmap)
-    if not on_disk:
-        check_finite(arr, "values")  # in memory: one cheap pass before any work
     # read Fortran arrays transposed so that every slab is contiguous (integers: per slab)
     if arr.flags.f_contiguous and not arr.flags.c_contiguous:
         engine, perm = arr.T, tuple(range(d))[::-1]
     else:
         engine, perm = arr, tuple(range(d))
     geom = _Geometry(tuple(engine.shape), perm, origin, spacing)
+    layers = _layers_per_slab(chunk, geom, method)
+    _check_slab_memory(geom, min(layers, geom.shape[0] - 1), method, arr.dtype.itemsize)
+    on_disk = isinstance(arr, np.memmap)
+    if not on_disk:
+        check_finite(arr, "values")  # in memory: one cheap pass before any work
 
     def read(a: int, b: int) -> np.ndarray:
         slab = np.ascontiguousarray(engine[a:b])

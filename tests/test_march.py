@@ -407,6 +407,7 @@ def _nan_memmap(tmp_path):
         ({"inside": "in"}, ValueError, "`inside` must be one of"),
         ({"chunk": 0}, ValueError, "`chunk` must be >= 1"),
         ({"progress": "yes"}, TypeError, "`progress`"),
+        ({"values": np.broadcast_to(1.0, (10**4,) * 4)}, MemoryError, r"shape \(10000, .* would need about"),
     ],
 )
 def test_extract_bad_input_is_named(kwargs, error, match):
