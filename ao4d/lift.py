@@ -28,8 +28,10 @@ ACM Trans. Graph. 39(4), 2020. https://doi.org/10.1145/3386569.3392385
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 from functools import cached_property
+from pathlib import Path
 from typing import TYPE_CHECKING, Literal, Union
 
 import numpy as np
@@ -41,7 +43,7 @@ if TYPE_CHECKING:
 
     from .mesh import SimplexMesh
 
-__all__ = ["TetSolid", "tetrahedralize", "prism", "cone", "spin"]
+__all__ = ["TetSolid", "load_surface", "tetrahedralize", "prism", "cone", "spin"]
 
 # Faces of a positively oriented tetrahedron (0, 1, 2, 3), each listed so that its normal points
 # out of the tetrahedron (the face opposite vertex i is row i).
@@ -118,6 +120,47 @@ class TetSolid:
 
 
 MeshLike = Union["trimesh.Trimesh", TetSolid]
+
+
+def load_surface(path: str | os.PathLike) -> trimesh.Trimesh:
+    """Read a closed triangle mesh (.stl, .obj, .ply, ... anything trimesh reads) for lifting.
+
+    Duplicate vertices are merged (STL stores separate triangles), so a closed surface comes
+    out watertight; an inside-out file (negative volume) is turned around.
+
+    Parameters
+    ----------
+    path : path-like
+        The file.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        Watertight, consistently wound, outward oriented.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        The file holds no triangles, several disconnected pieces that trimesh cannot join
+        into one mesh, or a surface with holes.
+    """
+    import trimesh
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"`path` {str(p)!r} does not exist or is not a file")
+    try:
+        surface = trimesh.load(p, force="mesh", process=True)
+    except Exception as exc:  # trimesh raises many types for unreadable files
+        raise ValueError(f"`path` {str(p)!r}: trimesh cannot read it as a triangle mesh: {exc}") from None
+    if not isinstance(surface, trimesh.Trimesh) or len(surface.faces) == 0:
+        raise ValueError(f"`path` {str(p)!r} holds no triangles")
+    if surface.is_watertight and surface.is_winding_consistent and surface.volume < 0:
+        surface.invert()
+    _check_surface(surface, f"path {str(p)!r}")
+    return surface
 
 
 def tetrahedralize(

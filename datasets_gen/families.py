@@ -179,7 +179,7 @@ def _gyroid_ball(p: dict, settings: dict, rng: np.random.Generator, rotation) ->
 
 # --------------------------------------------------------------------------- lifted families
 
-SHAPES_3D = ("box", "sphere", "capsule", "cylinder", "torus")
+SHAPES_3D = ("box", "sphere", "capsule", "cylinder", "torus", "file")
 
 
 def _solid_3d(shape: str, size: float, aspect: float, detail: int):
@@ -197,19 +197,38 @@ def _solid_3d(shape: str, size: float, aspect: float, detail: int):
     if shape == "torus":
         return trimesh.creation.torus(size, size * min(aspect, 0.9), major_sections=8 * detail,
                                       minor_sections=4 * detail + 4)
-    raise ValueError(f"`shape` must be one of {', '.join(SHAPES_3D)}, got {shape!r}")
+    raise ValueError(f"`shape` must be one of {', '.join(SHAPES_3D)}, got {shape!r}")  # file: above
+
+
+def _solid_from_file(path: Any, size: float):
+    """A watertight mesh file, centred on its centre of mass and scaled to bounding radius ``size``."""
+    from ao4d import lift
+
+    from ._files import sha256_file
+
+    if not isinstance(path, str):
+        raise ValueError("`shape = 'file'` needs `path`, the mesh file (.stl, .obj, .ply, ...)")
+    solid = lift.load_surface(path)
+    solid.apply_translation(-solid.center_mass)
+    solid.apply_scale(size / float(np.max(np.linalg.norm(solid.vertices, axis=1))))
+    return solid, sha256_file(path)
 
 
 def _lifted(p: dict, settings: dict, rng: np.random.Generator, rotation) -> Shape:
-    """A trimesh solid (``shape``) lifted by ``op``: prism/cone of ``height``, or spin in ``k`` steps
-    at distance ``offset`` from the rotation plane."""
+    """A trimesh solid (``shape``, or ``shape = "file"`` with ``path``) lifted by ``op``: prism/cone
+    of ``height``, or spin in ``k`` steps at distance ``offset`` from the rotation plane."""
     from ao4d import lift
 
     del rng
     shape, op = p.get("shape", "box"), p.get("op", "prism")
     size, aspect = float(p.get("size", 0.5)), float(p.get("aspect", 1.0))
     detail = int(p.get("detail", 2))
-    solid3 = _solid_3d(shape, size, aspect, detail)
+    derived: dict[str, Any] = {}
+    if shape == "file":
+        solid3, derived["file_sha256"] = _solid_from_file(p.get("path"), size)
+    else:
+        solid3 = _solid_3d(shape, size, aspect, detail)
+    derived["faces_3d"] = len(solid3.faces)
     if op in ("prism", "cone"):
         height = float(p.get("height", 1.0))
         solid = lift.tetrahedralize(solid3, method=settings["tetrahedra"])
@@ -227,7 +246,7 @@ def _lifted(p: dict, settings: dict, rng: np.random.Generator, rotation) -> Shap
         from ao4d.mesh import SimplexMesh
 
         mesh = SimplexMesh(mesh.vertices @ rotation.T, mesh.simplices)
-    return Shape(mesh, float(expected), {"faces_3d": len(solid3.faces)}, {})
+    return Shape(mesh, float(expected), derived, {})
 
 
 def _kinds() -> dict[str, Kind]:
@@ -239,7 +258,7 @@ def _kinds() -> dict[str, Kind]:
     kinds["tesseracts"] = Kind(("n", "half", "spread", "rounding", "operation"), _tesseracts,
                                _tesseracts.__doc__)
     kinds["gyroid_ball"] = Kind(("period", "thickness", "radius"), _gyroid_ball, _gyroid_ball.__doc__)
-    kinds["lifted"] = Kind(("shape", "op", "size", "aspect", "detail", "height", "k", "offset"),
+    kinds["lifted"] = Kind(("shape", "path", "op", "size", "aspect", "detail", "height", "k", "offset"),
                            _lifted, _lifted.__doc__)
     return kinds
 

@@ -327,3 +327,23 @@ def test_smoke_config_with_opencl_is_reproducible_across_workers(tmp_path, cl_ru
     two = run("smoke", tmp_path / "two", workers=2, progress=False)
     assert one.made == two.made == len(load_config("smoke").items())
     assert _manifest(tmp_path / "one") == _manifest(tmp_path / "two")
+
+
+def test_lifted_family_from_a_mesh_file(tmp_path):
+    import trimesh
+
+    trimesh.creation.icosphere(1, radius=3.0).export(tmp_path / "ball.stl")
+    cfg = _write(tmp_path, f"""
+[[family]]
+kind = "lifted"
+ao = false
+params = {{ shape = "file", path = "{tmp_path / 'ball.stl'}", op = "cone", size = 0.5, height = 2.0 }}
+""")
+    summary = run(cfg, tmp_path / "out", progress=False)
+    assert summary.made == 1, summary
+    record = json.loads((tmp_path / "out" / "items" / "00000" / "record.json").read_text())
+    assert record["derived"]["file_sha256"] == sha256_file(tmp_path / "ball.stl")
+    assert record["mesh"]["check"]["ok"] and abs(record["mesh"]["volume_rel_error"]) < 1e-9
+    # scaled to bounding radius 0.5: the mesh's 3D extent is within the ball of that radius
+    assert np.max(np.abs(record["mesh"]["bounds"])) <= 1.0 + 1e-9
+    assert not (tmp_path / "out" / "items" / "00000" / "ao.npz").exists()

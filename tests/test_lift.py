@@ -269,3 +269,37 @@ def test_spin_refusals():
     tet = trimesh.convex.convex_hull([[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 0, 1.0]])
     with pytest.raises(ValueError, match="isolated points"):
         lift.spin(tet)
+
+
+# --------------------------------------------------------------------------- files
+
+
+@pytest.mark.parametrize("suffix", [".stl", ".ply", ".obj"])
+def test_load_surface_from_file(tmp_path, suffix):
+    ball = _ball(centre=(0.0, 0.0, 0.0), subdivisions=1)
+    path = tmp_path / f"ball{suffix}"
+    ball.export(path)
+    surface = lift.load_surface(path)
+    assert surface.volume == pytest.approx(ball.volume, rel=1e-6)  # files keep ~7 digits
+    mesh = lift.prism(surface, 1.5)
+    assert mesh.check().ok
+    assert mesh.volume == pytest.approx(surface.volume * 1.5, rel=EXACT)
+
+
+def test_load_surface_turns_inside_out_files_around(tmp_path):
+    box = _box()
+    box.invert()
+    box.export(tmp_path / "inv.ply")
+    assert lift.load_surface(tmp_path / "inv.ply").volume == pytest.approx(6.0, rel=EXACT)
+
+
+def test_load_surface_refuses_open_or_missing_files(tmp_path):
+    box = _box()
+    trimesh.Trimesh(box.vertices, box.faces[:-2]).export(tmp_path / "open.stl")
+    with pytest.raises(ValueError, match="not watertight"):
+        lift.load_surface(tmp_path / "open.stl")
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        lift.load_surface(tmp_path / "none.stl")
+    (tmp_path / "junk.stl").write_bytes(b"not a mesh at all")
+    with pytest.raises(ValueError, match="junk.stl"):
+        lift.load_surface(tmp_path / "junk.stl")
