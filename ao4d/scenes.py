@@ -106,7 +106,9 @@ def default_scene() -> Scene:
     """
     from . import fields
 
-    pad = 0.25
+    # margin around each solid; an odd value keeps grid points off the surfaces (a grid point
+    # exactly on a surface gives zero-measure tetrahedra, legal but useless for rendering)
+    pad = 0.2637
     # the slab is flat: linear interpolation reproduces its faces exactly on a coarse grid
     ground_lo, ground_hi = (-2.7, -0.24, -1.7, -0.95), (2.7, 0.0, 1.7, 0.95)
     # (8 points across its thickness so that coarse settings keep it)

@@ -232,3 +232,16 @@ def test_slice_errors(tmp_path):
         io.save_slice_mesh(tmp_path / "s.obj", tri)
     with pytest.raises(ValueError, match="no faces"):
         io.save_slice_png(tmp_path / "s.png", trimesh.Trimesh())
+
+
+def test_volume_png_falls_back_to_numpy_when_pyvista_fails(tmp_path, monkeypatch):
+    def broken(*args, **kwargs):
+        raise RuntimeError("no OpenGL context")
+
+    monkeypatch.setattr(io, "_volume_png_pyvista", broken)
+    data, bg = _ball_volume(12)
+    assert io.save_volume_png(tmp_path / "v.png", data, background=bg) == "numpy"
+    _assert_not_blank(tmp_path / "v.png")
+    with pytest.raises(RuntimeError, match="no OpenGL"):
+        io.save_volume_png(tmp_path / "w.png", data, background=bg, backend="pyvista")
+    assert not (tmp_path / "w.png").exists()  # nothing half-written
