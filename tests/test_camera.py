@@ -169,3 +169,34 @@ def test_axis_permutations_keep_positive_orientation():
             assert np.linalg.det(cam.basis) == pytest.approx(1.0)
             assert cam.basis[1] @ e[u_ax] == pytest.approx(1.0)
             assert cam.basis[2] @ e[o_ax] == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("projection", ["perspective", "orthographic"])
+def test_framing_sees_the_whole_box(projection):
+    rng = np.random.default_rng(7)
+    lo = rng.uniform(-2, 0, 4)
+    hi = lo + rng.uniform(0.5, 3, 4)
+    view = rng.normal(size=4)
+    cam = Camera4D.framing([lo, hi], view=view, projection=projection, fov=35)
+    np.testing.assert_allclose(cam.view, view / np.linalg.norm(view), atol=EPS)
+    np.testing.assert_allclose(cam.target, (lo + hi) / 2, atol=EPS)
+    corners = np.array(list(itertools.product(*zip(lo, hi))))
+    u = cam.project(corners)
+    # every corner appears inside the image (|u| within the half width on each axis)
+    assert np.isfinite(u).all()
+    assert np.abs(u).max() <= cam.half_width
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [(dict(bounds=[[0, 0, 0, 0], [-1, 1, 1, 1]]), "lo <= hi"),
+     (dict(bounds=[0, 1]), "`bounds` must"),
+     (dict(margin=0.5), "`margin` must be >= 1"),
+     (dict(view=[0, 0, 0, 0]), "`view` must be a non-zero"),
+     (dict(fov=200), "`fov` must be in")],
+)
+def test_framing_errors(kwargs, match):
+    args = dict(bounds=[[-1] * 4, [1] * 4])
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        Camera4D.framing(args.pop("bounds"), **args)
