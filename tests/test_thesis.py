@@ -40,9 +40,18 @@ def test_ao_is_graded(raw, name):
     assert np.unique(inner).size >= 10
 
 
-@pytest.mark.parametrize("name", ["two tetrahedra", "tetrahedra structure"])
-def test_mirror_symmetric_scene_renders_symmetric(raw, name):
-    plain, with_ao = thesis.render_pair(raw[name], SIZE, samples=SAMPLES, seed=1)
+@pytest.fixture(scope="module")
+def closed():
+    return thesis.closed_scenes(grid=12)
+
+
+@pytest.mark.parametrize(
+    ("kind", "name"),
+    [("raw", "two tetrahedra"), ("raw", "tetrahedra structure"), ("closed", "indented cubes")],
+)
+def test_mirror_symmetric_scene_renders_symmetric(request, kind, name):
+    meshes = request.getfixturevalue(kind)[name]
+    plain, with_ao = thesis.render_pair(meshes, SIZE, samples=SAMPLES, seed=1)
     # the camera's eye is in the mirror hyperplane and image axis 0 is world x
     np.testing.assert_allclose(thesis.thesis_camera().basis[0], [1, 0, 0, 0], atol=1e-12)
     mismatch = (with_ao.hit != np.flip(with_ao.hit, axis=0)).sum()
