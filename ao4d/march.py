@@ -343,12 +343,13 @@ def _check_slab_memory(geom: _Geometry, layers: int, method: str, itemsize: int)
     d = len(geom.shape)
     n_dirs = d if method == "cubes" else (1 << d) - 1
     points = (layers + 1) * geom.layer
-    # values + float64 copy, case array, mark array, shared-layer map (int64)
-    per_point = itemsize + 8 + 2 + n_dirs
+    # values + float64 copy, sign and case arrays, mark (bool) and key map (int32) per key,
+    # plus the shared-layer map (int64)
+    per_point = itemsize + 8 + 1 + 2 + 5 * n_dirs
     check_memory(points * per_point + geom.layer * n_dirs * 8, f"extracting a grid of shape {geom.shape}")
 
 
-def _progress_bar(progress: Any, n_cells: int, n_layers: int):
+def _progress_bar(progress: bool | None, n_cells: int, n_layers: int) -> Any:
     if progress is None:
         progress = n_cells >= _PROGRESS_CELLS
     if not progress:
@@ -377,7 +378,18 @@ def _check_level(level: Any) -> float:
     return lv
 
 
-def _run(read, geom, level, method, inside, chunk, progress, check_values, itemsize) -> SimplexMesh:
+def _run(
+    read: Callable[[int, int], np.ndarray],
+    geom: _Geometry,
+    level: float,
+    method: str,
+    inside: str,
+    chunk: int | None,
+    progress: bool | None,
+    check_values: bool,
+    itemsize: int,
+) -> SimplexMesh:
+    """Check the slab memory, then march with a progress bar; wrap the result in a mesh."""
     layers = _layers_per_slab(chunk, geom, method)
     _check_slab_memory(geom, min(layers, geom.shape[0] - 1), method, itemsize)
     table = _cell_table(len(geom.shape), method)

@@ -125,6 +125,18 @@ def test_random_fields_give_closed_oriented_meshes(grid, method):
 
 
 @pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_rough_4d_noise_with_ties_is_closed(seed, method):
+    # nearly white noise on 9^4: many cells with several sign components; rounding adds ties
+    rng = np.random.default_rng(100 + seed)
+    rough = _noise(rng, (9,) * 4, sigma=0.3)
+    for values in (rough, np.clip(np.round(2 * rough), -1, 1)):
+        report = ao4d.extract(values, 0.0, method=method).check()
+        assert report.ok, str(report)
+        assert report.n_simplices > 1000
+
+
+@pytest.mark.parametrize("method", METHODS)
 @pytest.mark.parametrize("d", [2, 3, 4])
 def test_inside_above_equals_negated_field(d, method):
     rng = np.random.default_rng(10 + d)
