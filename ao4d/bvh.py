@@ -1,21 +1,27 @@
 """Bounding volume hierarchy over the simplices of a mesh in R^d, built on the host with numpy.
 
-The tree is built top-down, one level at a time for all nodes at once (vectorised): every node
-whose range holds more than ``leaf_size`` simplices is split at the median centroid along the
-longest axis of its centroid bounds. Nodes are numbered breadth first; each covers a contiguous
-range of the reordered simplices, so a leaf is ``(start, count)``. Median splits give a balanced
-tree of depth ``ceil(log2(S / leaf_size))``, which bounds the traversal stack of ``kernels/bvh.h``.
+The binary tree is built top-down, one level at a time for all nodes at once (vectorised): a
+node holding more than ``leaf_size`` simplices is split along the longest axis of its centroid
+bounds where the binned surface-area heuristic (16 bins; the box's boundary (d-1)-measure as the
+hit probability) is lowest, or at the median when SAH finds no split and below level 40, which
+bounds the depth. Nodes are numbered breadth first and each covers a contiguous range of the
+reordered simplices, so a leaf is ``(start, count)``. The numpy backend traverses this tree.
+
+The OpenCL kernels traverse its 8-wide form (:func:`widen`): binary nodes are collapsed by
+opening the child of largest area until 8 children, and every leaf becomes a block of 4
+simplices stored as structure of arrays, so one node visit tests 8 boxes with float8 arithmetic
+and one leaf visit 4 simplices with float4 arithmetic.
 
 Each simplex is stored as the inverse of the matrix ``[e1 .. e_{d-1} | n]`` (edges from vertex 0
 and the normal, as columns) plus vertex 0, so a ray test costs d+1 dot products: the last row
-gives the signed height over the simplex's hyperplane, the others the barycentric coordinates
+gives the height over the simplex's hyperplane, the others the barycentric coordinates
 (``kernels/geometry.h`` and :func:`intersect` use the same formula). Degenerate simplices (zero
 (d-1)-measure) can never be hit by a ray and are left out of the tree.
 
 Boxes are stored in float32, rounded outwards and enlarged by the barycentric tolerance and
-``1e-5`` of the scene diagonal, so that the float32 box tests never reject a ray that the
-primitive test (float32 on the device, float64 in numpy) would accept: the BVH answer equals the
-brute-force answer exactly.
+``1e-5`` of the scene diagonal, so that the box tests never reject a ray that the primitive test
+(float32 on the device, float64 in numpy) would accept: the BVH answer equals the brute-force
+answer exactly.
 """
 
 from __future__ import annotations

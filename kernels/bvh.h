@@ -42,12 +42,21 @@ inline int trace_bvh(__global const float8 *boxes, __global const int *children,
             vstore8(hit8, 0, hits);
             vstore8(tn8, 0, tn);
             __global const int *child = children + (size_t)node * 8;
+            const int base = sp;
             for (int s = 0; s < 8; ++s) {
                 const int c = child[s];
                 if (!hits[s] || c == 0) continue;
                 if (c > 0) {
-                    stack_t[sp] = tn[s];
-                    stack[sp++] = c;
+                    // keep this node's pushes sorted by decreasing entry distance: the
+                    // nearest child is popped first
+                    int k = sp++;
+                    while (k > base && stack_t[k - 1] < tn[s]) {
+                        stack_t[k] = stack_t[k - 1];
+                        stack[k] = stack[k - 1];
+                        --k;
+                    }
+                    stack_t[k] = tn[s];
+                    stack[k] = c;
                     continue;
                 }
                 float t;

@@ -14,13 +14,14 @@
 #endif
 #define BLOCK_ROWS ((DIM + 1) * DIM)
 
-// no fused multiply-adds chosen per call site: the BVH and brute-force kernels must round alike
-#pragma OPENCL FP_CONTRACT OFF
 
 // hits of one leaf block: returns the lane of the nearest hit with 0 < t <= t_max, or -1
 inline int hit_block(__global const float4 *blk, const float *o, const float *w,
                      const float t_max, float *t_hit)
 {
+    // no fused multiply-adds chosen per call site: the BVH and brute-force kernels must round
+    // alike (box tests may contract: their boxes carry a margin)
+#pragma OPENCL FP_CONTRACT OFF
     float4 rel[DIM];
     float4 q = (float4)(0.0f), r = (float4)(0.0f);
     for (int j = 0; j < DIM; ++j) {

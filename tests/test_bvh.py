@@ -161,3 +161,60 @@ def test_bad_inputs():
         bvh.build(good_v, [[0, 1, 2]], leaf_size=0)
     with pytest.raises(TypeError, match="`simplices` must hold integers"):
         bvh.build(good_v, [[0.0, 1.0, 2.0]])
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_wide_tree_holds_the_binary_tree(d):
+    rng = np.random.default_rng(200 + d)
+    vertices, simplices = random_soup(rng, d, 700)
+    tree = bvh.build(vertices, simplices)
+    wide = tree.wide()
+    assert wide is tree.wide()  # built once
+    # every simplex sits in exactly one lane of one leaf block
+    used = wide.block_prim >= 0
+    assert sorted(wide.block_prim[used].tolist()) == list(range(tree.n_prims))
+    b, lane = np.nonzero(used)
+    prim = wide.block_prim[b, lane]
+    np.testing.assert_array_equal(wide.blocks[b, :d, :, lane], tree.inverse[prim].astype(np.float32))
+    np.testing.assert_array_equal(wide.blocks[b, d, :, lane], tree.origin[prim].astype(np.float32))
+    b0, lane0 = np.nonzero(~used)
+    assert (wide.blocks[b0, :, :, lane0] == 0).all()  # unused lanes can never be hit
+    # every wide node but the root is some node's child exactly once; child boxes hold
+    # everything below them
+    corners = vertices[simplices[tree.prim]]
+    inner = wide.children[wide.children > 0]
+    assert sorted(inner.tolist()) == list(range(1, len(wide.children)))
+    leaves = -wide.children[wide.children < 0] - 1
+    assert sorted(leaves.tolist()) == list(range(len(wide.blocks)))
+
+    def below(node):
+        out = []
+        for c in wide.children[node]:
+            if c > 0:
+                out += below(c)
+            elif c < 0:
+                out += [p for p in wide.block_prim[-c - 1] if p >= 0]
+        return out
+
+    for node in range(len(wide.children)):
+        for s, c in enumerate(wide.children[node]):
+            if c == 0:
+                continue
+            prims = below(c) if c > 0 else [p for p in wide.block_prim[-c - 1] if p >= 0]
+            lo, hi = wide.boxes[node, 0, :, s], wide.boxes[node, 1, :, s]
+            assert (corners[prims].min((0, 1)) >= lo).all() and (corners[prims].max((0, 1)) <= hi).all()
+    assert wide.depth * 7 + 1 <= bvh.STACK_SIZE
+
+
+def test_wide_tree_of_a_single_simplex():
+    tree = bvh.build(np.eye(3), [[0, 1, 2]])
+    wide = tree.wide()
+    assert wide.children.tolist() == [[-1, 0, 0, 0, 0, 0, 0, 0]]
+    assert wide.block_prim.tolist() == [[0, -1, -1, -1]]
+
+
+def test_wide_tree_needs_small_leaves():
+    rng = np.random.default_rng(11)
+    tree = bvh.build(*random_soup(rng, 3, 40), leaf_size=6)
+    with pytest.raises(ValueError, match="at most 4 simplices"):
+        tree.wide()
