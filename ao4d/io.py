@@ -580,13 +580,16 @@ def _volume_png_pyvista(path, arr, lo, hi, *, title, label, cmap, spacing, origi
     plotter = pv.Plotter(off_screen=True, window_size=list(size))
     try:
         plotter.set_background("white")
-        plotter.add_volume(
+        actor = plotter.add_volume(
             grid, scalars=label or "value", cmap=cmap, clim=(floor, hi), opacity=opacity,
             shade=False, mapper="smart",
             scalar_bar_args={"title": label or "value", "color": "black", "vertical": True,
                              "position_x": 0.86, "position_y": 0.15, "height": 0.7,
                              "width": 0.07, "fmt": "%.2f"},
         )
+        # nearest-voxel sampling: trilinear blending of surface voxels with the background
+        # value would paint a dark fringe (low values) along every silhouette
+        actor.prop.interpolation_type = "nearest"
         plotter.add_title(title, font_size=7, color="black")
         plotter.show_bounds(color="black", font_size=8, xtitle="x", ytitle="y", ztitle="z",
                             location="outer", ticks="outside", minor_ticks=False)

@@ -233,7 +233,12 @@ def render(
     hit = simplex >= 0
     tri = scene.simplices[simplex[hit]]  # (H, 4) vertex ids of the hit tetrahedra
     dirs = directions[hit]
-    face_n = _towards_viewer(np.asarray(scene.simplex_normals)[simplex[hit]], dirs)
+    # two-sided shading: the side of the hit simplex that faces the ray decides, for the face
+    # normal and for the interpolated vertex normal alike (near silhouettes an interpolated
+    # normal may lean away from the ray although the face is seen from its front)
+    raw_n = np.asarray(scene.simplex_normals)[simplex[hit]]
+    side = _viewer_side(raw_n, dirs)
+    face_n = raw_n * side[:, None]
     info: dict[str, Any] = {"primary_rays": n_rays, "ao_rays": 0, "ao_seconds": 0.0,
                             "backend": backend, "hits": int(hit.sum())}
 
@@ -252,7 +257,7 @@ def render(
             vn = np.asarray(scene.vertex_normals)[tri]  # (H, 4, 4)
             lam_n = np.einsum("hk,hkd->hd", bary[hit], vn)
             lam_n /= np.maximum(np.linalg.norm(lam_n, axis=1, keepdims=True), 1e-12)
-            lam_n = _towards_viewer(lam_n, dirs)
+            lam_n = lam_n * side[:, None]
         else:
             lam_n = face_n
         shade_hit = shade_hit + diffuse * np.clip(lam_n @ light_dir, 0.0, None)
@@ -295,10 +300,9 @@ def _cast_chunked(cast_rays, scene, origins, directions, backend, show):
     return t, simplex, bary
 
 
-def _towards_viewer(normals: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    """Flip normals to face against the ray (two-sided shading for open geometry)."""
-    sign = np.where(np.einsum("hd,hd->h", normals, directions) > 0, -1.0, 1.0)
-    return normals * sign[:, None]
+def _viewer_side(normals: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """+1 where the normal faces against the ray (front side seen), -1 where it faces along."""
+    return np.where(np.einsum("hd,hd->h", normals, directions) > 0, -1.0, 1.0)
 
 
 def _vertex_occlusion(scene, tri, bary, *, samples, seed, max_distance, backend, info):

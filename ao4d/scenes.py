@@ -27,7 +27,7 @@ __all__ = ["SceneObject", "Scene", "default_scene", "box", "extract_scene", "QUA
 # Settings per quality: grid cell size (world units), image voxels per axis, AO samples.
 QUALITY: dict[str, dict[str, Any]] = {
     "tiny": {"cell": 0.2, "image": 16, "samples": 8},
-    "default": {"cell": 0.085, "image": 64, "samples": 32},
+    "default": {"cell": 0.085, "image": 80, "samples": 64},
     "high": {"cell": 0.045, "image": 128, "samples": 128},
 }
 

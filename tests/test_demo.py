@@ -106,16 +106,16 @@ def test_help_shows_examples(command, capsys):
 
 @pytest.mark.slow
 def test_demo_default_quality(tmp_path):
-    # the README's command at its real settings (about 40 s on 2 cores)
+    # the README's command at its real settings (about 30 s on 2 cores)
     from ao4d.commands.demo import run_demo
     import io as stdio
 
     report = run_demo(tmp_path, quality="default", progress=False, stream=stdio.StringIO())
-    assert report.image_shape == (64, 64, 64)
+    assert report.image_shape == (80, 80, 80)
     scene = SimplexMesh.load(tmp_path / "scene.npz")
     assert scene.check().closed
     ao = scene.point_data["ao"]
-    # 32 samples per vertex: values k/32, graded between open (0) and contact (near 1)
+    # 64 samples per vertex: values k/64, graded between open (0) and contact (near 1)
     assert np.unique(ao).size > 20
     vol = io.read_vti(tmp_path / "image.vti", array="occlusion").data
     assert np.nanmax(vol) > 0.3 and np.nanmin(vol) < 0.05
