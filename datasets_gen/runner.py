@@ -412,9 +412,18 @@ def _write_index(out: Path, items: list[ItemSpec], summary: RunSummary) -> int:
     with atomic_open(out / "items.csv", "w", encoding="utf-8") as fh:
         fh.write(text.getvalue())
 
+    # top-level files, and each complete item's record and the files it lists (never the
+    # leftovers of a failed or interrupted item)
+    paths = [p for p in out.iterdir() if p.is_file()]
+    for spec in items:
+        folder = item_dir(out, spec.index)
+        if spec.index in summary.failed or not (folder / "record.json").is_file():
+            continue
+        listed = json.loads((folder / "record.json").read_text(encoding="utf-8"))["files"]
+        paths += [folder / "record.json", *(folder / name for name in listed)]
     files = {}
-    for path in sorted(out.rglob("*")):
-        if path.is_file() and path.name not in UNHASHED and not path.name.startswith("."):
+    for path in sorted(paths):
+        if path.name not in UNHASHED and not path.name.startswith("."):
             files[path.relative_to(out).as_posix()] = {"sha256": sha256_file(path),
                                                        "bytes": path.stat().st_size}
     run_info = json.loads((out / "run.json").read_text(encoding="utf-8"))
@@ -451,12 +460,14 @@ def main(argv: list[str] | None = None) -> int:
                "  python -m datasets_gen my.toml --out data/mine   # rerun to resume",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("config", help="a TOML file or the name of a shipped config")
-    parser.add_argument("--out", required=True, help="output folder (created; reruns resume)")
+    parser.add_argument("--out", help="output folder (created; reruns resume); required unless --list")
     parser.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     parser.add_argument("--seed", type=int, default=None, help="run seed (default: the config's)")
     parser.add_argument("--list", action="store_true", help="show the items' families and exit")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
+    if args.out is None and not args.list:
+        parser.error("the following arguments are required: --out")
     try:
         cfg = load_config(args.config)
         if args.list:

@@ -311,7 +311,22 @@ def test_failed_item_is_reported_and_others_finish(tmp_path):
     summary = run(cfg, tmp_path / "out", progress=False)
     assert list(summary.failed) == [2] and "operation" in summary.failed[2]
     assert summary.made == 4
-    assert not json.loads(_manifest(tmp_path / "out"))["complete"]
+    manifest = json.loads(_manifest(tmp_path / "out"))
+    assert not manifest["complete"]
+    assert not any(name.startswith("items/00002/") for name in manifest["files"])
+
+
+def test_manifest_leaves_out_files_of_items_that_failed_midway(tiny_config, tmp_path, monkeypatch):
+    def broken_render(*args, **kwargs):
+        raise RuntimeError("renderer exploded")
+
+    monkeypatch.setattr(runner_mod, "_render", broken_render)
+    summary = run(tiny_config, tmp_path / "out", progress=False)
+    assert sorted(summary.failed) == [3, 4]  # the lifted items are the ones with a render
+    assert (tmp_path / "out" / "items" / "00003" / "mesh.npz").is_file()  # written before the failure
+    names = json.loads(_manifest(tmp_path / "out"))["files"]
+    assert "items/00000/mesh.npz" in names
+    assert not any(name.startswith(("items/00003/", "items/00004/")) for name in names)
 
 
 def test_command_line(tiny_config, tmp_path, capsys):

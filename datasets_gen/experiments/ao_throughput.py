@@ -10,7 +10,6 @@ every ray hits the far side, and any-hit traversal stops at the first hit.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 
 import numpy as np

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import numpy as np
 
 from ._common import best_time, figure, machine, parse_args, save_figure, write_csv
 

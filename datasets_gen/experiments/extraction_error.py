@@ -78,7 +78,7 @@ def plot(rows: list[dict], path) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(NAME, __doc__.splitlines()[0], argv)
-    sizes = (6, 8, 11) if args.quick else (8, 12, 16, 24, 32, 48, 64)
+    sizes = (6, 8, 11) if args.quick else (8, 12, 16, 24, 32, 40)
     rows = measure(sizes)
     args.out.mkdir(parents=True, exist_ok=True)
     write_csv(args.out / f"{NAME}.csv", rows)
