@@ -6,7 +6,6 @@ import csv
 import math
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from datasets_gen.experiments import NAMES, ao_convergence, ao_throughput, extract_throughput
