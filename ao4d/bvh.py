@@ -4,7 +4,7 @@ The binary tree is built top-down, one level at a time for all nodes at once (ve
 node holding more than ``leaf_size`` simplices is split along the longest axis of its centroid
 bounds where the binned surface-area heuristic (16 bins; the box's boundary (d-1)-measure as the
 hit probability) is lowest, or at the median when SAH finds no split and below level 40, which
-bounds the depth. Nodes are numbered breadth first and each covers a contiguous range of the
+bounds the depth (nodes of at most 24 simplices also split at the median). Nodes are numbered breadth first and each covers a contiguous range of the
 reordered simplices, so a leaf is ``(start, count)``. The numpy backend traverses this tree.
 
 The OpenCL kernels traverse its 8-wide form (:func:`widen`): binary nodes are collapsed by
@@ -43,6 +43,7 @@ BARY_EPS = 1e-5
 _BOX_MARGIN = 1e-5  # of the scene diagonal: covers float32 error of slab tests
 _DEGENERATE_RTOL = 1e-12  # |n| below this times (longest edge)^(d-1): zero measure
 _SAH_BINS = 16
+_SAH_MIN_COUNT = 24  # smaller nodes split at the median: SAH costs more than it gains there
 _SAH_MAX_LEVEL = 40  # deeper levels split at the median: depth <= 40 + log2(P) < 64
 
 
@@ -254,7 +255,11 @@ def _box_area(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     d = ext.shape[-1]
     area = np.zeros(ext.shape[:-1])
     for k in range(d):
-        area += np.prod(np.delete(ext, k, axis=-1), axis=-1)
+        face = np.ones(ext.shape[:-1])
+        for j in range(d):
+            if j != k:
+                face = face * ext[..., j]
+        area += face
     return 2.0 * area
 
 
@@ -282,7 +287,7 @@ def _sah_split_counts(key_bins, seg, n_seg, p_lo, p_hi, s_count):
     return np.where(np.isfinite(cost[np.arange(n_seg), best]), left_n[np.arange(n_seg), best], 0)
 
 
-def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, leaf_size: int):
+def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, leaf_size: int, bar=None):
     """Top-down binned-SAH splits along the longest centroid axis, all nodes of a level at once.
 
     Falls back to the median where SAH finds no split and below ``_SAH_MAX_LEVEL`` levels,
@@ -291,6 +296,7 @@ def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, lea
     """
     n = len(centroids)
     order = np.arange(n)
+    cent, box_lo, box_hi = centroids.copy(), p_lo.copy(), p_hi.copy()
     cap = 2 * n + 1  # a binary tree with non-empty leaves has fewer than 2n nodes
     start = np.zeros(cap, dtype=np.int64)
     count = np.zeros(cap, dtype=np.int64)
@@ -309,7 +315,7 @@ def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, lea
         first = np.cumsum(s_count) - s_count
         pos = np.repeat(s_start, s_count) + (np.arange(seg.size) - first[seg])
         prims = order[pos]
-        c = centroids[prims]
+        c = cent[pos]  # kept in tree order: contiguous reads instead of random gathers
         c_lo = np.minimum.reduceat(c, first, axis=0)
         c_hi = np.maximum.reduceat(c, first, axis=0)
         axis = np.argmax(c_hi - c_lo, axis=1)
@@ -320,11 +326,18 @@ def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, lea
         sort = np.argsort(seg + 0.5 * frac)
         prims, frac = prims[sort], frac[sort]
         order[pos] = prims
+        cent[pos] = c[sort]
+        box_lo[pos], box_hi[pos] = box_lo[pos][sort], box_hi[pos][sort]
         half = s_count // 2
-        if len(levels) <= _SAH_MAX_LEVEL:
-            bins = np.minimum((frac * _SAH_BINS).astype(np.int64), _SAH_BINS - 1)
-            sah = _sah_split_counts(bins, seg, ids.size, p_lo[prims], p_hi[prims], s_count)
-            half = np.where(sah > 0, sah, half)
+        big = s_count > _SAH_MIN_COUNT
+        if len(levels) <= _SAH_MAX_LEVEL and big.any():
+            inside = big[seg]
+            bins = np.minimum((frac[inside] * _SAH_BINS).astype(np.int64), _SAH_BINS - 1)
+            renum = np.cumsum(big) - 1
+            sah = _sah_split_counts(
+                bins, renum[seg[inside]], int(big.sum()), box_lo[pos[inside]], box_hi[pos[inside]], s_count[big]
+            )
+            half[big] = np.where(sah > 0, sah, half[big])
         ids_l = n_nodes + 2 * np.arange(ids.size)
         ids_r = ids_l + 1
         n_nodes += 2 * ids.size
@@ -332,6 +345,9 @@ def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, lea
         start[ids_l], count[ids_l] = s_start, half
         start[ids_r], count[ids_r] = s_start + half, s_count - half
         levels.append(np.stack([ids_l, ids_r], 1).ravel())
+        if bar is not None:
+            done = np.concatenate([half, s_count - half])
+            bar.update(int(done[done <= leaf_size].sum()))  # simplices that reached a leaf
     sl = slice(0, n_nodes)
     return order, start[sl], count[sl], left[sl], right[sl], levels
 
@@ -358,7 +374,7 @@ def _pad4(a: np.ndarray) -> np.ndarray:
     return out
 
 
-def build(vertices: Any, simplices: Any, *, leaf_size: int = 4) -> BVH:
+def build(vertices: Any, simplices: Any, *, leaf_size: int = 4, progress: bool | None = None) -> BVH:
     """Build the BVH of a simplex mesh.
 
     Parameters
@@ -368,7 +384,9 @@ def build(vertices: Any, simplices: Any, *, leaf_size: int = 4) -> BVH:
     simplices : (S, d) array_like of int
         Vertex indices per simplex.
     leaf_size : int
-        Most simplices per leaf.
+        Most simplices per leaf (the OpenCL kernels need at most 4).
+    progress : bool, optional
+        Show a tqdm bar (default: from 2^19 simplices on).
 
     Returns
     -------
@@ -410,7 +428,11 @@ def build(vertices: Any, simplices: Any, *, leaf_size: int = 4) -> BVH:
     # an accepted hit lies within BARY_EPS (barycentric) of the simplex: grow boxes to match
     margin = 2 * BARY_EPS * (p_hi - p_lo).max(1, keepdims=True) + _BOX_MARGIN * max(diagonal, 1e-30)
     p_lo, p_hi = p_lo - margin, p_hi + margin
-    order, start, count, left, right, levels = _split_levels(corners.mean(1), p_lo, p_hi, leaf_size)
+    from tqdm.auto import tqdm
+
+    disable = idx.size < (1 << 19) if progress is None else not progress
+    with tqdm(total=idx.size, desc="BVH", unit="simplex", unit_scale=True, disable=disable, leave=False) as bar:
+        order, start, count, left, right, levels = _split_levels(corners.mean(1), p_lo, p_hi, leaf_size, bar)
     lo, hi = _node_bounds(p_lo[order], p_hi[order], start, count, left, right, levels)
     meta = np.where((left >= 0)[:, None], np.stack([left, right], 1), np.stack([-(start + 1), count], 1))
     lo32 = np.nextafter(lo.astype(np.float32), np.float32(-np.inf))
