@@ -591,7 +591,8 @@ def _volume_png_pyvista(path, arr, lo, hi, *, title, label, cmap, spacing, origi
         # value would paint a dark fringe (low values) along every silhouette
         actor.prop.interpolation_type = "nearest"
         plotter.add_title(title, font_size=7, color="black")
-        plotter.show_bounds(color="black", font_size=8, xtitle="x", ytitle="y", ztitle="z",
+        plotter.show_bounds(color="black", font_size=12, xtitle="x", ytitle="y", ztitle="z",
+                            n_xlabels=3, n_ylabels=3, n_zlabels=3, fmt="%.1f",
                             location="outer", ticks="outside", minor_ticks=False)
         # from the front (+z), above (+y) and a little to the right: x right, y up on screen
         plotter.view_vector((0.45, 0.55, 1.0), viewup=(0.0, 1.0, 0.0))
@@ -742,7 +743,8 @@ def save_slice_png(
                                  "width": 0.07, "fmt": "%.1f"},
             )
         plotter.add_title(title, font_size=7, color="black")
-        plotter.show_bounds(color="black", font_size=8, xtitle="x", ytitle="y", ztitle="z",
+        plotter.show_bounds(color="black", font_size=12, xtitle="x", ytitle="y", ztitle="z",
+                            n_xlabels=3, n_ylabels=3, n_zlabels=3, fmt="%.1f",
                             location="outer", minor_ticks=False)
         plotter.view_vector((0.45, 0.55, 1.0), viewup=(0.0, 1.0, 0.0))
         plotter.camera.zoom(0.85)
