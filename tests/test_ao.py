@@ -527,3 +527,84 @@ def test_cli_errors_and_help(tmp_path, capsys):
     with pytest.raises(SystemExit):
         cli.main(["ao", "--help"])
     assert "ao4d ao torus.npz --samples 64" in capsys.readouterr().out
+
+
+# -- extracted 4D surfaces (the 2021 thesis' failure modes) ---------------------------------
+
+
+def extracted_spheritorus(n):
+    field = ao4d.fields.spheritorus(1.0, 0.4)
+    # a grid symmetric about x = 0: the extracted vertex set is mirror-symmetric in x
+    return ao4d.extract_field(field, (n, n, n, n // 2 + 1), ((-1.5, -1.5, -1.5, -0.5), (1.5, 1.5, 1.5, 0.5)))
+
+
+def mirror_partner(vertices):
+    from scipy.spatial import cKDTree
+
+    dist, partner = cKDTree(vertices).query(vertices * np.r_[-1.0, 1, 1, 1])
+    assert dist.max() < 1e-9
+    return partner
+
+
+@pytest.mark.parametrize("n, samples", [(13, 64), pytest.param(33, 256, marks=pytest.mark.slow)])
+def test_extracted_4d_surface_is_graded_and_mirror_symmetric(cl_runtime, n, samples):
+    mesh = extracted_spheritorus(n)
+    a = ao4d.ambient_occlusion(mesh, samples=samples, backend="opencl")
+    assert np.isfinite(a).all() and (a >= 0).all() and (a <= 1).all()
+    # the inner side (towards the hole of the spheritorus) is shaded, with many grey levels
+    inner = np.linalg.norm(mesh.vertices[:, :3], axis=1) < 0.9
+    assert a[inner].mean() > 0.1
+    graded = a[(a > 0) & (a < 1)]
+    assert graded.size > 0.1 * a.size and len(np.unique(graded)) > min(samples // 2, 30)
+    # mirror x -> -x: per-vertex differences are noise only, no left/right bias
+    diff = a - a[mirror_partner(mesh.vertices)]
+    sigma = math.sqrt(0.25 / samples)
+    assert np.abs(diff).max() <= 5 * math.sqrt(2) * sigma
+    assert abs(diff.mean()) <= 4 * math.sqrt(2) * sigma / math.sqrt(diff.size)
+
+
+@pytest.mark.slow
+def test_extracted_4d_surface_numpy_matches_opencl(cl_runtime):
+    mesh = extracted_spheritorus(17)
+    rng = np.random.default_rng(2000)
+    idx = rng.choice(mesh.n_vertices, 400, replace=False)
+    p, n = mesh.vertices[idx], mesh.vertex_normals[idx]
+    a = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=64, backend="opencl")
+    b = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=64, backend="numpy")
+    assert np.mean(a == b) >= 0.97 and np.abs(a - b).max() <= 2 / 64
+    # points strictly inside the closed solid see only its boundary: fully occluded
+    inside = np.array([[1.0, 0, 0, 0], [0, -1.0, 0, 0], [0, 0, 1.2, 0.1], [0.7, 0.7, 0, -0.1]])
+    normals = rng.normal(size=inside.shape)
+    assert (ao4d.ambient_occlusion(mesh, points=inside, normals=normals, samples=512) == 1).all()
+
+
+@pytest.mark.parametrize("backend_name", ["numpy", "opencl"])
+def test_interrupt_between_launches_leaves_a_usable_state(monkeypatch, request, backend_name):
+    if backend_name == "opencl":
+        request.getfixturevalue("cl_runtime")
+    rng = np.random.default_rng(2100)
+    mesh = sphere_over_ground(rng, 3)
+    expected = ao4d.ambient_occlusion(mesh, samples=16, backend=backend_name)
+
+    class InterruptingBar:
+        calls = 0
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def update(self, n):
+            InterruptingBar.calls += 1
+            if InterruptingBar.calls == 2:
+                raise KeyboardInterrupt  # what Ctrl-C raises after a launch returns
+
+    monkeypatch.setattr(ao, "RAYS_PER_LAUNCH", 500)
+    monkeypatch.setattr(ao, "_NUMPY_RAYS_PER_STEP", 500)
+    with monkeypatch.context() as patch:
+        patch.setattr(ao, "_progress_bar", lambda *args: InterruptingBar())
+        with pytest.raises(KeyboardInterrupt):
+            ao4d.ambient_occlusion(mesh, samples=16, backend=backend_name)
+    assert InterruptingBar.calls == 2  # stopped after the first launch, not at the end
+    np.testing.assert_array_equal(ao4d.ambient_occlusion(mesh, samples=16, backend=backend_name), expected)
