@@ -608,3 +608,28 @@ def test_interrupt_between_launches_leaves_a_usable_state(monkeypatch, request, 
             ao4d.ambient_occlusion(mesh, samples=16, backend=backend_name)
     assert InterruptingBar.calls == 2  # stopped after the first launch, not at the end
     np.testing.assert_array_equal(ao4d.ambient_occlusion(mesh, samples=16, backend=backend_name), expected)
+
+
+def test_without_opencl_auto_falls_back_and_opencl_is_refused():
+    import subprocess
+    import sys
+
+    code = (
+        "import warnings, numpy as np, ao4d\n"
+        "from ao4d import ao\n"
+        "mesh = ao4d.SimplexMesh([[0, 0, 1.0], [1, 0, 1], [0, 1, 1]], [[0, 1, 2]])\n"
+        "p, n = [[0.2, 0.2, 0.0]], [[0, 0, 1.0]]\n"
+        "with warnings.catch_warnings(record=True) as w:\n"
+        "    warnings.simplefilter('always')\n"
+        "    a = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=64)\n"
+        "assert any(issubclass(x.category, ao4d.cl.NoOpenCLDeviceWarning) for x in w), w\n"
+        "assert a[0] == ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=64, backend='numpy')[0]\n"
+        "try:\n"
+        "    ao4d.ambient_occlusion(mesh, points=p, normals=n, backend='opencl')\n"
+        "except RuntimeError as exc:\n"
+        "    assert 'no OpenCL device works' in str(exc), exc\n"
+        "else:\n"
+        "    raise AssertionError('backend=opencl without a device must fail')\n"
+    )
+    env = dict(__import__("os").environ, AO4D_DEVICE="none")
+    subprocess.run([sys.executable, "-c", code], check=True, env=env)
