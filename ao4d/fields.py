@@ -684,7 +684,8 @@ def scale(field: Callable, factor: float) -> Field:
     _check_fields((field,), "field")
     s = _positive(factor, "factor")
     dim = _dim_of(field)
-    vol, area, ext = getattr(field, "volume", None), getattr(field, "boundary_measure", None), _extent_of(field)
+    vol, area = getattr(field, "volume", None), getattr(field, "boundary_measure", None)
+    ext = _extent_of(field)
     return Field(
         lambda p: s * np.asarray(field(p / s), dtype=float),
         dim=dim,

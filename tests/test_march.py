@@ -459,7 +459,8 @@ def test_cli_extract_shape_writes_a_checked_mesh(tmp_path, capsys):
     from ao4d.cli import main
 
     out, vtu = tmp_path / "torus.npz", tmp_path / "torus.vtu"
-    assert main(["extract", "--shape", "spheritorus", "--grid", "14", "--out", str(out), "--vtu", str(vtu)]) == 0
+    args = ["extract", "--shape", "spheritorus", "--grid", "14", "--out", str(out), "--vtu", str(vtu)]
+    assert main(args) == 0
     text = capsys.readouterr().out
     assert "=> OK" in text and "analytic 6.56921" in text
     mesh = ao4d.SimplexMesh.load(out)

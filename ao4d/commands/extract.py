@@ -82,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_check:
         print(mesh.check())
     print(f"enclosed {mesh.dim}-volume:  {mesh.volume:.6g}" + _error(mesh.volume, field, "volume"))
-    print(f"boundary {mesh.dim - 1}-volume:  {mesh.measure:.6g}" + _error(mesh.measure, field, "boundary_measure"))
+    area_error = _error(mesh.measure, field, "boundary_measure")
+    print(f"boundary {mesh.dim - 1}-volume:  {mesh.measure:.6g}" + area_error)
     mesh.save(args.out)
     print(f"wrote {args.out}")
     if args.vtu:
