@@ -12,7 +12,8 @@ ball of radius sin t_max = sqrt(1 - (h/D)^2), hence exactly
 Each ray occludes or not, so s independent rays would give a binomial mean with standard
 deviation sqrt(A (1 - A) / s). ao4d's directions are a randomly shifted Sobol set
 (:mod:`ao4d.sampling`), so its RMS error over many points (each with its own shift) falls faster;
-the figure shows both, and the CSV the fitted slope.
+the figure shows both, and ``ao_convergence_fit.csv`` the fitted slope of the RMS error
+(about -1 here, against -1/2 for independent rays).
 Rays start ORIGIN_OFFSET bounding-box diagonals above p, so h is reduced by that offset.
 """
 
@@ -83,13 +84,32 @@ def measure(samples: Sequence[int], n_points: int, numpy_max_rays: int) -> list[
     return rows
 
 
+def fit_slopes(rows: list[dict], min_samples: int = 16) -> list[dict]:
+    """Least-squares slope of log(RMS error) against log(samples), from ``min_samples`` on."""
+    out = []
+    for dim in sorted({r["dim"] for r in rows}):
+        for backend in sorted({r["backend"] for r in rows}):
+            sel = [r for r in rows if (r["dim"], r["backend"]) == (dim, backend)
+                   and r["samples"] >= min_samples]
+            if len(sel) >= 2:
+                slope = np.polyfit(np.log([r["samples"] for r in sel]),
+                                   np.log([r["rms_error"] for r in sel]), 1)[0]
+                out.append({"dim": dim, "backend": backend, "from_samples": min_samples,
+                            "to_samples": sel[-1]["samples"], "slope": float(slope)})
+    return out
+
+
 def plot(rows: list[dict], path) -> None:
     fig, (ax_e, ax_t) = figure(2)
+    slopes = {(f["dim"], f["backend"]): f["slope"] for f in fit_slopes(rows)}
     for dim, colour in ((3, "C0"), (4, "C1")):
-        sel = [r for r in rows if r["dim"] == dim and r["backend"] == rows[-1]["backend"]]
+        backend = rows[-1]["backend"]
+        sel = [r for r in rows if r["dim"] == dim and r["backend"] == backend]
         s = np.array([r["samples"] for r in sel])
+        slope = slopes.get((dim, backend))
+        fitted = "" if slope is None else f", slope {slope:.2f}"
         ax_e.loglog(s, [r["rms_error"] for r in sel], "o", color=colour,
-                    label=f"{dim}D measured (exact A = {sel[0]['exact']:.4f})")
+                    label=f"{dim}D measured (exact A = {sel[0]['exact']:.4f}{fitted})")
         ax_e.loglog(s, [r["rms_theory"] for r in sel], "-", color=colour,
                     label=f"{dim}D binomial sqrt(A(1-A)/s)")
         for backend, style in (("opencl", "-o"), ("numpy", "--s")):
@@ -118,8 +138,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                        numpy_max_rays=1 << 19)
     args.out.mkdir(parents=True, exist_ok=True)
     write_csv(args.out / f"{NAME}.csv", rows)
+    write_csv(args.out / f"{NAME}_fit.csv", fit_slopes(rows))
     plot(rows, args.out / f"{NAME}.png")
-    print(f"wrote {args.out / NAME}.csv and .png")
+    print(f"wrote {args.out / NAME}.csv, {NAME}_fit.csv and {NAME}.png")
     return 0
 
 
