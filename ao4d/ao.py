@@ -161,7 +161,11 @@ def _device_tree(tree: _bvh.BVH, runtime) -> dict[str, Any]:
         wide = tree.wide()
         _check_device_memory(
             runtime,
-            {"the BVH leaf blocks": wide.blocks.nbytes, "the BVH nodes": wide.boxes.nbytes, "the BVH": wide.nbytes()},
+            {
+                "the BVH leaf blocks": wide.blocks.nbytes,
+                "the BVH nodes": wide.boxes.nbytes,
+                "the BVH": wide.nbytes(),
+            },
         )
         flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
         ctx = runtime.context

@@ -73,7 +73,8 @@ class BVH:
     diagonal : float
         Length of the scene's bounding box diagonal.
     device : dict
-        Device buffers cached per OpenCL context (filled by :mod:`ao4d.ao`).
+        Derived data cached with the tree: its wide form (``"wide"``, see :meth:`wide`) and
+        device buffers per OpenCL context (filled by :mod:`ao4d.ao`).
     """
 
     dim: int
@@ -336,7 +337,8 @@ def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, lea
             bins = np.minimum((frac[inside] * _SAH_BINS).astype(np.int64), _SAH_BINS - 1)
             renum = np.cumsum(big) - 1
             sah = _sah_split_counts(
-                bins, renum[seg[inside]], int(big.sum()), box_lo[pos[inside]], box_hi[pos[inside]], s_count[big]
+                bins, renum[seg[inside]], int(big.sum()),
+                box_lo[pos[inside]], box_hi[pos[inside]], s_count[big],
             )
             half[big] = np.where(sah > 0, sah, half[big])
         ids_l = n_nodes + 2 * np.arange(ids.size)
@@ -432,7 +434,8 @@ def build(vertices: Any, simplices: Any, *, leaf_size: int = 4, progress: bool |
     from tqdm.auto import tqdm
 
     disable = idx.size < (1 << 19) if progress is None else not progress
-    with tqdm(total=idx.size, desc="BVH", unit="simplex", unit_scale=True, disable=disable, leave=False) as bar:
+    bar = tqdm(total=idx.size, desc="BVH", unit="simplex", unit_scale=True, disable=disable, leave=False)
+    with bar:
         order, start, count, left, right, levels = _split_levels(corners.mean(1), p_lo, p_hi, leaf_size, bar)
     lo, hi = _node_bounds(p_lo[order], p_hi[order], start, count, left, right, levels)
     meta = np.where((left >= 0)[:, None], np.stack([left, right], 1), np.stack([-(start + 1), count], 1))
