@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TextIO
 
 HELP = "run the whole pipeline on a built-in 4D scene and write volumes, meshes and pictures"
-EXAMPLES = """  ao4d demo                          writes ./ao4d-demo/ in about a minute on 2 cores
+EXAMPLES = """  ao4d demo                          writes ./ao4d-demo/ (under a minute on 2 CPU cores)
   ao4d demo --out pictures --quality high
   paraview ao4d-demo/image.vti       3D image: shade, depth, object_id, occlusion
 """
@@ -207,7 +207,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="ao4d-demo", metavar="DIR",
                         help="output folder (default: ./ao4d-demo)")
     parser.add_argument("--quality", choices=("default", "high"), default="default",
-                        help="default: about a minute on 2 cores; high: finer grids, 128^3 image, "
+                        help="default: under a minute on 2 cores; high: finer grids, 128^3 image, "
                              "128 AO samples")
     parser.add_argument("--backend", choices=("auto", "opencl", "numpy"), default="auto",
                         help="OpenCL device (auto) or the numpy fallback")
