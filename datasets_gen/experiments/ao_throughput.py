@@ -79,7 +79,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows = measure((6, 8), n_points=32, samples=8, brute_max=10**4, backends=backends + ["numpy"],
                        repeats=1)
     else:
-        rows = measure((8, 12, 16, 24, 32, 48), n_points=1024, samples=64, brute_max=3 * 10**4,
+        rows = measure((8, 10, 12, 16, 24, 32, 48), n_points=1024, samples=64, brute_max=6 * 10**4,
                        backends=backends, repeats=3)
     args.out.mkdir(parents=True, exist_ok=True)
     write_csv(args.out / f"{NAME}.csv", rows)

@@ -26,7 +26,8 @@ def measure(sizes3: Sequence[int], sizes4: Sequence[int], repeats: int) -> list[
     rows = []
     for dim in (3, 4):  # load the tables and warm numpy's caches before anything is timed
         for method in ("cubes", "simplices"):
-            extract(sample(fields.hypersphere(1.0, dim=dim), (6,) * dim, (-1.2, 1.2)), method=method)
+            extract(sample(fields.hypersphere(1.0, dim=dim), (6,) * dim, (-1.2, 1.2)), method=method,
+                    progress=False)
 
     def row(dim, n, tool, method, seconds, simplices):
         cells = (n - 1) ** dim
@@ -39,13 +40,13 @@ def measure(sizes3: Sequence[int], sizes4: Sequence[int], repeats: int) -> list[
         seconds, (_, faces, _, _) = best_time(lambda: marching_cubes(values, 0.0), repeats)
         row(3, n, "scikit-image", "lewiner", seconds, len(faces))
         for method in ("cubes", "simplices"):
-            seconds, mesh = best_time(lambda: extract(values, 0.0, method=method), repeats)
+            seconds, mesh = best_time(lambda: extract(values, 0.0, method=method, progress=False), repeats)
             row(3, n, "ao4d", method, seconds, mesh.n_simplices)
     for n in sizes4:
         f = fields.hypersphere(1.0)
         values = sample(f, (n,) * 4, (-1.2, 1.2))
         for method in ("cubes", "simplices"):
-            seconds, mesh = best_time(lambda: extract(values, 0.0, method=method), repeats)
+            seconds, mesh = best_time(lambda: extract(values, 0.0, method=method, progress=False), repeats)
             row(4, n, "ao4d", method, seconds, mesh.n_simplices)
         seconds, mesh = best_time(lambda: extract_field(f, n, (-1.2, 1.2), progress=False), repeats)
         row(4, n, "ao4d extract_field", "cubes", seconds, mesh.n_simplices)
