@@ -550,7 +550,7 @@ def gyroid(period: float = 1.0, thickness: float = 0.3) -> Field:
     return Field(f, dim=4, name=f"gyroid(period={period:g}, thickness={t:g})")
 
 
-def ground(height: float = 0.0, *, axis: int = 1, dim: int = 4) -> Field:
+def ground(height: float = 0.0, axis: int = 1, *, dim: int = 4) -> Field:
     """Half-space ``x[axis] < height`` (the floor of a scene), as signed distance.
 
     Parameters
