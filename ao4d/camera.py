@@ -177,9 +177,10 @@ class Camera4D:
     ) -> Camera4D:
         """A camera looking along ``view`` at the centre of ``bounds`` with all of it in view.
 
-        The eye is placed so that the bounding 3-sphere of the box (radius r) fits into the
-        image: at distance ``margin * r / sin(fov / 2)`` (perspective); orthographic uses
-        ``half_width = margin * r``.
+        With ``e_k`` the box's half extent along image axis k and ``r`` its half extent along
+        the view direction, the image half width is ``margin * max_k e_k`` plus, for
+        perspective, ``r * tan(fov / 2)``, and the eye sits at ``margin * max_k e_k /
+        tan(fov / 2) + r`` from the centre: the box's nearest face then still fits.
 
         Parameters
         ----------
@@ -207,12 +208,18 @@ class Camera4D:
             raise ValueError("`view` must be a non-zero direction")
         direction /= np.linalg.norm(direction)
         centre = box.mean(axis=0)
-        radius = max(0.5 * float(np.linalg.norm(box[1] - box[0])), 1e-9)
+        half = 0.5 * (box[1] - box[0])
         fov = float(fov)
         if not (0.0 < fov < 180.0):
             raise ValueError(f"`fov` must be in (0, 180) degrees, got {fov}")
-        distance = margin * radius / math.sin(math.radians(fov) / 2)
-        half_width = margin * radius if projection == "orthographic" else None
+        basis = cls(centre - direction, centre, up, over).basis  # depends on directions only
+        lateral = max(float((np.abs(basis[:3]) @ half).max()), 1e-9) * margin
+        along = float(np.abs(basis[3]) @ half)
+        tan = math.tan(math.radians(fov) / 2)
+        if projection == "orthographic":
+            distance, half_width = lateral + along + 1.0, lateral
+        else:
+            distance, half_width = lateral / tan + along, lateral + along * tan
         return cls(centre - distance * direction, centre, up, over, fov=fov,
                    projection=projection, half_width=half_width)
 

@@ -184,7 +184,13 @@ def test_framing_sees_the_whole_box(projection):
     u = cam.project(corners)
     # every corner appears inside the image (|u| within the half width on each axis)
     assert np.isfinite(u).all()
-    assert np.abs(u).max() <= cam.half_width
+    assert np.abs(u).max() <= cam.half_width * (1 + 1e-9)
+    # and tightly: orthographic reaches half_width / margin exactly; perspective, whose far
+    # corners shrink, still fills more than half of the image
+    if projection == "orthographic":
+        assert np.abs(u).max() == pytest.approx(cam.half_width / 1.1)
+    else:
+        assert np.abs(u).max() > 0.5 * cam.half_width
 
 
 @pytest.mark.parametrize(
