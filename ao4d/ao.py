@@ -182,7 +182,8 @@ def _device_tree(tree: _bvh.BVH, runtime) -> dict[str, Any]:
 def _kernels(runtime, dim: int) -> dict[str, Any]:
     from . import cl
 
-    return cl.build_kernels(runtime, "ao.cl", {"DIM": dim, "BARY_EPS": f"{_bvh.BARY_EPS:.9g}f"})
+    defines = {"DIM": dim, "BARY_EPS": f"{_bvh.BARY_EPS:.9g}f", "WIDTH": _bvh.WIDTH}
+    return cl.build_kernels(runtime, "ao.cl", defines)
 
 
 def _pad4(a: np.ndarray) -> np.ndarray:

@@ -1,6 +1,7 @@
-// Traversal of the 8-wide BVH built by ao4d/bvh.py (widen): node k has its children's boxes
-// at boxes[k * 2 * DIM ...] (float8, one lane per child) and children[8 k + s]: a node index
-// > 0, -(b + 1) for leaf block b, 0 for none. Hits are reported as 4 * block + lane.
+// Traversal of the WIDTH-wide BVH built by ao4d/bvh.py (widen; WIDTH = 8 by default): node k
+// has its children's boxes at boxes[k * 2 * DIM ...] (one vector lane per child) and
+// children[WIDTH k + s]: a node index > 0, -(b + 1) for leaf block b, 0 for none.
+// Hits are reported as 4 * block + lane.
 #ifndef AO4D_BVH_H
 #define AO4D_BVH_H
 
@@ -22,7 +23,7 @@ inline void load_ray(const float4 o4, const float4 w4, float *o, float *w, float
 }
 
 // closest (any_hit = 0) or any (any_hit = 1) hit with 0 < t <= t_max: 4 * block + lane or -1
-inline int trace_bvh(__global const float8 *boxes, __global const int *children,
+inline int trace_bvh(__global const floatW *boxes, __global const int *children,
                      __global const float4 *blocks, const float4 o4, const float4 w4,
                      float t_max, const int any_hit, float *t_out)
 {
@@ -34,16 +35,16 @@ inline int trace_bvh(__global const float8 *boxes, __global const int *children,
     int node = 0;
     int best = -1;
     for (;;) {
-        float8 tn8;
-        const int8 hit8 = hit_boxes8(boxes + (size_t)node * 2 * DIM, o, inv_w, t_max, &tn8);
-        if (any(hit8)) {
-            int hits[8];
-            float tn[8];
-            vstore8(hit8, 0, hits);
-            vstore8(tn8, 0, tn);
-            __global const int *child = children + (size_t)node * 8;
+        floatW tnw;
+        const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, o, inv_w, t_max, &tnw);
+        if (any(hitw)) {
+            int hits[WIDTH];
+            float tn[WIDTH];
+            vstoreW(hitw, 0, hits);
+            vstoreW(tnw, 0, tn);
+            __global const int *child = children + (size_t)node * WIDTH;
             const int base = sp;
-            for (int s = 0; s < 8; ++s) {
+            for (int s = 0; s < WIDTH; ++s) {
                 const int c = child[s];
                 if (!hits[s] || c == 0) continue;
                 if (c > 0) {

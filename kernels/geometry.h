@@ -59,16 +59,31 @@ inline int hit_block(__global const float4 *blk, const float *o, const float *w,
     return lane;
 }
 
-// slab test of the 8 child boxes of a wide node against the ray segment (0, t_max]:
-// boxes[j] / boxes[DIM + j] hold the low / high bound of coordinate j of the 8 children.
+#ifndef WIDTH
+#define WIDTH 8
+#endif
+#if WIDTH == 8
+#define floatW float8
+#define intW int8
+#define vstoreW vstore8
+#elif WIDTH == 16
+#define floatW float16
+#define intW int16
+#define vstoreW vstore16
+#else
+#error "WIDTH must be 8 or 16"
+#endif
+
+// slab test of the WIDTH child boxes of a wide node against the ray segment (0, t_max]:
+// boxes[j] / boxes[DIM + j] hold the low / high bound of coordinate j of the children.
 // fmin/fmax drop the NaN of 0 * inf (a ray in a slab plane, parallel to it): conservative.
-inline int8 hit_boxes8(__global const float8 *boxes, const float *o, const float *inv_w,
-                       const float t_max, float8 *t_near)
+inline intW hit_boxes(__global const floatW *boxes, const float *o, const float *inv_w,
+                      const float t_max, floatW *t_near)
 {
-    float8 tn = (float8)(0.0f), tf = (float8)(t_max);
+    floatW tn = (floatW)(0.0f), tf = (floatW)(t_max);
     for (int j = 0; j < DIM; ++j) {
-        const float8 t0 = (boxes[j] - o[j]) * inv_w[j];
-        const float8 t1 = (boxes[DIM + j] - o[j]) * inv_w[j];
+        const floatW t0 = (boxes[j] - o[j]) * inv_w[j];
+        const floatW t1 = (boxes[DIM + j] - o[j]) * inv_w[j];
         tn = fmax(tn, fmin(t0, t1));
         tf = fmin(tf, fmax(t0, t1));
     }
