@@ -45,6 +45,7 @@ class SceneObject:
     hi: tuple[float, float, float, float]
     coarseness: float = 1.0  # grid cell = coarseness * the scene's cell (flat objects need few)
     min_points: tuple[int, int, int, int] = (4, 4, 4, 4)  # grid points per axis at least
+    min_step: float = 0.0  # never a finer grid than this (flat objects gain nothing from it)
 
 
 @dataclass(frozen=True)
@@ -113,7 +114,7 @@ def default_scene() -> Scene:
     ground_lo, ground_hi = (-2.7, -0.24, -1.7, -0.95), (2.7, 0.0, 1.7, 0.95)
     # (8 points across its thickness so that coarse settings keep it)
     ground = SceneObject("ground", box(ground_lo, ground_hi), *_padded(ground_lo, ground_hi, pad),
-                         coarseness=1.6, min_points=(4, 8, 4, 4))
+                         coarseness=1.6, min_points=(4, 8, 4, 4), min_step=0.1)
 
     r_sphere = 0.75
     c_sphere = np.array([-1.45, r_sphere, 0.35, 0.0])
@@ -159,7 +160,8 @@ def extract_scene(
     scene : Scene
     cell : float
         Target grid spacing; each object's box gets ``ceil(extent / step) + 1`` points per
-        axis with ``step = cell * coarseness`` (at least the object's ``min_points``).
+        axis with ``step = max(cell * coarseness, min_step)`` (at least the object's
+        ``min_points``).
     method : {"cubes", "simplices"}
         Passed to :func:`ao4d.extract_field`.
     progress : bool, optional
@@ -179,7 +181,7 @@ def extract_scene(
     meshes = []
     for obj in scene.objects:
         lo, hi = np.asarray(obj.lo), np.asarray(obj.hi)
-        step = cell * obj.coarseness
+        step = max(cell * obj.coarseness, obj.min_step)
         shape = tuple(max(m, int(math.ceil((h - l) / step)) + 1)
                       for l, h, m in zip(lo, hi, obj.min_points))
         meshes.append(extract_field(obj.field, shape, (lo, hi), method=method, progress=progress))
