@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 import ao4d
 from ao4d.camera import Camera4D
@@ -276,3 +278,26 @@ def test_silhouette_normals_are_not_flipped(sphere):
     # vertex normals deviate by <= 0.08 rad from the sphere's (see the Lambert test above);
     # the hit point is off the sphere by <= the chord sag, which tilts n_true by < 0.02 rad
     assert np.abs(img.shade[img.hit] - expected[img.hit]).max() < 0.1
+
+
+@settings(max_examples=15, deadline=None)
+@given(corners=st.lists(st.lists(st.floats(-0.9, 0.9), min_size=3, max_size=3), min_size=4,
+                        max_size=4).map(np.array),
+       w=st.floats(-0.5, 0.5))
+def test_random_flat_tetrahedron_is_seen_where_it_is(corners, w):
+    # any tetrahedron in a hyperplane w = const, seen along +w orthographically, covers exactly
+    # the voxels whose centres lie inside it (up to voxels on its boundary), at depth eye - w
+    m = np.vstack([corners.T, np.ones(4)])
+    assume(abs(np.linalg.det(m)) > 0.05)  # not too flat in 3D
+    mesh = _tet_mesh(np.hstack([corners, np.full((4, 1), w)]))
+    cam = Camera4D([0, 0, 0, -3], [0, 0, 0, 0], projection="orthographic", half_width=1.0)
+    shape = (12, 12, 12)
+    img = render(mesh, cam, shape, ao="none", backend="numpy")
+    u = cam.project(cam.voxel_centers(shape)).reshape(-1, 3)
+    lam = np.linalg.solve(m, np.vstack([u.T, np.ones(len(u))])).T
+    margin = 1e-6
+    inside = (lam > margin).all(1).reshape(shape)
+    outside = (lam < -margin).any(1).reshape(shape)
+    np.testing.assert_array_equal(img.hit[inside], True)
+    np.testing.assert_array_equal(img.hit[outside], False)
+    np.testing.assert_allclose(img.depth[img.hit], 3.0 + w, rtol=1e-6)
