@@ -341,6 +341,8 @@ def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, lea
                 box_lo[pos[inside]], box_hi[pos[inside]], s_count[big],
             )
             half[big] = np.where(sah > 0, sah, half[big])
+        # left sides of whole leaves: leaf blocks of the kernels run with all 4 lanes full
+        half = np.clip(leaf_size * np.round(half / leaf_size).astype(np.int64), leaf_size, s_count - 1)
         ids_l = n_nodes + 2 * np.arange(ids.size)
         ids_r = ids_l + 1
         n_nodes += 2 * ids.size
