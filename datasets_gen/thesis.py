@@ -184,6 +184,10 @@ def render_pair(meshes, size: int, *, samples: int = 64, seed: int = 0, backend:
         ``plain.shade = 0.5 + 0.5 max(0, n . l)``; ``with_ao.shade = 0.5 (1 - A) + 0.5
         max(0, n . l)``.
     """
+    from ao4d.mesh import concatenate
+
+    if not isinstance(meshes, SimplexMesh):  # join once: both renders share one BVH
+        meshes = concatenate(meshes)
     cam = thesis_camera()
     shape = (size, size, size)
     common = dict(light=LIGHT, ambient=0.5, diffuse=0.5, backend=backend)
@@ -213,11 +217,19 @@ def side_by_side_png(path: Path, results: dict, size: int, samples: int) -> Path
     cmap = matplotlib.colormaps["magma"].with_extremes(bad=(0.33, 0.38, 0.45))
     image = None
     for row, (name, variants) in enumerate(results.items()):
+        # one crop per row: the hit voxels of all its panels plus a margin of 2 voxels
+        seen = np.argwhere(np.any([variants[kind][1].hit.any(axis=2) for kind in ("raw", "closed")],
+                                  axis=0))
+        lo = np.maximum(seen.min(axis=0) - 2, 0) if seen.size else np.zeros(2, int)
+        hi = seen.max(axis=0) + 3 if seen.size else np.array(results[name]["raw"][1].hit.shape[:2])
+        side = int((hi - lo).max())  # square panels
+        hi = lo + side
+        crop = (slice(lo[0], hi[0]), slice(lo[1], hi[1]))
         for col, (kind, shading) in enumerate(columns):
             res = variants[kind][shading == "AO"]
             k = _middle_slice(variants[kind][1])
             ax = fig.add_subplot(grid[row, col])
-            data = np.ma.masked_array(res.shade[:, :, k], ~res.hit[:, :, k])
+            data = np.ma.masked_array(res.shade[:, :, k], ~res.hit[:, :, k])[crop]
             image = ax.imshow(data.T, origin="lower", cmap=cmap, vmin=0, vmax=1,
                               interpolation="nearest")
             ax.set_xticks([])
