@@ -28,6 +28,7 @@ answer exactly.
 from __future__ import annotations
 
 import hashlib
+import math
 import weakref
 from dataclasses import dataclass, field
 from typing import Any
@@ -351,8 +352,7 @@ def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, lea
         start[ids_r], count[ids_r] = s_start + half, s_count - half
         levels.append(np.stack([ids_l, ids_r], 1).ravel())
         if bar is not None:
-            done = np.concatenate([half, s_count - half])
-            bar.update(int(done[done <= leaf_size].sum()))  # simplices that reached a leaf
+            bar.update(1)
     sl = slice(0, n_nodes)
     return order, start[sl], count[sl], left[sl], right[sl], levels
 
@@ -436,7 +436,8 @@ def build(vertices: Any, simplices: Any, *, leaf_size: int = 4, progress: bool |
     from tqdm.auto import tqdm
 
     disable = idx.size < (1 << 19) if progress is None else not progress
-    bar = tqdm(total=idx.size, desc="BVH", unit="simplex", unit_scale=True, disable=disable, leave=False)
+    levels_estimate = max(1, math.ceil(math.log2(max(idx.size / leaf_size, 1)))) + 2  # SAH: a few more
+    bar = tqdm(total=levels_estimate, desc="BVH levels", disable=disable, leave=False)
     with bar:
         order, start, count, left, right, levels = _split_levels(corners.mean(1), p_lo, p_hi, leaf_size, bar)
     lo, hi = _node_bounds(p_lo[order], p_hi[order], start, count, left, right, levels)
