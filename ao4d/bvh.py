@@ -436,7 +436,8 @@ def build(vertices: Any, simplices: Any, *, leaf_size: int = 4, progress: bool |
     from tqdm.auto import tqdm
 
     disable = idx.size < (1 << 19) if progress is None else not progress
-    levels_estimate = max(1, math.ceil(math.log2(max(idx.size / leaf_size, 1)))) + 2  # SAH: a few more
+    # SAH trees run about 1.4 times deeper than balanced ones
+    levels_estimate = math.ceil(1.4 * math.log2(max(idx.size / leaf_size, 1))) + 2
     bar = tqdm(total=levels_estimate, desc="BVH levels", disable=disable, leave=False)
     with bar:
         order, start, count, left, right, levels = _split_levels(corners.mean(1), p_lo, p_hi, leaf_size, bar)
