@@ -381,9 +381,10 @@ def _run_parallel(todo: list[_Job], workers: int, summary: RunSummary, bar) -> N
                     _collect(summary, job, fut.result)
                     bar.update()
         except KeyboardInterrupt:
+            workers_ = list((getattr(pool, "_processes", None) or {}).values())
             pool.shutdown(wait=False, cancel_futures=True)
-            for proc in list(getattr(pool, "_processes", {}).values()):
-                proc.terminate()  # unfinished items are redone on the next run
+            for proc in workers_:
+                proc.terminate()  # their unfinished items are redone on the next run
             raise
 
 
