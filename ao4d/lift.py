@@ -10,12 +10,14 @@ DESIGN.md conventions):
   and the cone over ``dS``. Enclosed 4-volume ``vol(S) * h / 4``.
 - :func:`spin` — ``S`` (in the half-space ``x >= 0``) rotated in the (x, w) plane about the plane
   ``x = w = 0``, sampled at ``k`` angles. Its boundary is ``dS x circle``: no cap, because every
-  point of ``S`` lies on some rotated copy. Enclosed 4-volume (Pappus)
-  ``V4 = integral over S of 2 pi x dV3 = 2 pi x_c vol(S)``, reached as ``k -> oo``.
+  point of ``S`` lies on some rotated copy. Enclosed 4-volume exactly ``k sin(2 pi / k) x_c
+  vol(S)`` (x_c: centroid x), tending to Pappus' ``integral over S of 2 pi x dV3 = 2 pi x_c
+  vol(S)`` as ``k -> oo``.
 
-The caps need ``S`` itself, cut into tetrahedra: :func:`tetrahedralize` does that with fTetWild
-(pytetwild), and the side walls are built on the boundary triangles of those tetrahedra so that
-caps and walls share their faces exactly. A triangle x interval (a triangular prism) is cut into
+The caps need ``S`` itself, cut into tetrahedra: :func:`tetrahedralize` joins the faces to the
+centre of a star-shaped solid (exact, deterministic) or else runs fTetWild (pytetwild), and the
+side walls are built on the boundary triangles of those tetrahedra so that caps and walls share
+their faces exactly. A triangle x interval (a triangular prism) is cut into
 three tetrahedra by the global vertex order rule (the staircase split keyed on vertex ids), which
 two neighbouring prisms always agree on, so the walls are conforming.
 
