@@ -8,6 +8,7 @@ field's extent; lifted families build a 3D solid with trimesh and lift it with
 
 from __future__ import annotations
 
+import functools
 import inspect
 import math
 from collections.abc import Callable
@@ -16,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["KINDS", "Kind", "Shape", "random_rotation", "build_shape"]
+__all__ = ["KINDS", "kinds", "Kind", "Shape", "random_rotation", "build_shape"]
 
 
 @dataclass
@@ -263,37 +264,23 @@ def _kinds() -> dict[str, Kind]:
     return kinds
 
 
-class _LazyKinds(dict):
-    """The kind registry, filled on first use (building it imports ao4d.fields)."""
-
-    def _fill(self) -> None:
-        if not dict.__len__(self):
-            self.update(_kinds())
-
-    def __getitem__(self, key: str) -> Kind:
-        self._fill()
-        return dict.__getitem__(self, key)
-
-    def __contains__(self, key: object) -> bool:
-        self._fill()
-        return dict.__contains__(self, key)
-
-    def __iter__(self):
-        self._fill()
-        return dict.__iter__(self)
-
-    def __len__(self) -> int:
-        self._fill()
-        return dict.__len__(self)
+@functools.cache
+def kinds() -> dict[str, Kind]:
+    """The registry of family kinds (built on first use: it imports ao4d.fields)."""
+    return _kinds()
 
 
-KINDS: dict[str, Kind] = _LazyKinds()
+def __getattr__(name: str) -> Any:
+    if name == "KINDS":  # module attribute computed lazily (PEP 562)
+        return kinds()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 
 def build_shape(kind: str, params: dict, settings: dict, rng: np.random.Generator,
                 rotation: np.ndarray | None) -> Shape:
     """Build one item's mesh; errors name the family kind."""
     try:
-        return KINDS[kind].build(params, settings, rng, rotation)
+        return kinds()[kind].build(params, settings, rng, rotation)
     except (ValueError, TypeError) as exc:
         raise ValueError(f"family kind {kind!r} with params {params}: {exc}") from exc
