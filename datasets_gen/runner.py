@@ -460,13 +460,23 @@ def main(argv: list[str] | None = None) -> int:
                "  python -m datasets_gen tori --out data/tori --workers 2 --seed 7\n"
                "  python -m datasets_gen my.toml --out data/mine   # rerun to resume",
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("config", help="a TOML file or the name of a shipped config")
+    parser.add_argument("config", nargs="?", help="a TOML file or the name of a shipped config")
     parser.add_argument("--out", help="output folder (created; reruns resume); required unless --list")
     parser.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     parser.add_argument("--seed", type=int, default=None, help="run seed (default: the config's)")
     parser.add_argument("--list", action="store_true", help="show the items' families and exit")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--kinds", action="store_true",
+                        help="list the family kinds and their parameters, and exit")
     args = parser.parse_args(argv)
+    if args.kinds:
+        from .families import kinds
+
+        for name, kind in kinds().items():
+            print(f"{name}({', '.join(kind.params)})\n    {kind.doc.splitlines()[0].strip()}")
+        return 0
+    if args.config is None:
+        parser.error("the following arguments are required: config")
     if args.out is None and not args.list:
         parser.error("the following arguments are required: --out")
     try:

@@ -334,6 +334,11 @@ def test_command_line(tiny_config, tmp_path, capsys):
     assert "tiny" in capsys.readouterr().out
     assert runner_mod.main(["nonexistent", "--out", str(tmp_path / "o")]) == 2
     assert "neither a file nor a shipped" in capsys.readouterr().err
+    assert runner_mod.main(["--kinds"]) == 0
+    assert "spheritorus(R, r)" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        runner_mod.main([str(tiny_config)])  # --out missing
+    assert "--out" in capsys.readouterr().err
 
 
 @pytest.mark.slow
