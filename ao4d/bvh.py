@@ -120,7 +120,8 @@ class WideBVH:
         Node k's child boxes: ``boxes[k, 0, j, s]`` is the low bound of coordinate j of child s,
         ``boxes[k, 1]`` the high bounds (the binary tree's float32 boxes, unchanged).
     children : (K, 8) int32
-        Child s of node k: a node index > 0, ``-(b + 1)`` for leaf block b, or 0 for no child.
+        Child s of node k: a node index > 0, 0 for no child, or a leaf ``-(1 + 4 b + m - 1)``:
+        the m (1 or 2) consecutive leaf blocks starting at block b.
     blocks : (B, d + 1, d, 4) float32
         Leaf block b: ``blocks[b, i, j, l]`` is entry (i, j) of lane l's inverse matrix for
         i < d and coordinate j of its vertex 0 for i = d; unused lanes are all zero (never hit).
@@ -152,6 +153,12 @@ def widen(tree: BVH) -> WideBVH:
     block_of = np.full(tree.n_nodes, -1, dtype=np.int64)
     block_of[leaves] = np.arange(leaves.size)
     area = _box_area(tree.lo[:, :d].astype(np.float64), tree.hi[:, :d].astype(np.float64))
+    # a node whose two children are leaves becomes one leaf slot of 2 blocks: wide nodes with
+    # only 2 or 3 children (a third of them) cost a visit each and save little
+    both = ~is_leaf & is_leaf[np.maximum(left, 0)] & is_leaf[np.maximum(right, 0)]
+    n_blocks = np.where(is_leaf, 1, np.where(both, 2, 0))
+    first_block = np.where(is_leaf, block_of, np.where(both, block_of[np.maximum(left, 0)], -1))
+    is_leaf = is_leaf | both
 
     # wide nodes level by level; each holds up to 8 binary nodes (its children)
     level = np.array([0]) if not is_leaf[0] else np.array([-1])
@@ -186,7 +193,8 @@ def widen(tree: BVH) -> WideBVH:
     children = np.zeros(slots.shape, dtype=np.int64)
     children[inner] = 1 + np.arange(inner.sum())
     leafy = valid & is_leaf[safe]
-    children[leafy] = -(block_of[slots[leafy]] + 1)
+    leaf_nodes = slots[leafy]
+    children[leafy] = -(1 + 4 * first_block[leaf_nodes] + (n_blocks[leaf_nodes] - 1))
     boxes = np.zeros((len(slots), 2, d, WIDTH), dtype=np.float32)
     boxes[:, 0] = tree.lo[safe][..., :d].transpose(0, 2, 1)
     boxes[:, 1] = tree.hi[safe][..., :d].transpose(0, 2, 1)

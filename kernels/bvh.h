@@ -1,6 +1,7 @@
 // Traversal of the WIDTH-wide BVH built by ao4d/bvh.py (widen; WIDTH = 8 by default): node k
 // has its children's boxes at boxes[k * 2 * DIM ...] (one vector lane per child) and
-// children[WIDTH k + s]: a node index > 0, -(b + 1) for leaf block b, 0 for none.
+// children[WIDTH k + s]: a node index > 0, 0 for none, or -(1 + 4 b + m - 1) for the m
+// consecutive leaf blocks from block b.
 // Hits are reported as 4 * block + lane.
 #ifndef AO4D_BVH_H
 #define AO4D_BVH_H
@@ -60,15 +61,19 @@ inline int trace_bvh(__global const floatW *boxes, __global const int *children,
                     stack[k] = c;
                     continue;
                 }
-                float t;
-                const int b = -c - 1;
-                const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, o, w, t_max, &t);
-                if (lane >= 0) {
-                    best = 4 * b + lane;
-                    t_max = t;
-                    if (any_hit) {
-                        *t_out = t;
-                        return best;
+                // a leaf: blocks b .. b + m - 1 with -c - 1 = 4 b + m - 1
+                const int first = (-c - 1) >> 2;
+                const int end = first + ((-c - 1) & 3) + 1;
+                for (int b = first; b < end; ++b) {
+                    float t;
+                    const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, o, w, t_max, &t);
+                    if (lane >= 0) {
+                        best = 4 * b + lane;
+                        t_max = t;
+                        if (any_hit) {
+                            *t_out = t;
+                            return best;
+                        }
                     }
                 }
             }

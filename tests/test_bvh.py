@@ -184,23 +184,24 @@ def test_wide_tree_holds_the_binary_tree(d):
     corners = vertices[simplices[tree.prim]]
     inner = wide.children[wide.children > 0]
     assert sorted(inner.tolist()) == list(range(1, len(wide.children)))
-    leaves = -wide.children[wide.children < 0] - 1
-    assert sorted(leaves.tolist()) == list(range(len(wide.blocks)))
 
-    def below(node):
-        out = []
-        for c in wide.children[node]:
-            if c > 0:
-                out += below(c)
-            elif c < 0:
-                out += [p for p in wide.block_prim[-c - 1] if p >= 0]
-        return out
+    def blocks_of(c):  # a leaf child -(1 + 4 b + m - 1): blocks b .. b + m - 1
+        v = -int(c) - 1
+        return range(v >> 2, (v >> 2) + (v & 3) + 1)
+
+    listed = [b for c in wide.children[wide.children < 0] for b in blocks_of(c)]
+    assert sorted(listed) == list(range(len(wide.blocks)))  # every block in exactly one leaf
+
+    def below(c):
+        if c < 0:
+            return [p for b in blocks_of(c) for p in wide.block_prim[b] if p >= 0]
+        return [p for child in wide.children[c] if child != 0 for p in below(child)]
 
     for node in range(len(wide.children)):
         for s, c in enumerate(wide.children[node]):
             if c == 0:
                 continue
-            prims = below(c) if c > 0 else [p for p in wide.block_prim[-c - 1] if p >= 0]
+            prims = below(c)
             lo, hi = wide.boxes[node, 0, :, s], wide.boxes[node, 1, :, s]
             assert (corners[prims].min((0, 1)) >= lo).all() and (corners[prims].max((0, 1)) <= hi).all()
     assert wide.depth * 7 + 1 <= bvh.STACK_SIZE
@@ -209,7 +210,7 @@ def test_wide_tree_holds_the_binary_tree(d):
 def test_wide_tree_of_a_single_simplex():
     tree = bvh.build(np.eye(3), [[0, 1, 2]])
     wide = tree.wide()
-    assert wide.children.tolist() == [[-1, 0, 0, 0, 0, 0, 0, 0]]
+    assert wide.children.tolist() == [[-1, 0, 0, 0, 0, 0, 0, 0]]  # block 0, one block
     assert wide.block_prim.tolist() == [[0, -1, -1, -1]]
 
 
