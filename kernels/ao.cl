@@ -25,9 +25,11 @@ inline int occlusion_count(const int use_bvh, __global const floatW *boxes,
     for (int k = 0; k < DIM - 1; ++k) shift[k] = point_shift(index, seed, (uint)k);
     // start above the surface: a ray must not hit the simplices the point lies on
     const float4 o = p + offset * n;
+    float4 frame[DIM - 1];
+    tangent_frame(n, frame);
     int hits = 0;
     for (int s = 0; s < samples; ++s) {
-        const float4 w = cosine_direction(n, table, s, shift);
+        const float4 w = cosine_direction(n, frame, table, s, shift);
         float t;
         hits += trace(use_bvh, boxes, children, blocks, n_blocks, o, w, max_distance, 1, &t) >= 0;
     }
@@ -90,6 +92,8 @@ __kernel void sample_directions(__global const float4 *normals, __global const u
     const size_t i = get_global_id(0);
     uint shift[DIM - 1];
     for (int k = 0; k < DIM - 1; ++k) shift[k] = point_shift(index[i], seed, (uint)k);
+    float4 frame[DIM - 1];
+    tangent_frame(normals[i], frame);
     for (int s = 0; s < samples; ++s)
-        out[i * samples + s] = cosine_direction(normals[i], table, s, shift);
+        out[i * samples + s] = cosine_direction(normals[i], frame, table, s, shift);
 }

@@ -58,14 +58,21 @@ inline float4 tangent(const float4 n, const int j)
     return t;
 }
 
-// direction of sample `s` for a point with normal n; table holds (samples, DIM-1) 24-bit ints
-inline float4 cosine_direction(const float4 n, __global const uint *table, const int s,
-                               const uint *shift)
+// the DIM-1 tangent vectors of n, computed once per point
+inline void tangent_frame(const float4 n, float4 *frame)
+{
+    for (int j = 0; j < DIM - 1; ++j) frame[j] = tangent(n, j);
+}
+
+// direction of sample `s` for a point with normal n and tangent frame `frame`;
+// table holds (samples, DIM-1) 24-bit ints
+inline float4 cosine_direction(const float4 n, const float4 *frame, __global const uint *table,
+                               const int s, const uint *shift)
 {
 #if DIM == 2
     const float b0 = 2.0f * unit_coordinate(table[s], shift[0]) - 1.0f;
     const float up = sqrt(fmax(0.0f, 1.0f - b0 * b0));
-    return b0 * tangent(n, 0) + up * n;
+    return b0 * frame[0] + up * n;
 #elif DIM == 3
     const float u0 = unit_coordinate(table[2 * s], shift[0]);
     const float u1 = unit_coordinate(table[2 * s + 1], shift[1]);
@@ -73,7 +80,7 @@ inline float4 cosine_direction(const float4 n, __global const uint *table, const
     const float phi = 6.283185307179586f * u1;
     const float b0 = r * cos(phi), b1 = r * sin(phi);
     const float up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1)));
-    return b0 * tangent(n, 0) + b1 * tangent(n, 1) + up * n;
+    return b0 * frame[0] + b1 * frame[1] + up * n;
 #else
     const float u0 = unit_coordinate(table[3 * s], shift[0]);
     const float u1 = unit_coordinate(table[3 * s + 1], shift[1]);
@@ -84,7 +91,7 @@ inline float4 cosine_direction(const float4 n, __global const uint *table, const
     const float phi = 6.283185307179586f * u2;
     const float b0 = r * sz * cos(phi), b1 = r * sz * sin(phi), b2 = r * z;
     const float up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1 + b2 * b2)));
-    return b0 * tangent(n, 0) + b1 * tangent(n, 1) + b2 * tangent(n, 2) + up * n;
+    return b0 * frame[0] + b1 * frame[1] + b2 * frame[2] + up * n;
 #endif
 }
 
