@@ -14,7 +14,9 @@ Layout of an output folder::
 
 Reproducibility: item ``i`` draws everything from ``np.random.SeedSequence([seed, i])`` (its
 parameters, its rotation and its AO seed from three spawned children), so items can be made in
-any order or process and give the same bytes. Files carry no timestamps (npz members are dated
+any order or process and give the same bytes. This holds for the same ao4d code (records carry
+its version and the sha256 of its lookup tables and kernel sources) and the same AO device
+(named in ``summary.json``: another device may round AO differently). Files carry no timestamps (npz members are dated
 1980-01-01, JSON is canonical), and wall-clock data lives only in ``timing.json`` and
 ``summary.json``, which the manifest leaves out: two runs of the same configuration and seed
 have byte-identical manifests.
@@ -28,6 +30,7 @@ files in the unfinished ones, which a rerun deletes before redoing them.
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import math
@@ -123,8 +126,13 @@ def _versions() -> dict[str, str]:
 
     manifest = data_dir("lut") / "manifest.json"
     tables = json.loads(manifest.read_text(encoding="utf-8")).get("files", {})
+    kernels = hashlib.sha256()
+    for path in sorted(data_dir("kernels").iterdir()):
+        if path.suffix in (".cl", ".h"):
+            kernels.update(path.name.encode() + b"\0" + path.read_bytes())
     return {
         "ao4d": ao4d.__version__,
+        "kernels_sha256": kernels.hexdigest(),
         "lut_manifest_sha256": sha256_file(manifest),
         "lut_cube_4d_sha256": tables.get("cube_4d.npz", {}).get("sha256", ""),
         "lut_simplex_4d_sha256": tables.get("simplex_4d.npz", {}).get("sha256", ""),
@@ -439,11 +447,21 @@ def _write_index(out: Path, items: list[ItemSpec], summary: RunSummary) -> int:
     })
     size = sum(f["bytes"] for f in files.values())
     write_json(out / "summary.json", {
+        "device": _device_name(),
         "made": summary.made, "skipped": summary.skipped, "failed": summary.failed,
         "seconds": summary.seconds, "items_per_minute": summary.items_per_minute,
         "bytes": size,
     })
     return size
+
+
+def _device_name() -> str:
+    """The OpenCL device ao4d would use here (AO values may differ in the last bits between
+    devices, so a dataset is byte-reproducible on the same software and device)."""
+    from ao4d import cl
+
+    runtime = cl.get_runtime(warn=False)
+    return runtime.name if runtime else "numpy backend (no OpenCL device)"
 
 
 def main(argv: list[str] | None = None) -> int:
