@@ -172,6 +172,15 @@ def test_spin_converges_to_the_torisphere_volume():
     assert mesh.volume / analytic - 1 == pytest.approx(-0.0086 - 0.0004, abs=3e-4)
 
 
+def test_spin_of_a_tet_solid_uses_its_boundary():
+    box = _box(lo=(0.5, -1.0, -1.0), hi=(1.5, 1.0, 1.0))
+    solid = lift.tetrahedralize(box, method="star")  # adds an interior centre point
+    a, b = lift.spin(box, 9), lift.spin(solid, 9)
+    assert b.check().ok
+    assert len(b.vertices) == len(a.vertices)  # the centre is not on the boundary: not swept
+    assert b.volume == pytest.approx(a.volume, rel=EXACT)
+
+
 def test_spin_of_box_resting_on_axis():
     box = _box(lo=(0.0, -1.0, -1.0), hi=(1.0, 1.0, 1.0))
     k = 16
