@@ -81,7 +81,6 @@ def main(argv=None) -> int:
     parser.add_argument("--numpy-points", type=int, default=500)
     args = parser.parse_args(argv)
 
-    import ao4d
     from ao4d import ao, bvh, cl
 
     rng = np.random.default_rng(0)
@@ -150,11 +149,16 @@ def main(argv=None) -> int:
     t_brute, c_brute, a_brute = timed(
         lambda: ao.ambient_occlusion(small, points=p3, normals=n3, samples=samples2, backend="opencl", accel="brute"), 1
     )
-    t_bvh, _, a_bvh = timed(
-        lambda: ao.ambient_occlusion(small, points=p3, normals=n3, samples=samples2, backend="opencl"), args.repeat
-    )
+    a_bvh = ao.ambient_occlusion(small, points=p3, normals=n3, samples=samples2, backend="opencl")
     assert np.array_equal(a_brute, a_bvh), "BVH and brute force disagree"
     rows.append((f"ao4d OpenCL brute force, 4D, {small_tree.n_prims:,} tets", r3, r3 / t_brute, r3 / c_brute, a_brute.mean()))
+    # the BVH's rate on the same mesh with enough rays that call overheads do not count
+    p4, n4 = pick(rng, small.vertices, small.vertex_normals, 20000)
+    r4 = len(p4) * samples2
+    t_bvh, c_bvh, a_bvh = timed(
+        lambda: ao.ambient_occlusion(small, points=p4, normals=n4, samples=samples2, backend="opencl"), args.repeat
+    )
+    rows.append((f"ao4d OpenCL BVH, 4D, {small_tree.n_prims:,} tets", r4, r4 / t_bvh, r4 / c_bvh, a_bvh.mean()))
 
     print(f"\n{'':<52} {'rays':>10} {'M rays/s':>9} {'M rays/CPU-s':>13} {'hit frac':>9}")
     for name, count, rate, cpu_rate, frac in rows:
@@ -162,7 +166,8 @@ def main(argv=None) -> int:
     if rate_embree:
         print(f"\nratio 4D OpenCL / 3D Embree (wall clock): {rate_cl / rate_embree:.2f}  (target >= 2)")
         print(f"ratio per CPU-second (both threads of ours vs Embree's one): {c_em / c_cl:.2f}")
-    print(f"BVH speed-up over brute force ({small_tree.n_prims:,} tets): {t_brute / t_bvh:.0f}x")
+    speedup = (t_brute / r3) / (t_bvh / r4)
+    print(f"BVH speed-up over brute force ({small_tree.n_prims:,} tets, per ray): {speedup:.0f}x")
     return 0
 
 
