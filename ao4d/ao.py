@@ -296,7 +296,7 @@ def _directions_opencl(runtime, normals: np.ndarray, samples: int, seed: int) ->
 
 
 def _box_hits(lo, hi, o, inv_w, t_max):
-    """Slab test in float64 mirroring ``hit_box`` in kernels/geometry.h."""
+    """Slab test in float64 mirroring ``hit_boxes`` in kernels/geometry.h."""
     with np.errstate(invalid="ignore"):
         t0, t1 = (lo - o) * inv_w, (hi - o) * inv_w
     # fmin/fmax skip the NaN of 0 * inf, as OpenCL's do
