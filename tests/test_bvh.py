@@ -219,3 +219,31 @@ def test_wide_tree_needs_small_leaves():
     tree = bvh.build(*random_soup(rng, 3, 40), leaf_size=6)
     with pytest.raises(ValueError, match="at most 4 simplices"):
         tree.wide()
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    d=st.sampled_from(DIMS),
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(1, 60),
+    leaf_size=st.integers(1, 6),
+    max_distance=st.sampled_from([np.inf, 0.3, 1.0]),
+)
+def test_numpy_bvh_traversal_equals_brute_force(d, seed, n, leaf_size, max_distance):
+    from ao4d import ao
+
+    rng = np.random.default_rng(seed)
+    vertices, simplices = random_soup(rng, d, n, size=rng.uniform(0.02, 0.4))
+    try:
+        tree = bvh.build(vertices, simplices, leaf_size=leaf_size)
+    except ValueError:
+        assume(False)  # every random simplex degenerate: nothing to trace
+    o = rng.uniform(-0.2, 1.2, size=(200, d))
+    w = rng.normal(size=(200, d))
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    for any_hit in (True, False):
+        t1, p1 = ao._trace_numpy_bvh(tree, o, w, max_distance, any_hit)
+        t2, p2 = ao._trace_numpy_brute(tree, o, w, max_distance, any_hit)
+        np.testing.assert_array_equal(p1 >= 0, p2 >= 0)
+        if not any_hit:
+            np.testing.assert_array_equal(t1, t2)
