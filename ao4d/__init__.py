@@ -31,6 +31,8 @@ _LAZY = {
     "io": "io:",
     "camera": "camera:",
     "lift": "lift:",
+    "sampling": "sampling:",
+    "scenes": "scenes:",
     "SimplexMesh": "mesh:SimplexMesh",
     "sample": "fields:sample",
     "extract": "march:extract",
