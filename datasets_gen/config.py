@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import json
 import math
 import sys
 from dataclasses import dataclass, field
@@ -317,7 +316,3 @@ def describe(config: Config) -> str:
 
     return "\n".join(f"  {f.name}: {f.count} x {f.kind} ({how(f)})" for f in config.families)
 
-
-def canonical(config: Config) -> str:
-    """JSON of what determines the output (the TOML text and seed), for run.json comparisons."""
-    return json.dumps({"config_sha256": config.sha256, "seed": config.seed}, sort_keys=True)
