@@ -261,8 +261,10 @@ def _render(folder: Path, render: dict, mesh: Any, occlusion: Any, settings: dic
                          samples=int(render.get("samples", 32)), seed=seed, backend=backend,
                          progress=False)
     path = folder / f"{render['name']}.png"
+    # a fixed colour scale (shade = 1 - A in [0, 1]) makes items comparable, and a flat,
+    # unoccluded view shows white rather than an arbitrary stretch of a constant image
     aio.save_montage(path, result.shade, background=~result.hit, label="shade (1 - A)",
-                     title=title,
+                     title=title, vmin=0.0, vmax=1.0,
                      spacing=result.geometry.spacing, origin=result.geometry.origin)
     return path
 
