@@ -217,6 +217,31 @@ def widen(tree: BVH) -> WideBVH:
     )
 
 
+def _cross(rows: list[np.ndarray]) -> np.ndarray:
+    """Generalised cross product X of d-1 vectors in R^d: ``X . x = det[v_1; ...; v_{d-1}; x]``.
+
+    ``rows`` holds d-1 arrays of shape (d, S) (component-major: contiguous rows make the
+    closed-form cofactors below fast; a batched ``np.linalg.det`` costs ten times more).
+    Returns (d, S).
+    """
+    d = rows[0].shape[0]
+    if d == 2:
+        (a,) = rows
+        return np.stack([-a[1], a[0]])
+    if d == 3:
+        a, b = rows
+        return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+    a, b, c = rows
+    # 2x2 minors of the last two rows, then expansion along the first row of each 3x3 minor
+    m = {(p, q): b[p] * c[q] - b[q] * c[p] for p in range(4) for q in range(p + 1, 4)}
+    out = np.empty_like(a)
+    for j in range(4):
+        p, q, r = (k for k in range(4) if k != j)
+        det = a[p] * m[q, r] - a[q] * m[p, r] + a[r] * m[p, q]
+        out[j] = det if j % 2 else -det  # sign (-1)^(d-1+j)
+    return out
+
+
 def simplex_normals(corners: np.ndarray) -> np.ndarray:
     """Unnormalised normals ``n`` with ``n . x = det[p1-p0; ...; p_{d-1}-p0; x]`` (DESIGN.md).
 
@@ -230,125 +255,183 @@ def simplex_normals(corners: np.ndarray) -> np.ndarray:
     normals : (S, d) float64
         Length equals (d-1)! times the simplex's (d-1)-measure.
     """
-    d = corners.shape[-1]
-    edges = corners[:, 1:, :] - corners[:, :1, :]  # (S, d-1, d)
-    normals = np.empty(corners.shape[:1] + (d,), dtype=np.float64)
-    for k in range(d):
-        cols = [c for c in range(d) if c != k]
-        minor = edges[:, :, cols]
-        det = minor[:, 0, 0] if d == 2 else np.linalg.det(minor)
-        # cofactor expansion of the determinant along its last row (x)
-        normals[:, k] = (-1.0) ** (d - 1 + k) * det
-    return normals
+    cm = np.asarray(corners, dtype=np.float64).transpose(1, 2, 0)  # (d vertices, d coords, S)
+    d = cm.shape[0]
+    return _cross([cm[k] - cm[0] for k in range(1, d)]).T
 
 
 def _prepare(vertices: np.ndarray, simplices: np.ndarray):
-    """Per-simplex inverse matrices, bounds and centroids; drop degenerate simplices."""
-    corners = vertices[simplices]  # (S, d, d)
-    d = corners.shape[-1]
-    normals = simplex_normals(corners)
-    edges = corners[:, 1:, :] - corners[:, :1, :]
-    longest = np.sqrt((edges**2).sum(-1).max(-1)) if d > 1 else np.zeros(len(corners))
-    norm = np.sqrt((normals**2).sum(-1))
-    keep = norm > _DEGENERATE_RTOL * longest ** (d - 1)
-    keep &= norm > 0
+    """Per-simplex inverse matrices and corners (component-major); drop degenerate simplices.
+
+    Returns the kept simplices' indices, their corners as d arrays (d, S) and the inverses
+    (S, d, d). Works on contiguous per-coordinate arrays: gathers and products of (S, d)
+    column views cost several times more.
+    """
+    d = vertices.shape[1]
+    coords = np.ascontiguousarray(vertices.T)  # (d, V)
+    ids = np.ascontiguousarray(simplices.T)  # (d, S)
+    pts = [np.take(coords, ids[k], axis=1) for k in range(d)]  # d x (d, S)
+    edges = [p - pts[0] for p in pts[1:]]
+    normals = _cross(edges)
+    longest = np.sqrt(np.max([(e * e).sum(0) for e in edges], axis=0))
+    norm2 = (normals * normals).sum(0)
+    norm = np.sqrt(norm2)
+    keep = (norm > _DEGENERATE_RTOL * longest ** (d - 1)) & (norm > 0)
     idx = np.flatnonzero(keep)
-    corners, edges, normals = corners[idx], edges[idx], normals[idx]
-    matrix = np.concatenate([edges, normals[:, None, :]], axis=1).transpose(0, 2, 1)
-    inverse = np.linalg.inv(matrix)
-    return idx, corners, inverse
+    if idx.size < len(keep):
+        pts = [p[:, idx] for p in pts]
+        edges = [e[:, idx] for e in edges]
+        normals, norm2 = normals[:, idx], norm2[idx]
+    # inverse of M = [e1 .. e_{d-1} | n] (columns) by Cramer's rule: det M = n . n, and row i
+    # is (-1)^(d-1-i) X(columns but i) / det M; the last row is n / |n|^2
+    columns = edges + [normals]
+    inverse = np.empty((d, d, len(idx)))
+    for i in range(d - 1):
+        sign = 1.0 if (d - 1 - i) % 2 == 0 else -1.0
+        inverse[i] = _cross(columns[:i] + columns[i + 1 :]) * (sign / norm2)
+    inverse[d - 1] = normals / norm2
+    return idx, pts, inverse.transpose(2, 0, 1)
 
 
 def _box_area(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Boundary (d-1)-measure of boxes: the chance that a random ray meets a convex body is
     proportional to it (Cauchy), which makes it the SAH weight in any dimension."""
-    ext = np.maximum(hi - lo, 0.0)
-    d = ext.shape[-1]
-    area = np.zeros(ext.shape[:-1])
-    for k in range(d):
-        face = np.ones(ext.shape[:-1])
-        for j in range(d):
-            if j != k:
-                face = face * ext[..., j]
-        area += face
-    return 2.0 * area
+    e = np.maximum(hi - lo, 0.0)
+    d = e.shape[-1]
+    if d == 2:
+        return 2.0 * (e[..., 0] + e[..., 1])
+    if d == 3:
+        return 2.0 * (e[..., 0] * (e[..., 1] + e[..., 2]) + e[..., 1] * e[..., 2])
+    a, b, c, f = e[..., 0], e[..., 1], e[..., 2], e[..., 3]
+    return 2.0 * (a * b * (c + f) + c * f * (a + b))
 
 
-def _sah_split_counts(key_bins, seg, n_seg, p_lo, p_hi, s_count):
-    """Binned SAH: how many of each segment's sorted primitives go left (0 = no good split)."""
-    d = p_lo.shape[1]
-    flat = seg * _SAH_BINS + key_bins
-    counts = np.bincount(flat, minlength=n_seg * _SAH_BINS).reshape(n_seg, _SAH_BINS)
+def _sah_bins(bins, rank, seg_rows, n_seg, data, d):
+    """Per (segment, bin) primitive count, bounds and centroid bounds of the considered segments.
+
+    ``bins`` (N,) are the bin numbers of all primitives (sorted by segment, then bin), ``rank``
+    (N,) their segment ranks, ``seg_rows`` the row of each segment rank among the ``n_seg``
+    considered (-1: not considered), ``data`` (3d, N) the primitives' ``[lo | centroid | hi]`` (component-major).
+    Returns counts (n_seg, B) and the bin minima of ``[lo | centroid]`` and maxima of
+    ``[centroid | hi]``, (n_seg, B, 2d) each (empty bins: +inf / -inf).
+    """
+    flat = rank * _SAH_BINS + bins
     runs = np.flatnonzero(np.r_[True, flat[1:] != flat[:-1]])  # sorted: bins are runs
-    b_lo = np.full((n_seg * _SAH_BINS, d), np.inf)
-    b_hi = np.full((n_seg * _SAH_BINS, d), -np.inf)
-    b_lo[flat[runs]] = np.minimum.reduceat(p_lo, runs, axis=0)
-    b_hi[flat[runs]] = np.maximum.reduceat(p_hi, runs, axis=0)
-    b_lo = b_lo.reshape(n_seg, _SAH_BINS, d)
-    b_hi = b_hi.reshape(n_seg, _SAH_BINS, d)
+    row = seg_rows[rank[runs]]
+    used = row >= 0
+    run_min = np.minimum.reduceat(data[: 2 * d], runs, axis=1).T[used]
+    run_max = np.maximum.reduceat(data[d:], runs, axis=1).T[used]
+    run_n = np.diff(np.r_[runs, len(flat)])[used]
+    cell = row[used] * _SAH_BINS + bins[runs[used]]
+    b_min = np.full((n_seg * _SAH_BINS, 2 * d), np.inf, dtype=data.dtype)
+    b_max = np.full((n_seg * _SAH_BINS, 2 * d), -np.inf, dtype=data.dtype)
+    counts = np.zeros(n_seg * _SAH_BINS, dtype=np.int64)
+    b_min[cell], b_max[cell], counts[cell] = run_min, run_max, run_n
+    shape = (n_seg, _SAH_BINS, 2 * d)
+    return counts.reshape(n_seg, _SAH_BINS), b_min.reshape(shape), b_max.reshape(shape)
+
+
+def _running(ufunc, a: np.ndarray, reverse: bool = False) -> np.ndarray:
+    """``ufunc.accumulate`` along axis 1 of (N, B, k) (or from the end): a loop over the B
+    bins of whole (N, k) slices runs several times faster than numpy's strided accumulate."""
+    out = np.empty_like(a)
+    cols = range(a.shape[1] - 1, -1, -1) if reverse else range(a.shape[1])
+    prev = None
+    for k in cols:
+        prev = a[:, k] if prev is None else ufunc(prev, a[:, k])
+        out[:, k] = prev
+    return out
+
+
+def _sah_split_counts(counts, box_lo, box_hi, s_count):
+    """Binned SAH: how many of each segment's sorted primitives go left (0 = no good split)."""
+    n_seg = len(counts)
     left_n = np.cumsum(counts, axis=1)[:, :-1]
     right_n = s_count[:, None] - left_n
-    left_a = _box_area(np.minimum.accumulate(b_lo, 1), np.maximum.accumulate(b_hi, 1))[:, :-1]
-    right_a = _box_area(
-        np.minimum.accumulate(b_lo[:, ::-1], 1)[:, ::-1], np.maximum.accumulate(b_hi[:, ::-1], 1)[:, ::-1]
-    )[:, 1:]
+    left_a = _box_area(_running(np.minimum, box_lo), _running(np.maximum, box_hi))[:, :-1]
+    right_a = _box_area(_running(np.minimum, box_lo, True), _running(np.maximum, box_hi, True))[:, 1:]
     with np.errstate(invalid="ignore"):
         cost = np.where((left_n > 0) & (right_n > 0), left_a * left_n + right_a * right_n, np.inf)
     best = np.argmin(cost, axis=1)
-    return np.where(np.isfinite(cost[np.arange(n_seg), best]), left_n[np.arange(n_seg), best], 0)
+    rows = np.arange(n_seg)
+    return np.where(np.isfinite(cost[rows, best]), left_n[rows, best], 0)
 
 
 def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, leaf_size: int, bar=None):
     """Top-down binned-SAH splits along the longest centroid axis, all nodes of a level at once.
 
-    Falls back to the median where SAH finds no split and below ``_SAH_MAX_LEVEL`` levels,
-    which bounds the depth by ``_SAH_MAX_LEVEL + log2(P)``. Returns the primitive order, per
-    node ``start``, ``count``, ``left``, ``right`` (-1 for leaves) and the node ids per level.
+    The primitives' data stay in tree order, one array sorted once per level (by node, then by
+    centroid along the node's axis; finished leaves keep their place): every node is a
+    contiguous range, marked by ``is_start``. The bins that choose a split also give the
+    children's centroid bounds (a superset: the bins on each side of the split). Falls back to
+    the median where SAH finds no split and below ``_SAH_MAX_LEVEL`` levels, which bounds the
+    depth by ``_SAH_MAX_LEVEL + log2(P)``. Returns the primitive order, the primitive bounds in
+    that order, per node ``start``, ``count``, ``left``, ``right`` (-1 for leaves) and the node
+    ids per level.
     """
-    n = len(centroids)
+    n, d = centroids.shape
+    # float32 working copy [lo | centroid | hi] (bounds rounded outwards), component-major:
+    # half the memory traffic of float64, and contiguous rows gather and reduce fastest
+    data = np.empty((3 * d, n), dtype=np.float32)
+    data[:d] = np.nextafter(p_lo.T.astype(np.float32), np.float32(-np.inf))
+    data[d : 2 * d] = centroids.T
+    data[2 * d :] = np.nextafter(p_hi.T.astype(np.float32), np.float32(np.inf))
     order = np.arange(n)
-    cent, box_lo, box_hi = centroids.copy(), p_lo.copy(), p_hi.copy()
     cap = 2 * n + 1  # a binary tree with non-empty leaves has fewer than 2n nodes
     start = np.zeros(cap, dtype=np.int64)
     count = np.zeros(cap, dtype=np.int64)
     left = np.full(cap, -1, dtype=np.int64)
     right = np.full(cap, -1, dtype=np.int64)
+    c_lo = np.zeros((cap, d), dtype=np.float32)  # centroid bounds of nodes still to split
+    c_hi = np.zeros((cap, d), dtype=np.float32)
+    c_known = np.zeros(cap, dtype=bool)
     count[0] = n
+    is_start = np.zeros(n, dtype=bool)  # first primitive of a current node (leaf or not)
+    is_start[0] = True
+    node_at = np.zeros(n, dtype=np.int64)  # node id by its first primitive
     levels = [np.array([0])]
     n_nodes = 1
+    index = np.arange(n)
     while True:
         ids = levels[-1]
-        ids = ids[count[ids] > leaf_size]
-        if ids.size == 0:
+        if not (count[ids] > leaf_size).any():
             break
-        s_start, s_count = start[ids], count[ids]
-        seg = np.repeat(np.arange(ids.size), s_count)
-        first = np.cumsum(s_count) - s_count
-        pos = np.repeat(s_start, s_count) + (np.arange(seg.size) - first[seg])
-        prims = order[pos]
-        c = cent[pos]  # kept in tree order: contiguous reads instead of random gathers
-        c_lo = np.minimum.reduceat(c, first, axis=0)
-        c_hi = np.maximum.reduceat(c, first, axis=0)
-        axis = np.argmax(c_hi - c_lo, axis=1)
-        ext = (c_hi - c_lo)[np.arange(ids.size), axis]
-        ext = np.where(ext > 0, ext, 1.0)
-        frac = np.clip((c[np.arange(seg.size), axis[seg]] - c_lo[seg, axis[seg]]) / ext[seg], 0.0, 1.0)
-        # one float64 key sorts by segment, then by centroid (2^22 segments leave 30 bits)
-        sort = np.argsort(seg + 0.5 * frac)
-        prims, frac = prims[sort], frac[sort]
-        order[pos] = prims
-        cent[pos] = c[sort]
-        box_lo[pos], box_hi[pos] = box_lo[pos][sort], box_hi[pos][sort]
+        seg_start = np.flatnonzero(is_start)
+        seg_node = node_at[seg_start]
+        seg_count = count[seg_node]
+        active = seg_count > leaf_size
+        ids = seg_node[active]
+        s_start, s_count = seg_start[active], seg_count[active]
+        unknown = ~c_known[ids]
+        if unknown.any():  # the root and children of median splits: reduce their ranges
+            edges = np.stack([s_start[unknown], s_start[unknown] + s_count[unknown]], 1).ravel()
+            cent = np.concatenate([data[d : 2 * d], data[d : 2 * d, -1:]], axis=1)  # edges may be n
+            c_lo[ids[unknown]] = np.minimum.reduceat(cent, edges, axis=1).T[::2]
+            c_hi[ids[unknown]] = np.maximum.reduceat(cent, edges, axis=1).T[::2]
+        node_lo, node_hi = c_lo[seg_node], c_hi[seg_node]
+        axis = np.argmax(node_hi - node_lo, axis=1)
+        rows = np.arange(seg_start.size)
+        ext = (node_hi - node_lo)[rows, axis]
+        # finished leaves and flat nodes sort by position: they keep their order
+        ext = np.where(active & (ext > 0), ext, np.inf)
+        rank = np.cumsum(is_start) - 1  # segment of every primitive
+        value = np.take(data.ravel(), (d + axis[rank]) * n + index)
+        frac = np.clip((value - node_lo[rows, axis][rank]) / ext[rank], 0.0, 1.0)
+        frac = np.where(active[rank], frac, (index - seg_start[rank]) / (seg_count[rank] + 1.0))
+        sort = np.argsort(rank + 0.75 * frac)  # keys stay below rank + 1
+        data = np.take(data, sort, axis=1)
+        order = np.take(order, sort)
+        frac = np.take(frac, sort)
         half = s_count // 2
         big = s_count > _SAH_MIN_COUNT
-        if len(levels) <= _SAH_MAX_LEVEL and big.any():
-            inside = big[seg]
-            bins = np.minimum((frac[inside] * _SAH_BINS).astype(np.int64), _SAH_BINS - 1)
-            renum = np.cumsum(big) - 1
-            sah = _sah_split_counts(
-                bins, renum[seg[inside]], int(big.sum()),
-                box_lo[pos[inside]], box_hi[pos[inside]], s_count[big],
-            )
+        sah_level = len(levels) <= _SAH_MAX_LEVEL and big.any()
+        if sah_level:
+            bins = np.minimum((frac * _SAH_BINS).astype(np.int64), _SAH_BINS - 1)
+            seg_rows = np.full(seg_start.size, -1, dtype=np.int64)
+            big_ranks = np.flatnonzero(active)[big]
+            seg_rows[big_ranks] = np.arange(big_ranks.size)
+            counts, b_min, b_max = _sah_bins(bins, rank, seg_rows, big_ranks.size, data, d)
+            sah = _sah_split_counts(counts, b_min[..., :d], b_max[..., d:], s_count[big])
             half[big] = np.where(sah > 0, sah, half[big])
         # left sides of whole leaves: leaf blocks of the kernels run with all 4 lanes full
         half = np.clip(leaf_size * np.round(half / leaf_size).astype(np.int64), leaf_size, s_count - 1)
@@ -358,18 +441,32 @@ def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, lea
         left[ids], right[ids] = ids_l, ids_r
         start[ids_l], count[ids_l] = s_start, half
         start[ids_r], count[ids_r] = s_start + half, s_count - half
+        is_start[s_start + half] = True
+        node_at[s_start], node_at[s_start + half] = ids_l, ids_r
+        if sah_level:
+            # children's centroid bounds: the bins from the first to the one holding the last
+            # left primitive, and from the one holding the first right primitive on
+            split = (s_start + half)[big]
+            r = np.arange(big.sum())
+            bl, br = bins[split - 1], bins[split]
+            cent_min, cent_max = b_min[..., d:], b_max[..., :d]
+            c_lo[ids_l[big]] = _running(np.minimum, cent_min)[r, bl]
+            c_hi[ids_l[big]] = _running(np.maximum, cent_max)[r, bl]
+            c_lo[ids_r[big]] = _running(np.minimum, cent_min, True)[r, br]
+            c_hi[ids_r[big]] = _running(np.maximum, cent_max, True)[r, br]
+            c_known[ids_l[big]] = c_known[ids_r[big]] = True
         levels.append(np.stack([ids_l, ids_r], 1).ravel())
         if bar is not None:
             bar.update(1)
     sl = slice(0, n_nodes)
-    return order, start[sl], count[sl], left[sl], right[sl], levels
+    return order, data[:d].T, data[2 * d :].T, start[sl], count[sl], left[sl], right[sl], levels
 
 
 def _node_bounds(prim_lo, prim_hi, start, count, left, right, levels):
     """Bounds of every node: leaves reduce their ranges, parents merge children bottom-up."""
     n_nodes, d = len(start), prim_lo.shape[1]
-    lo = np.empty((n_nodes, d))
-    hi = np.empty((n_nodes, d))
+    lo = np.empty((n_nodes, d), dtype=prim_lo.dtype)
+    hi = np.empty((n_nodes, d), dtype=prim_hi.dtype)
     leaves = np.flatnonzero(left < 0)
     leaves = leaves[np.argsort(start[leaves])]  # leaves partition the primitive range in order
     lo[leaves] = np.minimum.reduceat(prim_lo, start[leaves], axis=0)
@@ -432,15 +529,15 @@ def build(vertices: Any, simplices: Any, *, leaf_size: int = 4, progress: bool |
             f"got range [{simplices.min()}, {simplices.max()}]"
         )
     leaf_size = check_positive_int(leaf_size, "leaf_size")
-    idx, corners, inverse = _prepare(vertices, simplices.astype(np.int64))
+    idx, pts, inverse = _prepare(vertices, simplices.astype(np.int64))
     if idx.size == 0:
         raise ValueError(f"all {len(simplices)} simplices are degenerate (zero measure)")
-    scene_lo, scene_hi = corners.min((0, 1)), corners.max((0, 1))
-    diagonal = float(np.linalg.norm(scene_hi - scene_lo))
-    p_lo, p_hi = corners.min(1), corners.max(1)
+    p_lo, p_hi = np.minimum.reduce(pts), np.maximum.reduce(pts)  # (d, S)
+    diagonal = float(np.linalg.norm(p_hi.max(1) - p_lo.min(1)))
     # an accepted hit lies within BARY_EPS (barycentric) of the simplex: grow boxes to match
-    margin = 2 * BARY_EPS * (p_hi - p_lo).max(1, keepdims=True) + _BOX_MARGIN * max(diagonal, 1e-30)
-    p_lo, p_hi = p_lo - margin, p_hi + margin
+    margin = 2 * BARY_EPS * (p_hi - p_lo).max(0) + _BOX_MARGIN * max(diagonal, 1e-30)
+    p_lo, p_hi = (p_lo - margin).T, (p_hi + margin).T
+    centroids = (np.add.reduce(pts) / d).T
     from tqdm.auto import tqdm
 
     disable = idx.size < (1 << 19) if progress is None else not progress
@@ -448,18 +545,18 @@ def build(vertices: Any, simplices: Any, *, leaf_size: int = 4, progress: bool |
     levels_estimate = math.ceil(1.4 * math.log2(max(idx.size / leaf_size, 1))) + 2
     bar = tqdm(total=levels_estimate, desc="BVH levels", disable=disable, leave=False)
     with bar:
-        order, start, count, left, right, levels = _split_levels(corners.mean(1), p_lo, p_hi, leaf_size, bar)
-    lo, hi = _node_bounds(p_lo[order], p_hi[order], start, count, left, right, levels)
+        order, s_lo, s_hi, start, count, left, right, levels = _split_levels(
+            centroids, p_lo, p_hi, leaf_size, bar
+        )
+    lo, hi = _node_bounds(s_lo, s_hi, start, count, left, right, levels)
     meta = np.where((left >= 0)[:, None], np.stack([left, right], 1), np.stack([-(start + 1), count], 1))
-    lo32 = np.nextafter(lo.astype(np.float32), np.float32(-np.inf))
-    hi32 = np.nextafter(hi.astype(np.float32), np.float32(np.inf))
     return BVH(
         dim=d,
-        lo=_pad4(lo32),
-        hi=_pad4(hi32),
+        lo=_pad4(lo),  # float32, rounded outwards per simplex in _split_levels
+        hi=_pad4(hi),
         meta=meta.astype(np.int32),
-        inverse=inverse[order],
-        origin=corners[order, 0, :],
+        inverse=np.take(inverse, order, axis=0),
+        origin=np.take(pts[0], order, axis=1).T.copy(),
         prim=idx[order].astype(np.int64),
         n_skipped=len(simplices) - idx.size,
         depth=len(levels),
