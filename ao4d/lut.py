@@ -34,18 +34,17 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import io
 import itertools
 import json
 import os
 import time
-import zipfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ._npz import npz_bytes
 from ._validate import check_choice
 
 __all__ = [
@@ -632,9 +631,6 @@ _MEMORY_DTYPES = {
     "cells": np.int64,
     "cell_parity": np.int8,
 }
-_ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # fixed: np.savez would stamp the current time
-
-
 def table_filename(dim: int, kind: str) -> str:
     """File name of a table in ``lut/``, e.g. ``"cube_4d.npz"``."""
     return f"{kind}_{dim}d.npz"
@@ -642,18 +638,12 @@ def table_filename(dim: int, kind: str) -> str:
 
 def _table_bytes(table: Table) -> bytes:
     """The table as an uncompressed .npz with fixed timestamps: byte-deterministic."""
-    buffer = io.BytesIO()
-    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_STORED) as archive:
-        for name, arr in table.arrays().items():
-            disk = np.ascontiguousarray(arr, dtype=_DISK_DTYPES[name])
-            if not np.array_equal(disk, arr):
-                raise OverflowError(f"table array {name!r} does not fit {_DISK_DTYPES[name]}")
-            npy = io.BytesIO()
-            np.lib.format.write_array(npy, disk, allow_pickle=False)
-            info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_TIME)
-            info.external_attr = 0o644 << 16
-            archive.writestr(info, npy.getvalue())
-    return buffer.getvalue()
+    disk = {}
+    for name, arr in table.arrays().items():
+        disk[name] = np.ascontiguousarray(arr, dtype=_DISK_DTYPES[name])
+        if not np.array_equal(disk[name], arr):
+            raise OverflowError(f"table array {name!r} does not fit {_DISK_DTYPES[name]}")
+    return npz_bytes(disk, compress=False)
 
 
 def read(path: str | os.PathLike) -> Table:
@@ -685,16 +675,8 @@ def save(table: Table, folder: str | os.PathLike) -> Path:
 
     path = Path(folder) / table_filename(table.dim, table.kind)
     with atomic_open(path, "wb") as fh:
-        _readable(fh)
         fh.write(_table_bytes(table))
     return path
-
-
-def _readable(fh) -> None:
-    """Give a file written through a private temporary the usual permissions (0666 & ~umask)."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.fchmod(fh.fileno(), 0o666 & ~umask)
 
 
 def write_tables(
@@ -736,7 +718,6 @@ def write_tables(
             }
     manifest = {**GENERATOR, "files": dict(sorted(files.items()))}
     with atomic_open(manifest_path, "w", encoding="utf-8") as fh:
-        _readable(fh)
         json.dump(manifest, fh, indent=2, sort_keys=False)
         fh.write("\n")
     return seconds

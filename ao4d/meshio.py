@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from ._atomic import atomic_open, atomic_path
+from ._npz import write_npz
 from .mesh import SimplexMesh
 
 __all__ = ["save_npz", "load_npz", "save_vtu", "load_vtu", "to_pyvista", "save_text", "load_text", "load"]
@@ -58,7 +59,7 @@ def _existing(path: str | os.PathLike) -> Path:
 
 # ------------------------------------------------------------------------------------ npz
 def save_npz(mesh: SimplexMesh, path: str | os.PathLike) -> None:
-    """Write a mesh with all its data to a compressed ``.npz`` file, atomically.
+    """Write a mesh with all its data to a compressed ``.npz`` file, atomically and reproducibly.
 
     Parameters
     ----------
@@ -74,13 +75,12 @@ def save_npz(mesh: SimplexMesh, path: str | os.PathLike) -> None:
         "simplices": mesh.simplices,
     }
     for kind in ("point_data", "cell_data"):
-        for name, value in getattr(mesh, kind).items():
+        for name, value in sorted(getattr(mesh, kind).items()):
             arr = np.asarray(value)
             if arr.dtype == object:
                 raise TypeError(f"`mesh.{kind}[{name!r}]` has dtype object, which .npz cannot store safely")
             arrays[f"{kind}/{name}"] = arr
-    with atomic_open(path, "wb") as fh:
-        np.savez_compressed(fh, **arrays)
+    write_npz(path, arrays)  # fixed zip dates: the same mesh always gives the same bytes
 
 
 def load_npz(path: str | os.PathLike) -> SimplexMesh:

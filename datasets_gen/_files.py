@@ -1,18 +1,15 @@
 """Byte-reproducible file output: npz archives without timestamps, canonical JSON, hashes.
 
-``np.savez`` stamps each zip member with the current time, so two identical runs would differ;
-here every member gets the fixed date 1980-01-01 and the same compression, so equal arrays give
-equal bytes (for the same numpy and zlib). All writes are atomic (``ao4d._atomic``).
+The npz writer is ``ao4d._npz.write_npz`` (fixed zip dates, so equal arrays give equal bytes);
+all writes are atomic (``ao4d._atomic``).
 """
 
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import math
 import os
-import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -20,54 +17,17 @@ from typing import Any
 import numpy as np
 
 from ao4d._atomic import atomic_open
+from ao4d._npz import write_npz
 
 __all__ = ["write_npz", "write_json", "sha256_file", "to_jsonable", "save_mesh_npz"]
 
-_EPOCH = (1980, 1, 1, 0, 0, 0)  # the earliest date a zip header can hold
-
-
-def write_npz(path: str | os.PathLike, arrays: Mapping[str, Any], *, compress: bool = True) -> Path:
-    """Write ``arrays`` to an ``.npz`` file (readable by ``np.load``) with fixed metadata.
-
-    Parameters
-    ----------
-    path : path-like
-        Destination; written atomically.
-    arrays : mapping of str to array_like
-        Member names (without ``.npy``) and arrays; object arrays are refused.
-    compress : bool
-        Deflate the members (level 6).
-
-    Returns
-    -------
-    Path
-    """
-    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
-    with atomic_open(path, "wb") as fh, zipfile.ZipFile(fh, "w", compression=method,
-                                                       compresslevel=6 if compress else None) as zf:
-        for name, value in arrays.items():
-            arr = np.asarray(value)
-            if arr.dtype == object:
-                raise TypeError(f"`arrays[{name!r}]` has dtype object, which .npz cannot store safely")
-            buffer = io.BytesIO()
-            np.lib.format.write_array(buffer, np.asarray(arr, order="C"), allow_pickle=False)
-            info = zipfile.ZipInfo(f"{name}.npy", date_time=_EPOCH)
-            info.compress_type = method
-            info.external_attr = 0o644 << 16
-            zf.writestr(info, buffer.getvalue())
-    return Path(path)
-
 
 def save_mesh_npz(path: str | os.PathLike, mesh: Any) -> Path:
-    """Write a SimplexMesh in ``ao4d.meshio``'s npz layout (``SimplexMesh.load`` reads it)."""
-    from ao4d.meshio import NPZ_FORMAT
+    """Write a SimplexMesh with ``ao4d.meshio.save_npz`` (byte-reproducible); return the path."""
+    from ao4d.meshio import save_npz
 
-    arrays: dict[str, Any] = {"format": np.array(NPZ_FORMAT), "vertices": mesh.vertices,
-                              "simplices": mesh.simplices}
-    for kind in ("point_data", "cell_data"):
-        for name, value in sorted(getattr(mesh, kind).items()):
-            arrays[f"{kind}/{name}"] = value
-    return write_npz(path, arrays)
+    save_npz(mesh, path)
+    return Path(path)
 
 
 def to_jsonable(value: Any) -> Any:
