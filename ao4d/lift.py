@@ -29,8 +29,11 @@ ACM Trans. Graph. 39(4), 2020. https://doi.org/10.1145/3386569.3392385
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import tempfile
+import threading
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -239,17 +242,34 @@ def tetrahedralize(
     threads = check_positive_int(threads, "threads")
     import pytetwild
 
-    points, tets = pytetwild.tetrahedralize(
-        np.asarray(surface.vertices, dtype=np.float64),
-        np.asarray(surface.faces, dtype=np.int32),
-        edge_length_fac=float(edge_length),
-        optimize=bool(optimize),
-        num_threads=threads,
-        quiet=True,
-    )
+    with _scratch_cwd():
+        points, tets = pytetwild.tetrahedralize(
+            np.asarray(surface.vertices, dtype=np.float64),
+            np.asarray(surface.faces, dtype=np.int32),
+            edge_length_fac=float(edge_length),
+            optimize=bool(optimize),
+            num_threads=threads,
+            quiet=True,
+        )
     if len(tets) == 0:
         raise ValueError("`surface`: fTetWild produced no tetrahedra (is the solid too thin?)")
     return TetSolid.from_arrays(points, tets)
+
+
+_CWD_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _scratch_cwd():
+    """Run in a temporary working directory: fTetWild writes ``__tracked_surface.stl`` into the
+    current one, which would litter the user's folder (the cwd is process-wide, hence the lock)."""
+    with _CWD_LOCK, tempfile.TemporaryDirectory(prefix="ao4d-tetwild-") as scratch:
+        previous = os.getcwd()
+        os.chdir(scratch)
+        try:
+            yield
+        finally:
+            os.chdir(previous)
 
 
 def prism(solid: MeshLike, height: float = 1.0, *, base: float = 0.0) -> SimplexMesh:

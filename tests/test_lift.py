@@ -312,3 +312,10 @@ def test_load_surface_refuses_open_or_missing_files(tmp_path):
     (tmp_path / "junk.stl").write_bytes(b"not a mesh at all")
     with pytest.raises(ValueError, match="junk.stl"):
         lift.load_surface(tmp_path / "junk.stl")
+
+
+def test_tetwild_leaves_the_working_directory_clean(tmp_path, monkeypatch):
+    # fTetWild writes __tracked_surface.stl into the cwd; ao4d must not litter the user's folder
+    monkeypatch.chdir(tmp_path)
+    lift.tetrahedralize(trimesh.creation.box(extents=(1, 1, 1)), method="tetwild", edge_length=0.5)
+    assert list(tmp_path.iterdir()) == []
