@@ -87,10 +87,12 @@ def check_positive_int(value: Any, name: str, *, minimum: int = 1) -> int:
     return int(value)
 
 
-def check_memory(nbytes: float, what: str, *, limit: float = DEFAULT_MEMORY_LIMIT) -> None:
-    """Refuse work needing more than ``limit`` bytes, saying how much it would need."""
+def check_memory(
+    nbytes: float, what: str, *, limit: float = DEFAULT_MEMORY_LIMIT, hint: str = "use a smaller size"
+) -> None:
+    """Refuse work needing more than ``limit`` bytes, saying how much it would need and what to do."""
     if nbytes > limit:
         raise MemoryError(
             f"{what} would need about {nbytes / 2**30:.1f} GiB, above the limit of "
-            f"{limit / 2**30:.1f} GiB; use a smaller size or the chunked/field path"
+            f"{limit / 2**30:.1f} GiB; {hint}"
         )

@@ -347,7 +347,11 @@ def _check_slab_memory(geom: _Geometry, layers: int, method: str, itemsize: int)
     # values + float64 copy, sign and case arrays, mark (bool) and key map (int32) per key,
     # plus the shared-layer map (int64)
     per_point = itemsize + 8 + 1 + 2 + 5 * n_dirs
-    check_memory(points * per_point + geom.layer * n_dirs * 8, f"extracting a grid of shape {geom.shape}")
+    check_memory(
+        points * per_point + geom.layer * n_dirs * 8,
+        f"extracting a grid of shape {geom.shape}",
+        hint="use thinner slabs (`chunk=`) or a coarser grid",
+    )
 
 
 def _progress_bar(progress: bool | None, n_cells: int, n_layers: int) -> Any:
