@@ -19,15 +19,63 @@ inline void load_ray(const float4 o4, const float4 w4, float *o, float *w, float
     for (int j = 0; j < DIM; ++j) {
         o[j] = a[j];
         w[j] = b[j];
-        inv_w[j] = 1.0f / b[j];
+        // a zero component gives a huge finite inverse, not inf: the box test then never meets
+        // 0 * inf = NaN and can use plain min / max (see hit_boxes)
+        inv_w[j] = 1.0f / (fabs(b[j]) > 1e-30f ? b[j] : copysign(1e-30f, b[j]));
     }
 }
 
-// closest (any_hit = 0) or any (any_hit = 1) hit with 0 < t <= t_max: 4 * block + lane or -1
-inline int trace_bvh(__global const floatW *boxes, __global const int *children,
+// any hit with 0 < t <= t_max (occlusion rays): the children of a node are pushed in slot
+// order, not nearest first; a ray that hits nothing must visit every box it meets anyway, and
+// AO rays mostly escape. No distances on the stack: t_max never shrinks before the return.
+inline int trace_any(__global const floatW *boxes, __global const int *children,
                      __global const float4 *blocks, const float4 o4, const float4 w4,
-                     float t_max, const int any_hit, float *t_out)
+                     const float t_max, float *t_out)
 {
+    float o[DIM], w[DIM], inv_w[DIM];
+    load_ray(o4, w4, o, w, inv_w);
+    int stack[STACK_SIZE];
+    int sp = 0;
+    int node = 0;
+    for (;;) {
+        floatW tnw;
+        const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, o, inv_w, t_max, &tnw);
+        if (any(hitw)) {
+            int hits[WIDTH];
+            vstoreW(hitw, 0, hits);
+            __global const int *child = children + (size_t)node * WIDTH;
+            for (int s = 0; s < WIDTH; ++s) {
+                const int c = child[s];
+                if (!hits[s] || c == 0) continue;
+                if (c > 0) {
+                    stack[sp++] = c;
+                    continue;
+                }
+                const int first = (-c - 1) >> 2;
+                const int end = first + ((-c - 1) & 3) + 1;
+                for (int b = first; b < end; ++b) {
+                    float t;
+                    const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, o, w, t_max, &t);
+                    if (lane >= 0) {
+                        *t_out = t;
+                        return 4 * b + lane;
+                    }
+                }
+            }
+        }
+        if (sp == 0) break;
+        node = stack[--sp];
+    }
+    *t_out = t_max;
+    return -1;
+}
+
+// closest (any_hit = 0) or any (any_hit = 1) hit with 0 < t <= t_max: 4 * block + lane or -1
+inline int trace_closest(__global const floatW *boxes, __global const int *children,
+                     __global const float4 *blocks, const float4 o4, const float4 w4,
+                     float t_max, float *t_out)
+{
+    const int any_hit = 0;
     float o[DIM], w[DIM], inv_w[DIM];
     load_ray(o4, w4, o, w, inv_w);
     int stack[STACK_SIZE];
@@ -91,6 +139,15 @@ inline int trace_bvh(__global const floatW *boxes, __global const int *children,
     }
     *t_out = t_max;
     return best;
+}
+
+// closest (any_hit = 0) or any (any_hit = 1) hit with 0 < t <= t_max: 4 * block + lane or -1
+inline int trace_bvh(__global const floatW *boxes, __global const int *children,
+                     __global const float4 *blocks, const float4 o4, const float4 w4,
+                     float t_max, const int any_hit, float *t_out)
+{
+    if (any_hit) return trace_any(boxes, children, blocks, o4, w4, t_max, t_out);
+    return trace_closest(boxes, children, blocks, o4, w4, t_max, t_out);
 }
 
 // the same answer by testing every leaf block (for tests and the speed-up benchmark)

@@ -76,7 +76,9 @@ inline int hit_block(__global const float4 *blk, const float *o, const float *w,
 
 // slab test of the WIDTH child boxes of a wide node against the ray segment (0, t_max]:
 // boxes[j] / boxes[DIM + j] hold the low / high bound of coordinate j of the children.
-// fmin/fmax drop the NaN of 0 * inf (a ray in a slab plane, parallel to it): conservative.
+// inv_w is finite (load_ray), so no 0 * inf = NaN arises and plain min / max are exact (one
+// instruction each on CPUs, where fmin / fmax need extra NaN handling: a third slower
+// traversal, measured).
 inline intW hit_boxes(__global const floatW *boxes, const float *o, const float *inv_w,
                       const float t_max, floatW *t_near)
 {
@@ -84,8 +86,8 @@ inline intW hit_boxes(__global const floatW *boxes, const float *o, const float 
     for (int j = 0; j < DIM; ++j) {
         const floatW t0 = (boxes[j] - o[j]) * inv_w[j];
         const floatW t1 = (boxes[DIM + j] - o[j]) * inv_w[j];
-        tn = fmax(tn, fmin(t0, t1));
-        tf = fmin(tf, fmax(t0, t1));
+        tn = max(tn, min(t0, t1));
+        tf = min(tf, max(t0, t1));
     }
     *t_near = tn;
     return islessequal(tn, tf);
