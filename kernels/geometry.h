@@ -19,25 +19,26 @@
 inline int hit_block(__global const float4 *blk, const float *o, const float *w,
                      const float t_max, float *t_hit)
 {
-    // no fused multiply-adds chosen per call site: the BVH and brute-force kernels must round
-    // alike (box tests may contract: their boxes carry a margin)
+    // explicit fma() only, never contraction chosen per call site: the BVH and brute-force
+    // kernels must round alike (fma is exact in every implementation; box tests may contract:
+    // their boxes carry a margin)
 #pragma OPENCL FP_CONTRACT OFF
     float4 rel[DIM];
     float4 q = (float4)(0.0f), r = (float4)(0.0f);
     for (int j = 0; j < DIM; ++j) {
         rel[j] = (float4)(o[j]) - blk[DIM * DIM + j];
-        q += blk[(DIM - 1) * DIM + j] * rel[j];
-        r += blk[(DIM - 1) * DIM + j] * w[j];
+        q = fma(blk[(DIM - 1) * DIM + j], rel[j], q);
+        r = fma(blk[(DIM - 1) * DIM + j], (float4)(w[j]), r);
     }
     const float4 t = -q / r;
     int4 ok = isgreater(t, (float4)(0.0f)) & islessequal(t, (float4)(t_max)) & isfinite(t);
     if (!any(ok)) return -1;
     float4 x[DIM];
-    for (int j = 0; j < DIM; ++j) x[j] = rel[j] + t * w[j];
+    for (int j = 0; j < DIM; ++j) x[j] = fma(t, (float4)(w[j]), rel[j]);
     float4 sum = (float4)(0.0f);
     for (int i = 0; i < DIM - 1; ++i) {
         float4 b = (float4)(0.0f);
-        for (int j = 0; j < DIM; ++j) b += blk[i * DIM + j] * x[j];
+        for (int j = 0; j < DIM; ++j) b = fma(blk[i * DIM + j], x[j], b);
         ok &= isgreaterequal(b, (float4)(-BARY_EPS));
         sum += b;
     }
