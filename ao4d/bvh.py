@@ -385,6 +385,7 @@ def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, lea
     data[:d] = np.nextafter(p_lo.T.astype(np.float32), np.float32(-np.inf))
     data[d : 2 * d] = centroids.T
     data[2 * d :] = np.nextafter(p_hi.T.astype(np.float32), np.float32(np.inf))
+    spare = np.empty_like(data)
     order = np.arange(n)
     cap = 2 * n + 1  # a binary tree with non-empty leaves has fewer than 2n nodes
     start = np.zeros(cap, dtype=np.int64)
@@ -431,7 +432,7 @@ def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, lea
         done = np.repeat(~active, seg_count)
         frac[done] = ((index - np.repeat(seg_start, seg_count)) / np.repeat(seg_count + 1.0, seg_count))[done]
         sort = np.argsort(rank + 0.75 * frac)  # keys stay below rank + 1
-        data = np.take(data, sort, axis=1)
+        data, spare = np.take(data, sort, axis=1, out=spare), data  # reused: no page faults
         order = np.take(order, sort)
         frac = np.take(frac, sort)
         half = s_count // 2
