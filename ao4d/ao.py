@@ -296,10 +296,11 @@ def _directions_opencl(runtime, normals: np.ndarray, samples: int, seed: int) ->
 
 
 def _box_hits(lo, hi, o, inv_w, t_max):
-    """Slab test in float64 mirroring ``hit_boxes`` in kernels/geometry.h."""
+    """Slab test in float64 like ``hit_boxes`` in kernels/geometry.h (which keeps the inverse
+    direction finite instead; both are conservative for rays parallel to a slab)."""
     with np.errstate(invalid="ignore"):
         t0, t1 = (lo - o) * inv_w, (hi - o) * inv_w
-    # fmin/fmax skip the NaN of 0 * inf, as OpenCL's do
+    # fmin/fmax skip the NaN of 0 * inf: the slab of a parallel ray counts as hit
     t_near = np.fmax(np.fmax.reduce(np.fmin(t0, t1), axis=1), 0.0)
     t_far = np.fmin(np.fmin.reduce(np.fmax(t0, t1), axis=1), t_max)
     return t_near <= t_far
