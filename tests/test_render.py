@@ -281,9 +281,9 @@ def test_silhouette_normals_are_not_flipped(sphere):
 
 
 @settings(max_examples=15, deadline=None)
-@given(corners=st.lists(st.lists(st.floats(-0.9, 0.9), min_size=3, max_size=3), min_size=4,
-                        max_size=4).map(np.array),
-       w=st.floats(-0.5, 0.5))
+@given(corners=st.lists(st.lists(st.floats(-0.9, 0.9, allow_subnormal=False), min_size=3,
+                                 max_size=3), min_size=4, max_size=4).map(np.array),
+       w=st.floats(-0.5, 0.5, allow_subnormal=False))
 def test_random_flat_tetrahedron_is_seen_where_it_is(corners, w):
     # any tetrahedron in a hyperplane w = const, seen along +w orthographically, covers exactly
     # the voxels whose centres lie inside it (up to voxels on its boundary), at depth eye - w
