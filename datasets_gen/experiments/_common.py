@@ -13,7 +13,7 @@ from typing import Any
 
 from ao4d._atomic import atomic_open, atomic_path
 
-__all__ = ["parse_args", "write_csv", "figure", "save_figure", "best_time", "machine"]
+__all__ = ["parse_args", "write_csv", "write_results", "figure", "save_figure", "best_time", "machine"]
 
 
 def parse_args(name: str, description: str, argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -36,6 +36,24 @@ def write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
     with atomic_open(path, "w", encoding="utf-8") as fh:
         fh.write(text.getvalue())
     return path
+
+
+def write_results(
+    out: Path,
+    name: str,
+    rows: list[dict[str, Any]],
+    plot: Callable[[list[dict[str, Any]], Path], Any],
+    extra_tables: dict[str, list[dict[str, Any]]] | None = None,
+) -> list[Path]:
+    """Write ``NAME.csv``, any ``NAME_<suffix>.csv`` tables and the plot ``NAME.png`` into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    written = [write_csv(out / f"{name}.csv", rows)]
+    for suffix, table in (extra_tables or {}).items():
+        written.append(write_csv(out / f"{name}_{suffix}.csv", table))
+    plot(rows, out / f"{name}.png")
+    written.append(out / f"{name}.png")
+    print("wrote " + ", ".join(str(path) for path in written))
+    return written
 
 
 def figure(n_panels: int = 1, *, width: float = 5.0, height: float = 3.8):

@@ -25,7 +25,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._common import figure, machine, parse_args, save_figure, write_csv
+from ._common import figure, machine, parse_args, save_figure, write_results
 
 NAME = "ao_convergence"
 HEIGHT, REACH, HALF_WIDTH, THICKNESS = 0.5, 1.0, 1.2, 0.2
@@ -136,11 +136,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         rows = measure((1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 4096), n_points=2048,
                        numpy_max_rays=1 << 19)
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_csv(args.out / f"{NAME}.csv", rows)
-    write_csv(args.out / f"{NAME}_fit.csv", fit_slopes(rows))
-    plot(rows, args.out / f"{NAME}.png")
-    print(f"wrote {args.out / NAME}.csv, {NAME}_fit.csv and {NAME}.png")
+    write_results(args.out, NAME, rows, plot, {"fit": fit_slopes(rows)})
     return 0
 
 

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._common import best_time, figure, machine, parse_args, save_figure, write_csv
+from ._common import best_time, figure, machine, parse_args, save_figure, write_results
 
 NAME = "ao_throughput"
 
@@ -81,10 +81,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         rows = measure((8, 10, 12, 16, 24, 32, 48), n_points=1024, samples=64, brute_max=6 * 10**4,
                        backends=backends, repeats=3)
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_csv(args.out / f"{NAME}.csv", rows)
-    plot(rows, args.out / f"{NAME}.png")
-    print(f"wrote {args.out / NAME}.csv and .png")
+    write_results(args.out, NAME, rows, plot)
     return 0
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 
-from ._common import best_time, figure, machine, parse_args, save_figure, write_csv
+from ._common import best_time, figure, machine, parse_args, save_figure, write_results
 
 NAME = "extract_throughput"
 
@@ -87,11 +87,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows = measure((16, 24), (8, 10), repeats=1)
     else:
         rows = measure((32, 64, 96, 128, 192), (12, 16, 24, 32, 48), repeats=3)
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_csv(args.out / f"{NAME}.csv", rows)
-    write_csv(args.out / f"{NAME}_ratio.csv", ratio_table(rows))
-    plot(rows, args.out / f"{NAME}.png")
-    print(f"wrote {args.out / NAME}.csv, {NAME}_ratio.csv and {NAME}.png")
+    write_results(args.out, NAME, rows, plot, {"ratio": ratio_table(rows)})
     return 0
 
 

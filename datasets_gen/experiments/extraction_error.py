@@ -15,7 +15,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._common import figure, machine, parse_args, save_figure, write_csv
+from ._common import figure, machine, parse_args, save_figure, write_results
 
 NAME = "extraction_error"
 SHAPES = {
@@ -80,10 +80,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(NAME, __doc__.splitlines()[0], argv)
     sizes = (6, 8, 11) if args.quick else (8, 12, 16, 24, 32, 40)
     rows = measure(sizes)
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_csv(args.out / f"{NAME}.csv", rows)
-    plot(rows, args.out / f"{NAME}.png")
-    print(f"wrote {args.out / NAME}.csv and .png")
+    write_results(args.out, NAME, rows, plot)
     return 0
 
 
