@@ -77,8 +77,11 @@ inline float4 cosine_direction(const float4 n, const float4 *frame, __global con
     const float u0 = unit_coordinate(table[2 * s], shift[0]);
     const float u1 = unit_coordinate(table[2 * s + 1], shift[1]);
     const float r = sqrt(u0);
-    const float phi = 6.283185307179586f * u1;
-    const float b0 = r * cos(phi), b1 = r * sin(phi);
+    // sincos: one shared range reduction (separate sin and cos made ray generation a tenth
+    // of the 4D AO time on Intel's CPU runtime)
+    float cos_phi;
+    const float sin_phi = sincos(6.283185307179586f * u1, &cos_phi);
+    const float b0 = r * cos_phi, b1 = r * sin_phi;
     const float up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1)));
     return b0 * frame[0] + b1 * frame[1] + up * n;
 #else
@@ -88,8 +91,9 @@ inline float4 cosine_direction(const float4 n, const float4 *frame, __global con
     const float r = cbrt(u0);
     const float z = 1.0f - 2.0f * u1;
     const float sz = sqrt(fmax(0.0f, 1.0f - z * z));
-    const float phi = 6.283185307179586f * u2;
-    const float b0 = r * sz * cos(phi), b1 = r * sz * sin(phi), b2 = r * z;
+    float cos_phi;
+    const float sin_phi = sincos(6.283185307179586f * u2, &cos_phi);
+    const float b0 = r * sz * cos_phi, b1 = r * sz * sin_phi, b2 = r * z;
     const float up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1 + b2 * b2)));
     return b0 * frame[0] + b1 * frame[1] + b2 * frame[2] + up * n;
 #endif
