@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
 
-__all__ = ["as_array", "check_choice", "check_positive_int", "check_finite", "check_memory"]
+__all__ = ["as_array", "as_finite_float", "check_choice", "check_positive_int", "check_finite", "check_memory"]
 
 # Refuse allocations above this many bytes before starting work (overridable per call).
 DEFAULT_MEMORY_LIMIT = 16 * 2**30
@@ -68,6 +69,17 @@ def check_finite(arr: np.ndarray, name: str) -> None:
     if arr.dtype.kind in "fc" and not np.isfinite(arr).all():
         bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
         raise ValueError(f"`{name}` contains {bad} non-finite value(s) (NaN or inf)")
+
+
+def as_finite_float(value: Any, name: str) -> float:
+    """Return ``value`` as a finite float, else raise naming ``name`` (TypeError / ValueError)."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"`{name}` must be a real number, got {type(value).__name__}") from None
+    if not math.isfinite(number):
+        raise ValueError(f"`{name}` must be finite, got {value!r}")
+    return number
 
 
 def check_choice(value: Any, name: str, choices: Iterable[Any]) -> Any:

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import as_array, check_memory, check_positive_int
+from ._validate import as_array, as_finite_float, check_memory, check_positive_int
 
 __all__ = [
     "Field",
@@ -567,9 +567,7 @@ def ground(height: float = 0.0, axis: int = 1, *, dim: int = 4) -> Field:
     Field
         ``x[axis] - height``; unbounded (intersect with a box to extract it).
     """
-    h = float(height)
-    if not math.isfinite(h):
-        raise ValueError(f"`height` must be finite, got {height!r}")
+    h = as_finite_float(height, "height")
     dim = check_positive_int(dim, "dim")
     if axis not in range(dim):
         raise ValueError(f"`axis` must be in 0..{dim - 1}, got {axis!r}")
@@ -723,9 +721,7 @@ def rotate(field: Callable, plane: tuple[int, int] = (0, 3), angle: float = 0.0)
     top = dim if dim is not None else max(i, j) + 1
     if i == j or not (0 <= i < top and 0 <= j < top):
         raise ValueError(f"`plane` must be two distinct axes in 0..{top - 1}, got {plane!r}")
-    a = float(angle)
-    if not math.isfinite(a):
-        raise ValueError(f"`angle` must be finite, got {angle!r}")
+    a = as_finite_float(angle, "angle")
     c, s = math.cos(a), math.sin(a)
 
     def f(p: np.ndarray) -> np.ndarray:

@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Literal, Union
 
 import numpy as np
 
-from ._validate import as_array, check_choice, check_positive_int
+from ._validate import as_array, as_finite_float, check_choice, check_positive_int
 
 if TYPE_CHECKING:
     import trimesh
@@ -299,7 +299,7 @@ def prism(solid: MeshLike, height: float = 1.0, *, base: float = 0.0) -> Simplex
     """
     tet_solid = _as_solid(solid, "solid")
     height = _check_length(height, "height")
-    base = _check_scalar(base, "base")
+    base = as_finite_float(base, "base")
     pts, tets, tris = tet_solid.points, tet_solid.tets, tet_solid.boundary
     n = len(pts)
     vertices = np.concatenate([_with_w(pts, base), _with_w(pts, base + height)])
@@ -346,7 +346,7 @@ def cone(
     """
     tet_solid = _as_solid(solid, "solid")
     height = _check_length(height, "height")
-    base = _check_scalar(base, "base")
+    base = as_finite_float(base, "base")
     top = tet_solid.centroid if apex is None else as_array(
         apex, "apex", ndim=1, shape_tail=(3,), dtype=np.float64, finite=True)
     pts, tris = tet_solid.points, tet_solid.boundary
@@ -542,19 +542,9 @@ def _with_w(points: np.ndarray, w: float) -> np.ndarray:
 
 
 def _check_length(value: float, name: str) -> float:
-    value = _check_scalar(value, name)
+    value = as_finite_float(value, name)
     if value <= 0:
         raise ValueError(f"`{name}` must be > 0, got {value}")
-    return value
-
-
-def _check_scalar(value: float, name: str) -> float:
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"`{name}` must be a real number, got {type(value).__name__}") from None
-    if not math.isfinite(value):
-        raise ValueError(f"`{name}` must be finite, got {value}")
     return value
 
 

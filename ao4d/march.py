@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import as_array, check_choice, check_finite, check_memory, check_positive_int
+from ._validate import as_array, as_finite_float, check_choice, check_finite, check_memory, check_positive_int
 from .mesh import SimplexMesh
 
 __all__ = ["extract", "extract_field", "METHODS"]
@@ -373,16 +373,6 @@ def _per_axis(value: Any, name: str, d: int, *, positive: bool) -> np.ndarray:
     return np.broadcast_to(arr, (d,)).astype(np.float64)
 
 
-def _check_level(level: Any) -> float:
-    try:
-        lv = float(level)
-    except (TypeError, ValueError):
-        raise TypeError(f"`level` must be a number, got {type(level).__name__}") from None
-    if not math.isfinite(lv):
-        raise ValueError(f"`level` must be finite, got {level!r}")
-    return lv
-
-
 def _run(
     read: Callable[[int, int], np.ndarray],
     geom: _Geometry,
@@ -491,7 +481,7 @@ def extract(
     if arr.dtype.kind not in "fiub":
         raise TypeError(f"`values` must hold real numbers, got dtype {arr.dtype}")
     d = arr.ndim
-    level = _check_level(level)
+    level = as_finite_float(level, "level")
     spacing = _per_axis(spacing, "spacing", d, positive=True)
     origin = _per_axis(origin, "origin", d, positive=False)
     check_choice(method, "method", METHODS)
@@ -571,7 +561,7 @@ def extract_field(
     d = len(axes)
     if d not in (2, 3, 4):
         raise ValueError(f"`shape` must describe a 2D, 3D or 4D grid, got {len(axes)} axes")
-    level = _check_level(level)
+    level = as_finite_float(level, "level")
     check_choice(method, "method", METHODS)
     check_choice(inside, "inside", _INSIDE)
     n = [len(a) for a in axes]

@@ -75,3 +75,4 @@ def test_info_command_names_the_chosen_device():
         [sys.executable, "-m", "ao4d", "info"], check=True, capture_output=True, text=True
     ).stdout
     assert "chosen:" in out
+

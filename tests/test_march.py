@@ -423,7 +423,7 @@ def _nan_memmap(tmp_path):
         ({"values": np.ones((3, 3), dtype=complex)}, TypeError, "`values` must hold real numbers"),
         ({"values": [["a", "b"], ["c", "d"]]}, TypeError, "`values` must hold real numbers"),
         ({"level": np.nan}, ValueError, "`level` must be finite"),
-        ({"level": "zero"}, TypeError, "`level` must be a number"),
+        ({"level": "zero"}, TypeError, "`level` must be a real number"),
         ({"spacing": 0.0}, ValueError, "`spacing` must be > 0"),
         ({"spacing": (1, 1, 1)}, ValueError, "`spacing` must be a scalar or have 4 entries"),
         ({"origin": (0, np.inf, 0, 0)}, ValueError, "`origin` contains"),
