@@ -1018,6 +1018,17 @@ def _check_indices(simplices: np.ndarray, n_vertices: int) -> None:
 # --------------------------------------------------------------------------------------------
 
 
+def _mesh_list(meshes: Iterable) -> list[SimplexMesh]:
+    """``meshes`` as a non-empty list of SimplexMesh, else an error naming the bad entry."""
+    meshes = list(meshes)
+    if not meshes:
+        raise ValueError("`meshes` must contain at least one SimplexMesh")
+    for i, m in enumerate(meshes):
+        if not isinstance(m, SimplexMesh):
+            raise TypeError(f"`meshes[{i}]` must be a SimplexMesh, got {type(m).__name__}")
+    return meshes
+
+
 def concatenate(meshes: Iterable[SimplexMesh]) -> SimplexMesh:
     """Put several meshes of the same dimension into one (no vertex welding).
 
@@ -1040,12 +1051,7 @@ def concatenate(meshes: Iterable[SimplexMesh]) -> SimplexMesh:
     >>> float(both.volume), both.cell_data["object_id"].tolist()
     (1.0, [0, 0, 0, 1, 1, 1])
     """
-    meshes = list(meshes)
-    if not meshes:
-        raise ValueError("`meshes` must contain at least one SimplexMesh")
-    for i, m in enumerate(meshes):
-        if not isinstance(m, SimplexMesh):
-            raise TypeError(f"`meshes[{i}]` must be a SimplexMesh, got {type(m).__name__}")
+    meshes = _mesh_list(meshes)
     dims = {m.dim for m in meshes}
     if len(dims) > 1:
         raise ValueError(f"`meshes` must all have the same dimension, got {sorted(dims)}")

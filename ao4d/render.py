@@ -107,17 +107,12 @@ def prepare_scene(meshes) -> tuple[Any, np.ndarray]:
     scene : SimplexMesh
     object_id : (S,) int32
     """
-    from .mesh import SimplexMesh, concatenate
+    from .mesh import SimplexMesh, _mesh_list, concatenate
 
     if isinstance(meshes, SimplexMesh):
         items = [meshes]
     elif isinstance(meshes, Sequence) and not isinstance(meshes, (str, bytes)):
-        items = list(meshes)
-        if not items:
-            raise ValueError("`meshes` must contain at least one SimplexMesh")
-        for i, m in enumerate(items):
-            if not isinstance(m, SimplexMesh):
-                raise TypeError(f"`meshes[{i}]` must be a SimplexMesh, got {type(m).__name__}")
+        items = _mesh_list(meshes)
     else:
         raise TypeError(
             f"`meshes` must be a SimplexMesh or a list of them, got {type(meshes).__name__}"
