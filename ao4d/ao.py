@@ -207,13 +207,7 @@ def _trace_opencl(tree, runtime, origins, directions, max_distance, any_hit, acc
     buf_t = cl.Buffer(ctx, mf.WRITE_ONLY, t.nbytes)
     buf_h = cl.Buffer(ctx, mf.WRITE_ONLY, hit.nbytes)
     dev = _device_tree(tree, runtime)
-    kernels = _kernels(runtime, tree.dim)
-    if accel == "bvh":
-        kernel = kernels["cast_bvh"]
-        head = [dev["boxes"], dev["children"], dev["blocks"]]
-    else:
-        kernel = kernels["cast_brute"]
-        head = [dev["blocks"], dev["n_blocks"]]
+    kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast", accel)
     args = head + [buf_o, buf_w, np.float32(max_distance), np.int32(any_hit), buf_t, buf_h]
     for start in range(0, n, RAYS_PER_LAUNCH):
         count = min(RAYS_PER_LAUNCH, n - start)
@@ -225,6 +219,14 @@ def _trace_opencl(tree, runtime, origins, directions, max_distance, any_hit, acc
     # kernels report 4 * leaf block + lane: map to tree-order simplices
     prim = np.where(hit >= 0, dev["slot_prim"][np.maximum(hit, 0)], -1)
     return t, prim
+
+
+def _traversal_kernel(runtime, dim: int, dev: dict, name: str, accel: str):
+    """The ``{name}_bvh`` or ``{name}_brute`` kernel and its leading scene arguments."""
+    kernels = _kernels(runtime, dim)
+    if accel == "bvh":
+        return kernels[f"{name}_bvh"], [dev["boxes"], dev["children"], dev["blocks"]]
+    return kernels[f"{name}_brute"], [dev["blocks"], dev["n_blocks"]]
 
 
 def _ao_opencl(tree, runtime, points, normals, samples, seed, max_distance, accel, bar):
@@ -247,13 +249,7 @@ def _ao_opencl(tree, runtime, points, normals, samples, seed, max_distance, acce
     counts = np.empty(n, dtype=np.int32)
     buf_counts = cl.Buffer(ctx, mf.WRITE_ONLY, counts.nbytes)
     dev = _device_tree(tree, runtime)
-    kernels = _kernels(runtime, tree.dim)
-    if accel == "bvh":
-        kernel = kernels["ao_bvh"]
-        head = [dev["boxes"], dev["children"], dev["blocks"]]
-    else:
-        kernel = kernels["ao_brute"]
-        head = [dev["blocks"], dev["n_blocks"]]
+    kernel, head = _traversal_kernel(runtime, tree.dim, dev, "ao", accel)
     offset = ORIGIN_OFFSET * tree.diagonal
     args = head + buffers + [
         np.int32(samples), np.uint32(seed & 0xFFFFFFFF), np.float32(offset),
