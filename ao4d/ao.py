@@ -182,7 +182,7 @@ def _device_tree(tree: _bvh.BVH, runtime) -> dict[str, Any]:
 def _kernels(runtime, dim: int) -> dict[str, Any]:
     from . import cl
 
-    defines = {"DIM": dim, "BARY_EPS": f"{_bvh.BARY_EPS:.9g}f", "WIDTH": _bvh.WIDTH}
+    defines = {"DIM": dim, "BARY_EPS": f"{_bvh.BARY_EPS:.9g}f", "WIDTH": _bvh.WIDTH, "LANES": _bvh.LANES}
     return cl.build_kernels(runtime, "ao.cl", defines)
 
 
@@ -216,7 +216,7 @@ def _trace_opencl(tree, runtime, origins, directions, max_distance, any_hit, acc
     cl.enqueue_copy(queue, t, buf_t)
     cl.enqueue_copy(queue, hit, buf_h)
     queue.finish()
-    # kernels report 4 * leaf block + lane: map to tree-order simplices
+    # kernels report LANES * leaf block + lane: map to tree-order simplices
     prim = np.where(hit >= 0, dev["slot_prim"][np.maximum(hit, 0)], -1)
     return t, prim
 

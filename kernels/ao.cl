@@ -7,7 +7,7 @@
 #include "sampling.h"
 
 inline int trace(const int use_bvh, __global const floatW *boxes, __global const int *children,
-                 __global const float4 *blocks, const int n_blocks, const float4 o,
+                 __global const floatL *blocks, const int n_blocks, const float4 o,
                  const float4 w, const float t_max, const int any_hit, float *t_out)
 {
     if (use_bvh) return trace_bvh(boxes, children, blocks, o, w, t_max, any_hit, t_out);
@@ -16,7 +16,7 @@ inline int trace(const int use_bvh, __global const floatW *boxes, __global const
 
 // occluded-ray count of point i over `samples` cosine-weighted directions
 inline int occlusion_count(const int use_bvh, __global const floatW *boxes,
-                           __global const int *children, __global const float4 *blocks,
+                           __global const int *children, __global const floatL *blocks,
                            const int n_blocks, const float4 p, const float4 n, const uint index,
                            __global const uint *table, const int samples, const uint seed,
                            const float offset, const float max_distance)
@@ -37,7 +37,7 @@ inline int occlusion_count(const int use_bvh, __global const floatW *boxes,
 }
 
 __kernel __attribute__((vec_type_hint(float4))) void ao_bvh(__global const floatW *boxes, __global const int *children,
-                     __global const float4 *blocks, __global const float4 *points, __global const float4 *normals,
+                     __global const floatL *blocks, __global const float4 *points, __global const float4 *normals,
                      __global const uint *index, __global const uint *table, const int samples,
                      const uint seed, const float offset, const float max_distance,
                      __global int *counts)
@@ -47,7 +47,7 @@ __kernel __attribute__((vec_type_hint(float4))) void ao_bvh(__global const float
                                 table, samples, seed, offset, max_distance);
 }
 
-__kernel __attribute__((vec_type_hint(float4))) void ao_brute(__global const float4 *blocks, const int n_blocks,
+__kernel __attribute__((vec_type_hint(float4))) void ao_brute(__global const floatL *blocks, const int n_blocks,
                        __global const float4 *points, __global const float4 *normals,
                        __global const uint *index, __global const uint *table, const int samples,
                        const uint seed, const float offset, const float max_distance,
@@ -61,7 +61,7 @@ __kernel __attribute__((vec_type_hint(float4))) void ao_brute(__global const flo
 // one ray per work-item: closest (any_hit = 0) or any hit within max_distance; hit_out is
 // 4 * leaf block + lane (the host maps it to a simplex) or -1
 __kernel __attribute__((vec_type_hint(float4))) void cast_bvh(__global const floatW *boxes, __global const int *children,
-                       __global const float4 *blocks, __global const float4 *origins, __global const float4 *directions,
+                       __global const floatL *blocks, __global const float4 *origins, __global const float4 *directions,
                        const float max_distance, const int any_hit, __global float *t_out,
                        __global int *hit_out)
 {
@@ -72,7 +72,7 @@ __kernel __attribute__((vec_type_hint(float4))) void cast_bvh(__global const flo
     t_out[i] = t;
 }
 
-__kernel __attribute__((vec_type_hint(float4))) void cast_brute(__global const float4 *blocks, const int n_blocks,
+__kernel __attribute__((vec_type_hint(float4))) void cast_brute(__global const floatL *blocks, const int n_blocks,
                          __global const float4 *origins, __global const float4 *directions,
                          const float max_distance, const int any_hit, __global float *t_out,
                          __global int *hit_out)

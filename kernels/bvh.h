@@ -2,7 +2,7 @@
 // has its children's boxes at boxes[k * 2 * DIM ...] (one vector lane per child) and
 // children[WIDTH k + s]: a node index > 0, 0 for none, or -(1 + 4 b + m - 1) for the m
 // consecutive leaf blocks from block b.
-// Hits are reported as 4 * block + lane.
+// Hits are reported as LANES * block + lane.
 #ifndef AO4D_BVH_H
 #define AO4D_BVH_H
 
@@ -11,17 +11,27 @@
 // ao4d.bvh.STACK_SIZE; the host refuses trees with depth * 7 + 1 > STACK_SIZE
 #define STACK_SIZE 256
 
-inline void load_ray(const float4 o4, const float4 w4, float *o, float *w, float *inv_w)
+// a ray's coordinates and its box-test constants (see hit_boxes)
+typedef struct {
+    float o[DIM], w[DIM], inv_w[DIM], o_inv[DIM];
+    int near[DIM], far[DIM];
+} Ray;
+
+inline void load_ray(const float4 o4, const float4 w4, Ray *r)
 {
     float a[4], b[4];
     vstore4(o4, 0, a);
     vstore4(w4, 0, b);
     for (int j = 0; j < DIM; ++j) {
-        o[j] = a[j];
-        w[j] = b[j];
+        r->o[j] = a[j];
+        r->w[j] = b[j];
         // a zero component gives a huge finite inverse, not inf: the box test then never meets
         // 0 * inf = NaN and can use plain min / max (see hit_boxes)
-        inv_w[j] = 1.0f / (fabs(b[j]) > 1e-30f ? b[j] : copysign(1e-30f, b[j]));
+        r->inv_w[j] = 1.0f / (fabs(b[j]) > 1e-30f ? b[j] : copysign(1e-30f, b[j]));
+        r->o_inv[j] = a[j] * r->inv_w[j];
+        const int negative = signbit(r->inv_w[j]) != 0;
+        r->near[j] = negative ? DIM + j : j;
+        r->far[j] = negative ? j : DIM + j;
     }
 }
 
@@ -29,17 +39,17 @@ inline void load_ray(const float4 o4, const float4 w4, float *o, float *w, float
 // order, not nearest first; a ray that hits nothing must visit every box it meets anyway, and
 // AO rays mostly escape. No distances on the stack: t_max never shrinks before the return.
 inline int trace_any(__global const floatW *boxes, __global const int *children,
-                     __global const float4 *blocks, const float4 o4, const float4 w4,
+                     __global const floatL *blocks, const float4 o4, const float4 w4,
                      const float t_max, float *t_out)
 {
-    float o[DIM], w[DIM], inv_w[DIM];
-    load_ray(o4, w4, o, w, inv_w);
+    Ray ray;
+    load_ray(o4, w4, &ray);
     int stack[STACK_SIZE];
     int sp = 0;
     int node = 0;
     for (;;) {
         floatW tnw;
-        const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, o, inv_w, t_max, &tnw);
+        const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, ray.near, ray.far, ray.inv_w, ray.o_inv, t_max, &tnw);
         if (any(hitw)) {
             int hits[WIDTH];
             vstoreW(hitw, 0, hits);
@@ -55,10 +65,10 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
                 const int end = first + ((-c - 1) & 3) + 1;
                 for (int b = first; b < end; ++b) {
                     float t;
-                    const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, o, w, t_max, &t);
+                    const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, ray.o, ray.w, t_max, &t);
                     if (lane >= 0) {
                         *t_out = t;
-                        return 4 * b + lane;
+                        return LANES * b + lane;
                     }
                 }
             }
@@ -70,14 +80,14 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
     return -1;
 }
 
-// closest (any_hit = 0) or any (any_hit = 1) hit with 0 < t <= t_max: 4 * block + lane or -1
+// closest (any_hit = 0) or any (any_hit = 1) hit with 0 < t <= t_max: LANES * block + lane or -1
 inline int trace_closest(__global const floatW *boxes, __global const int *children,
-                     __global const float4 *blocks, const float4 o4, const float4 w4,
+                     __global const floatL *blocks, const float4 o4, const float4 w4,
                      float t_max, float *t_out)
 {
     const int any_hit = 0;
-    float o[DIM], w[DIM], inv_w[DIM];
-    load_ray(o4, w4, o, w, inv_w);
+    Ray ray;
+    load_ray(o4, w4, &ray);
     int stack[STACK_SIZE];
     float stack_t[STACK_SIZE];
     int sp = 0;
@@ -85,7 +95,7 @@ inline int trace_closest(__global const floatW *boxes, __global const int *child
     int best = -1;
     for (;;) {
         floatW tnw;
-        const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, o, inv_w, t_max, &tnw);
+        const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, ray.near, ray.far, ray.inv_w, ray.o_inv, t_max, &tnw);
         if (any(hitw)) {
             int hits[WIDTH];
             float tn[WIDTH];
@@ -114,9 +124,9 @@ inline int trace_closest(__global const floatW *boxes, __global const int *child
                 const int end = first + ((-c - 1) & 3) + 1;
                 for (int b = first; b < end; ++b) {
                     float t;
-                    const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, o, w, t_max, &t);
+                    const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, ray.o, ray.w, t_max, &t);
                     if (lane >= 0) {
-                        best = 4 * b + lane;
+                        best = LANES * b + lane;
                         t_max = t;
                         if (any_hit) {
                             *t_out = t;
@@ -141,9 +151,9 @@ inline int trace_closest(__global const floatW *boxes, __global const int *child
     return best;
 }
 
-// closest (any_hit = 0) or any (any_hit = 1) hit with 0 < t <= t_max: 4 * block + lane or -1
+// closest (any_hit = 0) or any (any_hit = 1) hit with 0 < t <= t_max: LANES * block + lane or -1
 inline int trace_bvh(__global const floatW *boxes, __global const int *children,
-                     __global const float4 *blocks, const float4 o4, const float4 w4,
+                     __global const floatL *blocks, const float4 o4, const float4 w4,
                      float t_max, const int any_hit, float *t_out)
 {
     if (any_hit) return trace_any(boxes, children, blocks, o4, w4, t_max, t_out);
@@ -151,17 +161,17 @@ inline int trace_bvh(__global const floatW *boxes, __global const int *children,
 }
 
 // the same answer by testing every leaf block (for tests and the speed-up benchmark)
-inline int trace_brute(__global const float4 *blocks, const int n_blocks, const float4 o4,
+inline int trace_brute(__global const floatL *blocks, const int n_blocks, const float4 o4,
                        const float4 w4, float t_max, const int any_hit, float *t_out)
 {
-    float o[DIM], w[DIM], inv_w[DIM];
-    load_ray(o4, w4, o, w, inv_w);
+    Ray ray;
+    load_ray(o4, w4, &ray);
     int best = -1;
     for (int b = 0; b < n_blocks; ++b) {
         float t;
-        const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, o, w, t_max, &t);
+        const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, ray.o, ray.w, t_max, &t);
         if (lane >= 0) {
-            best = 4 * b + lane;
+            best = LANES * b + lane;
             t_max = t;
             if (any_hit) break;
         }

@@ -185,7 +185,7 @@ def test_wide_tree_holds_the_binary_tree(d):
     inner = wide.children[wide.children > 0]
     assert sorted(inner.tolist()) == list(range(1, len(wide.children)))
 
-    def blocks_of(c):  # a leaf child -(1 + 4 b + m - 1): blocks b .. b + m - 1
+    def blocks_of(c):  # a leaf child -(1 + 4 b + m - 1): blocks b .. b + m - 1 (m <= 4)
         v = -int(c) - 1
         return range(v >> 2, (v >> 2) + (v & 3) + 1)
 
@@ -211,13 +211,13 @@ def test_wide_tree_of_a_single_simplex():
     tree = bvh.build(np.eye(3), [[0, 1, 2]])
     wide = tree.wide()
     assert wide.children.tolist() == [[-1, 0, 0, 0, 0, 0, 0, 0]]  # block 0, one block
-    assert wide.block_prim.tolist() == [[0, -1, -1, -1]]
+    assert wide.block_prim.tolist() == [[0] + [-1] * (bvh.LANES - 1)]
 
 
 def test_wide_tree_needs_small_leaves():
     rng = np.random.default_rng(11)
-    tree = bvh.build(*random_soup(rng, 3, 40), leaf_size=6)
-    with pytest.raises(ValueError, match="at most 4 simplices"):
+    tree = bvh.build(*random_soup(rng, 3, 4 * bvh.LANES), leaf_size=bvh.LANES + 4)
+    with pytest.raises(ValueError, match=f"at most {bvh.LANES} simplices"):
         tree.wide()
 
 
