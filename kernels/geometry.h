@@ -104,7 +104,7 @@ inline int hit_block(__global const floatL *blk, const float *o, const float *w,
 // direction is positive) and of the exit bound (far), the finite inverse direction inv_w and
 // o_inv = o * inv_w, so that each slab costs one fma per bound and no min / max of the two.
 // fma(box, inv_w, -o_inv) errs by up to |o| * 2^-24 in box coordinates: the boxes' margin
-// covers it (ao4d.bvh._box_margin). inv_w is finite, so no 0 * inf = NaN arises and plain
+// covers it (ao4d.bvh._BOX_FMA_MARGIN). inv_w is finite, so no 0 * inf = NaN arises and plain
 // min / max are exact (fmin / fmax need extra NaN handling: a third slower, measured).
 inline intW hit_boxes(__global const floatW *boxes, const int *near, const int *far,
                       const float *inv_w, const float *o_inv, const float t_max, floatW *t_near)

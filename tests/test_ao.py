@@ -279,10 +279,13 @@ def soup_scene(rng, d, n=300):
 
 @pytest.mark.parametrize("d", DIMS)
 @pytest.mark.parametrize("closest", [True, False])
-def test_bvh_equals_brute_force(d, closest, backend):
+@pytest.mark.parametrize("shift", [0.0, 1000.0])  # far from the coordinate origin: float32 slabs
+def test_bvh_equals_brute_force(d, closest, shift, backend):
     rng = np.random.default_rng(900 + d)
     mesh = soup_scene(rng, d)
+    mesh = ao4d.SimplexMesh(mesh.vertices + shift, mesh.simplices)
     o, w = random_rays(rng, d, 3000)
+    o = o + shift
     for max_distance in (np.inf, 0.7):
         fast = ao.cast_rays(mesh, o, w, closest=closest, backend=backend, max_distance=max_distance)
         slow = ao.cast_rays(mesh, o, w, closest=closest, backend=backend, accel="brute", max_distance=max_distance)
@@ -294,6 +297,23 @@ def test_bvh_equals_brute_force(d, closest, backend):
             same = fast.simplex == slow.simplex
             # a different simplex only on exact ties (a ray through a shared point)
             np.testing.assert_array_equal(fast.t[~same], slow.t[~same])
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("shift", [0.0, 30.0])
+def test_box_margin_keeps_corner_hits(d, shift, backend):
+    # rays aimed at the vertices of a simplex hit it at its box's corners, where the float32
+    # slab test is closest to rejecting (its error grows with |o|: bvh._BOX_FMA_MARGIN)
+    rng = np.random.default_rng(1100 + d)
+    corners = rng.uniform(-1, 1, size=(d, d)) + shift
+    mesh = ao4d.SimplexMesh(corners, [list(range(d))])
+    o = np.repeat(corners, 500, axis=0) + rng.normal(size=(500 * d, d))
+    w = np.repeat(corners, 500, axis=0) - o
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    fast = ao.cast_rays(mesh, o, w, backend=backend, closest=False)
+    slow = ao.cast_rays(mesh, o, w, backend=backend, closest=False, accel="brute")
+    np.testing.assert_array_equal(fast.hit, slow.hit)
+    assert slow.hit.mean() > 0.5  # the primitive test takes most of them (BARY_EPS)
 
 
 @pytest.mark.parametrize("d", DIMS)
