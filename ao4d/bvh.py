@@ -475,6 +475,8 @@ def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, lea
             c_known[ids_l[big]] = c_known[ids_r[big]] = True
         levels.append(np.stack([ids_l, ids_r], 1).ravel())
         if bar is not None:
+            if bar.total is not None and bar.n + 1 > bar.total:
+                bar.total = bar.n + 1  # deeper than estimated: keep the bar honest
             bar.update(1)
     sl = slice(0, n_nodes)
     return order, data[:d].T, data[2 * d :].T, start[sl], count[sl], left[sl], right[sl], levels
@@ -562,8 +564,8 @@ def build(vertices: Any, simplices: Any, *, leaf_size: int = 16, progress: bool 
     from tqdm.auto import tqdm
 
     disable = idx.size < (1 << 19) if progress is None else not progress
-    # SAH trees run about 1.4 times deeper than balanced ones
-    levels_estimate = math.ceil(1.4 * math.log2(max(idx.size / leaf_size, 1))) + 2
+    # SAH trees run about 1.6 times deeper than balanced ones
+    levels_estimate = math.ceil(1.6 * math.log2(max(idx.size / leaf_size, 1))) + 2
     bar = tqdm(total=levels_estimate, desc="BVH levels", disable=disable, leave=False)
     with bar:
         order, s_lo, s_hi, start, count, left, right, levels = _split_levels(
