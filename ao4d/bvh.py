@@ -11,9 +11,9 @@ once per level; a level costs a few passes over it (about 4 s for 1M tetrahedra,
 per-level gathers of float64 data). The numpy backend traverses this tree.
 
 The OpenCL kernels traverse its 8-wide form (:func:`widen`): binary nodes are collapsed by
-opening the child of largest area until 8 children; every leaf becomes a block of ``LANES``
-(16) simplices stored as structure of arrays, and a subtree of at most ``LEAF_BLOCKS`` leaves
-becomes one leaf slot of consecutive blocks. One node visit tests 8 boxes with float8
+opening the child of largest area until 8 children; every leaf becomes blocks of ``LANES``
+(16) simplices stored as structure of arrays (4 on GPUs), and a subtree of at most
+``LEAF_BLOCKS`` blocks (or a leaf's blocks) becomes one leaf slot of consecutive blocks. One node visit tests 8 boxes with float8
 arithmetic and one block test 16 simplices with float16 arithmetic (one AVX-512 register: 11%
 faster 4D AO than blocks of 4 or 8, measured; GPUs run the lanes as scalars either way).
 
@@ -103,11 +103,14 @@ class BVH:
     def n_prims(self) -> int:
         return len(self.prim)
 
-    def wide(self) -> WideBVH:
-        """The 8-wide, structure-of-arrays form the OpenCL kernels traverse (built once)."""
-        if "wide" not in self.device:
-            self.device["wide"] = widen(self)
-        return self.device["wide"]
+    def wide(self, lanes: int | None = None) -> WideBVH:
+        """The 8-wide, structure-of-arrays form the OpenCL kernels traverse (built once per
+        ``lanes``, the simplices per leaf block, default ``LANES``: see :func:`widen`)."""
+        lanes = LANES if lanes is None else lanes
+        key = f"wide{lanes}"
+        if key not in self.device:
+            self.device[key] = widen(self, lanes)
+        return self.device[key]
 
 
 WIDTH = 8  # children per node of the kernels' tree: one float8 per box coordinate (16 was not faster)
@@ -127,11 +130,11 @@ class WideBVH:
         ``boxes[k, 1]`` the high bounds (the binary tree's float32 boxes, unchanged).
     children : (K, 8) int32
         Child s of node k: a node index > 0, 0 for no child, or a leaf ``-(1 + 4 b + m - 1)``:
-        the m (1 to ``LEAF_BLOCKS``) consecutive leaf blocks starting at block b.
-    blocks : (B, d + 1, d, LANES) float32
+        the m (1 to 4) consecutive leaf blocks starting at block b.
+    blocks : (B, d + 1, d, lanes) float32
         Leaf block b: ``blocks[b, i, j, l]`` is entry (i, j) of lane l's inverse matrix for
         i < d and coordinate j of its vertex 0 for i = d; unused lanes are all zero (never hit).
-    block_prim : (B, LANES) int64
+    block_prim : (B, lanes) int64
         Tree-order simplex of each lane (-1 for unused lanes).
     depth : int
         Levels of wide nodes.
@@ -147,29 +150,41 @@ class WideBVH:
         return self.boxes.nbytes + self.children.nbytes + self.blocks.nbytes
 
 
-def widen(tree: BVH) -> WideBVH:
-    """Collapse the binary tree into 8-wide nodes (open the child of largest box area first)."""
+def widen(tree: BVH, lanes: int = LANES) -> WideBVH:
+    """Collapse the binary tree into 8-wide nodes (open the child of largest box area first).
+
+    Each binary leaf becomes ``ceil(count / lanes)`` consecutive leaf blocks of ``lanes``
+    (4, 8 or 16) simplices: 16 on CPUs (one AVX-512 register per row), 4 on GPUs, whose
+    work-items run vector lanes one after another and pay for wide vectors in registers.
+    """
+    if lanes not in (4, 8, 16):
+        raise ValueError(f"`lanes` must be 4, 8 or 16, got {lanes!r}")
     d = tree.dim
     left = np.where(tree.meta[:, 0] >= 0, tree.meta[:, 0], -1).astype(np.int64)
     right = np.where(tree.meta[:, 0] >= 0, tree.meta[:, 1], -1).astype(np.int64)
     is_leaf = left < 0
-    if (tree.meta[is_leaf, 1] > LANES).any():
-        raise ValueError(f"the OpenCL kernels need leaves of at most {LANES} simplices")
     leaves = np.flatnonzero(is_leaf)
     leaves = leaves[np.argsort(tree.meta[leaves, 0])[::-1]]  # by first simplex: -(start + 1)
+    leaf_blocks = -(-tree.meta[leaves, 1].astype(np.int64) // lanes)
+    max_blocks = max(LEAF_BLOCKS, int(leaf_blocks.max()))
+    if max_blocks > 4:  # the leaf encoding holds 1 to 4 blocks
+        raise ValueError(
+            f"the OpenCL kernels need leaves of at most {4 * lanes} simplices for {lanes} lanes"
+        )
     block_of = np.full(tree.n_nodes, -1, dtype=np.int64)
-    block_of[leaves] = np.arange(leaves.size)
+    block_of[leaves] = np.cumsum(leaf_blocks) - leaf_blocks
     area = _box_area(tree.lo[:, :d].astype(np.float64), tree.hi[:, :d].astype(np.float64))
-    # a subtree of at most LEAF_BLOCKS leaves becomes one leaf slot: its blocks are consecutive
+    # a subtree of at most max_blocks blocks becomes one leaf slot: its blocks are consecutive
     # (blocks follow the simplex order). Testing a block costs a fifth of a wide node visit,
     # and wide nodes near the bottom hold few children.
-    n_blocks = is_leaf.astype(np.int64)
+    n_blocks = np.zeros(tree.n_nodes, dtype=np.int64)
+    n_blocks[leaves] = leaf_blocks
     first_block = block_of.copy()
     inner = np.flatnonzero(~is_leaf)
     for _ in range(tree.depth):  # children have larger ids: settles within depth sweeps
         n_blocks[inner] = n_blocks[left[inner]] + n_blocks[right[inner]]
         first_block[inner] = first_block[left[inner]]
-    is_leaf = n_blocks <= LEAF_BLOCKS
+    is_leaf = n_blocks <= max_blocks
 
     # wide nodes level by level; each holds up to 8 binary nodes (its children)
     level = np.array([0]) if not is_leaf[0] else np.array([-1])
@@ -211,11 +226,14 @@ def widen(tree: BVH) -> WideBVH:
     boxes[:, 1] = tree.hi[safe][..., :d].transpose(0, 2, 1)
     boxes[~np.broadcast_to(valid[:, None, None, :], boxes.shape)] = 0.0
 
-    first = -tree.meta[leaves, 0].astype(np.int64) - 1
-    count = tree.meta[leaves, 1].astype(np.int64)
-    lane = np.arange(LANES)
+    # block k of a leaf holds its simplices k * lanes .. (k + 1) * lanes - 1
+    leaf = np.repeat(np.arange(leaves.size), leaf_blocks)
+    k = np.arange(leaf.size) - block_of[leaves][leaf]
+    first = -tree.meta[leaves, 0].astype(np.int64)[leaf] - 1 + k * lanes
+    count = tree.meta[leaves, 1].astype(np.int64)[leaf] - k * lanes
+    lane = np.arange(lanes)
     block_prim = np.where(lane < count[:, None], first[:, None] + lane, -1)
-    blocks = np.zeros((leaves.size, d + 1, d, LANES), dtype=np.float32)
+    blocks = np.zeros((leaf.size, d + 1, d, lanes), dtype=np.float32)
     used = block_prim >= 0
     b, l = np.nonzero(used)
     prim = block_prim[used]

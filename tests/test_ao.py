@@ -317,6 +317,27 @@ def test_box_margin_keeps_corner_hits(d, shift, backend):
 
 
 @pytest.mark.parametrize("d", DIMS)
+def test_gpu_block_layout_gives_the_same_answers(d, cl_runtime, monkeypatch):
+    # GPUs get leaf blocks of 4 simplices, CPUs of 16 (ao._block_lanes); the per-lane
+    # arithmetic is the same explicit fma sequence, so answers agree exactly
+    rng = np.random.default_rng(1200 + d)
+    mesh = soup_scene(rng, d)
+    o, w = random_rays(rng, d, 3000)
+    pts, nrm = o[:200], w[:200]
+    results = {}
+    for lanes in (16, 4):
+        monkeypatch.setattr(ao, "_block_lanes", lambda runtime, lanes=lanes: lanes)
+        hits = ao.cast_rays(mesh, o, w, backend="opencl")
+        occ = ao4d.ambient_occlusion(mesh, points=pts, normals=nrm, samples=32, backend="opencl")
+        results[lanes] = hits, occ
+    (h16, a16), (h4, a4) = results[16], results[4]
+    np.testing.assert_array_equal(h4.simplex, h16.simplex)
+    np.testing.assert_array_equal(h4.t, h16.t)
+    np.testing.assert_array_equal(a4, a16)
+    assert 0.01 < h4.hit.mean() < 0.95
+
+
+@pytest.mark.parametrize("d", DIMS)
 def test_hits_are_consistent(d, backend):
     rng = np.random.default_rng(1000 + d)
     mesh = soup_scene(rng, d)
