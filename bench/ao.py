@@ -110,11 +110,11 @@ def main(argv=None) -> int:
         p, n = pick(rng, mesh.vertices, normals, n_points)
 
         def run_ours():
-            return ao.ambient_occlusion(mesh, points=p, normals=n, samples=args.samples, backend="opencl")
+            return ao.ambient_occlusion(mesh, points=p, normals=n, samples=args.samples, backend="opencl", progress=False)
     else:
 
         def run_ours():
-            return ao.ambient_occlusion(mesh, samples=args.samples, backend="opencl")
+            return ao.ambient_occlusion(mesh, samples=args.samples, backend="opencl", progress=False)
 
     embree_runs, tm = {}, None
     try:

@@ -14,8 +14,9 @@
 #endif
 #define BLOCK_ROWS ((DIM + 1) * DIM)
 
-// ao4d.bvh.LANES: 16 fills one AVX-512 register per row (11% faster 4D AO than 4 or 8 lanes on
-// the CPU runtime); GPUs run a work-item's vector lanes one after another either way
+// simplices per leaf block (ao4d.ao._block_lanes): 16 on CPUs, one AVX-512 register per row (11%
+// faster 4D AO than 4 or 8 lanes on the CPU runtime); 4 on GPUs, whose work-items run vector
+// lanes one after another and pay for wide vectors in registers
 #ifndef LANES
 #define LANES 16
 #endif
