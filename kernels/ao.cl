@@ -59,7 +59,7 @@ __kernel __attribute__((vec_type_hint(float4))) void ao_brute(__global const flo
 }
 
 // one ray per work-item: closest (any_hit = 0) or any hit within max_distance; hit_out is
-// 4 * leaf block + lane (the host maps it to a simplex) or -1
+// LANES * leaf block + lane (the host maps it to a simplex) or -1
 __kernel __attribute__((vec_type_hint(float4))) void cast_bvh(__global const floatW *boxes, __global const int *children,
                        __global const floatL *blocks, __global const float4 *origins, __global const float4 *directions,
                        const float max_distance, const int any_hit, __global float *t_out,

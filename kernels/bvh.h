@@ -49,7 +49,8 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
     int node = 0;
     for (;;) {
         floatW tnw;
-        const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, ray.near, ray.far, ray.inv_w, ray.o_inv, t_max, &tnw);
+        const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, ray.near, ray.far, ray.inv_w,
+                                    ray.o_inv, t_max, &tnw);
         if (any(hitw)) {
             int hits[WIDTH];
             vstoreW(hitw, 0, hits);
@@ -95,7 +96,8 @@ inline int trace_closest(__global const floatW *boxes, __global const int *child
     int best = -1;
     for (;;) {
         floatW tnw;
-        const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, ray.near, ray.far, ray.inv_w, ray.o_inv, t_max, &tnw);
+        const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, ray.near, ray.far, ray.inv_w,
+                                    ray.o_inv, t_max, &tnw);
         if (any(hitw)) {
             int hits[WIDTH];
             float tn[WIDTH];
