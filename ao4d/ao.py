@@ -153,9 +153,7 @@ def _check_device_memory(runtime, nbytes: dict[str, int]) -> None:
 
 
 def _block_lanes(runtime) -> int:
-    """Simplices per leaf block on this device: 16 on CPUs (one AVX-512 register per row of a
-    block test; 11% faster 4D AO than 4 lanes, measured), 4 elsewhere (a GPU work-item runs its
-    vector lanes one after another and would only pay for them in registers)."""
+    """Simplices per leaf block on this device: 16 on CPUs, 4 elsewhere (why: bvh.widen)."""
     import pyopencl as cl
 
     return 16 if runtime.device.type & cl.device_type.CPU else 4

@@ -11,11 +11,11 @@ once per level; a level costs a few passes over it (about 4 s for 1M tetrahedra,
 per-level gathers of float64 data). The numpy backend traverses this tree.
 
 The OpenCL kernels traverse its 8-wide form (:func:`widen`): binary nodes are collapsed by
-opening the child of largest area until 8 children; every leaf becomes blocks of ``LANES``
-(16) simplices stored as structure of arrays (4 on GPUs), and a subtree of at most
-``LEAF_BLOCKS`` blocks (or a leaf's blocks) becomes one leaf slot of consecutive blocks. One node visit tests 8 boxes with float8
-arithmetic and one block test 16 simplices with float16 arithmetic (one AVX-512 register: 11%
-faster 4D AO than blocks of 4 or 8, measured; GPUs run the lanes as scalars either way).
+opening the child of largest area until 8 children; every leaf becomes blocks of ``lanes``
+simplices stored as structure of arrays, and a subtree of at most ``LEAF_BLOCKS`` blocks (or one
+leaf's blocks) becomes one leaf slot of consecutive blocks. One node visit tests 8 boxes with
+float8 arithmetic and one block test ``lanes`` simplices at once (16 on CPUs, 4 on GPUs: see
+:func:`widen`).
 
 Each simplex is stored as the inverse of the matrix ``[e1 .. e_{d-1} | n]`` (edges from vertex 0
 and the normal, as columns) plus vertex 0, so a ray test costs d+1 dot products: the last row
@@ -47,7 +47,9 @@ __all__ = ["BVH", "build", "get_bvh", "intersect", "barycentric", "simplex_norma
 # them despite rounding (float32 dot products of O(1) barycentrics err by ~1e-7).
 BARY_EPS = 1e-5
 _BOX_MARGIN = 1e-5  # of the scene diagonal: covers float32 error of slab tests
-_BOX_FMA_MARGIN = 0.1  # 1e-6 |coordinate|: covers rays from up to 16 times the scene's farthest point
+# times the largest |coordinate|, as a floor of the extent _BOX_MARGIN scales: 1e-6 |coordinate|
+# covers fma slab tests of rays from up to 16 times the scene's farthest point
+_BOX_FMA_MARGIN = 0.1
 _DEGENERATE_RTOL = 1e-12  # |n| below this times (longest edge)^(d-1): zero measure
 _SAH_BINS = 32
 _SAH_MIN_COUNT = 16  # smaller nodes split at the median: 3 fewer levels, 20% less build time, same speed (8 and 32 measured)
@@ -154,8 +156,9 @@ def widen(tree: BVH, lanes: int = LANES) -> WideBVH:
     """Collapse the binary tree into 8-wide nodes (open the child of largest box area first).
 
     Each binary leaf becomes ``ceil(count / lanes)`` consecutive leaf blocks of ``lanes``
-    (4, 8 or 16) simplices: 16 on CPUs (one AVX-512 register per row), 4 on GPUs, whose
-    work-items run vector lanes one after another and pay for wide vectors in registers.
+    (4, 8 or 16) simplices. :mod:`ao4d.ao` asks for 16 on CPUs (one AVX-512 register per row of
+    a block test: 11% faster 4D AO than 4 or 8 lanes, measured) and 4 on GPUs, whose work-items
+    run vector lanes one after another and would only pay for wide vectors in registers.
     """
     if lanes not in (4, 8, 16):
         raise ValueError(f"`lanes` must be 4, 8 or 16, got {lanes!r}")
@@ -175,8 +178,7 @@ def widen(tree: BVH, lanes: int = LANES) -> WideBVH:
     block_of[leaves] = np.cumsum(leaf_blocks) - leaf_blocks
     area = _box_area(tree.lo[:, :d].astype(np.float64), tree.hi[:, :d].astype(np.float64))
     # a subtree of at most max_blocks blocks becomes one leaf slot: its blocks are consecutive
-    # (blocks follow the simplex order). Testing a block costs a fifth of a wide node visit,
-    # and wide nodes near the bottom hold few children.
+    # (blocks follow the simplex order)
     n_blocks = np.zeros(tree.n_nodes, dtype=np.int64)
     n_blocks[leaves] = leaf_blocks
     first_block = block_of.copy()

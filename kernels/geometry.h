@@ -14,9 +14,7 @@
 #endif
 #define BLOCK_ROWS ((DIM + 1) * DIM)
 
-// simplices per leaf block (ao4d.ao._block_lanes): 16 on CPUs, one AVX-512 register per row (11%
-// faster 4D AO than 4 or 8 lanes on the CPU runtime); 4 on GPUs, whose work-items run vector
-// lanes one after another and pay for wide vectors in registers
+// simplices per leaf block: 16 on CPUs, 4 on GPUs (ao4d.ao._block_lanes; why: ao4d.bvh.widen)
 #ifndef LANES
 #define LANES 16
 #endif
