@@ -153,10 +153,11 @@ def _check_device_memory(runtime, nbytes: dict[str, int]) -> None:
 
 
 def _block_lanes(runtime) -> int:
-    """Simplices per leaf block on this device: 16 on CPUs, 4 elsewhere (why: bvh.widen)."""
+    """Simplices per leaf block on this device: ``bvh.LANES`` (16) on CPUs, 4 elsewhere (why:
+    bvh.widen)."""
     import pyopencl as cl
 
-    return 16 if runtime.device.type & cl.device_type.CPU else 4
+    return _bvh.LANES if runtime.device.type & cl.device_type.CPU else 4
 
 
 def _device_tree(tree: _bvh.BVH, runtime) -> dict[str, Any]:
