@@ -15,6 +15,11 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+from ._tbb import preload_runtime_tbb as _preload_runtime_tbb
+
+# before any other library can load an older libtbb.so.12 (Open3D): see ao4d/_tbb.py
+_preload_runtime_tbb()
+
 __version__ = "0.1.0"
 
 # public name -> "module:attribute" (module relative to this package)
@@ -22,23 +27,38 @@ _LAZY = {
     "lut": "lut:",
     "fields": "fields:",
     "cl": "cl:",
+    "geometry": "geometry:",
+    "topology": "topology:",
+    "slicing": "slicing:",
     "mesh": "mesh:",
-    "meshio": "meshio:",
+    "mesh_files": "mesh_files:",
     "march": "march:",
+    "blockwise": "blockwise:",
+    "readers": "readers:",
     "bvh": "bvh:",
-    "ao": "ao:",
-    "render": "render:render",
-    "io": "io:",
-    "camera": "camera:",
-    "lift": "lift:",
+    "raycast": "raycast:",
     "sampling": "sampling:",
+    "ao": "ao:",
+    "camera": "camera:",
+    "lighting": "lighting:",
+    "rendering": "rendering:",
+    "volumes": "volumes:",
+    "pictures": "pictures:",
+    "lift": "lift:",
     "scenes": "scenes:",
     "SimplexMesh": "mesh:SimplexMesh",
     "sample": "fields:sample",
     "extract": "march:extract",
     "extract_field": "march:extract_field",
+    "read_grid": "readers:read_grid",
     "ambient_occlusion": "ao:ambient_occlusion",
+    "cast_rays": "raycast:cast_rays",
+    "render": "rendering:render",
+    "RenderResult": "rendering:RenderResult",
     "Camera4D": "camera:Camera4D",
+    "Light": "lighting:Light",
+    "viewer": "viewer:",
+    "view": "viewer:view",
 }
 
 __all__ = sorted(_LAZY) + ["__version__"]

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
 
-__all__ = ["as_array", "as_finite_float", "check_choice", "check_positive_int", "check_finite", "check_memory"]
+__all__ = [
+    "as_array", "as_real", "as_vector", "check_choice", "check_int", "check_positive_int", "check_bool", "check_finite",
+    "check_memory",
+]
 
 # Refuse allocations above this many bytes before starting work (overridable per call).
 DEFAULT_MEMORY_LIMIT = 16 * 2**30
@@ -71,15 +75,91 @@ def check_finite(arr: np.ndarray, name: str) -> None:
         raise ValueError(f"`{name}` contains {bad} non-finite value(s) (NaN or inf)")
 
 
-def as_finite_float(value: Any, name: str) -> float:
-    """Return ``value`` as a finite float, else raise naming ``name`` (TypeError / ValueError)."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"`{name}` must be a real number, got {type(value).__name__}") from None
-    if not math.isfinite(number):
+def _bound_words(gt, ge, lt, le) -> str:
+    low = f"({gt:g}" if gt is not None else (f"[{ge:g}" if ge is not None else None)
+    high = f"{lt:g})" if lt is not None else (f"{le:g}]" if le is not None else None)
+    if low and high:
+        return f"in {low}, {high}"
+    if low:
+        return ("> " if gt is not None else ">= ") + low[1:]
+    return ("< " if lt is not None else "<= ") + high[:-1]
+
+
+def as_real(
+    value: Any,
+    name: str,
+    *,
+    finite: bool = True,
+    gt: float | None = None,
+    ge: float | None = None,
+    lt: float | None = None,
+    le: float | None = None,
+    unit: str = "",
+) -> float:
+    """Return ``value`` as a float, else raise naming ``name``.
+
+    ``TypeError`` when it is not a real number (strings, arrays, None; booleans are refused too);
+    ``ValueError`` when it is NaN, infinite (unless ``finite=False``) or outside the bounds
+    ``gt < value``, ``ge <= value``, ``value < lt``, ``value <= le``. ``unit`` is appended to the
+    bound in the message (``" degrees"``).
+
+    Examples
+    --------
+    >>> as_real("big", "radius", gt=0)
+    Traceback (most recent call last):
+    ...
+    TypeError: `radius` must be a real number, got str 'big'
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "iuf":
+            value = value.item()
+        else:
+            raise TypeError(f"`{name}` must be a real number, got {type(value).__name__} {value!r:.40}")
+    number = float(value)
+    if finite and not math.isfinite(number):
         raise ValueError(f"`{name}` must be finite, got {value!r}")
+    ok = not math.isnan(number)
+    ok = ok and (gt is None or number > gt) and (ge is None or number >= ge)
+    ok = ok and (lt is None or number < lt) and (le is None or number <= le)
+    if not ok:
+        if all(b is None for b in (gt, ge, lt, le)):
+            raise ValueError(f"`{name}` must be a number, got nan")
+        raise ValueError(f"`{name}` must be {_bound_words(gt, ge, lt, le)}{unit}, got {value!r}")
     return number
+
+
+def as_vector(
+    value: Any,
+    name: str,
+    length: int,
+    *,
+    scalar: bool = True,
+    positive: bool = False,
+    nonzero: bool = False,
+) -> np.ndarray:
+    """``value`` as a finite (length,) float64 array, else an error naming ``name``.
+
+    A scalar is broadcast to every entry when ``scalar`` is true; ``positive`` requires every
+    entry > 0 and ``nonzero`` a vector that is not all zeros.
+    """
+    if not scalar:
+        arr = as_array(value, name, ndim=1, shape_tail=(length,), dtype=np.float64, finite=True)
+    else:
+        arr = as_array(value, name, ndim=(0, 1), dtype=np.float64, finite=True)
+        if arr.ndim == 1 and arr.shape[0] != length:
+            raise ValueError(f"`{name}` must be a scalar or have {length} entries, got {arr.shape[0]}")
+    if positive and (arr <= 0).any():
+        raise ValueError(f"`{name}` must be > 0, got {value!r}")
+    if nonzero and not (arr != 0).any():
+        raise ValueError(f"`{name}` must be a non-zero vector, got {value!r}")
+    return np.array(np.broadcast_to(arr, (length,)), dtype=np.float64)
+
+
+def check_bool(value: Any, name: str) -> bool:
+    """Return ``value`` if it is a bool, else raise ``TypeError`` naming ``name``."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"`{name}` must be True or False, got {type(value).__name__} {value!r:.40}")
+    return bool(value)
 
 
 def check_choice(value: Any, name: str, choices: Iterable[Any]) -> Any:
@@ -90,13 +170,18 @@ def check_choice(value: Any, name: str, choices: Iterable[Any]) -> Any:
     return value
 
 
-def check_positive_int(value: Any, name: str, *, minimum: int = 1) -> int:
-    """Return ``value`` as int if it is an integer >= ``minimum``, else raise naming ``name``."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+def check_int(value: Any, name: str, *, minimum: int | None = None) -> int:
+    """Return ``value`` as int if it is an integer (>= ``minimum`` when given), else raise naming ``name``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
         raise TypeError(f"`{name}` must be an integer, got {type(value).__name__}")
-    if value < minimum:
+    if minimum is not None and value < minimum:
         raise ValueError(f"`{name}` must be >= {minimum}, got {value}")
     return int(value)
+
+
+def check_positive_int(value: Any, name: str, *, minimum: int = 1) -> int:
+    """Return ``value`` as int if it is an integer >= ``minimum`` (default 1), else raise naming ``name``."""
+    return check_int(value, name, minimum=minimum)
 
 
 def check_memory(

@@ -8,7 +8,9 @@ all nodes below level 40 split at the median instead, which bounds the depth. No
 breadth first and each covers a contiguous range of the reordered simplices, so a leaf is
 ``(start, count)``. The simplices' data stay in tree order in one float32 array that is sorted
 once per level; a level costs a few passes over it (about 4 s for 1M tetrahedra, was 12 s with
-per-level gathers of float64 data). The numpy backend traverses this tree.
+per-level gathers of float64 data). This is the reference builder and the numpy backend's;
+where OpenCL runs, :mod:`ao4d.bvh_build` builds the same kind of tree on the device
+(:func:`ao4d.raycast.get_bvh` chooses and caches the tree on the mesh).
 
 The OpenCL kernels traverse its 8-wide form (:func:`widen`): binary nodes are collapsed by
 opening the child of largest area until 8 children; every leaf becomes blocks of ``lanes``
@@ -31,17 +33,17 @@ answer exactly.
 
 from __future__ import annotations
 
-import hashlib
 import math
-import weakref
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from . import _progress
 from ._validate import as_array, check_positive_int
+from .geometry import cross_components
 
-__all__ = ["BVH", "build", "get_bvh", "intersect", "barycentric", "simplex_normals", "BARY_EPS"]
+__all__ = ["BVH", "WideBVH", "build", "widen", "widen_topology", "intersect", "barycentric", "BARY_EPS"]
 
 # Barycentric tolerance: a ray through a face shared by two simplices counts for at least one of
 # them despite rounding (float32 dot products of O(1) barycentrics err by ~1e-7).
@@ -80,9 +82,6 @@ class BVH:
         Number of levels (root = 1).
     diagonal : float
         Length of the scene's bounding box diagonal.
-    device : dict
-        Derived data cached with the tree: its wide form (``"wide"``, see :meth:`wide`) and
-        device buffers per OpenCL context (filled by :mod:`ao4d.ao`).
     """
 
     dim: int
@@ -95,7 +94,7 @@ class BVH:
     n_skipped: int
     depth: int
     diagonal: float
-    device: dict = field(default_factory=dict, repr=False)
+    _wide: dict = field(default_factory=dict, repr=False, compare=False)  # lanes -> WideBVH
 
     @property
     def n_nodes(self) -> int:
@@ -105,19 +104,23 @@ class BVH:
     def n_prims(self) -> int:
         return len(self.prim)
 
+    def frames(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``inverse[p]`` and ``origin[p]`` of tree-order simplices ``p`` (a device-built tree
+        computes just these instead of all)."""
+        return self.inverse[p], self.origin[p]
+
     def wide(self, lanes: int | None = None) -> WideBVH:
         """The 8-wide, structure-of-arrays form the OpenCL kernels traverse (built once per
         ``lanes``, the simplices per leaf block, default ``LANES``: see :func:`widen`)."""
         lanes = LANES if lanes is None else lanes
-        key = f"wide{lanes}"
-        if key not in self.device:
-            self.device[key] = widen(self, lanes)
-        return self.device[key]
+        if lanes not in self._wide:
+            self._wide[lanes] = widen(self, lanes)
+        return self._wide[lanes]
 
 
 WIDTH = 8  # children per node of the kernels' tree: one float8 per box coordinate (16 was not faster)
 LANES = 16  # simplices per leaf block: one float16 per simplex coordinate (kernels' LANES)
-STACK_SIZE = 256  # must match kernels/bvh.h
+STACK_SIZE = 256  # traversal stack entries, passed to kernels/bvh.h as -D STACK_SIZE (1 KiB of ints)
 LEAF_BLOCKS = 1  # most leaf blocks per leaf slot of a wide node (the encoding allows 4)
 
 
@@ -160,6 +163,43 @@ def widen(tree: BVH, lanes: int = LANES) -> WideBVH:
     a block test: 11% faster 4D AO than 4 or 8 lanes, measured) and 4 on GPUs, whose work-items
     run vector lanes one after another and would only pay for wide vectors in registers.
     """
+    boxes, children, block_first, block_count, depth = widen_topology(tree, lanes)
+    lane = np.arange(lanes)
+    block_prim = np.where(lane < block_count[:, None], block_first[:, None] + lane, -1)
+    d = tree.dim
+    blocks = np.zeros((len(block_prim), d + 1, d, lanes), dtype=np.float32)
+    used = block_prim >= 0
+    b, l = np.nonzero(used)
+    inverse, origin = tree.frames(block_prim[used])
+    blocks[b, :d, :, l] = inverse
+    blocks[b, d, :, l] = origin
+    return WideBVH(boxes=boxes, children=children, blocks=blocks, block_prim=block_prim, depth=depth)
+
+
+def _levels(meta: np.ndarray) -> list[np.ndarray]:
+    """Node ids level by level from the root (left children before right ones)."""
+    levels = [np.array([0])]
+    while True:
+        ids = levels[-1]
+        inner = ids[meta[ids, 0] >= 0]
+        if inner.size == 0:
+            return levels
+        levels.append(np.stack([meta[inner, 0], meta[inner, 1]], 1).ravel().astype(np.int64))
+
+
+def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """The wide form of :func:`widen` without the leaf blocks' contents.
+
+    Returns ``boxes`` (K, 2, d, 8) float32, ``children`` (K, 8) int32 (see :class:`WideBVH`),
+    per leaf block its first tree-order simplex and its count (B,) int32 each (lane l holds
+    simplex first + l for l < count), and the wide depth; :func:`widen` fills the blocks on the
+    host, :mod:`ao4d.bvh_build` on the device.
+
+    Raises
+    ------
+    RuntimeError
+        If the tree is deeper than the kernels' traversal stack (``STACK_SIZE`` entries) holds.
+    """
     if lanes not in (4, 8, 16):
         raise ValueError(f"`lanes` must be 4, 8 or 16, got {lanes!r}")
     d = tree.dim
@@ -182,10 +222,10 @@ def widen(tree: BVH, lanes: int = LANES) -> WideBVH:
     n_blocks = np.zeros(tree.n_nodes, dtype=np.int64)
     n_blocks[leaves] = leaf_blocks
     first_block = block_of.copy()
-    inner = np.flatnonzero(~is_leaf)
-    for _ in range(tree.depth):  # children have larger ids: settles within depth sweeps
-        n_blocks[inner] = n_blocks[left[inner]] + n_blocks[right[inner]]
-        first_block[inner] = first_block[left[inner]]
+    for ids in reversed(_levels(tree.meta)):  # bottom up, each node once
+        ids = ids[left[ids] >= 0]
+        n_blocks[ids] = n_blocks[left[ids]] + n_blocks[right[ids]]
+        first_block[ids] = first_block[left[ids]]
     is_leaf = n_blocks <= max_blocks
 
     # wide nodes level by level; each holds up to 8 binary nodes (its children)
@@ -232,63 +272,14 @@ def widen(tree: BVH, lanes: int = LANES) -> WideBVH:
     leaf = np.repeat(np.arange(leaves.size), leaf_blocks)
     k = np.arange(leaf.size) - block_of[leaves][leaf]
     first = -tree.meta[leaves, 0].astype(np.int64)[leaf] - 1 + k * lanes
-    count = tree.meta[leaves, 1].astype(np.int64)[leaf] - k * lanes
-    lane = np.arange(lanes)
-    block_prim = np.where(lane < count[:, None], first[:, None] + lane, -1)
-    blocks = np.zeros((leaf.size, d + 1, d, lanes), dtype=np.float32)
-    used = block_prim >= 0
-    b, l = np.nonzero(used)
-    prim = block_prim[used]
-    blocks[b, :d, :, l] = tree.inverse[prim]
-    blocks[b, d, :, l] = tree.origin[prim]
+    count = np.minimum(tree.meta[leaves, 1].astype(np.int64)[leaf] - k * lanes, lanes)
+    # a node visit pushes at most WIDTH - 1 more entries than it pops
     if depth * (WIDTH - 1) + 1 > STACK_SIZE:
-        raise RuntimeError(f"BVH too deep for the kernels' stack ({depth} levels)")
-    return WideBVH(
-        boxes=boxes, children=children.astype(np.int32), blocks=blocks, block_prim=block_prim, depth=depth
-    )
-
-
-def _cross(rows: list[np.ndarray]) -> np.ndarray:
-    """Generalised cross product X of d-1 vectors in R^d: ``X . x = det[v_1; ...; v_{d-1}; x]``.
-
-    ``rows`` holds d-1 arrays of shape (d, S) (component-major: contiguous rows make the
-    closed-form cofactors below fast; a batched ``np.linalg.det`` costs ten times more).
-    Returns (d, S).
-    """
-    d = rows[0].shape[0]
-    if d == 2:
-        (a,) = rows
-        return np.stack([-a[1], a[0]])
-    if d == 3:
-        a, b = rows
-        return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-    a, b, c = rows
-    # 2x2 minors of the last two rows, then expansion along the first row of each 3x3 minor
-    m = {(p, q): b[p] * c[q] - b[q] * c[p] for p in range(4) for q in range(p + 1, 4)}
-    out = np.empty_like(a)
-    for j in range(4):
-        p, q, r = (k for k in range(4) if k != j)
-        det = a[p] * m[q, r] - a[q] * m[p, r] + a[r] * m[p, q]
-        out[j] = det if j % 2 else -det  # sign (-1)^(d-1+j)
-    return out
-
-
-def simplex_normals(corners: np.ndarray) -> np.ndarray:
-    """Unnormalised normals ``n`` with ``n . x = det[p1-p0; ...; p_{d-1}-p0; x]`` (DESIGN.md).
-
-    Parameters
-    ----------
-    corners : (S, d, d) float64
-        Vertex coordinates of each simplex.
-
-    Returns
-    -------
-    normals : (S, d) float64
-        Length equals (d-1)! times the simplex's (d-1)-measure.
-    """
-    cm = np.asarray(corners, dtype=np.float64).transpose(1, 2, 0)  # (d vertices, d coords, S)
-    d = cm.shape[0]
-    return _cross([cm[k] - cm[0] for k in range(1, d)]).T
+        raise RuntimeError(
+            f"BVH too deep for the kernels' traversal stack: {depth} wide levels need "
+            f"{depth * (WIDTH - 1) + 1} entries, STACK_SIZE is {STACK_SIZE}"
+        )
+    return boxes, children.astype(np.int32), first.astype(np.int32), count.astype(np.int32), depth
 
 
 def _prepare(vertices: np.ndarray, simplices: np.ndarray):
@@ -303,7 +294,7 @@ def _prepare(vertices: np.ndarray, simplices: np.ndarray):
     ids = np.ascontiguousarray(simplices.T)  # (d, S)
     pts = [np.take(coords, ids[k], axis=1) for k in range(d)]  # d x (d, S)
     edges = [p - pts[0] for p in pts[1:]]
-    normals = _cross(edges)
+    normals = cross_components(edges)
     longest = np.sqrt(np.max([(e * e).sum(0) for e in edges], axis=0))
     norm2 = (normals * normals).sum(0)
     norm = np.sqrt(norm2)
@@ -319,7 +310,7 @@ def _prepare(vertices: np.ndarray, simplices: np.ndarray):
     inverse = np.empty((d, d, len(idx)))
     for i in range(d - 1):
         sign = 1.0 if (d - 1 - i) % 2 == 0 else -1.0
-        inverse[i] = _cross(columns[:i] + columns[i + 1 :]) * (sign / norm2)
+        inverse[i] = cross_components(columns[:i] + columns[i + 1 :]) * (sign / norm2)
     inverse[d - 1] = normals / norm2
     return idx, pts, inverse.transpose(2, 0, 1)
 
@@ -524,6 +515,25 @@ def _pad4(a: np.ndarray) -> np.ndarray:
     return out
 
 
+def check_mesh_arrays(vertices: Any, simplices: Any, leaf_size: Any) -> tuple[np.ndarray, np.ndarray, int]:
+    """The input checks of both builders: (V, d) finite floats, (S, d) in-range integers, S > 0."""
+    vertices = as_array(vertices, "vertices", ndim=2, dtype=np.float64, finite=True)
+    d = vertices.shape[1]
+    if d not in (2, 3, 4):
+        raise ValueError(f"`vertices` must have 2, 3 or 4 columns, got shape {vertices.shape}")
+    simplices = as_array(simplices, "simplices", ndim=2, shape_tail=(d,))
+    if simplices.shape[0] == 0:
+        raise ValueError("`simplices` is empty: a mesh without simplices has nothing to hit")
+    if simplices.dtype.kind not in "iu":
+        raise TypeError(f"`simplices` must hold integers, got dtype {simplices.dtype}")
+    if simplices.min() < 0 or simplices.max() >= len(vertices):
+        raise ValueError(
+            f"`simplices` indices must be in [0, {len(vertices)}), "
+            f"got range [{simplices.min()}, {simplices.max()}]"
+        )
+    return vertices, simplices, check_positive_int(leaf_size, "leaf_size")
+
+
 def build(vertices: Any, simplices: Any, *, leaf_size: int = 16, progress: bool | None = None) -> BVH:
     """Build the BVH of a simplex mesh.
 
@@ -554,21 +564,8 @@ def build(vertices: Any, simplices: Any, *, leaf_size: int = 16, progress: bool 
     >>> tree.n_prims, tree.n_nodes
     (1, 1)
     """
-    vertices = as_array(vertices, "vertices", ndim=2, dtype=np.float64, finite=True)
+    vertices, simplices, leaf_size = check_mesh_arrays(vertices, simplices, leaf_size)
     d = vertices.shape[1]
-    if d not in (2, 3, 4):
-        raise ValueError(f"`vertices` must have 2, 3 or 4 columns, got shape {vertices.shape}")
-    simplices = as_array(simplices, "simplices", ndim=2, shape_tail=(d,))
-    if simplices.shape[0] == 0:
-        raise ValueError("`simplices` is empty: a mesh without simplices has nothing to hit")
-    if simplices.dtype.kind not in "iu":
-        raise TypeError(f"`simplices` must hold integers, got dtype {simplices.dtype}")
-    if simplices.min() < 0 or simplices.max() >= len(vertices):
-        raise ValueError(
-            f"`simplices` indices must be in [0, {len(vertices)}), "
-            f"got range [{simplices.min()}, {simplices.max()}]"
-        )
-    leaf_size = check_positive_int(leaf_size, "leaf_size")
     idx, pts, inverse = _prepare(vertices, simplices.astype(np.int64))
     if idx.size == 0:
         raise ValueError(f"all {len(simplices)} simplices are degenerate (zero measure)")
@@ -581,12 +578,10 @@ def build(vertices: Any, simplices: Any, *, leaf_size: int = 16, progress: bool 
     margin = 2 * BARY_EPS * (p_hi - p_lo).max(0) + _BOX_MARGIN * extent
     p_lo, p_hi = (p_lo - margin).T, (p_hi + margin).T
     centroids = (np.add.reduce(pts) / d).T
-    from tqdm.auto import tqdm
-
-    disable = idx.size < (1 << 19) if progress is None else not progress
+    show = idx.size >= (1 << 19) if progress is None else bool(progress)
     # SAH trees run about 1.6 times deeper than balanced ones
     levels_estimate = math.ceil(1.6 * math.log2(max(idx.size / leaf_size, 1))) + 2
-    bar = tqdm(total=levels_estimate, desc="BVH levels", disable=disable, leave=False)
+    bar = _progress.bar(levels_estimate, "BVH levels", unit="level", show=show)
     with bar:
         order, s_lo, s_hi, start, count, left, right, levels = _split_levels(
             centroids, p_lo, p_hi, leaf_size, bar
@@ -644,42 +639,3 @@ def barycentric(inverse: np.ndarray, origin: np.ndarray, points: np.ndarray) -> 
     """Barycentric weights ``(P, d)`` of points lying on simplices (vertex 0 first)."""
     beta = np.einsum("pik,pk->pi", inverse[:, :-1, :], points - origin)
     return np.concatenate([1.0 - beta.sum(1, keepdims=True), beta], axis=1)
-
-
-# -- caching on meshes -----------------------------------------------------------------------
-
-_fallback_cache: "weakref.WeakKeyDictionary[Any, dict]" = weakref.WeakKeyDictionary()
-
-
-def _fingerprint(vertices: np.ndarray, simplices: np.ndarray) -> str:
-    h = hashlib.blake2b(digest_size=16)
-    for a in (vertices, simplices):
-        a = np.ascontiguousarray(a)
-        h.update(str((a.shape, a.dtype.str)).encode())
-        h.update(memoryview(a).cast("B"))
-    return h.hexdigest()
-
-
-def get_bvh(mesh: Any, *, leaf_size: int = 16) -> BVH:
-    """The BVH of ``mesh``, built once and cached on it.
-
-    Uses the mesh's ``cache`` dict when it has one (dropped when the mesh changes); otherwise a
-    weak-keyed cache checked against a hash of the vertex and simplex arrays.
-    """
-    key = f"ao4d.bvh/leaf={int(leaf_size)}"
-    cache = getattr(mesh, "cache", None)
-    if cache is not None:
-        tree = cache.get(key)
-        if tree is None:
-            tree = build(mesh.vertices, mesh.simplices, leaf_size=leaf_size)
-            cache[key] = tree
-        return tree
-    vertices, simplices = np.asarray(mesh.vertices), np.asarray(mesh.simplices)
-    stamp = _fingerprint(vertices, simplices)
-    try:
-        entry = _fallback_cache.setdefault(mesh, {})
-    except TypeError:  # not weak-referenceable: build every time
-        return build(vertices, simplices, leaf_size=leaf_size)
-    if entry.get(key, (None, None))[0] != stamp:
-        entry[key] = (stamp, build(vertices, simplices, leaf_size=leaf_size))
-    return entry[key][1]

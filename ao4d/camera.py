@@ -25,44 +25,13 @@ from typing import Literal
 
 import numpy as np
 
-from ._validate import as_array, check_choice, check_memory, check_positive_int
+from ._validate import as_array, as_real, as_vector, check_choice, check_memory, check_positive_int
+from .geometry import cross
 
-__all__ = ["Camera4D", "cross", "ImageGeometry"]
+__all__ = ["Camera4D", "ImageGeometry"]
 
 # |sin| of the angle below which two directions count as parallel (about 0.06 degrees)
 _PARALLEL_TOL = 1e-3
-
-
-def cross(*vectors: np.ndarray) -> np.ndarray:
-    """Generalised cross product of ``d - 1`` vectors in R^d (DESIGN.md orientation).
-
-    Returns ``n`` with ``n . x = det[v_1; ...; v_{d-1}; x]`` for every ``x`` (cofactors of the
-    last row); in 3D this is the usual cross product.
-
-    Parameters
-    ----------
-    *vectors : (..., d) array_like
-        ``d - 1`` vectors (broadcast together).
-
-    Returns
-    -------
-    n : (..., d) float64
-        Orthogonal to every input; its length is the (d-1)-volume of their parallelotope.
-
-    Examples
-    --------
-    >>> cross([1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0])
-    array([0., 0., 0., 1.])
-    """
-    rows = np.stack(np.broadcast_arrays(*[np.asarray(v, dtype=np.float64) for v in vectors]), -2)
-    d = rows.shape[-1]
-    if rows.shape[-2] != d - 1:
-        raise ValueError(f"`vectors` must be {d - 1} vectors of length {d}, got {rows.shape[-2]}")
-    out = np.empty(rows.shape[:-2] + (d,))
-    for k in range(d):
-        minor = np.delete(rows, k, axis=-1)
-        out[..., k] = (-1) ** (d - 1 + k) * np.linalg.det(minor)
-    return out + 0.0  # turn -0.0 into 0.0 for readable output
 
 
 @dataclass(frozen=True)
@@ -143,25 +112,19 @@ class Camera4D:
         projection: Literal["perspective", "orthographic"] = "perspective",
         half_width: float | None = None,
     ) -> None:
-        self.eye = _vector4(eye, "eye")
-        self.target = _vector4(target, "target")
-        up_v = _vector4(up, "up")
-        over_v = _vector4(over, "over")
+        self.eye = as_vector(eye, "eye", 4, scalar=False)
+        self.target = as_vector(target, "target", 4, scalar=False)
+        up_v = as_vector(up, "up", 4, scalar=False)
+        over_v = as_vector(over, "over", 4, scalar=False)
         self.projection = check_choice(projection, "projection", ("perspective", "orthographic"))
-        fov = float(fov)
-        if not (0.0 < fov < 180.0):
-            raise ValueError(f"`fov` must be in (0, 180) degrees, got {fov}")
-        self.fov = fov
+        self.fov = fov = as_real(fov, "fov", gt=0, lt=180, unit=" degrees")
         self.basis = _hollasch_basis(self.eye, self.target, up_v, over_v)
         self.up = up_v
         self.over = over_v
         self.distance = float(np.linalg.norm(self.target - self.eye))
         if half_width is None:
             half_width = self.distance * math.tan(math.radians(fov) / 2)
-        half_width = float(half_width)
-        if not (math.isfinite(half_width) and half_width > 0):
-            raise ValueError(f"`half_width` must be a positive finite number, got {half_width}")
-        self.half_width = half_width
+        self.half_width = as_real(half_width, "half_width", gt=0)
 
     @classmethod
     def framing(
@@ -200,18 +163,12 @@ class Camera4D:
         box = as_array(bounds, "bounds", shape_tail=(2, 4), ndim=2, dtype=np.float64, finite=True)
         if (box[1] < box[0]).any():
             raise ValueError("`bounds` must be (lo, hi) with lo <= hi")
-        margin = float(margin)
-        if not margin >= 1.0:
-            raise ValueError(f"`margin` must be >= 1, got {margin}")
-        direction = _vector4(view, "view")
-        if not np.linalg.norm(direction) > 0:
-            raise ValueError("`view` must be a non-zero direction")
+        margin = as_real(margin, "margin", ge=1)
+        direction = as_vector(view, "view", 4, scalar=False, nonzero=True)
         direction /= np.linalg.norm(direction)
         centre = box.mean(axis=0)
         half = 0.5 * (box[1] - box[0])
-        fov = float(fov)
-        if not (0.0 < fov < 180.0):
-            raise ValueError(f"`fov` must be in (0, 180) degrees, got {fov}")
+        fov = as_real(fov, "fov", gt=0, lt=180, unit=" degrees")
         basis = cls(centre - direction, centre, up, over).basis  # depends on directions only
         lateral = max(float((np.abs(basis[:3]) @ half).max()), 1e-9) * margin
         along = float(np.abs(basis[3]) @ half)
@@ -325,11 +282,6 @@ class Camera4D:
         with np.errstate(divide="ignore", invalid="ignore"):
             scale = np.where(depth > 0, self.distance / depth, np.nan)
         return lateral * scale[..., None]
-
-
-def _vector4(value, name: str) -> np.ndarray:
-    v = as_array(value, name, ndim=1, shape_tail=(4,), dtype=np.float64, finite=True)
-    return v.copy()
 
 
 def _image_shape(shape) -> tuple[int, int, int]:

@@ -11,7 +11,7 @@ import importlib
 import sys
 
 # order shown in `ao4d --help`
-COMMANDS = ("demo", "info", "lut", "extract", "ao", "render", "slice")
+COMMANDS = ("demo", "info", "lut", "extract", "ao", "render", "slice", "view")
 
 EPILOG = """examples:
   ao4d demo                      render the default 4D scene into ./ao4d-demo/
@@ -22,12 +22,7 @@ EPILOG = """examples:
 
 
 def _load(name: str):
-    try:
-        return importlib.import_module(f"ao4d.commands.{name}")
-    except ModuleNotFoundError as exc:
-        if exc.name == f"ao4d.commands.{name}":
-            return None  # command not built yet
-        raise
+    return importlib.import_module(f"ao4d.commands.{name}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -41,12 +36,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"ao4d {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--no-progress", action="store_true",
+                        help="no progress bars or progress lines (errors and results still print)")
     for name in COMMANDS:
         module = _load(name)
-        if module is None:
-            continue
         cmd = sub.add_parser(
             name,
+            parents=[common],
             help=module.HELP,
             description=module.HELP,
             epilog="examples:\n" + module.EXAMPLES,
@@ -63,12 +60,15 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "command", None):
         parser.print_help()
         return 0
+    from . import _progress, cl
+
+    _progress.set_enabled(not args.no_progress)
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
         print("ao4d: interrupted", file=sys.stderr)
         return 130
-    except (ValueError, TypeError, FileNotFoundError, MemoryError) as exc:
+    except (ValueError, TypeError, OSError, MemoryError, cl.NoOpenCLDeviceError) as exc:
         print(f"ao4d {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

@@ -6,6 +6,10 @@ dimension, a bounding box of the solid (``extent``) and, where a closed form exi
 d-volume (``volume``) and the boundary (d-1)-volume (``boundary_measure``), which the tests use to
 check extraction accuracy.
 
+Why this file is long: it is one module because it is one catalogue (each shape is a short
+function with its closed-form volume and boundary measure, plus the combinators and ``sample``);
+splitting the catalogue would only scatter shapes that are read and tested side by side.
+
 Analytic values (derived with Pappus-type integrals; see each function's Notes):
 
 ==============  ====================================  ======================================
@@ -37,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import as_array, as_finite_float, check_memory, check_positive_int
+from ._validate import as_array, as_real, as_vector, check_memory, check_positive_int
 
 __all__ = [
     "Field",
@@ -141,20 +145,6 @@ def _extent_of(field: Any) -> np.ndarray | None:
     return getattr(field, "extent", None)
 
 
-def _vector(value: Any, name: str, dim: int) -> np.ndarray:
-    arr = as_array(value, name, ndim=(0, 1), dtype=np.float64, finite=True)
-    if arr.ndim == 1 and arr.shape[0] != dim:
-        raise ValueError(f"`{name}` must be a scalar or have length {dim}, got length {arr.shape[0]}")
-    return np.broadcast_to(arr, (dim,)).copy()
-
-
-def _positive(value: Any, name: str) -> float:
-    v = float(value)
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"`{name}` must be a finite number > 0, got {value!r}")
-    return v
-
-
 def _ball_volume(dim: int, radius: float) -> float:
     return math.pi ** (dim / 2) / math.gamma(dim / 2 + 1) * radius**dim
 
@@ -193,12 +183,12 @@ def hypersphere(radius: float = 1.0, center: Any = 0.0, *, dim: int | None = Non
     >>> float(f([2.0, 0, 0, 0]))
     0.0
     """
-    r = _positive(radius, "radius")
+    r = as_real(radius, "radius", gt=0)
     c_arr = np.asarray(center, dtype=float)
     if dim is None:
         dim = c_arr.shape[0] if c_arr.ndim == 1 else 4
     dim = check_positive_int(dim, "dim")
-    c = _vector(center, "center", dim)
+    c = as_vector(center, "center", dim)
     vol = _ball_volume(dim, r)
     return Field(
         lambda p: _norm(p - c, slice(None)) - r,
@@ -230,7 +220,7 @@ def spheritorus(R: float = 1.0, r: float = 0.4) -> Field:
     ``4 pi * int_disk (R + u)^2 = 4 pi (pi R^2 r^2 + pi r^4 / 4) = 4 pi^2 R^2 r^2 + pi^2 r^4``
     and the boundary 3-volume ``4 pi * int_0^2pi (R + r cos t)^2 r dt = 8 pi^2 R^2 r + 4 pi^2 r^3``.
     """
-    R, r = _positive(R, "R"), _positive(r, "r")
+    R, r = as_real(R, "R", gt=0), as_real(r, "r", gt=0)
     if r >= R:
         raise ValueError(f"`r` must be smaller than `R` (got r={r:g}, R={R:g})")
     a = R + r
@@ -263,7 +253,7 @@ def torisphere(R: float = 1.0, r: float = 0.4) -> Field:
     circles of length 2 pi rho. Pappus (centroid at rho = R): 4-volume
     ``2 pi R * 4/3 pi r^3 = 8/3 pi^2 R r^3``, boundary 3-volume ``2 pi R * 4 pi r^2 = 8 pi^2 R r^2``.
     """
-    R, r = _positive(R, "R"), _positive(r, "r")
+    R, r = as_real(R, "R", gt=0), as_real(r, "r", gt=0)
     if r >= R:
         raise ValueError(f"`r` must be smaller than `R` (got r={r:g}, R={R:g})")
     a = R + r
@@ -299,7 +289,7 @@ def ditorus(R: float = 1.0, r1: float = 0.45, r2: float = 0.2) -> Field:
     ``4 pi^2 R * int_disk q = 4 pi^2 R * r1 * pi r2^2 = 4 pi^3 R r1 r2^2`` and the boundary
     3-volume ``4 pi^2 R * int_circle q ds = 4 pi^2 R * r1 * 2 pi r2 = 8 pi^3 R r1 r2``.
     """
-    R, r1, r2 = _positive(R, "R"), _positive(r1, "r1"), _positive(r2, "r2")
+    R, r1, r2 = as_real(R, "R", gt=0), as_real(r1, "r1", gt=0), as_real(r2, "r2", gt=0)
     if not (r2 < r1 and r1 + r2 < R):
         raise ValueError(f"need r2 < r1 and r1 + r2 < R (got R={R:g}, r1={r1:g}, r2={r2:g})")
 
@@ -339,7 +329,7 @@ def tiger(R1: float = 0.8, R2: float = 0.8, r: float = 0.35) -> Field:
     circles with area element ``(2 pi rho1)(2 pi rho2)``; the cross terms vanish over the disk:
     4-volume ``4 pi^2 R1 R2 pi r^2 = 4 pi^3 R1 R2 r^2``, boundary ``8 pi^3 R1 R2 r``.
     """
-    R1, R2, r = _positive(R1, "R1"), _positive(R2, "R2"), _positive(r, "r")
+    R1, R2, r = as_real(R1, "R1", gt=0), as_real(R2, "R2", gt=0), as_real(r, "r", gt=0)
     if r >= min(R1, R2):
         raise ValueError(f"`r` must be smaller than `R1` and `R2` (got r={r:g})")
     a, b = R1 + r, R2 + r
@@ -368,7 +358,7 @@ def duocylinder(r1: float = 1.0, r2: float = 1.0) -> Field:
         ``volume = pi^2 r1^2 r2^2``; ``boundary_measure = 2 pi^2 r1 r2 (r1 + r2)``
         (two solid tori: circle 2 pi r1 times disk pi r2^2, and vice versa).
     """
-    r1, r2 = _positive(r1, "r1"), _positive(r2, "r2")
+    r1, r2 = as_real(r1, "r1", gt=0), as_real(r2, "r2", gt=0)
 
     def f(p: np.ndarray) -> np.ndarray:
         a = _norm(p, slice(0, 2)) - r1
@@ -413,10 +403,8 @@ def tesseract(half: float = 1.0, rounding: float = 0.0, *, dim: int = 4) -> Fiel
         ``V = sum_k C(d,k) (2a)^(d-k) omega_k rho^k`` (omega_k: unit k-ball volume) and the
         boundary is dV/drho; the sharp 4-cube gives 16 h^4 and 64 h^3.
     """
-    h = _positive(half, "half")
-    rho = float(rounding)
-    if not (math.isfinite(rho) and 0.0 <= rho < h):
-        raise ValueError(f"`rounding` must be in [0, half) = [0, {h:g}), got {rounding!r}")
+    h = as_real(half, "half", gt=0)
+    rho = as_real(rounding, "rounding", ge=0, lt=h, unit=" (`half`)")
     dim = check_positive_int(dim, "dim")
     a = h - rho
     terms = [(math.comb(dim, k) * (2 * a) ** (dim - k), _ball_volume(k, 1.0), k) for k in range(dim + 1)]
@@ -456,8 +444,8 @@ def indented_cube(half: float = 1.0, indent: float = 0.6, *, axis: int = 3) -> F
         the facet and gains a half 3-sphere (pi^2 rho^3):
         ``boundary_measure = 64 h^3 - 4/3 pi rho^3 + pi^2 rho^3``.
     """
-    h = _positive(half, "half")
-    rho = _positive(indent, "indent")
+    h = as_real(half, "half", gt=0)
+    rho = as_real(indent, "indent", gt=0)
     if rho >= h:
         raise ValueError(f"`indent` must be smaller than `half` ({h:g}), got {indent!r}")
     if axis not in range(4):
@@ -502,7 +490,7 @@ def metaballs(centers: Any, radii: Any = 0.5, *, sharpness: float = 2.0) -> Fiel
     r = np.broadcast_to(r, (k,)).copy()
     if (r <= 0).any():
         raise ValueError("`radii` must be > 0")
-    s = _positive(sharpness, "sharpness")
+    s = as_real(sharpness, "sharpness", gt=0)
     inv_r2 = 1.0 / r**2
 
     def f(p: np.ndarray) -> np.ndarray:
@@ -539,8 +527,8 @@ def gyroid(period: float = 1.0, thickness: float = 0.3) -> Field:
     Field
         Negative inside the sheet (not a distance).
     """
-    k = 2 * math.pi / _positive(period, "period")
-    t = _positive(thickness, "thickness")
+    k = 2 * math.pi / as_real(period, "period", gt=0)
+    t = as_real(thickness, "thickness", gt=0)
 
     def f(p: np.ndarray) -> np.ndarray:
         s, c = np.sin(k * p), np.cos(k * p)
@@ -567,7 +555,7 @@ def ground(height: float = 0.0, axis: int = 1, *, dim: int = 4) -> Field:
     Field
         ``x[axis] - height``; unbounded (intersect with a box to extract it).
     """
-    h = as_finite_float(height, "height")
+    h = as_real(height, "height")
     dim = check_positive_int(dim, "dim")
     if axis not in range(dim):
         raise ValueError(f"`axis` must be in 0..{dim - 1}, got {axis!r}")
@@ -639,7 +627,7 @@ def smooth_union(a: Callable, b: Callable, k: float = 0.2) -> Field:
     Equals ``min(a, b)`` where ``|a - b| >= k``, is smooth elsewhere and never above min.
     """
     _check_fields((a, b), "a, b")
-    k = _positive(k, "k")
+    k = as_real(k, "k", gt=0)
 
     def f(p: np.ndarray) -> np.ndarray:
         fa, fb = np.asarray(a(p), dtype=float), np.asarray(b(p), dtype=float)
@@ -680,7 +668,7 @@ def scale(field: Callable, factor: float) -> Field:
     Distances stay distances; the volume scales by factor^d and the boundary by factor^(d-1).
     """
     _check_fields((field,), "field")
-    s = _positive(factor, "factor")
+    s = as_real(factor, "factor", gt=0)
     dim = _dim_of(field)
     vol, area = getattr(field, "volume", None), getattr(field, "boundary_measure", None)
     ext = _extent_of(field)
@@ -721,7 +709,7 @@ def rotate(field: Callable, plane: tuple[int, int] = (0, 3), angle: float = 0.0)
     top = dim if dim is not None else max(i, j) + 1
     if i == j or not (0 <= i < top and 0 <= j < top):
         raise ValueError(f"`plane` must be two distinct axes in 0..{top - 1}, got {plane!r}")
-    a = as_finite_float(angle, "angle")
+    a = as_real(angle, "angle")
     c, s = math.cos(a), math.sin(a)
 
     def f(p: np.ndarray) -> np.ndarray:
@@ -804,8 +792,8 @@ def grid_axes(shape: Any, bounds: Any, *, dim: int | None = None) -> list[np.nda
         lo, hi = bounds
     except (TypeError, ValueError):
         raise ValueError(f"`bounds` must be a pair (lo, hi), got {bounds!r}") from None
-    lo = _vector(lo, "bounds", len(shape))
-    hi = _vector(hi, "bounds", len(shape))
+    lo = as_vector(lo, "bounds", len(shape))
+    hi = as_vector(hi, "bounds", len(shape))
     if not (hi > lo).all():
         raise ValueError(f"`bounds` must have lo < hi on every axis, got lo={lo}, hi={hi}")
     return [l + (h - l) * np.arange(n) / (n - 1) for l, h, n in zip(lo, hi, shape)]

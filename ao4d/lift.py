@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Literal, Union
 
 import numpy as np
 
-from ._validate import as_array, as_finite_float, check_choice, check_positive_int
+from ._validate import as_array, as_real, check_choice, check_positive_int
 
 if TYPE_CHECKING:
     import trimesh
@@ -237,8 +237,7 @@ def tetrahedralize(
         if method == "star":
             raise ValueError("`surface` is not star-shaped from `center` (some face is not "
                              "visible from it); use method='tetwild' or another `center`")
-    if not 0.0 < float(edge_length) <= 1.0:
-        raise ValueError(f"`edge_length` must lie in (0, 1], got {edge_length}")
+    edge_length = as_real(edge_length, "edge_length", gt=0, le=1)
     threads = check_positive_int(threads, "threads")
     import pytetwild
 
@@ -298,8 +297,8 @@ def prism(solid: MeshLike, height: float = 1.0, *, base: float = 0.0) -> Simplex
     (2.0, True)
     """
     tet_solid = _as_solid(solid, "solid")
-    height = _check_length(height, "height")
-    base = as_finite_float(base, "base")
+    height = as_real(height, "height", gt=0)
+    base = as_real(base, "base")
     pts, tets, tris = tet_solid.points, tet_solid.tets, tet_solid.boundary
     n = len(pts)
     vertices = np.concatenate([_with_w(pts, base), _with_w(pts, base + height)])
@@ -345,8 +344,8 @@ def cone(
     0.5
     """
     tet_solid = _as_solid(solid, "solid")
-    height = _check_length(height, "height")
-    base = as_finite_float(base, "base")
+    height = as_real(height, "height", gt=0)
+    base = as_real(base, "base")
     top = tet_solid.centroid if apex is None else as_array(
         apex, "apex", ndim=1, shape_tail=(3,), dtype=np.float64, finite=True)
     pts, tris = tet_solid.points, tet_solid.boundary
@@ -404,7 +403,7 @@ def spin(surface: MeshLike, k: int = 32, *, axis_tolerance: float = 1e-9) -> Sim
     """
     pts, tris = _surface_arrays(surface, "surface")
     k = check_positive_int(k, "k", minimum=3)
-    tol = float(axis_tolerance) * _scale(pts)
+    tol = as_real(axis_tolerance, "axis_tolerance", ge=0) * _scale(pts)
     if pts[:, 0].min() < -tol:
         raise ValueError(f"`surface` must lie in the half-space x >= 0 to spin about x = w = 0; "
                          f"its smallest x is {pts[:, 0].min():.6g} (translate it first)")
@@ -539,13 +538,6 @@ def _scale(points: np.ndarray) -> float:
 
 def _with_w(points: np.ndarray, w: float) -> np.ndarray:
     return np.column_stack([points, np.full(len(points), w)])
-
-
-def _check_length(value: float, name: str) -> float:
-    value = as_finite_float(value, name)
-    if value <= 0:
-        raise ValueError(f"`{name}` must be > 0, got {value}")
-    return value
 
 
 def _check_surface(surface: object, name: str) -> None:

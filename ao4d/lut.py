@@ -21,6 +21,10 @@ and split there with that entry's own labels.
 Tables ship in ``lut/`` (see ``lut/README.md``); ``load`` reads them, ``build`` regenerates them,
 ``verify`` checks checksums and compares a rebuild.
 
+Why this file is long: generator, table files and verification stay one module because a table
+is only trusted together with the code that regenerates and byte-compares it (the point of
+keeping the generator in the package, unlike scikit-image's opaque tables).
+
 References
 ----------
 .. [1] P. Bhaniramka, R. Wenger, R. Crawfis, "Isosurfacing in higher dimensions", Proc. IEEE
@@ -46,6 +50,7 @@ import numpy as np
 
 from ._npz import npz_bytes
 from ._validate import check_choice
+from .geometry import cross
 
 __all__ = [
     "Table",
@@ -465,7 +470,7 @@ def _orient(cell: _Cell, entries: np.ndarray, simplices: np.ndarray) -> np.ndarr
     total = positive @ coords2[:n] + bipolar @ coords2[n:]  # (N, d)
     count = positive.sum(1) + bipolar.sum(1)
     p = coords2[n + simplices]  # (M, d, d)
-    normal = _normals(p)
+    normal = cross(*np.moveaxis(p[:, 1:] - p[:, :1], 1, 0))  # (M, d), exact in integers
     if not np.abs(normal).any(1).all():  # integer vector, zero iff the simplex is flat
         raise AssertionError("degenerate simplex in the table")
     side = np.einsum("md,md->m", normal, total[entries] - count[entries, None] * p[:, 0])
@@ -474,34 +479,6 @@ def _orient(cell: _Cell, entries: np.ndarray, simplices: np.ndarray) -> np.ndarr
     flip = side < 0
     simplices[flip, :2] = simplices[flip, 1::-1]
     return simplices
-
-
-def _normals(p: np.ndarray) -> np.ndarray:
-    """(M, d) normals n with n . x = det[p1-p0; ...; p_{d-1}-p0; x] of simplices p (M, d, d).
-
-    Cofactor expansion along the last row; exact for integer input.
-    """
-    d = p.shape[1]
-    a = p[:, 1:] - p[:, :1]  # (M, d-1, d)
-    normal = np.empty(p.shape[::2], dtype=p.dtype)
-    for k in range(d):
-        minor = np.delete(a, k, axis=2)  # (M, d-1, d-1)
-        normal[:, k] = (-1) ** (d - 1 + k) * _det(minor)
-    return normal
-
-
-def _det(m: np.ndarray) -> np.ndarray:
-    """Determinants of (M, k, k) matrices, k <= 3, by explicit expansion (exact for integers)."""
-    k = m.shape[1]
-    if k == 1:
-        return m[:, 0, 0]
-    if k == 2:
-        return m[:, 0, 0] * m[:, 1, 1] - m[:, 0, 1] * m[:, 1, 0]
-    return (
-        m[:, 0, 0] * (m[:, 1, 1] * m[:, 2, 2] - m[:, 1, 2] * m[:, 2, 1])
-        - m[:, 0, 1] * (m[:, 1, 0] * m[:, 2, 2] - m[:, 1, 2] * m[:, 2, 0])
-        + m[:, 0, 2] * (m[:, 1, 0] * m[:, 2, 1] - m[:, 1, 1] * m[:, 2, 0])
-    )
 
 
 def _assemble(cell: _Cell, entries: np.ndarray, simplices: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -522,7 +499,7 @@ def _build_arrays(cell: _Cell, *, show: bool) -> tuple[np.ndarray, np.ndarray]:
     One hull per class of ``cell.group``; its facets' flags are pulled in the labels of every
     entry of the class at once.
     """
-    from tqdm.auto import tqdm
+    from . import _progress
 
     n = cell.n
     rep, elem = _orbits(cell.group[:, :n])
@@ -537,16 +514,15 @@ def _build_arrays(cell: _Cell, *, show: bool) -> tuple[np.ndarray, np.ndarray]:
     edge_labels = np.concatenate([cell.group - n, np.full((len(cell.group), 1), big)], axis=1)
 
     entries_out, simplices_out = [], []
-    progress = tqdm(
-        zip(reps, starts, stops), total=len(reps), disable=not show,
-        desc=f"lut {cell.kind} {cell.dim}D", unit="class",
-    )
-    for rep_c, lo, hi in progress:
+    bar = _progress.bar(len(reps), f"lut {cell.kind} {cell.dim}D", unit="class", show=show)
+    for rep_c, lo, hi in zip(reps, starts, stops):
+        bar.update(1)
         flags = _class_flags(cell, int(rep_c))
         cases = members[lo:hi]
         rows, simplices = _pull(flags, edge_labels[elem[cases]], sentinel)
         entries_out.append(cases[rows])
         simplices_out.append(simplices)
+    bar.close()
     entries = np.concatenate(entries_out)
     simplices = _orient(cell, entries, np.concatenate(simplices_out))
     return _assemble(cell, entries, simplices)

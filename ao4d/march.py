@@ -1,29 +1,11 @@
 """Marching extraction of closed, oriented simplex meshes from 2D, 3D and 4D scalar grids.
 
 The public wrappers (:func:`extract`, :func:`extract_field`) validate and normalise their input
-and hand a slab reader to one vectorised core, :func:`_march`, which has no checks of its own.
+and hand a slab reader to one vectorised core, :func:`ao4d.cells._march`, which has no checks of
+its own; dask arrays and ``chunks=`` go to :mod:`ao4d.blockwise`, which runs the same core on
+blocks as dask tasks.
 
-How the core works (all numpy, no Python loop over cells):
-
-1. Per slab of grid layers, classify every cell: bit v of its case is set iff corner v is
-   positive (``f >= level``; DESIGN.md). The bits are combined axis by axis (d passes over the
-   slab instead of 2^d).
-2. Look up the simplices of the active cells (case neither 0 nor all ones) in a *cell table*:
-   rows of d edge ids, each edge given by its lower corner ``a`` and direction mask ``m``
-   (``a & m == 0``). The cube table comes straight from :func:`ao4d.lut.load`; the Kuhn table
-   concatenates, per cube case, the simplex-table entries of the d! Kuhn cells (with the
-   orientation reversed in odd cells), so both methods share the rest of the pipeline. Kuhn
-   edges include cube diagonals (any non-zero ``m``).
-3. Each crossed grid edge is one vertex, welded by its global key ``point * n_dirs + dir(m)``.
-   Within a slab a dense key map replaces sorting; across slabs the vertices of the shared
-   layer are carried over, so memory stays bounded by the slab size.
-4. Every vertex is interpolated once, from its own edge, with ``t = (level - f0) / (f1 - f0)``
-   where exactly one end is positive: ``t`` lies in [0, 1] in floating point too (the
-   subtraction is monotonic), and every cell sees the same point.
-
-The cell tables are expressed in user axes; a slab axis other than axis 0 (fields are evaluated
-along the last axis, Fortran arrays are read transposed) only changes the strides used to turn
-corners into memory offsets, so the mesh never depends on the memory layout.
+How the core works is described in :mod:`ao4d.cells`.
 
 References
 ----------
@@ -38,15 +20,22 @@ References
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from ._validate import as_array, as_finite_float, check_choice, check_finite, check_memory, check_positive_int
+from ._validate import as_array, as_real, as_vector, check_choice, check_finite, check_positive_int
+from .cells import (  # noqa: F401  (_kuhn_table: tests reach it through ao4d.march)
+    _PROGRESS_CELLS,
+    _cell_table,
+    _check_slab_memory,
+    _Geometry,
+    _kuhn_table,
+    _layers_per_slab,
+    _march,
+)
 from .mesh import SimplexMesh
 
 __all__ = ["extract", "extract_field", "METHODS"]
@@ -55,277 +44,6 @@ METHODS = ("cubes", "simplices")
 _INSIDE = ("below", "above")
 _KIND = {"cubes": "cube", "simplices": "simplex"}
 
-# Dense key-map entries per slab (points x directions). 2^23 keeps the per-slab working set
-# (key map, mark array, case array, values) near 100 MB in 4D.
-_KEYS_PER_SLAB = 1 << 23
-# Show a progress bar by default from this many cells on (about a 40^4 grid).
-_PROGRESS_CELLS = 1 << 21
-
-
-# --------------------------------------------------------------------------------------------
-# cell tables
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _CellTable:
-    """Simplices of every cube case as rows of edge ids; edge e runs from corner ``corner[e]``
-    to ``corner[e] | mask[e]``."""
-
-    dim: int
-    offsets: np.ndarray  # (2^(2^d) + 1,) int64
-    counts: np.ndarray  # (2^(2^d),) int64
-    simplices: np.ndarray  # (M, d) uint8 edge ids
-    corner: np.ndarray  # (E,) int64
-    mask: np.ndarray  # (E,) int64
-
-
-def _load_table(dim: int, kind: str):
-    from . import lut
-
-    return lut.load(dim, kind)
-
-
-@functools.lru_cache(maxsize=None)
-def _cube_table(dim: int) -> _CellTable:
-    table = _load_table(dim, "cube")
-    u, v = table.edges[:, 0].astype(np.int64), table.edges[:, 1].astype(np.int64)
-    offsets = table.offsets.astype(np.int64)
-    return _CellTable(
-        dim, offsets, np.diff(offsets), table.simplices.astype(np.uint8), u & v, u ^ v
-    )
-
-
-@functools.lru_cache(maxsize=None)
-def _kuhn_table(dim: int) -> _CellTable:
-    """Cube-level table of the Kuhn split: per cube case, the simplices of all d! cells."""
-    table = _load_table(dim, "simplex")
-    n = 1 << dim
-    cells = table.cells.astype(np.int64)  # (J, d+1) cube corners
-    parity = table.cell_parity
-    # every cube edge or diagonal (a, m) with a & m == 0, m != 0, numbered densely
-    pairs = [(a, m) for m in range(1, n) for a in range(n) if a & m == 0]
-    pair_id = np.full((n, n), -1, dtype=np.int64)
-    for e, (a, m) in enumerate(pairs):
-        pair_id[a, m] = e
-    lo_c, hi_c = cells[:, table.edges[:, 0]], cells[:, table.edges[:, 1]]  # (J, Es)
-    edge_map = pair_id[lo_c & hi_c, lo_c ^ hi_c]  # (J, Es): simplex-table edge -> pair id
-
-    cases = np.arange(1 << n, dtype=np.int64)
-    bits = (cases[:, None, None] >> cells[None, :, :]) & 1  # (C, J, d+1)
-    sub_case = (bits << np.arange(dim + 1)).sum(axis=2)  # (C, J)
-    sub_counts = np.diff(table.offsets)[sub_case].ravel()
-    sub_start = table.offsets[:-1][sub_case].ravel()
-    total = int(sub_counts.sum())
-    first = np.cumsum(sub_counts) - sub_counts
-    rows = np.repeat(sub_start - first, sub_counts) + np.arange(total)
-    cell_of_row = np.repeat(np.tile(np.arange(len(cells)), len(cases)), sub_counts)
-    n_edges = edge_map.shape[1]  # flat gather: much faster than 2D broadcast indexing
-    simplices = edge_map.ravel()[(cell_of_row * n_edges)[:, None] + table.simplices[rows]]
-    odd = parity[cell_of_row] < 0
-    simplices[odd, 0], simplices[odd, 1] = simplices[odd, 1], simplices[odd, 0].copy()
-    counts = sub_counts.reshape(len(cases), len(cells)).sum(axis=1)
-    offsets = np.concatenate([[0], np.cumsum(counts)])
-    pairs_arr = np.array(pairs, dtype=np.int64)
-    return _CellTable(dim, offsets, counts, simplices.astype(np.uint8), pairs_arr[:, 0], pairs_arr[:, 1])
-
-
-def _cell_table(dim: int, method: str) -> _CellTable:
-    return _cube_table(dim) if method == "cubes" else _kuhn_table(dim)
-
-
-# --------------------------------------------------------------------------------------------
-# the core
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass
-class _Geometry:
-    """Engine layout: engine axis e holds user axis ``perm[e]``; slabs run along engine axis 0."""
-
-    shape: tuple[int, ...]  # engine grid shape
-    perm: tuple[int, ...]
-    origin: np.ndarray  # (d,) user axes
-    spacing: np.ndarray  # (d,) user axes
-
-    @property
-    def layer(self) -> int:
-        """Points per layer (engine axis 0 stride)."""
-        return math.prod(self.shape[1:])
-
-
-def _corner_offsets(geom: _Geometry, d: int) -> np.ndarray:
-    """(2^d,) engine linear offset of the corner (or mask) with user bits v."""
-    strides = np.cumprod((1,) + geom.shape[:0:-1])[::-1]  # engine C-order strides
-    user_stride = np.empty(d, dtype=np.int64)
-    user_stride[list(geom.perm)] = strides
-    v = np.arange(1 << d)
-    return (((v[:, None] >> np.arange(d)) & 1) * user_stride).sum(axis=1)
-
-
-def _cases(positive: np.ndarray, perm: tuple[int, ...]) -> np.ndarray:
-    """Case index of every cell, stored at its lowest corner (last layers along each axis: 0)."""
-    d = positive.ndim
-    c = positive.astype(np.uint16 if d == 4 else np.uint8)
-    for k in range(d):  # user axis k carries corner bits 2^k .. 2^(k+1)-1
-        e = perm.index(k)
-        lo = (slice(None),) * e + (slice(None, -1),)
-        hi = (slice(None),) * e + (slice(1, None),)
-        c[lo] |= c[hi] << (1 << k)
-    for e in range(d):
-        c[(slice(None),) * e + (-1,)] = 0
-    return c
-
-
-@dataclass
-class _Plan:
-    """Per-grid constants of the core: table edges as key offsets, directions, shared layers."""
-
-    table: _CellTable
-    geom: _Geometry
-    offs: np.ndarray  # (2^d,) engine offset of each user corner / mask
-    dirs: np.ndarray  # (n_dirs,) edge direction masks used by the table
-    key_off: np.ndarray  # (E,) key offset of each table edge from its cell's lowest corner
-    in_plane: np.ndarray  # (n_dirs,) direction lies inside a layer (no slab-axis bit)
-    mask_bits: np.ndarray  # (2^d, d) float: user bits of each mask
-
-    @classmethod
-    def make(cls, table: _CellTable, geom: _Geometry) -> _Plan:
-        d = len(geom.shape)
-        offs = _corner_offsets(geom, d)
-        dirs = np.unique(table.mask)
-        dir_of = np.zeros(1 << d, dtype=np.int64)
-        dir_of[dirs] = np.arange(len(dirs))
-        key_off = offs[table.corner] * len(dirs) + dir_of[table.mask]
-        in_plane = (dirs & (1 << geom.perm[0])) == 0
-        mask_bits = ((np.arange(1 << d)[:, None] >> np.arange(d)) & 1).astype(np.float64)
-        return cls(table, geom, offs, dirs, key_off, in_plane, mask_bits)
-
-    @property
-    def n_dirs(self) -> int:
-        return len(self.dirs)
-
-
-def _slab_keys(case: np.ndarray, plan: _Plan, n_keys: int) -> np.ndarray | None:
-    """(M, d) edge keys of the simplices of all active cells of one slab, or None if empty.
-
-    ``case`` holds every cell's case at its lowest corner (flat slab index).
-    """
-    table, n_dirs = plan.table, plan.n_dirs
-    full = (1 << (1 << table.dim)) - 1
-    active = np.flatnonzero((case != 0) & (case != full))
-    case = case[active].astype(np.int64)
-    counts = table.counts[case]
-    n_simp = int(counts.sum())
-    if n_simp == 0:
-        return None
-    first = np.cumsum(counts) - counts
-    rows = np.repeat(table.offsets[case] - first, counts) + np.arange(n_simp)
-    # int32 keys halve the memory traffic of the hottest lines when the slab allows
-    kt = np.int32 if n_keys < 2**31 else np.int64
-    base = np.repeat((active * n_dirs).astype(kt), counts)
-    return base[:, None] + plan.key_off.astype(kt)[table.simplices[rows]]
-
-
-class _Welder:
-    """Numbers the crossed edges (vertices) of successive slabs, sharing the layer between two
-    slabs: keys of the top layer are remembered (``carry``) and reused by the next slab."""
-
-    def __init__(self, plan: _Plan) -> None:
-        self.plan = plan
-        self.carry = np.full(plan.geom.layer * plan.n_dirs, -1, dtype=np.int64)
-        self.n_vertices = 0
-
-    def number(self, keys: np.ndarray | None, n_keys: int, n_layers: int):
-        """Vertex index of every key. Returns (simplices (M, d), new_keys (K,)): ``new_keys``
-        are the sorted keys of the vertices first seen in this slab, in index order."""
-        plan, carry = self.plan, self.carry
-        layer_keys = plan.geom.layer * plan.n_dirs
-        if keys is None:
-            carry.fill(-1)
-            return None, None
-        mark = np.zeros(n_keys, dtype=bool)  # sorted unique keys without sorting
-        mark[keys] = True
-        used = np.flatnonzero(mark)
-        del mark
-        in_plane = plan.in_plane[used % plan.n_dirs]
-        shared = np.zeros(len(used), dtype=bool)
-        bottom = (used < layer_keys) & in_plane
-        shared[bottom] = carry[used[bottom]] >= 0
-        index = np.empty(len(used), dtype=np.int64)
-        index[shared] = carry[used[shared]]
-        new = ~shared
-        n_new = int(np.count_nonzero(new))
-        index[new] = self.n_vertices + np.arange(n_new)
-        self.n_vertices += n_new
-        carry.fill(-1)
-        top = (used >= n_layers * layer_keys) & in_plane
-        carry[used[top] - n_layers * layer_keys] = index[top]
-        # key -> index through a dense map (np.empty: only the used keys are touched);
-        # int32 halves the memory the slabs hold until the final concatenation
-        key_map = np.empty(n_keys, dtype=np.int32 if self.n_vertices < 2**31 else np.int64)
-        key_map[used] = index
-        return key_map[keys], used[new]
-
-
-def _march(
-    read: Callable[[int, int], np.ndarray],
-    geom: _Geometry,
-    level: float,
-    *,
-    table: _CellTable,
-    inside: str,
-    layers_per_slab: int,
-    check_values: bool,
-    progress: Any,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Extract the mesh slab by slab: (vertices (V, d) float64, simplices (S, d) int32|int64)."""
-    d = len(geom.shape)
-    plan = _Plan.make(table, geom)
-    welder = _Welder(plan)
-    verts: list[np.ndarray] = []
-    simps: list[np.ndarray] = []
-    n0 = geom.shape[0]
-    z0 = 0
-    while z0 < n0 - 1:
-        z1 = min(z0 + layers_per_slab, n0 - 1)
-        slab = read(z0, z1 + 1)
-        if check_values:
-            check_finite(slab, "values")
-        case = _cases(slab >= level if inside == "below" else slab <= level, geom.perm).ravel()
-        n_keys = slab.size * plan.n_dirs
-        simplices, new_keys = welder.number(_slab_keys(case, plan, n_keys), n_keys, z1 - z0)
-        if simplices is not None:
-            simps.append(simplices)
-            lin, dir_ = np.divmod(new_keys, plan.n_dirs)
-            verts.append(_interpolate(slab, lin, plan.dirs[dir_], z0, level, plan))
-        if progress is not None:
-            progress.update(z1 - z0)
-        z0 = z1
-    if not simps:
-        return np.zeros((0, d)), np.zeros((0, d), dtype=np.int64)
-    vertices = np.concatenate(verts)
-    del verts
-    # kept int32 when it fits: SimplexMesh converts to int64 in its own (unavoidable) copy
-    return vertices, np.concatenate(simps)
-
-
-def _interpolate(
-    slab: np.ndarray, lin: np.ndarray, masks: np.ndarray, z0: int, level: float, plan: _Plan
-) -> np.ndarray:
-    """Positions (K, d) of the crossings on edges (slab point ``lin``, direction ``masks``)."""
-    geom = plan.geom
-    flat = slab.reshape(-1)
-    f0 = flat[lin].astype(np.float64)
-    f1 = flat[lin + plan.offs[masks]].astype(np.float64)
-    # exactly one end is positive, so f1 != f0 and fl(level - f0) lies between 0 and fl(f1 - f0)
-    t = np.clip((level - f0) / (f1 - f0), 0.0, 1.0)
-    eidx = np.unravel_index(lin, slab.shape)
-    idx = np.empty((len(lin), len(geom.shape)))
-    for e, axis in enumerate(geom.perm):
-        idx[:, axis] = eidx[e] + (z0 if e == 0 else 0)
-    idx += t[:, None] * plan.mask_bits[masks]
-    return geom.origin + geom.spacing * idx
 
 
 # --------------------------------------------------------------------------------------------
@@ -333,44 +51,14 @@ def _interpolate(
 # --------------------------------------------------------------------------------------------
 
 
-def _layers_per_slab(chunk: Any, geom: _Geometry, method: str) -> int:
-    n_dirs = len(np.unique(_cell_table(len(geom.shape), method).mask))
-    if chunk is None:
-        return max(1, _KEYS_PER_SLAB // max(1, geom.layer * n_dirs) - 1)
-    return check_positive_int(chunk, "chunk")
-
-
-def _check_slab_memory(geom: _Geometry, layers: int, method: str, itemsize: int) -> None:
-    d = len(geom.shape)
-    n_dirs = d if method == "cubes" else (1 << d) - 1
-    points = (layers + 1) * geom.layer
-    # values + float64 copy, sign and case arrays, mark (bool) and key map (int32) per key,
-    # plus the shared-layer map (int64)
-    per_point = itemsize + 8 + 1 + 2 + 5 * n_dirs
-    check_memory(
-        points * per_point + geom.layer * n_dirs * 8,
-        f"extracting a grid of shape {geom.shape}",
-        hint="use thinner slabs (`chunk=`) or a coarser grid",
-    )
-
-
 def _progress_bar(progress: bool | None, n_cells: int, n_layers: int) -> Any:
     if progress is None:
         progress = n_cells >= _PROGRESS_CELLS
     if not progress:
         return None
-    from tqdm.auto import tqdm
+    from . import _progress
 
-    return tqdm(total=n_layers, desc="extract", unit="layer", leave=False)
-
-
-def _per_axis(value: Any, name: str, d: int, *, positive: bool) -> np.ndarray:
-    arr = as_array(value, name, ndim=(0, 1), dtype=np.float64, finite=True)
-    if arr.ndim == 1 and arr.shape[0] != d:
-        raise ValueError(f"`{name}` must be a scalar or have {d} entries, got {arr.shape[0]}")
-    if positive and (arr <= 0).any():
-        raise ValueError(f"`{name}` must be > 0, got {value!r}")
-    return np.broadcast_to(arr, (d,)).astype(np.float64)
+    return _progress.bar(n_layers, "extract", unit="layer")
 
 
 def _run(
@@ -424,7 +112,11 @@ def extract(
     values : (n_0, ..., n_{d-1}) array_like, d in {2, 3, 4}
         Samples; ``values[i]`` sits at ``origin + spacing * i``. Any real dtype, C or Fortran
         order, or a ``np.memmap`` (``np.load(path, mmap_mode="r")``): large arrays are read slab
-        by slab and never copied whole. Every axis needs at least 2 points.
+        by slab and never copied whole. A dask array (any chunking) is extracted block by block,
+        each block a task on the active dask scheduler (threads by default, a
+        ``distributed.Client`` when one exists), and gives the same mesh array for array; see
+        :mod:`ao4d.blockwise` for the memory a worker and the client need. Every axis needs at
+        least 2 points.
     level : float
         Iso-value.
     spacing : float or (d,) array_like
@@ -473,6 +165,10 @@ def extract(
     >>> mesh.check().ok, mesh.dim
     (True, 4)
     """
+    from .blockwise import is_dask_array
+
+    if is_dask_array(values):  # blocks as tasks on the active dask scheduler
+        return _extract_dask(values, level, spacing, origin, method, inside, chunk, progress)
     arr = values if isinstance(values, np.ndarray) else as_array(values, "values")
     if arr.ndim not in (2, 3, 4):
         raise ValueError(f"`values` must be a 2D, 3D or 4D array, got shape {arr.shape}")
@@ -481,9 +177,9 @@ def extract(
     if arr.dtype.kind not in "fiub":
         raise TypeError(f"`values` must hold real numbers, got dtype {arr.dtype}")
     d = arr.ndim
-    level = as_finite_float(level, "level")
-    spacing = _per_axis(spacing, "spacing", d, positive=True)
-    origin = _per_axis(origin, "origin", d, positive=False)
+    level = as_real(level, "level")
+    spacing = as_vector(spacing, "spacing", d, positive=True)
+    origin = as_vector(origin, "origin", d)
     check_choice(method, "method", METHODS)
     check_choice(inside, "inside", _INSIDE)
     if progress is not None and not isinstance(progress, bool):
@@ -504,7 +200,25 @@ def extract(
         slab = np.ascontiguousarray(engine[a:b])
         return slab if slab.dtype.kind == "f" else slab.astype(np.float64)
 
-    return _run(read, geom, level, method, inside, chunk, progress, on_disk, arr.dtype.itemsize)
+    mesh = _run(read, geom, level, method, inside, chunk, progress, on_disk, arr.dtype.itemsize)
+    return _checked(mesh, level, inside, lambda: (float(np.min(arr)), float(np.max(arr))))
+
+
+def _extract_dask(values, level, spacing, origin, method, inside, chunk, progress) -> SimplexMesh:
+    """Validate the options as :func:`extract` does, then run the blocks (ao4d.blockwise)."""
+    from .blockwise import extract_blocks
+
+    d = values.ndim if values.ndim in (2, 3, 4) else 1  # the shape error comes from blockwise
+    if progress is not None and not isinstance(progress, bool):
+        raise TypeError(f"`progress` must be True, False or None, got {progress!r}")
+    level = as_real(level, "level")
+    return _checked(extract_blocks(
+        values, level,
+        spacing=as_vector(spacing, "spacing", d, positive=True),
+        origin=as_vector(origin, "origin", d),
+        method=check_choice(method, "method", METHODS), inside=check_choice(inside, "inside", _INSIDE),
+        chunk=None if chunk is None else check_positive_int(chunk, "chunk"), progress=progress),
+        level, inside, None)
 
 
 def extract_field(
@@ -516,6 +230,7 @@ def extract_field(
     method: str = "cubes",
     inside: str = "below",
     chunk: int | None = None,
+    chunks: Any = None,
     progress: bool | None = None,
 ) -> SimplexMesh:
     """Sample ``field`` and extract its level set slab by slab, never holding the whole grid.
@@ -537,6 +252,10 @@ def extract_field(
     chunk : int, optional
         Cell layers per slab along the last axis (slabs share one layer of grid points, whose
         vertices are welded by global edge key). By default about 100 MB of working memory.
+    chunks : int, sequence of int, dask block sizes or "auto", optional
+        Sample and extract block by block instead, each block (this many grid points per axis)
+        a task on the active dask scheduler (threads, or a ``distributed.Client`` when one
+        exists; see :mod:`ao4d.blockwise` for worker and client memory). Same result.
     progress : bool, optional
         tqdm bar; by default from 2^21 cells on.
 
@@ -561,12 +280,21 @@ def extract_field(
     d = len(axes)
     if d not in (2, 3, 4):
         raise ValueError(f"`shape` must describe a 2D, 3D or 4D grid, got {len(axes)} axes")
-    level = as_finite_float(level, "level")
+    level = as_real(level, "level")
     check_choice(method, "method", METHODS)
     check_choice(inside, "inside", _INSIDE)
     n = [len(a) for a in axes]
     lo = np.array([a[0] for a in axes])
     spacing = np.array([(a[-1] - a[0]) / (len(a) - 1) for a in axes])
+    if chunks is not None:
+        from .blockwise import extract_field_blocks
+
+        if progress is not None and not isinstance(progress, bool):
+            raise TypeError(f"`progress` must be True, False or None, got {progress!r}")
+        return _checked(extract_field_blocks(
+            field, axes, level, origin=lo, spacing=spacing, method=method, inside=inside,
+            chunk=None if chunk is None else check_positive_int(chunk, "chunk"), chunks=chunks,
+            progress=progress), level, inside, None)
     # engine axis 0 is the user's last axis, so each evaluated layer is one engine layer
     geom = _Geometry((n[-1], *n[:-1]), (d - 1, *range(d - 1)), lo, spacing)
     last: dict[int, np.ndarray] = {}
@@ -579,6 +307,46 @@ def extract_field(
             slab = evaluate_layers(field, axes, a, b)
         last.clear()
         last[b - 1] = slab[-1].copy()
+        _check_field_values(slab, field, axes, a)
         return slab
 
-    return _run(read, geom, level, method, inside, chunk, progress, True, 8)
+    return _checked(_run(read, geom, level, method, inside, chunk, progress, False, 8), level, inside, None)
+
+
+def _check_field_values(slab: np.ndarray, field: Callable, axes: list, first: int) -> None:
+    """The field's own values must be finite: name `field` and a point where they are not."""
+    bad = ~np.isfinite(slab)
+    if bad.any():
+        k, *rest = np.unravel_index(int(np.argmax(bad)), slab.shape)  # engine axis 0 = last axis
+        point = [float(axes[i][j]) for i, j in enumerate(rest)] + [float(axes[-1][first + k])]
+        raise ValueError(
+            f"`field` returned {int(bad.sum())} non-finite value(s) (NaN or inf) in grid layers "
+            f"{first}..{first + slab.shape[0] - 1}, e.g. at point {tuple(round(x, 6) for x in point)}"
+        )
+
+
+class EmptyMeshWarning(UserWarning):
+    """The extracted level set is empty (the level misses the data)."""
+
+
+def _checked(mesh: SimplexMesh, level: float, inside: str, value_range: Callable | None) -> SimplexMesh:
+    """Warn about results that are almost always mistakes: empty, or closed and inside out."""
+    import warnings
+
+    from .mesh import InsideOutWarning
+
+    if mesh.n_simplices == 0:
+        if value_range is not None:
+            lo, hi = value_range()
+            why = f"`level` {level:g} is outside the data range [{lo:g}, {hi:g}]"
+        else:
+            why = f"no grid cell crosses `level` {level:g} (check `level` and the grid's bounds)"
+        warnings.warn(f"the extracted mesh is empty: {why}", EmptyMeshWarning, stacklevel=3)
+    elif mesh.volume < 0 and mesh.check().closed:
+        other = "below" if inside == "above" else "above"
+        warnings.warn(
+            f"the extracted mesh is closed but encloses a negative volume ({mesh.volume:.4g}): "
+            f"the solid is the unbounded side of the level set, so `inside={inside!r}` is "
+            f"probably wrong for this data (try inside={other!r})",
+            InsideOutWarning, stacklevel=3)
+    return mesh

@@ -22,328 +22,24 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ._validate import as_array, check_memory
+from . import mesh_files, slicing, topology
+from ._validate import as_array, as_real
+from .geometry import simplex_normals
+from .topology import InsideOutWarning, MeshReport, warn_if_inside_out  # noqa: F401 (re-exported)
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import os
 
     import trimesh
 
-__all__ = [
-    "SimplexMesh",
-    "MeshReport",
-    "concatenate",
-    "simplex_normals",
-    "hyperplane_basis",
-]
+__all__ = ["SimplexMesh", "MeshReport", "concatenate", "InsideOutWarning", "warn_if_inside_out"]
 
 DIMS = (2, 3, 4)
-# Rows processed per block when forming (S, d-1, d) edge matrices: bounds temporaries to ~100 MB.
-_BLOCK = 1 << 20
-
-
-# --------------------------------------------------------------------------------------------
-# geometry kernels (no validation)
-# --------------------------------------------------------------------------------------------
-
-
-def _det3(m: np.ndarray) -> np.ndarray:
-    """Determinants of (..., 3, 3) matrices by cofactor expansion (several times faster than batched LU)."""
-    return (
-        m[..., 0, 0] * (m[..., 1, 1] * m[..., 2, 2] - m[..., 1, 2] * m[..., 2, 1])
-        - m[..., 0, 1] * (m[..., 1, 0] * m[..., 2, 2] - m[..., 1, 2] * m[..., 2, 0])
-        + m[..., 0, 2] * (m[..., 1, 0] * m[..., 2, 1] - m[..., 1, 1] * m[..., 2, 0])
-    )
-
-
-def _cofactor_normals(edges: np.ndarray) -> np.ndarray:
-    """Generalised cross product of the d-1 rows of ``edges`` (N, d-1, d) -> (N, d).
-
-    Component k is the cofactor of entry (d-1, k) of ``[edges; x]``, so ``n . x = det[edges; x]``.
-    """
-    d = edges.shape[-1]
-    if d == 2:
-        # det[[a0, a1], [x0, x1]] = a0 x1 - a1 x0
-        return np.stack([-edges[:, 0, 1], edges[:, 0, 0]], axis=-1)
-    if d == 3:
-        return np.cross(edges[:, 0], edges[:, 1])
-    normals = np.empty(edges.shape[:1] + (d,), dtype=np.float64)
-    columns = np.arange(d)
-    for k in range(d):
-        minor = edges[:, :, columns != k]
-        normals[:, k] = (-1) ** (d - 1 + k) * _det3(minor)
-    return normals
-
-
-def simplex_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
-    """Unnormalised simplex normals ``n`` with ``n . x = det[p1 - p0; ...; p_{d-1} - p0; x]``.
-
-    Parameters
-    ----------
-    vertices : (V, d) float64
-        Vertex coordinates, d in {2, 3, 4}.
-    simplices : (S, d) int
-        Vertex indices of each simplex.
-
-    Returns
-    -------
-    normals : (S, d) float64
-        ``|normals| = (d-1)! * measure``; zero for degenerate simplices. No input validation.
-    """
-    d = vertices.shape[1]
-    out = np.empty((len(simplices), d), dtype=np.float64)
-    for start in range(0, len(simplices), _BLOCK):
-        block = simplices[start:start + _BLOCK]
-        p0 = vertices[block[:, 0]]
-        edges = vertices[block[:, 1:]] - p0[:, None, :]
-        out[start:start + _BLOCK] = _cofactor_normals(edges)
-    return out
-
-
-def hyperplane_basis(normal: Any) -> np.ndarray:
-    """Deterministic orthonormal basis (b1, b2, b3) of the hyperplane orthogonal to ``normal`` in R^4.
-
-    The basis is right-handed with the normal: ``det[b1; b2; b3; n] > 0`` with n the unit
-    normal, so slicing a closed outward-oriented 4D mesh gives outward-oriented 3D slices. For
-    ``normal = (0, 0, 0, 1)`` the basis is x, y, z exactly. It is built from a Householder
-    reflection that maps ``-e_w`` (or ``e_w``) onto ``n``, picked by the sign of ``n_w`` for
-    stability.
-
-    Parameters
-    ----------
-    normal : (4,) array_like
-        Nonzero, finite; need not be unit length.
-
-    Returns
-    -------
-    basis : (3, 4) float64
-        Rows b1, b2, b3.
-
-    Examples
-    --------
-    >>> hyperplane_basis([0, 0, 0, 2.0])
-    array([[1., 0., 0., 0.],
-           [0., 1., 0., 0.],
-           [0., 0., 1., 0.]])
-    """
-    n = _unit_normal(normal, 4)
-    e_w = np.array([0.0, 0.0, 0.0, 1.0])
-    # A reflection H = I - 2 v v^T / |v|^2 with v = n + e_w sends e_w to -n (det H = -1): its
-    # first three columns span the hyperplane and det[h0, h1, h2, n] = +1. For n_w < 0 use
-    # v = n - e_w (H e_w = n, det[h0, h1, h2, n] = -1) and swap h0, h1 to fix the handedness.
-    flip = n[3] < 0
-    v = n - e_w if flip else n + e_w
-    h = np.eye(4) - 2.0 * np.outer(v, v) / (v @ v)
-    basis = h[:, :3].T.copy()
-    if flip:
-        basis[[0, 1]] = basis[[1, 0]]
-    basis[np.abs(basis) < 1e-17] = 0.0  # avoid -0.0 in exact axis cases
-    return basis
-
-
-def _unit_normal(normal: Any, d: int) -> np.ndarray:
-    n = as_array(normal, "normal", ndim=1, shape_tail=(d,), dtype=np.float64, finite=True)
-    length = float(np.linalg.norm(n))
-    if not length > 0.0:
-        raise ValueError("`normal` must be a nonzero vector")
-    return n / length
-
-
-# --------------------------------------------------------------------------------------------
-# face structure: (d-2)-faces keyed and grouped, vectorised with one sort
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Faces:
-    """The S*d (d-2)-faces of a mesh, grouped: entry r is the face of simplex r // d omitting
-    local vertex r % d.
-
-    ``order`` sorts the entries by face; ``starts`` (F+1,) delimits the groups of equal faces in
-    that order; ``sign`` (S*d,) is the orientation the simplex induces on its face (+1/-1) relative
-    to the face's sorted vertex order; ``local`` (S*d, d-1) the local indices (in the simplex) of
-    the face's vertices in sorted vertex order.
-    """
-
-    order: np.ndarray
-    starts: np.ndarray
-    sign: np.ndarray
-    local: np.ndarray
-
-    @property
-    def counts(self) -> np.ndarray:
-        return np.diff(self.starts)
-
-
-def _face_structure(simplices: np.ndarray, n_vertices: int) -> _Faces:
-    s, d = simplices.shape
-    itype = np.int32 if n_vertices < 2**31 else np.int64
-    check_memory(s * d * (d - 1) * 8 * 3.0, "the face table of this mesh")
-    # local vertex indices of the face opposite vertex i: all j != i, in increasing order
-    opposite = np.array([[j for j in range(d) if j != i] for i in range(d)], dtype=np.int8)
-    faces = simplices.astype(itype, copy=False)[:, opposite].reshape(s * d, d - 1)
-    local = np.tile(opposite, (s, 1))
-    # Face opposite local vertex i carries the induced orientation (-1)^i times the parity of
-    # the permutation that sorts its vertices (boundary operator of simplicial homology).
-    sign = np.tile((-1) ** np.arange(d), s).astype(np.int8)
-    _sort_rows_tracking(faces, local, sign)
-
-    order = _lexsort_rows(faces, n_vertices)
-    sorted_faces = faces[order]
-    if len(order):
-        new_group = np.any(sorted_faces[1:] != sorted_faces[:-1], axis=1)
-        starts = np.concatenate([[0], np.flatnonzero(new_group) + 1, [len(order)]])
-    else:
-        starts = np.zeros(1, dtype=np.int64)
-    return _Faces(order=order, starts=starts.astype(np.int64), sign=sign, local=local)
-
-
-def _sort_rows_tracking(rows: np.ndarray, local: np.ndarray, sign: np.ndarray) -> None:
-    """Sort each row of ``rows`` (N, m <= 3) in place with a sorting network, applying the same
-    swaps to ``local`` and flipping ``sign`` once per swap (a swap is a transposition).
-
-    Three vectorised compare-exchanges beat ``argsort(axis=1)`` several times on tall arrays.
-    """
-    m = rows.shape[1]
-    network = {1: [], 2: [(0, 1)], 3: [(0, 1), (1, 2), (0, 1)]}[m]
-    for i, j in network:
-        swap = rows[:, i] > rows[:, j]
-        for arr in (rows, local):
-            first = arr[swap, i]
-            arr[swap, i] = arr[swap, j]
-            arr[swap, j] = first
-        np.negative(sign, out=sign, where=swap)
-
-
-def _lexsort_rows(rows: np.ndarray, base: int) -> np.ndarray:
-    """Indices that sort the small-integer rows (N, m) lexicographically."""
-    m = rows.shape[1]
-    if base ** m < 2**63:
-        key = np.zeros(len(rows), dtype=np.int64)
-        for k in range(m):
-            key = key * base + rows[:, k]
-        return np.argsort(key)
-    return np.lexsort(rows.T[::-1])
-
-
-def _unique_ints(values: np.ndarray) -> np.ndarray:
-    """Sorted distinct values (a sort is several times faster than numpy 2's hash-based unique
-    on tens of millions of int64 keys)."""
-    values = np.sort(values)
-    if len(values) == 0:
-        return values
-    keep = np.empty(len(values), dtype=bool)
-    keep[0] = True
-    np.not_equal(values[1:], values[:-1], out=keep[1:])
-    return values[keep]
-
-
-def _pairs_within_groups(starts: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Consecutive entries (in sorted order) of every group: a chain linking each group."""
-    n = len(order)
-    if n < 2:
-        empty = np.zeros(0, dtype=np.int64)
-        return empty, empty
-    same = np.ones(n - 1, dtype=bool)
-    same[starts[1:-1] - 1] = False  # the step from a group's last entry to the next group's first
-    idx = np.flatnonzero(same)
-    return order[idx], order[idx + 1]
-
-
-def _connected_labels(n_nodes: int, a: np.ndarray, b: np.ndarray) -> tuple[int, np.ndarray]:
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    graph = coo_matrix((np.ones(len(a), dtype=bool), (a, b)), shape=(n_nodes, n_nodes)).tocsr()
-    return connected_components(graph, directed=False)
-
-
-# --------------------------------------------------------------------------------------------
-# report
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class MeshReport:
-    """Topological and geometric health of a :class:`SimplexMesh` (see :meth:`SimplexMesh.check`).
-
-    Attributes
-    ----------
-    dim : int
-        Ambient dimension d.
-    n_vertices, n_simplices, n_faces : int
-        Counts; faces are the distinct (d-2)-faces (triangles in 4D, edges in 3D, points in 2D).
-    n_boundary_faces : int
-        Faces used by exactly one simplex (0 for a closed mesh).
-    n_nonmanifold_faces : int
-        Faces used by three or more simplices.
-    n_misoriented_faces : int
-        Faces shared by two simplices that induce the same orientation on them.
-    n_singular_vertices : int
-        Vertices whose star (the simplices around them) falls apart into several pieces that
-        are joined only at the vertex or along an edge (pinch points).
-    n_degenerate : int
-        Simplices of (near-)zero measure: at most ``rtol * scale**(d-1)``.
-    n_components : int
-        Connected components, simplices joined through shared faces.
-    n_unused_vertices : int
-        Vertices no simplex refers to (allowed; they do not affect ``ok``).
-    closed, manifold, oriented : bool
-        ``closed``: every face shared by exactly two simplices. ``manifold``: no face shared by
-        more than two simplices and no singular vertex. ``oriented``: every face shared by two
-        simplices gets opposite orientations from them.
-    """
-
-    dim: int
-    n_vertices: int
-    n_simplices: int
-    n_faces: int
-    n_boundary_faces: int
-    n_nonmanifold_faces: int
-    n_misoriented_faces: int
-    n_singular_vertices: int
-    n_degenerate: int
-    n_components: int
-    n_unused_vertices: int
-
-    @property
-    def closed(self) -> bool:
-        return self.n_simplices > 0 and self.n_boundary_faces == 0 and self.n_nonmanifold_faces == 0
-
-    @property
-    def manifold(self) -> bool:
-        return self.n_nonmanifold_faces == 0 and self.n_singular_vertices == 0
-
-    @property
-    def oriented(self) -> bool:
-        return self.n_misoriented_faces == 0
-
-    @property
-    def ok(self) -> bool:
-        """Closed, manifold and consistently oriented (degenerate simplices are only reported:
-        extraction legitimately makes zero-measure simplices where values equal the level)."""
-        return self.closed and self.manifold and self.oriented
-
-    def __str__(self) -> str:
-        def flag(value: bool) -> str:
-            return "yes" if value else "NO"
-
-        lines = [
-            f"{self.dim}D simplex mesh: {self.n_vertices} vertices, {self.n_simplices} simplices, "
-            f"{self.n_faces} faces, {self.n_components} component(s)",
-            f"  closed:   {flag(self.closed)} ({self.n_boundary_faces} boundary faces)",
-            f"  manifold: {flag(self.manifold)} ({self.n_nonmanifold_faces} faces shared by >2 "
-            f"simplices, {self.n_singular_vertices} singular vertices)",
-            f"  oriented: {flag(self.oriented)} ({self.n_misoriented_faces} misoriented faces)",
-            f"  degenerate simplices: {self.n_degenerate}; unused vertices: {self.n_unused_vertices}",
-            f"  => {'OK' if self.ok else 'NOT OK'}",
-        ]
-        return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------------------------
@@ -646,21 +342,18 @@ class SimplexMesh:
 
     # ---------------------------------------------------------------- topology
     @_cached
-    def _faces(self) -> _Faces:
-        return _face_structure(self._simplices, self.n_vertices)
+    def _faces(self) -> topology.Faces:
+        return topology.face_structure(self._simplices, self.n_vertices)
 
     @_cached
     def face_adjacency(self) -> np.ndarray:
         """(P, 2) int64: pairs of simplices sharing a (d-2)-face (a chain for non-manifold faces)."""
-        faces = self._faces
-        a, b = _pairs_within_groups(faces.starts, faces.order)
-        d = self.dim
-        return np.stack([a // d, b // d], axis=1).astype(np.int64)
+        return topology.face_adjacency(self._faces, self.dim)
 
     @_cached
     def _component_labels(self) -> np.ndarray:
         adj = self.face_adjacency
-        _, labels = _connected_labels(self.n_simplices, adj[:, 0], adj[:, 1])
+        _, labels = topology.connected_labels(self.n_simplices, adj[:, 0], adj[:, 1])
         return labels.astype(np.int64)
 
     def components(self) -> np.ndarray:
@@ -712,60 +405,6 @@ class SimplexMesh:
             cell_data={k: v[sel] for k, v in self._cell_data.items()},
         )
 
-    def _singular_vertices(self) -> int:
-        """Vertices whose link is not a sphere (or, on the boundary, a disk), as far as we test.
-
-        Two tests. (1) The star must be connected through (d-2)-faces containing the vertex:
-        nodes are (simplex, local vertex) incidences, joined when their simplices share a face
-        through that vertex; more than one group is a pinch point (or, in 4D, a pinched edge).
-        With manifold faces this settles 3D, where a connected 2-regular link is a circle. (2) In
-        4D the link is a closed surface (boundary vertices: a surface with boundary), so we also
-        require its Euler characteristic #edges - #triangles + #tetrahedra through the vertex to
-        be 2 (1 on the boundary): a connected closed surface with chi = 2 is a sphere.
-        """
-        d = self.dim
-        faces = self._faces
-        if self.n_simplices == 0 or d == 2:
-            return 0  # in 2D the faces are the vertices: face counts already say everything
-        counts = faces.counts
-        # only manifold pairs: a face used by >2 simplices is already reported as non-manifold
-        manifold_groups = np.flatnonzero(counts == 2)
-        first = faces.order[faces.starts[manifold_groups]]
-        second = faces.order[faces.starts[manifold_groups] + 1]
-        a = (first // d)[:, None] * d + faces.local[first]
-        b = (second // d)[:, None] * d + faces.local[second]
-        _, labels = _connected_labels(self.n_simplices * d, a.ravel(), b.ravel())
-        vertex = self._simplices.ravel()
-        n_labels = int(labels.max()) + 1
-        pairs = _unique_ints(vertex * n_labels + labels)
-        singular = np.bincount(pairs // n_labels, minlength=self.n_vertices) > 1
-        if d == 4:
-            singular |= self._link_euler_defect()
-        return int(np.count_nonzero(singular))
-
-    def _link_euler_defect(self) -> np.ndarray:
-        """(V,) bool: used 4D vertices whose link's Euler characteristic is not 2 (1 on the boundary)."""
-        n = self.n_vertices
-        simplices = self._simplices
-        faces = self._faces
-        # one representative entry per distinct triangle: its three vertices
-        reps = faces.order[faces.starts[:-1]]
-        tri_vertices = np.take_along_axis(simplices[reps // 4], faces.local[reps].astype(np.int64), axis=1)
-        pairs = [(i, j) for i in range(4) for j in range(i + 1, 4)]
-        lo = np.concatenate([np.minimum(simplices[:, i], simplices[:, j]) for i, j in pairs])
-        hi = np.concatenate([np.maximum(simplices[:, i], simplices[:, j]) for i, j in pairs])
-        edges = _unique_ints(lo * n + hi)
-        chi = (
-            np.bincount(edges // n, minlength=n) + np.bincount(edges % n, minlength=n)
-            - np.bincount(tri_vertices.ravel(), minlength=n)
-            + np.bincount(simplices.ravel(), minlength=n)
-        )
-        on_boundary = np.zeros(n, dtype=bool)
-        on_boundary[tri_vertices[faces.counts == 1].ravel()] = True
-        used = np.zeros(n, dtype=bool)
-        used[simplices.ravel()] = True
-        return used & (chi != np.where(on_boundary, 1, 2))
-
     def boundary_faces(self) -> np.ndarray:
         """(B, d-1) int64: vertex indices of the (d-2)-faces used by only one simplex.
 
@@ -773,17 +412,7 @@ class SimplexMesh:
         so the boundary of an oriented open mesh comes out oriented (in 2D a face is one vertex
         and its sign is not represented); empty for a closed mesh.
         """
-        d = self.dim
-        faces = self._faces
-        entries = faces.order[faces.starts[:-1][faces.counts == 1]]
-        opposite = entries % d
-        rows = self._simplices[entries // d]
-        keep = np.arange(d)[None, :] != opposite[:, None]
-        out = rows[keep].reshape(-1, d - 1)
-        # (-1)^i times the face in increasing local order; fix odd signs by swapping two entries
-        odd = (opposite % 2 == 1) & (d - 1 >= 2)
-        out[odd, :2] = out[odd, 1::-1]
-        return out
+        return topology.boundary_faces(self._simplices, self._faces)
 
     def check(self, *, rtol: float = 1e-12) -> MeshReport:
         """Topology and orientation report: closed, manifold, oriented, degenerate simplices.
@@ -803,15 +432,11 @@ class SimplexMesh:
             ``report.ok`` is True for a closed, manifold, consistently oriented mesh;
             ``print(report)`` gives a readable summary.
         """
-        if not (isinstance(rtol, (int, float)) and 0 <= rtol < 1):
-            raise ValueError(f"`rtol` must be a number in [0, 1), got {rtol!r}")
-        key = ("report", float(rtol))
+        key = ("report", as_real(rtol, "rtol", ge=0, lt=1))
         if key in self._derived:
             return self._derived[key]
         faces = self._faces
         counts = faces.counts
-        group_sign = np.add.reduceat(faces.sign[faces.order].astype(np.int64), faces.starts[:-1]) \
-            if len(faces.order) else np.zeros(0, dtype=np.int64)
         threshold = rtol * self.scale ** (self.dim - 1)
         used = np.zeros(self.n_vertices, dtype=bool)
         used[self._simplices.ravel()] = True
@@ -823,11 +448,12 @@ class SimplexMesh:
             n_faces=int(len(counts)),
             n_boundary_faces=int(np.count_nonzero(counts == 1)),
             n_nonmanifold_faces=int(np.count_nonzero(counts > 2)),
-            n_misoriented_faces=int(np.count_nonzero((counts == 2) & (group_sign != 0))),
-            n_singular_vertices=self._singular_vertices(),
+            n_misoriented_faces=topology.misoriented_faces(faces),
+            n_singular_vertices=topology.singular_vertices(self._simplices, self.n_vertices, faces),
             n_degenerate=int(np.count_nonzero(self.simplex_measures <= threshold)),
             n_components=n_components,
             n_unused_vertices=int(np.count_nonzero(~used)),
+            volume=self.volume,
         )
         self._derived[key] = report
         return report
@@ -899,15 +525,17 @@ class SimplexMesh:
         -------
         slice : trimesh.Trimesh
             Vertices in the hyperplane's coordinates ``y = B (x - point)`` with ``B =
-            hyperplane_basis(normal)`` (so ``x = point + y @ B``); triangles oriented outward
+            slicing.hyperplane_basis(normal)`` (so ``x = point + y @ B``); triangles oriented outward
             within the slice when the mesh is outward oriented; point attributes in
             ``vertex_attributes``, cell data and ``"simplex"`` (source tetrahedron index) in
             ``face_attributes``. Empty (no faces) when the plane misses the mesh.
         """
         if self.dim != 4:
             raise ValueError(f"`slice` needs a 4D mesh, this one is {self.dim}D")
+        if self.n_simplices == 0:
+            raise ValueError("`mesh` has no simplices: there is nothing to slice")
         origin = as_array(point, "point", ndim=1, shape_tail=(4,), dtype=np.float64, finite=True)
-        n = _unit_normal(normal, 4)
+        n = slicing.unit_normal(normal, 4)
         if attributes is None:
             names = list(self._point_data)
         else:
@@ -917,7 +545,7 @@ class SimplexMesh:
             missing = [a for a in names if a not in self._point_data]
             if missing:
                 raise KeyError(f"`attributes` names unknown point_data {missing}; have {sorted(self._point_data)}")
-        return _slice_mesh(self, origin, n, names)
+        return slicing.slice_mesh(self, origin, n, names)
 
     # ---------------------------------------------------------------- conversions and I/O
     def to_trimesh(self) -> trimesh.Trimesh:
@@ -933,37 +561,41 @@ class SimplexMesh:
         """Wrap a ``trimesh.Trimesh`` (its face winding gives the orientation)."""
         return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces))
 
-    def save(self, path: str | os.PathLike) -> None:
-        """Write ``.npz`` (all arrays and data; atomic). See :func:`ao4d.meshio.save_npz`."""
-        from . import meshio
+    def _arrays(self) -> mesh_files.MeshArrays:
+        return mesh_files.MeshArrays(self._vertices, self._simplices, dict(self._point_data), dict(self._cell_data))
 
-        meshio.save_npz(self, path)
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the mesh to a file whose suffix names the format, atomically.
+
+        ``.npz``: lossless, every point/cell data array, byte-reproducible; ``.vtu``: VTK
+        unstructured grid for ParaView (4D: x, y, z as points, w as point array ``"w"``); any
+        other suffix (``.txt``): plain text, geometry only. See :mod:`ao4d.mesh_files`.
+
+        Returns
+        -------
+        Path
+            ``path``.
+        """
+        return mesh_files.write(path, self._arrays())
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> SimplexMesh:
-        """Read a mesh written by :meth:`save`."""
-        from . import meshio
+        """Read a mesh written by :meth:`save` (format by suffix: ``.npz``, ``.vtu``, else text)."""
+        vertices, simplices, point_data, cell_data = mesh_files.read(path)
+        try:
+            return cls(vertices, simplices, point_data=point_data, cell_data=cell_data)
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"`path` {str(path)!r} does not hold a valid mesh: {exc}") from None
 
-        return meshio.load_npz(path)
+    def to_vtu(self, path: str | os.PathLike) -> Path:
+        """Write a VTK ``.vtu`` for ParaView: :meth:`save` with a path that must end in ``.vtu``."""
+        if Path(path).suffix.lower() != ".vtu":
+            raise ValueError(f"`path` must end in .vtu, got {str(path)!r}")
+        return self.save(path)
 
-    def to_vtu(self, path: str | os.PathLike) -> None:
-        """Write a VTK ``.vtu`` for ParaView. See :func:`ao4d.meshio.save_vtu`."""
-        from . import meshio
-
-        meshio.save_vtu(self, path)
-
-    def save_text(self, path: str | os.PathLike) -> None:
-        """Write the plain-text format. See :func:`ao4d.meshio.save_text`."""
-        from . import meshio
-
-        meshio.save_text(self, path)
-
-    @classmethod
-    def load_text(cls, path: str | os.PathLike) -> SimplexMesh:
-        """Read the plain-text format. See :func:`ao4d.meshio.load_text`."""
-        from . import meshio
-
-        return meshio.load_text(path)
+    def to_pyvista(self):
+        """The mesh as a ``pyvista.UnstructuredGrid`` (the ``.vtu`` layout)."""
+        return mesh_files.to_pyvista(self._arrays())
 
 
 def _restore(vertices, simplices, point_data, cell_data) -> SimplexMesh:
@@ -1080,112 +712,3 @@ def _common_names(meshes: list[SimplexMesh], kind: str) -> set[str]:
 # --------------------------------------------------------------------------------------------
 # slicing a 4D mesh by a hyperplane: marching tetrahedra on signed distances
 # --------------------------------------------------------------------------------------------
-
-
-def _slice_cases() -> list[list[tuple[tuple[int, int], ...]]]:
-    """Triangles per tetrahedron case (bit i set iff local vertex i has s >= 0).
-
-    Each triangle lists its corners as (negative, positive) local vertex pairs: the corner lies
-    on that edge. Orientation rule: within the tetrahedron's own 3-space, oriented by its
-    vertex order, the triangle's right-hand normal must point to the negative side. Why: in
-    the 2-plane orthogonal to the triangle, (u, N) (u the in-tetrahedron normal towards s > 0,
-    N the tetrahedron's outward normal) and (T, n) (T the outward normal within the
-    hyperplane, n the hyperplane normal) have opposite handedness, so det[e1; e2; T; n] > 0
-    (the triangle positive in the basis of :func:`hyperplane_basis`) iff det[e1; e2; u; N] < 0.
-    The rule is settled once on the reference tetrahedron (0, e1, e2, e3), where it is a plain
-    3D cross product, and carries over to every tetrahedron by the affine map.
-    """
-    ref = np.vstack([np.zeros(3), np.eye(3)])
-    table: list[list[tuple[tuple[int, int], ...]]] = []
-    for case in range(16):
-        positive = [(case >> i) & 1 == 1 for i in range(4)]
-        neg = [i for i in range(4) if not positive[i]]
-        pos = [i for i in range(4) if positive[i]]
-        if not neg or not pos:
-            table.append([])
-            continue
-        if len(neg) == 1 or len(pos) == 1:
-            polygon = [(a, b) for a in neg for b in pos]
-        else:  # a planar quad: consecutive corners share a tetrahedron face
-            (a0, a1), (b0, b1) = neg, pos
-            polygon = [(a0, b0), (a0, b1), (a1, b1), (a1, b0)]
-        s = np.where(positive, 1.0, -1.0)
-        gradient = s[1:] - s[0]  # s is linear on the reference tetrahedron
-        corner = {e: ref[e[0]] + 0.5 * (ref[e[1]] - ref[e[0]]) for e in polygon}
-        triangles = []
-        for k in range(1, len(polygon) - 1):
-            tri = (polygon[0], polygon[k], polygon[k + 1])
-            normal = np.cross(corner[tri[1]] - corner[tri[0]], corner[tri[2]] - corner[tri[0]])
-            if normal @ gradient > 0:
-                tri = (tri[0], tri[2], tri[1])
-            triangles.append(tri)
-        table.append(triangles)
-    return table
-
-
-_SLICE_CASES = _slice_cases()
-
-
-def _slice_mesh(mesh: SimplexMesh, origin: np.ndarray, normal: np.ndarray, names: list[str]):
-    import trimesh
-
-    vertices, simplices = mesh.vertices, mesh.simplices
-    n_vertices = mesh.n_vertices
-    s = (vertices - origin) @ normal
-    positive = s >= 0.0
-    case = np.zeros(len(simplices), dtype=np.int64)
-    for i in range(4):
-        case |= positive[simplices[:, i]].astype(np.int64) << i
-    keys, sources = [], []
-    for c in np.unique(case):
-        triangles = _SLICE_CASES[c]
-        if not triangles:
-            continue
-        tets = np.flatnonzero(case == c)
-        for tri in triangles:
-            corner_keys = []
-            for a, b in tri:
-                ga, gb = simplices[tets, a], simplices[tets, b]
-                # The positive end lying on the plane is the corner itself: key it by that
-                # vertex so every tetrahedron around it finds the same output vertex.
-                corner_keys.append(
-                    np.where(s[gb] == 0.0, n_vertices * n_vertices + gb, ga * n_vertices + gb)
-                )
-            keys.append(np.stack(corner_keys, axis=1))
-            sources.append(tets)
-    if not keys:
-        return trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), process=False)
-    keys = np.concatenate(keys)
-    sources = np.concatenate(sources)
-    unique, faces = np.unique(keys, return_inverse=True)
-    faces = faces.reshape(-1, 3)
-    # triangles with a repeated corner have zero area (a plane through a tetrahedron's edge)
-    good = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    faces, sources = faces[good], sources[good]
-
-    on_vertex = unique >= n_vertices * n_vertices
-    ga = np.where(on_vertex, unique - n_vertices * n_vertices, unique // n_vertices)
-    gb = np.where(on_vertex, ga, unique % n_vertices)
-    sa, sb = s[ga], s[gb]
-    t = np.where(on_vertex, 0.0, sa / np.where(on_vertex, -1.0, sa - sb))
-
-    def lerp(values: np.ndarray) -> np.ndarray:
-        tt = t.reshape((-1,) + (1,) * (values.ndim - 1))
-        return values[ga] + tt * (values[gb] - values[ga])
-
-    points = lerp(vertices)
-    coords = (points - origin) @ hyperplane_basis(normal).T
-    vertex_attributes = {name: lerp(np.asarray(mesh.point_data[name], dtype=np.float64)) for name in names}
-    face_attributes = {"simplex": sources}
-    face_attributes.update({k: np.asarray(v)[sources] for k, v in mesh.cell_data.items()})
-    # drop output vertices only referenced by removed zero-area triangles
-    used = np.zeros(len(unique), dtype=bool)
-    used[faces.ravel()] = True
-    remap = np.cumsum(used) - 1
-    return trimesh.Trimesh(
-        coords[used],
-        remap[faces],
-        vertex_attributes={k: v[used] for k, v in vertex_attributes.items()},
-        face_attributes=face_attributes,
-        process=False,
-    )

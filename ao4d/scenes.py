@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import check_choice
+from ._validate import as_real, check_choice
 from .camera import Camera4D
 
 __all__ = ["SceneObject", "Scene", "default_scene", "box", "extract_scene", "QUALITY"]
@@ -46,11 +46,13 @@ class SceneObject:
     coarseness: float = 1.0  # grid cell = coarseness * the scene's cell (flat objects need few)
     min_points: tuple[int, int, int, int] = (4, 4, 4, 4)  # grid points per axis at least
     min_step: float = 0.0  # never a finer grid than this (flat objects gain nothing from it)
+    color: tuple[float, float, float] = (0.8, 0.8, 0.8)  # RGB in [0, 1] (ao4d.render `color`)
+    specular: float = 0.0  # Blinn-Phong weight (ao4d.render `specular`)
 
 
 @dataclass(frozen=True)
 class Scene:
-    """Objects, a camera and a light (direction towards it)."""
+    """Objects (with colours and specular weights), a camera and a light (direction towards it)."""
 
     name: str
     objects: tuple[SceneObject, ...]
@@ -58,6 +60,17 @@ class Scene:
     light: np.ndarray | None = None
     max_distance: float = math.inf
     notes: dict = field(default_factory=dict)
+    shininess: float = 32.0  # Blinn-Phong exponent of every object
+
+    @property
+    def colors(self) -> np.ndarray:
+        """(n_objects, 3) float64: the objects' RGB colours, in object-id order."""
+        return np.array([obj.color for obj in self.objects], dtype=np.float64)
+
+    @property
+    def speculars(self) -> np.ndarray:
+        """(n_objects,) float64: the objects' Blinn-Phong weights, in object-id order."""
+        return np.array([obj.specular for obj in self.objects], dtype=np.float64)
 
 
 def box(lo, hi) -> Callable[[np.ndarray], np.ndarray]:
@@ -114,13 +127,15 @@ def default_scene() -> Scene:
     ground_lo, ground_hi = (-2.7, -0.24, -1.7, -0.95), (2.7, 0.0, 1.7, 0.95)
     # (8 points across its thickness so that coarse settings keep it)
     ground = SceneObject("ground", box(ground_lo, ground_hi), *_padded(ground_lo, ground_hi, pad),
-                         coarseness=1.6, min_points=(4, 8, 4, 4), min_step=0.1)
+                         coarseness=1.6, min_points=(4, 8, 4, 4), min_step=0.1,
+                         color=(0.95, 0.93, 0.87))
 
     r_sphere = 0.75
     c_sphere = np.array([-1.45, r_sphere, 0.35, 0.0])
     sphere = SceneObject(
         "hypersphere", fields.hypersphere(r_sphere, c_sphere),
         *_padded(c_sphere - r_sphere, c_sphere + r_sphere, pad),
+        color=(0.95, 0.24, 0.17), specular=0.3,
     )
 
     # torisphere: core circle of radius R in the xy plane, swept 3-ball of radius r; turned
@@ -130,7 +145,8 @@ def default_scene() -> Scene:
     torus_field = fields.translate(fields.rotate(fields.torisphere(big, small), (1, 2), math.pi / 2),
                                    c_torus)
     reach = np.array([big + small, small, big + small, small])
-    torus = SceneObject("torisphere", torus_field, *_padded(c_torus - reach, c_torus + reach, pad))
+    torus = SceneObject("torisphere", torus_field, *_padded(c_torus - reach, c_torus + reach, pad),
+                        color=(0.2, 0.55, 0.95), specular=0.3)
 
     # tesseract of half side h with a round indent in its +z facet, which faces the viewer of
     # the 3D image (camera over = +z)
@@ -138,12 +154,14 @@ def default_scene() -> Scene:
     c_cube = np.array([1.5, half, 0.25, 0.0])
     cube_field = fields.translate(fields.indented_cube(half, indent, axis=2), c_cube)
     cube = SceneObject("indented tesseract", cube_field,
-                       *_padded(c_cube - half, c_cube + half, pad))
+                       *_padded(c_cube - half, c_cube + half, pad),
+                       color=(1.0, 0.78, 0.2), specular=0.3)
 
     camera = Camera4D(eye=[0.0, 1.6, -0.6, -5.5], target=[0.0, 0.45, 0.0, 0.0],
                       up=[0, 1, 0, 0], over=[0, 0, 1, 0], fov=40.0)
     light = np.array([-0.35, 1.0, -0.25, -0.45])
-    return Scene("default", (ground, sphere, torus, cube), camera, light / np.linalg.norm(light))
+    return Scene("default", (ground, sphere, torus, cube), camera, light / np.linalg.norm(light),
+                 shininess=20.0)
 
 
 def extract_scene(
@@ -174,9 +192,7 @@ def extract_scene(
     """
     from .march import extract_field
 
-    cell = float(cell)
-    if not (math.isfinite(cell) and cell > 0):
-        raise ValueError(f"`cell` must be a positive number, got {cell}")
+    cell = as_real(cell, "cell", gt=0)
     check_choice(method, "method", ("cubes", "simplices"))
     meshes = []
     for obj in scene.objects:

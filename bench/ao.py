@@ -1,40 +1,62 @@
-"""Benchmark: 4D ambient occlusion rays per second (OpenCL) against trimesh + Embree in 3D.
+"""Benchmark: ambient occlusion rays per second, BVH build included, against Embree.
 
-Run ``python bench/ao.py`` (``--help`` for sizes). In one run it times, each ``--repeat`` times
-(median, the three measurements taken in turn so that all see the same machine load):
+Run ``python bench/ao.py`` (``--help`` for sizes). Each ``--repeat`` round takes every
+measurement once, in turn, so that all see the same machine load; the table shows medians.
 
-* ao4d OpenCL: ``ambient_occlusion(mesh, samples=64)`` at every vertex of a 4D spheritorus mesh
-  of about ``--tets`` tetrahedra (cosine-weighted, any-hit, unlimited distance; the call's
-  whole time, BVH build excluded: it is built once per mesh and cached);
-* trimesh + embreex: ``RayMeshIntersector.intersects_any`` for as many AO rays of the same kind
-  (64 per point, ao4d's directions, from as many points spread evenly over the vertex list) on a
-  3D torus mesh with the same number of triangles, with the points once in the mesh's vertex
-  order and once sorted along the Morton curve that ao4d sorts its points by (coherent rays
-  run faster in Embree too: the target is checked against the faster of the two);
-* the numpy backend on a smaller 4D mesh, and the BVH kernel against the brute-force kernel.
+* ao4d OpenCL, every vertex of a 4D mesh of about ``--tets`` tetrahedra, ``--samples`` rays per
+  vertex (cosine-weighted, any hit, unlimited distance), on the spheritorus and on a second 4D
+  shape (``--shapes``), once with each BVH builder: ``host`` (numpy, :func:`ao4d.bvh.build`) and
+  ``device`` (OpenCL kernels, :mod:`ao4d.bvh_build`, the default where OpenCL runs). End to end
+  is a first ``ambient_occlusion(mesh, samples=64)`` on a fresh mesh (the device builder runs
+  inside it; the host tree is built by ``get_bvh(mesh, builder="host")`` just before); trace is
+  the second call on the same mesh, build the difference.
+* The peers, on a 3D torus with as many triangles, as many AO rays of the same kind (64 per
+  point, ao4d's directions, from as many points spread evenly over the torus): Open3D's
+  ``RaycastingScene.test_occlusions`` (Embree 4, all threads; in a process of its own, because
+  its bundled TBB must not meet Intel's OpenCL runtime) and trimesh's ``intersects_any``
+  (embreex: Embree from one Python thread). Build is the scene construction and the first query.
+  ao4d traces exactly these rays on the same torus too (row "ao4d ... 3D torus").
+* Tree quality: SAH cost of each builder's tree and wide nodes visited / leaf blocks tested per
+  AO ray (``ao4d.raycast.traversal_counts``, on ``--quality-points`` vertices).
+* The numpy backend on a smaller 4D mesh, and the BVH kernel against the brute-force kernel.
 
-Rates count rays traced per wall-clock second. Rays from a surface differ in difficulty between
-shapes; the hit fractions are printed so the workloads can be compared.
+Rates count rays per wall-clock second; the machine's load average is printed before and after.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import statistics
+import subprocess
 import sys
 import time
 
 import numpy as np
 
+SHAPES = ("spheritorus", "tiger", "ditorus")
 
-def spheritorus_mesh(tets: int):
+
+def shape_mesh(name: str, tets: float):
+    """A 4D shape extracted with about ``tets`` tetrahedra (grid spacing from a first estimate)."""
     import ao4d
 
-    field = ao4d.fields.spheritorus(1.0, 0.4)
-    # the tet count grows like n^3 (a 3-manifold); n = 48 gives about 1.1M
-    n = max(8, round(48 * (tets / 1.1e6) ** (1 / 3)))
-    shape = (n, n, n, max(6, n // 3))
-    return ao4d.extract_field(field, shape, ((-1.5, -1.5, -1.5, -0.5), (1.5, 1.5, 1.5, 0.5)))
+    if name == "spheritorus":
+        field = ao4d.fields.spheritorus(1.0, 0.4)
+        # the tet count grows like n^3 (a 3-manifold); n = 48 gives about 1.1M
+        n = max(8, round(48 * (tets / 1.1e6) ** (1 / 3)))
+        shape = (n, n, n, max(6, n // 3))
+        return ao4d.extract_field(field, shape, ((-1.5, -1.5, -1.5, -0.5), (1.5, 1.5, 1.5, 0.5)))
+    field = {"tiger": ao4d.fields.tiger(), "ditorus": ao4d.fields.ditorus()}[name]
+    lo, hi = np.asarray(field.extent[0], float), np.asarray(field.extent[1], float)
+    pad = 0.1 * float((hi - lo).max())
+    lo, hi = lo - pad, hi + pad
+    spacing = 0.1
+    probe = ao4d.extract_field(field, tuple(np.maximum(8, np.round((hi - lo) / spacing).astype(int))), (lo, hi))
+    spacing *= (probe.n_simplices / tets) ** (1 / 3)
+    shape = tuple(int(k) for k in np.maximum(8, np.round((hi - lo) / spacing)))
+    return ao4d.extract_field(field, shape, (lo, hi))
 
 
 def torus_trimesh(triangles: int):
@@ -46,157 +68,307 @@ def torus_trimesh(triangles: int):
     return trimesh.creation.torus(major_radius=1.0, minor_radius=0.4, major_sections=major, minor_sections=minor)
 
 
-def ao_rays(points, normals, samples, diagonal, seed=0):
-    from ao4d import ao, sampling
+def torus_rays(triangles: int, n_points: int, samples: int):
+    """The torus, the AO points (Morton order) and their rays: (mesh, points, normals, o, w)."""
+    from ao4d import ao, raycast, sampling
 
-    w = sampling.cosine_hemisphere(normals, samples, seed=seed).reshape(-1, points.shape[1])
-    o = np.repeat(points + ao.ORIGIN_OFFSET * diagonal * normals, samples, axis=0)
-    return o, w
+    tm = torus_trimesh(triangles)
+    # as many points as the 4D mesh has, evenly spread over the vertex list (trimesh's torus
+    # lists its vertices ring by ring), in the Morton order ao4d sorts its points by
+    idx = np.linspace(0, len(tm.vertices) - 1, n_points).round().astype(np.int64)
+    q, m = tm.vertices[idx], tm.vertex_normals[idx]
+    order = raycast._morton_order(q)
+    q, m = q[order], m[order]
+    diagonal = float(np.linalg.norm(np.ptp(tm.vertices, axis=0)))
+    w = sampling.cosine_hemisphere(m, samples, seed=0).reshape(-1, 3)
+    o = np.repeat(q + ao.ORIGIN_OFFSET * diagonal * m, samples, axis=0)
+    return tm, q, m, o.astype(np.float32), w.astype(np.float32)
 
 
-def pick(rng, vertices, normals, k):
+class Clock:
+    """Wall and process CPU time (all threads: OpenCL's and Embree's included) since the last lap."""
+
+    def __init__(self):
+        self.wall, self.cpu = time.perf_counter(), time.process_time()
+
+    def lap(self) -> tuple[float, float]:
+        wall, cpu = time.perf_counter(), time.process_time()
+        out = (wall - self.wall, cpu - self.cpu)
+        self.wall, self.cpu = wall, cpu
+        return out
+
+
+def load() -> str:
+    try:
+        return ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    except OSError:
+        return "unknown"
+
+
+# -- peers --------------------------------------------------------------------------------------
+
+
+def open3d_worker(triangles: int, n_points: int, samples: int) -> int:
+    """Serve Open3D measurements over stdin/stdout: a line ``run`` -> one JSON line."""
+    import open3d as o3d  # first: its bundled TBB before anything else
+
+    tm, _, _, o, w = torus_rays(triangles, n_points, samples)
+    rays = o3d.core.Tensor(np.ascontiguousarray(np.concatenate([o, w], axis=1)))
+    vertices = o3d.core.Tensor(np.asarray(tm.vertices, dtype=np.float32))
+    faces = o3d.core.Tensor(np.asarray(tm.faces, dtype=np.uint32))
+    print(json.dumps({"ready": True, "triangles": len(tm.faces), "rays": len(o)}), flush=True)
+    for line in sys.stdin:
+        if line.strip() != "run":
+            break
+        clock = Clock()
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(vertices, faces)
+        scene.test_occlusions(rays[:1])  # Embree builds its BVH at the first query
+        build = clock.lap()
+        hit = scene.test_occlusions(rays).numpy()
+        print(json.dumps(dict(build=build, trace=clock.lap(), hit=float(hit.mean()))), flush=True)
+    return 0
+
+
+class Open3D:
+    """The worker process, started once (its setup is not timed)."""
+
+    def __init__(self, triangles: int, n_points: int, samples: int):
+        env = dict(os.environ, AO4D_PRELOAD_TBB="0")  # the worker never uses OpenCL
+        self.proc = subprocess.Popen(
+            [sys.executable, __file__, "--open3d-worker", str(triangles), str(n_points), str(samples)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
+        )
+        self.info = json.loads(self.proc.stdout.readline())
+
+    def run(self) -> dict:
+        self.proc.stdin.write("run\n")
+        self.proc.stdin.flush()
+        return json.loads(self.proc.stdout.readline())
+
+    def close(self) -> None:
+        self.proc.stdin.close()
+        self.proc.wait(timeout=60)
+
+
+def have_open3d() -> str | None:
+    """None when Open3D imports in a fresh process, else why not."""
+    run = subprocess.run([sys.executable, "-c", "import open3d"], capture_output=True, text=True,
+                         env=dict(os.environ, AO4D_PRELOAD_TBB="0"), check=False)
+    return None if run.returncode == 0 else (run.stderr.strip().splitlines() or ["import failed"])[-1]
+
+
+def embree_run(tm, o, w) -> dict:
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    clock = Clock()
+    intersector = RayMeshIntersector(tm)
+    intersector.intersects_any(o[:1], w[:1])  # builds Embree's BVH
+    build = clock.lap()
+    hit = intersector.intersects_any(o, w)
+    return {"build": build, "trace": clock.lap(), "hit": float(hit.mean())}
+
+
+# -- ao4d ---------------------------------------------------------------------------------------
+
+
+def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, points=None, normals=None) -> dict:
+    """A fresh mesh: build = its tree and the tree's device copy (what the first AO call adds),
+    trace = the AO call."""
+    import ao4d
+    from ao4d import raycast
+
+    mesh = ao4d.SimplexMesh(vertices, simplices)
+    if points is None:
+        mesh.vertex_normals  # noqa: B018 - computed (and cached) before the clock starts
+    kwargs = {"samples": samples, "backend": "opencl", "progress": False}
+    if points is not None:
+        kwargs.update(points=points, normals=normals)
+    clock = Clock()
+    tree = raycast.get_bvh(mesh, builder=builder, runtime=runtime)
+    raycast._device_tree(mesh, tree, runtime)  # the host tree's upload; the device tree has it
+    build = clock.lap()
+    occlusion = ao4d.ambient_occlusion(mesh, **kwargs)
+    trace = clock.lap()
+    assert (builder == "device") == (type(tree).__name__ == "DeviceBVH")
+    return {"build": build, "trace": trace, "hit": float(np.nanmean(occlusion)),
+            "rays": int(np.isfinite(occlusion).sum()) * samples}
+
+
+def quality(vertices, simplices, builder, runtime, samples, n_points, rng) -> dict:
+    import ao4d
+    from ao4d import ao, bvh_build, raycast
+
+    mesh = ao4d.SimplexMesh(vertices, simplices)
+    tree = raycast.get_bvh(mesh, builder=builder, runtime=runtime)
+    normals = mesh.vertex_normals
     ok = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)
-    idx = rng.choice(ok, size=min(k, ok.size), replace=False)
-    return vertices[idx], normals[idx]
+    idx = np.sort(rng.choice(ok, size=min(n_points, ok.size), replace=False))
+    nodes, blocks = raycast.traversal_counts(
+        mesh, mesh.vertices[idx], normals[idx], samples=samples, offset=ao.ORIGIN_OFFSET * tree.diagonal,
+        runtime=runtime,
+    )
+    return {"sah": bvh_build.sah_cost(tree), "nodes": nodes, "blocks": blocks, "depth": tree.depth,
+            "n_nodes": tree.n_nodes}
 
 
 def timed(fn, repeat):
-    """Median wall time and median process CPU time (all threads, OpenCL's included)."""
-    import os
-
-    walls, cpus, result = [], [], None
+    walls, result = [], None
     for _ in range(repeat):
-        c0, start = os.times(), time.perf_counter()
+        start = time.perf_counter()
         result = fn()
         walls.append(time.perf_counter() - start)
-        c1 = os.times()
-        cpus.append((c1.user - c0.user) + (c1.system - c0.system))
-    return statistics.median(walls), statistics.median(cpus), result
+    return statistics.median(walls), result
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tets", type=float, default=1.0e6, help="4D mesh size (1e6)")
-    parser.add_argument("--points", type=int, default=0, help="AO at this many random vertices (0: every vertex)")
+    parser.add_argument("--tets", type=float, default=1.05e6, help="4D mesh size (1.05e6)")
     parser.add_argument("--samples", type=int, default=64, help="rays per point (64)")
-    parser.add_argument("--repeat", type=int, default=3, help="timings per measurement (3)")
+    parser.add_argument("--repeat", type=int, default=3, help="rounds of measurements (3)")
+    parser.add_argument("--shapes", default="spheritorus,tiger", help=f"4D shapes, of {', '.join(SHAPES)}")
+    parser.add_argument("--quality-points", type=int, default=20000, help="points for node-visit counts")
     parser.add_argument("--numpy-tets", type=float, default=1.5e5, help="mesh for the numpy rate")
     parser.add_argument("--numpy-points", type=int, default=500)
+    parser.add_argument("--open3d-worker", nargs=3, type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.open3d_worker:
+        return open3d_worker(*args.open3d_worker)
+    shapes = [s.strip() for s in args.shapes.split(",") if s.strip()]
+    unknown = sorted(set(shapes) - set(SHAPES))
+    if unknown:
+        parser.error(f"--shapes: unknown {unknown}; choose from {', '.join(SHAPES)}")
 
-    from ao4d import ao, bvh, cl
+    import ao4d
+    from ao4d import _progress, cl, raycast
 
+    _progress.set_enabled(False)  # no progress lines from the host builder in the table
     rng = np.random.default_rng(0)
     runtime = cl.get_runtime(warn=False)
     if runtime is None:
         print("no OpenCL device: nothing to benchmark", file=sys.stderr)
         return 1
-    rows = []
+    print(f"device: {cl.describe(runtime)}; load average before: {load()}")
+    meshes = {}
+    for name in shapes:
+        mesh = shape_mesh(name, args.tets)
+        meshes[name] = (np.asarray(mesh.vertices), np.asarray(mesh.simplices))
+        print(f"{name}: {mesh.n_simplices:,} tetrahedra, {mesh.n_vertices:,} vertices")
+    # warm up: kernels loaded (4D and 3D), sampling tables ready
+    v0, s0 = meshes[shapes[0]]
+    small = ao4d.SimplexMesh(v0, s0[:1000])
+    ao4d.ambient_occlusion(small, points=v0[:10], normals=np.eye(4)[[0] * 10], samples=4, backend="opencl")
+    tiny = torus_trimesh(2000)
+    ao4d.ambient_occlusion(ao4d.SimplexMesh(tiny.vertices, tiny.faces), samples=4, backend="opencl")
+    primary = ao4d.SimplexMesh(v0, s0)
+    n_points = int((np.linalg.norm(primary.vertex_normals, axis=1) > 0.5).sum())
 
-    mesh = spheritorus_mesh(int(args.tets))
-    start = time.perf_counter()
-    tree = bvh.get_bvh(mesh)
-    build = time.perf_counter() - start
-    normals = mesh.vertex_normals
-    n_points = int((np.linalg.norm(normals, axis=1) > 0.5).sum())  # vertices with a normal
-    if args.points:
-        n_points = min(n_points, args.points)
-    rays = n_points * args.samples
-    ao.ambient_occlusion(mesh, points=mesh.vertices[:100], normals=normals[:100], samples=4, backend="opencl")
-    print(f"device: {runtime.name}; BVH of {tree.n_prims:,} tets built in {build:.1f} s "
-          f"({tree.n_nodes:,} nodes, depth {tree.depth})")
-
-    if args.points:
-        p, n = pick(rng, mesh.vertices, normals, n_points)
-
-        def run_ours():
-            return ao.ambient_occlusion(mesh, points=p, normals=n, samples=args.samples, backend="opencl", progress=False)
+    peers: dict[str, list] = {}
+    worker = None
+    reason = have_open3d()
+    if reason is None:
+        worker = Open3D(len(s0), n_points, args.samples)
+        peers["Open3D RaycastingScene (Embree 4, all threads)"] = []
     else:
-
-        def run_ours():
-            return ao.ambient_occlusion(mesh, samples=args.samples, backend="opencl", progress=False)
-
-    embree_runs, tm = {}, None
+        print(f"Open3D comparison skipped: {reason} (pip install 'ao4d[bench]')")
     try:
-        from trimesh.ray.ray_pyembree import RayMeshIntersector
+        import embreex  # noqa: F401
 
-        tm = torus_trimesh(tree.n_prims)
-        # as many points as ours, evenly spread over the vertex list (trimesh's torus lists its
-        # vertices ring by ring: neighbours in the list are neighbours on the surface)
-        idx = np.linspace(0, len(tm.vertices) - 1, n_points).round().astype(np.int64)
-        q, m = tm.vertices[idx], tm.vertex_normals[idx]
-        diagonal = float(np.linalg.norm(np.ptp(tm.vertices, axis=0)))
-        intersector = RayMeshIntersector(tm)
-        for label, order in (("vertex order", np.arange(n_points)), ("Morton order", ao._morton_order(q))):
-            o, w = ao_rays(q[order], m[order], args.samples, diagonal)
-            o, w = o.astype(np.float32), w.astype(np.float32)  # trimesh converts to float32 anyway
-            intersector.intersects_any(o[:100], w[:100])  # builds Embree's BVH
-
-            def run_embree(o=o, w=w):
-                return intersector.intersects_any(o, w)
-
-            embree_runs[label] = run_embree
+        tm, q, m, o, w = torus_rays(len(s0), n_points, args.samples)
+        peers["trimesh + embreex (Embree, one thread)"] = []
     except ImportError as exc:
-        print(f"Embree comparison skipped: {exc}")
+        tm = None
+        print(f"trimesh+Embree comparison skipped: {exc}")
+        if worker is not None:
+            tm, q, m, o, w = torus_rays(len(s0), n_points, args.samples)
+    ours: dict[tuple[str, str], list] = {(name, b): [] for name in shapes for b in ("host", "device")}
+    torus_key = ("3D torus, the peers' rays", "device")
+    if tm is not None:
+        ours[torus_key] = []
 
-    # take the measurements in turn so that all see the same machine load
-    results = {"ours": [], **{label: [] for label in embree_runs}}
     for _ in range(args.repeat):
-        results["ours"].append(timed(run_ours, 1))
-        for label, run in embree_runs.items():
-            results[label].append(timed(run, 1))
+        for (name, builder) in ours:
+            if (name, builder) == torus_key:
+                ours[torus_key].append(ao4d_run(np.asarray(tm.vertices), np.asarray(tm.faces), "device",
+                                                runtime, args.samples, q, m))
+            else:
+                ours[(name, builder)].append(ao4d_run(*meshes[name], builder, runtime, args.samples))
+        for label in peers:
+            peers[label].append(worker.run() if label.startswith("Open3D") else embree_run(tm, o, w))
+    if worker is not None:
+        worker.close()
 
-    def medians(runs):
-        return statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs), runs[-1][2]
+    def med(runs, key, k=0):  # k = 0: wall seconds, 1: CPU seconds
+        return statistics.median(r[key][k] for r in runs)
 
-    t_cl, c_cl, a_cl = medians(results["ours"])
-    rate_cl = rays / t_cl
-    where = "random vertices" if args.points else "every vertex"
-    rows.append((f"ao4d OpenCL, 4D, {tree.n_prims:,} tets, {where}", rays, rate_cl, rays / c_cl, np.nanmean(a_cl)))
-    embree = {}
-    for label in embree_runs:
-        t_em, c_em, hit = medians(results[label])
-        embree[label] = (rays / t_em, rays / c_em)
-        rows.append((f"trimesh+Embree, 3D, {len(tm.faces):,} tris, {label}", rays, rays / t_em, rays / c_em, hit.mean()))
+    rows = {f"ao4d OpenCL, {name}, {builder}-built tree": (runs, runs[0]["rays"])
+            for (name, builder), runs in ours.items()}
+    rows.update({f"{label}, 3D torus": (runs, len(o)) for label, runs in peers.items()})
+    rates = {}
+    for k, title in ((0, "wall clock"), (1, "CPU time (all threads; rays per CPU-second)")):
+        print(f"\n{title}, medians of {args.repeat} rounds; load average after: {load()}")
+        print(f"{'':<58} {'rays':>11} {'build s':>8} {'trace Mrays/s':>14} {'end-to-end Mrays/s':>19} {'hit/AO':>7}")
+        for label, (runs, rays) in rows.items():
+            build, trace = med(runs, "build", k), med(runs, "trace", k)
+            e2e = statistics.median(r["build"][k] + r["trace"][k] for r in runs)
+            rates[label, k] = (rays / trace, rays / e2e, build)
+            hit = statistics.median(r["hit"] for r in runs)
+            print(f"{label:<58} {rays:>11,} {build:>8.2f} {rays / trace / 1e6:>14.2f} {rays / e2e / 1e6:>19.2f} {hit:>7.3f}")
 
-    small = spheritorus_mesh(int(args.numpy_tets))
-    small_tree = bvh.get_bvh(small)
-    p2, n2 = pick(rng, small.vertices, small.vertex_normals, args.numpy_points)
+    ours_labels = [label for label in rows if label.startswith("ao4d")]
+    peer_labels = [label for label in rows if not label.startswith("ao4d")]
+    for k, title in ((0, "wall clock"), (1, "CPU time")):
+        print(f"\nratios, {title} (trace, end to end, build; > 1: ao4d faster):")
+        for peer in peer_labels:
+            for label in ours_labels:
+                if "device" not in label:
+                    continue
+                (trace, e2e, build), (p_trace, p_e2e, p_build) = rates[label, k], rates[peer, k]
+                print(f"  {label[13:].split(', device')[0]} / {peer.split(' (')[0]}: trace {trace / p_trace:.2f}x, "
+                      f"end to end {e2e / p_e2e:.2f}x, build {p_build / build:.2f}x")
+        for name in shapes:
+            (ht, he, hb) = rates[f"ao4d OpenCL, {name}, host-built tree", k]
+            (dt, de, db) = rates[f"ao4d OpenCL, {name}, device-built tree", k]
+            print(f"  {name}: device tree / host tree: trace {dt / ht:.2f}x, build {hb / db:.1f}x faster, "
+                  f"end to end {de / he:.2f}x")
+    o3d_label = next((label for label in peer_labels if label.startswith("Open3D")), None)
+    if o3d_label:
+        trace, e2e, _ = rates[f"ao4d OpenCL, {shapes[0]}, device-built tree", 0]
+        p_trace, p_e2e, _ = rates[o3d_label, 0]
+        for what, ratio in (("end to end", e2e / p_e2e), ("trace", trace / p_trace)):
+            print(f"target: {shapes[0]} {what} >= 1.0x Open3D (wall clock): {ratio:.2f}x, "
+                  f"{'met' if ratio >= 1.0 else 'missed'}")
+
+    print(f"\ntree quality (AO rays from {args.quality_points:,} random vertices):")
+    print(f"{'':<30} {'SAH cost':>9} {'nodes/ray':>10} {'blocks/ray':>11} {'depth':>6} {'nodes':>9}")
+    for name in shapes:
+        for builder in ("host", "device"):
+            qd = quality(*meshes[name], builder, runtime, args.samples, args.quality_points, rng)
+            print(f"{name + ', ' + builder:<30} {qd['sah']:>9.1f} {qd['nodes']:>10.2f} {qd['blocks']:>11.2f} "
+                  f"{qd['depth']:>6} {qd['n_nodes']:>9,}")
+
+    # the numpy backend, and the BVH kernel against brute force, on a smaller 4D mesh
+    small = shape_mesh("spheritorus", args.numpy_tets)
+    small_tree = raycast.get_bvh(small, runtime=runtime)
+    ok = np.flatnonzero(np.linalg.norm(small.vertex_normals, axis=1) > 0.5)
+    pick = rng.choice(ok, size=min(args.numpy_points, ok.size), replace=False)
+    p2, n2 = small.vertices[pick], small.vertex_normals[pick]
     samples2 = 16
-    r2 = len(p2) * samples2
-    t_np, c_np, a_np = timed(
-        lambda: ao.ambient_occlusion(small, points=p2, normals=n2, samples=samples2, backend="numpy"), 1
-    )
-    rows.append((f"ao4d numpy, 4D, {small_tree.n_prims:,} tets", r2, r2 / t_np, r2 / c_np, a_np.mean()))
-    # BVH against brute force on the same small mesh (few rays: brute force is slow)
+    t_np, _ = timed(lambda: ao4d.ambient_occlusion(small, points=p2, normals=n2, samples=samples2, backend="numpy"), 1)
     p3, n3 = p2[:40], n2[:40]
-    r3 = len(p3) * samples2
-    t_brute, c_brute, a_brute = timed(
-        lambda: ao.ambient_occlusion(small, points=p3, normals=n3, samples=samples2, backend="opencl", accel="brute"), 1
+    t_brute, a_brute = timed(
+        lambda: ao4d.ambient_occlusion(small, points=p3, normals=n3, samples=samples2, backend="opencl", accel="brute"), 1
     )
-    a_bvh = ao.ambient_occlusion(small, points=p3, normals=n3, samples=samples2, backend="opencl")
+    a_bvh = ao4d.ambient_occlusion(small, points=p3, normals=n3, samples=samples2, backend="opencl")
     assert np.array_equal(a_brute, a_bvh), "BVH and brute force disagree"
-    rows.append((f"ao4d OpenCL brute force, 4D, {small_tree.n_prims:,} tets", r3, r3 / t_brute, r3 / c_brute, a_brute.mean()))
-    # the BVH's rate on the same mesh with enough rays that call overheads do not count
-    p4, n4 = pick(rng, small.vertices, small.vertex_normals, 20000)
-    r4 = len(p4) * samples2
-    t_bvh, c_bvh, a_bvh = timed(
-        lambda: ao.ambient_occlusion(small, points=p4, normals=n4, samples=samples2, backend="opencl"), args.repeat
-    )
-    rows.append((f"ao4d OpenCL BVH, 4D, {small_tree.n_prims:,} tets", r4, r4 / t_bvh, r4 / c_bvh, a_bvh.mean()))
-
-    print(f"\n{'':<52} {'rays':>10} {'M rays/s':>9} {'M rays/CPU-s':>13} {'hit frac':>9}")
-    for name, count, rate, cpu_rate, frac in rows:
-        print(f"{name:<52} {count:>10,} {rate / 1e6:>9.3f} {cpu_rate / 1e6:>13.3f} {frac:>9.3f}")
-    for label, (rate, cpu_rate) in embree.items():
-        print(f"ratio ao4d / Embree ({label}): {rate_cl / rate:.2f} wall clock, "
-              f"{(rays / c_cl) / cpu_rate:.2f} per CPU-second")
-    if embree:
-        best = max(rate for rate, _ in embree.values())
-        verdict = "met" if rate_cl >= 2 * best else "missed"
-        print(f"target: ao4d >= 2 x the faster Embree rate: {rate_cl / best:.2f}x, {verdict}")
-    speedup = (t_brute / r3) / (t_bvh / r4)
-    print(f"BVH speed-up over brute force ({small_tree.n_prims:,} tets, per ray): {speedup:.0f}x")
+    pick4 = rng.choice(ok, size=min(20000, ok.size), replace=False)
+    t_bvh, _ = timed(lambda: ao4d.ambient_occlusion(small, points=small.vertices[pick4],
+                                                    normals=small.vertex_normals[pick4], samples=samples2,
+                                                    backend="opencl"), args.repeat)
+    per_ray_bvh = t_bvh / (len(pick4) * samples2)
+    print(f"\nao4d numpy backend, 4D, {small_tree.n_prims:,} tets: {len(p2) * samples2 / t_np / 1e6:.3f} M rays/s")
+    print(f"BVH speed-up over brute force ({small_tree.n_prims:,} tets, per ray): "
+          f"{(t_brute / (len(p3) * samples2)) / per_ray_bvh:.0f}x")
     return 0
 
 

@@ -1,4 +1,4 @@
-"""``python -m datasets_gen CONFIG --out DIR [--workers N] [--seed S]``."""
+"""``python -m datasets_gen CONFIG --out DIR [--workers N | --scheduler ADDRESS|local:N] [--seed S]``."""
 
 import sys
 

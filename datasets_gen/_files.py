@@ -23,11 +23,8 @@ __all__ = ["write_npz", "write_json", "sha256_file", "to_jsonable", "save_mesh_n
 
 
 def save_mesh_npz(path: str | os.PathLike, mesh: Any) -> Path:
-    """Write a SimplexMesh with ``ao4d.meshio.save_npz`` (byte-reproducible); return the path."""
-    from ao4d.meshio import save_npz
-
-    save_npz(mesh, path)
-    return Path(path)
+    """Write a SimplexMesh as ``.npz`` (``SimplexMesh.save``: byte-reproducible); return the path."""
+    return mesh.save(Path(path))
 
 
 def to_jsonable(value: Any) -> Any:

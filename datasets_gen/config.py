@@ -6,9 +6,11 @@ A configuration (see ``datasets_gen/configs/*.toml``)::
     seed = 0                      # default run seed (--seed overrides)
 
     [defaults]                    # settings every family inherits (each may override them)
-    grid = 32                     # grid points per axis
+    grid = 32                     # grid points across the widest axis of the fitted box
     method = "cubes"              # extraction: "cubes" | "simplices"
-    padding = 0.15                # margin around the shape's extent, as a fraction of its size
+    padding = 0.0                 # extra room around the shape's extent, a fraction of its width
+    # bounds = [-1.5, 1.5]        # a fixed cube grid instead of the fitted box (cubic cells,
+                                  # one cell of margin: datasets_gen.families.fitted_grid)
     rotation = "random"           # "none" | "random" (uniform in SO(4))
     ao = { samples = 64, max_distance = inf, at = "vertices" }   # or ao = false
     renders = [{ name = "front", shape = [32, 32, 32], samples = 32 }]   # projection, fov
@@ -36,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from ao4d.cl import BACKENDS
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -54,7 +57,7 @@ _RENDER_KEYS = {"name", "shape", "samples", "projection", "fov"}
 DEFAULTS: dict[str, Any] = {
     "grid": 24,
     "method": "cubes",
-    "padding": 0.15,
+    "padding": 0.0,
     "bounds": None,
     "rotation": "none",
     "ao": {"samples": 64, "max_distance": math.inf, "at": "vertices"},
@@ -166,8 +169,8 @@ def _parse(data: dict, text: str, source: str) -> Config:
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ConfigError(f"{source}: `seed` must be an integer >= 0, got {seed!r}")
     backend = data.get("backend", "auto")
-    if backend not in ("auto", "opencl", "numpy"):
-        raise ConfigError(f"{source}: `backend` must be 'auto', 'opencl' or 'numpy', got {backend!r}")
+    if backend not in BACKENDS:
+        raise ConfigError(f"{source}: `backend` must be one of {', '.join(map(repr, BACKENDS))}, got {backend!r}")
     defaults = copy.deepcopy(DEFAULTS)
     user_defaults = data.get("defaults", {})
     _no_unknown(user_defaults, _SETTING_KEYS, source, "[defaults]")
@@ -312,7 +315,9 @@ def describe(config: Config) -> str:
     def how(f: Family) -> str:
         if f.kind == "lifted":
             return f"lifted with ao4d.lift, caps cut by {f.settings['tetrahedra']!r}"
-        return f"grid {f.settings['grid']}^4, {f.settings['method']}"
+        if f.settings["bounds"] is not None:
+            return f"grid {f.settings['grid']}^4 on {f.settings['bounds']}, {f.settings['method']}"
+        return f"grid fitted, {f.settings['grid']} points across, {f.settings['method']}"
 
     return "\n".join(f"  {f.name}: {f.count} x {f.kind} ({how(f)})" for f in config.families)
 

@@ -1,9 +1,24 @@
 """Shape families: how one item's parameters become a closed 4D mesh.
 
-Implicit families build an :class:`ao4d.fields.Field` and extract it on a grid that encloses the
-field's extent; lifted families build a 3D solid with trimesh and lift it with
+Implicit families build an :class:`ao4d.fields.Field` and extract it on a grid fitted to the
+rotated solid; lifted families build a 3D solid with trimesh and lift it with
 :mod:`ao4d.lift`. Every builder takes the item's drawn parameters and its random generator
 (for randomness beyond the parameters, e.g. metaball centres) and returns a :class:`Shape`.
+
+Grid fitting. The grid of an implicit item covers the solid's extent along each axis *after*
+the item's rotation, grown by ``padding`` (a fraction of the width) and then by
+:data:`MARGIN_CELLS` grid cells; its cells are cubes, ``grid`` points across the widest axis
+and fewer across narrower ones (see :func:`fitted_grid`). The extent comes from the solid's
+support function ``h(u) = max_{x in S} u . x``: the solid ``Q S`` spans
+``[-h(-Q^T e_k), h(Q^T e_k)]`` along axis k. Every family kind has a closed form (the
+analytic shapes are Minkowski sums of circles, spheres, disks and cubes with a ball, whose
+supports add; see :func:`shape_support`): exact for the analytic shapes and CSG unions, a
+containing bound for metaballs (balls of each term's reach), gyroid balls (the ball) and CSG
+differences (the first operand). A closed form is preferred over fitting by sampling the
+field: it is exact and costs nothing, needs no Lipschitz bound (metaballs and gyroids have
+none worth using), and cannot miss a thin part between samples. The box of the rotated
+extent box's corners, which it replaces, was up to 2 times too wide per axis, and the cube
+grid over its widest axis 1.6-5.6 times wider than a rotated ``tori`` item on some axis.
 """
 
 from __future__ import annotations
@@ -17,7 +32,15 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["KINDS", "kinds", "Kind", "Shape", "random_rotation", "build_shape"]
+__all__ = ["KINDS", "kinds", "Kind", "Shape", "random_rotation", "build_shape", "MARGIN_CELLS",
+           "shape_support", "support_extent", "fitted_grid"]
+
+# Grid cells between the solid's extent (plus padding) and the grid's outermost points: keeps the
+# zero set off the boundary points (which must be positive for a closed mesh) with room to spare.
+MARGIN_CELLS = 1.0
+
+Support = Callable[[np.ndarray], np.ndarray]
+"""A support function: (..., 4) directions u -> (...) values max over the solid of u . x."""
 
 
 @dataclass
@@ -33,13 +56,19 @@ class Shape:
     derived : dict
         Further random quantities drawn for the item (recorded in its JSON).
     grid : dict
-        Extraction grid (shape, bounds, spacing) for implicit families; empty for lifted ones.
+        Extraction grid for implicit families (empty for lifted ones): ``shape`` (points per
+        axis), ``bounds`` ([lo, hi], each 4 floats), ``spacing`` (4 floats) and ``extent``
+        ([lo, hi]: the rotated solid's extent the grid was fitted to; ``None`` when the
+        config gives ``bounds``).
+    field : Field or None
+        The (rotated) field that was extracted; ``None`` for lifted families.
     """
 
     mesh: Any
     volume_expected: float | None
     derived: dict = field(default_factory=dict)
     grid: dict = field(default_factory=dict)
+    field: Any = None
 
 
 @dataclass(frozen=True)
@@ -64,7 +93,8 @@ def random_rotation(rng: np.random.Generator, dim: int = 4) -> np.ndarray:
 
 
 def _rotated_field(f: Any, rotation: np.ndarray | None) -> Any:
-    """The solid ``rotation @ S``: ``g(x) = f(rotation^T x)``, extent = box of rotated corners."""
+    """The solid ``rotation @ S``: ``g(x) = f(rotation^T x)``, extent = box of rotated corners
+    (a loose bound, used only for fields without a support function)."""
     if rotation is None:
         return f
     from itertools import product
@@ -79,34 +109,184 @@ def _rotated_field(f: Any, rotation: np.ndarray | None) -> Any:
                  volume=f.volume, boundary_measure=f.boundary_measure, extent=ext)
 
 
-def _grid_for(f: Any, settings: dict) -> dict:
-    """Cube grid enclosing the field's extent with a margin (equal spacing on every axis)."""
+# --------------------------------------------------------------------------- support functions
+
+
+def _norm(u: np.ndarray, axes: slice = slice(None)) -> np.ndarray:
+    sub = u[..., axes]
+    return np.sqrt(np.einsum("...i,...i->...", sub, sub))
+
+
+def _cube_support(half: float, rounding: float = 0.0) -> Support:
+    """Cube ``[-(h - rho), h - rho]^4`` grown by a rho-ball: ``(h - rho) |u|_1 + rho |u|``."""
+    return lambda u: (half - rounding) * np.abs(u).sum(axis=-1) + rounding * _norm(u)
+
+
+def _rotated(support: Support, rotation: np.ndarray | None) -> Support:
+    """Support of ``rotation @ S``: ``h(Q^T u)``, i.e. ``h(u @ Q)`` for row vectors."""
+    if rotation is None:
+        return support
+    q = np.asarray(rotation, dtype=float)
+    return lambda u: support(u @ q)
+
+
+def _translated(support: Support, offset: np.ndarray) -> Support:
+    """Support of ``S + t``: ``h(u) + u . t``."""
+    t = np.asarray(offset, dtype=float)
+    return lambda u: support(u) + u @ t
+
+
+def _union(supports: list[Support]) -> Support:
+    """Support of a union: the largest of the parts' supports."""
+    return lambda u: np.max([h(u) for h in supports], axis=0)
+
+
+def shape_support(kind: str, args: dict[str, Any]) -> Support | None:
+    """Support function of the :mod:`ao4d.fields` shape ``kind`` built with ``args``.
+
+    Parameters
+    ----------
+    kind : str
+        A constructor of :mod:`ao4d.fields` ("spheritorus", ...).
+    args : dict
+        Its arguments, defaults included (``inspect.BoundArguments.arguments``).
+
+    Returns
+    -------
+    callable or None
+        ``h(u)`` for ``(..., 4)`` directions, exact for every shape here; ``None`` for a kind
+        without a closed form.
+
+    Notes
+    -----
+    The solids are Minkowski sums, whose support functions add: ``h_{A+B} = h_A + h_B``,
+    a rho-ball has ``rho |u|``, a circle or disk of radius R in a coordinate plane P has
+    ``R |u_P|``, a 2-sphere of radius R in xyz has ``R |u_xyz|``.
+
+    - hypersphere: ``c + B_r``: ``u . c + r |u|``.
+    - spheritorus ``dist(x, S^2_R) <= r``: ``S^2_R + B_r``: ``R |u_xyz| + r |u|``.
+    - torisphere ``dist(x, S^1_R) <= r``: ``R |u_xy| + r |u|``.
+    - tiger ``dist(x, S^1_R1 x S^1_R2) <= r``, the flat torus being ``S^1_R1 + S^1_R2`` in
+      the planes xy and zw: ``R1 |u_xy| + R2 |u_zw| + r |u|``.
+    - ditorus ``dist(x, T) <= r2``, T the 3D torus surface (R, r1) in w = 0. Its support is
+      ``max_phi [R a + r1 sqrt(a^2 + u_z^2)]`` with ``a = u_xy . (cos phi, sin phi)``, largest
+      at ``a = |u_xy|``: ``R |u_xy| + r1 |u_xyz| + r2 |u|``.
+    - duocylinder ``D_r1 x D_r2 = D_r1 + D_r2``: ``r1 |u_xy| + r2 |u_zw|``.
+    - tesseract, the cube of half side ``h - rho`` plus ``B_rho``: ``(h - rho) |u|_1 + rho |u|``.
+    - indented_cube: the cube's ``h |u|_1``; the dent (radius < h, centred on a facet) never
+      removes a vertex of the cube, where a linear function is largest, so this is exact.
+    """
+    a = args
+    if kind == "hypersphere":
+        r = float(a["radius"])
+        c = np.asarray(a["center"], dtype=float)
+        return lambda u: r * _norm(u) + u @ np.broadcast_to(c, u.shape[-1:])
+    if kind == "spheritorus":
+        R, r = float(a["R"]), float(a["r"])
+        return lambda u: R * _norm(u, slice(0, 3)) + r * _norm(u)
+    if kind == "torisphere":
+        R, r = float(a["R"]), float(a["r"])
+        return lambda u: R * _norm(u, slice(0, 2)) + r * _norm(u)
+    if kind == "tiger":
+        R1, R2, r = float(a["R1"]), float(a["R2"]), float(a["r"])
+        return lambda u: R1 * _norm(u, slice(0, 2)) + R2 * _norm(u, slice(2, 4)) + r * _norm(u)
+    if kind == "ditorus":
+        R, r1, r2 = float(a["R"]), float(a["r1"]), float(a["r2"])
+        return lambda u: (R * _norm(u, slice(0, 2)) + r1 * _norm(u, slice(0, 3)) + r2 * _norm(u))
+    if kind == "duocylinder":
+        r1, r2 = float(a["r1"]), float(a["r2"])
+        return lambda u: r1 * _norm(u, slice(0, 2)) + r2 * _norm(u, slice(2, 4))
+    if kind == "tesseract":
+        return _cube_support(float(a["half"]), float(a["rounding"]))
+    if kind == "indented_cube":
+        return _cube_support(float(a["half"]))
+    return None
+
+
+def support_extent(support: Support, rotation: np.ndarray | None = None, *, dim: int = 4) -> np.ndarray:
+    """The axis-aligned extent ``(2, dim)`` [lo, hi] of ``rotation @ S`` from S's support.
+
+    Along axis k the solid ``Q S`` reaches ``max_{x in S} e_k . Q x = h(Q^T e_k)`` (row k of Q)
+    and down to ``-h(-Q^T e_k)``: the extent is exact where the support is.
+    """
+    q = np.eye(dim) if rotation is None else np.asarray(rotation, dtype=float)
+    return np.stack([-support(-q), support(q)])
+
+
+def fitted_grid(extent: Any, n: int, *, padding: float = 0.0,
+                margin: float = MARGIN_CELLS) -> dict[str, Any]:
+    """Grid of cubic cells over ``extent`` grown by ``padding`` and ``margin`` cells.
+
+    The widest axis gets ``n`` points: its extent, widened by ``padding`` times its width,
+    spans ``n - 1 - 2 margin`` cells, which fixes the spacing ``h`` of every axis. Each other
+    axis gets the fewest points whose span covers its (padded) width plus ``margin`` cells per
+    side, centred on the extent. So the outermost grid points lie at least ``margin`` cells
+    outside the padded extent on every side, and the grid never has more than ``n^d`` points.
+
+    Parameters
+    ----------
+    extent : (2, d) array_like
+        [lo, hi] of the solid.
+    n : int
+        Points along the widest axis.
+    padding : float
+        Extra width, as a fraction of each axis' width, split between its two sides.
+    margin : float
+        Cells between the padded extent and the outermost grid points.
+
+    Returns
+    -------
+    dict
+        ``shape`` (points per axis), ``bounds`` ([lo, hi]), ``spacing`` and ``extent``
+        (plain lists).
+    """
+    ext = np.asarray(extent, dtype=float).reshape(2, -1)
+    cells = n - 1 - 2 * margin
+    if cells < 1:
+        raise ValueError(f"`grid` must exceed 2 * {margin:g} + 2 points for a margin of {margin:g} "
+                         f"cells, got {n}")
+    width = (ext[1] - ext[0]) * (1 + padding)
+    if not np.all(np.isfinite(width)) or not np.all(width > 0):
+        raise ValueError(f"the solid's extent must be finite and not flat, got {ext.tolist()}")
+    h = float(width.max()) / cells
+    # 1e-9: the widest axis' width / h + 2 margin is n - 1 up to rounding
+    counts = np.ceil(width / h + 2 * margin - 1e-9).astype(int) + 1
+    centre = ext.mean(axis=0)
+    lo, hi = centre - (counts - 1) * h / 2, centre + (counts - 1) * h / 2
+    return {"shape": counts.tolist(), "bounds": [lo.tolist(), hi.tolist()],
+            "spacing": ((hi - lo) / (counts - 1)).tolist(), "extent": ext.tolist()}
+
+
+def _grid_for(g: Any, support: Support | None, rotation: np.ndarray | None, settings: dict) -> dict:
+    """The extraction grid of one item: the config's ``bounds`` (a cube), else fitted to the
+    rotated solid (its support, or the field's loose extent where it has none)."""
     n = settings["grid"]
     if settings["bounds"] is not None:
         lo, hi = (float(v) for v in settings["bounds"])
         lo_v, hi_v = np.full(4, lo), np.full(4, hi)
+        return {"shape": [n] * 4, "bounds": [lo_v.tolist(), hi_v.tolist()],
+                "spacing": ((hi_v - lo_v) / (n - 1)).tolist(), "extent": None}
+    if support is not None:
+        extent = support_extent(support, rotation)
+    elif g.extent is not None:
+        extent = g.extent
     else:
-        if f.extent is None:
-            raise ValueError(f"{f.name} has no known extent; give `bounds` in the config")
-        centre = f.extent.mean(axis=0)
-        half = float(np.max(f.extent[1] - f.extent[0])) / 2 * (1 + settings["padding"])
-        # keep the zero set off the outermost grid points even with padding = 0
-        half += 1.0 * half / (n - 1)
-        lo_v, hi_v = centre - half, centre + half
-    spacing = (hi_v - lo_v) / (n - 1)
-    return {"shape": [n] * 4, "bounds": [lo_v.tolist(), hi_v.tolist()], "spacing": spacing.tolist()}
+        raise ValueError(f"{g.name} has no known extent; give `bounds` in the config")
+    return fitted_grid(extent, n, padding=float(settings["padding"]))
 
 
-def _extract(f: Any, settings: dict, rotation: np.ndarray | None, derived: dict) -> Shape:
+def _extract(f: Any, settings: dict, rotation: np.ndarray | None, derived: dict,
+             support: Support | None = None) -> Shape:
+    """Extract ``f`` (rotated) on its fitted grid; ``support`` is the unrotated solid's."""
     from ao4d.march import extract_field
 
     g = _rotated_field(f, rotation)
-    grid = _grid_for(g, settings)
+    grid = _grid_for(g, support, rotation, settings)
     mesh = extract_field(g, grid["shape"], (np.array(grid["bounds"][0]), np.array(grid["bounds"][1])),
                          method=settings["method"], progress=False)
     if mesh.n_simplices == 0:
         raise ValueError(f"{f.name}: extraction gave an empty mesh (shape smaller than a cell?)")
-    return Shape(mesh, g.volume, derived, grid)
+    return Shape(mesh, g.volume, derived, grid, g)
 
 
 def _field_kind(name: str) -> Kind:
@@ -114,12 +294,16 @@ def _field_kind(name: str) -> Kind:
     from ao4d import fields
 
     func = getattr(fields, name)
-    params = tuple(p.name for p in inspect.signature(func).parameters.values()
+    signature = inspect.signature(func)
+    params = tuple(p.name for p in signature.parameters.values()
                    if p.kind is inspect.Parameter.POSITIONAL_OR_KEYWORD)
 
     def build(params_: dict, settings: dict, rng: np.random.Generator, rotation) -> Shape:
         del rng
-        return _extract(func(**params_), settings, rotation, {})
+        f = func(**params_)  # validates the parameters
+        bound = signature.bind(**params_)
+        bound.apply_defaults()
+        return _extract(f, settings, rotation, {}, shape_support(name, bound.arguments))
 
     return Kind(params, build, (func.__doc__ or "").strip().splitlines()[0])
 
@@ -135,8 +319,13 @@ def _metaballs(p: dict, settings: dict, rng: np.random.Generator, rotation) -> S
                               (("spread", 0.5), ("radius", 0.4), ("jitter", 0.3)))
     centres = rng.uniform(-spread, spread, size=(n, 4))
     radii = radius * rng.uniform(1 - jitter, 1 + jitter, size=n)
-    f = fields.metaballs(centres, radii, sharpness=float(p.get("sharpness", 2.0)))
-    return _extract(f, settings, rotation, {"centers": centres, "radii": radii})
+    sharpness = float(p.get("sharpness", 2.0))
+    f = fields.metaballs(centres, radii, sharpness=sharpness)
+    # a bound: outside every ball of radius r_i sqrt(1 + ln(n) / s) each of the n terms is
+    # below 1/n, so the field is positive (the reach ao4d.fields.metaballs uses for its extent)
+    reach = radii * math.sqrt(1.0 + math.log(n) / sharpness)
+    support = _union([_translated(lambda u, r=r: r * _norm(u), c) for c, r in zip(centres, reach)])
+    return _extract(f, settings, rotation, {"centers": centres, "radii": radii}, support)
 
 
 def _tesseracts(p: dict, settings: dict, rng: np.random.Generator, rotation) -> Shape:
@@ -151,21 +340,23 @@ def _tesseracts(p: dict, settings: dict, rng: np.random.Generator, rotation) -> 
     operation = p.get("operation", "union")
     if operation not in ("union", "difference"):
         raise ValueError(f"`operation` must be 'union' or 'difference', got {operation!r}")
-    parts, shifts, rotations = [], [], []
+    parts, supports, shifts, rotations = [], [], [], []
     for i in range(n):
         q = random_rotation(rng)
         shift = np.zeros(4) if (operation == "difference" and i == 0) else rng.uniform(-spread, spread, 4)
         size = half * (1.5 if (operation == "difference" and i == 0) else 1.0)
-        part = fields.translate(_rotated_field(fields.tesseract(size, min(rounding, 0.9 * size)), q),
-                                shift)
-        parts.append(part)
+        round_ = min(rounding, 0.9 * size)
+        parts.append(fields.translate(_rotated_field(fields.tesseract(size, round_), q), shift))
+        supports.append(_translated(_rotated(_cube_support(size, round_), q), shift))
         shifts.append(shift)
         rotations.append(q)
-    if operation == "union":
+    if operation == "union":  # exact: the union's support is the parts' largest
         f = fields.union(*parts) if n > 1 else parts[0]
-    else:
+        support = _union(supports)
+    else:  # a bound: the first part, from which the others are cut
         f = parts[0] if n == 1 else fields.difference(parts[0], fields.union(*parts[1:]))
-    return _extract(f, settings, rotation, {"shifts": shifts, "rotations": rotations})
+        support = supports[0]
+    return _extract(f, settings, rotation, {"shifts": shifts, "rotations": rotations}, support)
 
 
 def _gyroid_ball(p: dict, settings: dict, rng: np.random.Generator, rotation) -> Shape:
@@ -173,9 +364,10 @@ def _gyroid_ball(p: dict, settings: dict, rng: np.random.Generator, rotation) ->
     from ao4d import fields
 
     del rng
+    radius = float(p.get("radius", 1.0))
     f = fields.intersection(fields.gyroid(float(p.get("period", 1.0)), float(p.get("thickness", 0.3))),
-                            fields.hypersphere(float(p.get("radius", 1.0))))
-    return _extract(f, settings, rotation, {})
+                            fields.hypersphere(radius))
+    return _extract(f, settings, rotation, {}, lambda u: radius * _norm(u))  # a bound: the ball
 
 
 # --------------------------------------------------------------------------- lifted families

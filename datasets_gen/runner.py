@@ -3,7 +3,7 @@
 Layout of an output folder::
 
     run.json                  configuration text, seed, ao4d version, lut checksum
-    items/00000/mesh.npz      the closed 4D mesh (ao4d.meshio npz layout: SimplexMesh.load reads it)
+    items/00000/mesh.npz      the closed 4D mesh (ao4d.mesh_files npz layout: SimplexMesh.load reads it)
     items/00000/ao.npz        occlusion per vertex (or per simplex), float64
     items/00000/<render>.png  optional renders (z-slice montage of the shaded 3D image)
     items/00000/record.json   parameters, seeds, versions, mesh check, measures, file hashes
@@ -20,6 +20,11 @@ its version and the sha256 of its lookup tables and kernel sources) and the same
 1980-01-01, JSON is canonical), and wall-clock data lives only in ``timing.json`` and
 ``summary.json``, which the manifest leaves out: two runs of the same configuration and seed
 have byte-identical manifests.
+
+Where: in this process (``workers=1``), in spawned processes (``workers=N``), or as tasks on a
+dask.distributed scheduler (``scheduler="tcp://..."`` or ``"local:N"``): there each worker makes
+its item in a scratch folder and returns the files' bytes, which this process writes, so the
+folder is the same byte for byte whichever way it was made.
 
 Resumability: ``record.json`` is written last, holding the sha256 of the item's other files; an
 item counts as finished only when its record exists and every hash matches. Every file is
@@ -225,7 +230,8 @@ def make_item(job: _Job) -> dict[str, Any]:
         },
         "ao": None if occlusion is None else {
             "mean": float(np.mean(occlusion)), "min": float(np.min(occlusion)),
-            "max": float(np.max(occlusion)), "values": len(occlusion), "backend": job.backend},
+            "max": float(np.max(occlusion)), "values": len(occlusion),
+            "backend": _backend_ran(job.backend)},
         "files": {name: sha256_file(folder / name) for name in files},
     }
     write_json(folder / "timing.json", {"seconds": timing, "pid": os.getpid()})
@@ -241,7 +247,7 @@ def _render(folder: Path, render: dict, mesh: Any, occlusion: Any, settings: dic
     camera framing the whole 4D bounding sphere leaves most of the image empty).
     """
     import ao4d
-    from ao4d import io as aio
+    from ao4d.pictures import save_montage
 
     lo, hi = mesh.bounds
     if render.get("projection", "orthographic") == "orthographic":
@@ -263,9 +269,9 @@ def _render(folder: Path, render: dict, mesh: Any, occlusion: Any, settings: dic
     path = folder / f"{render['name']}.png"
     # a fixed colour scale (shade = 1 - A in [0, 1]) makes items comparable, and a flat,
     # unoccluded view shows white rather than an arbitrary stretch of a constant image
-    aio.save_montage(path, result.shade, background=~result.hit, label="shade (1 - A)",
-                     title=title, vmin=0.0, vmax=1.0,
-                     spacing=result.geometry.spacing, origin=result.geometry.origin)
+    save_montage(path, result.shade, background=~result.hit, label="shade (1 - A)",
+                 title=title, vmin=0.0, vmax=1.0,
+                 spacing=result.geometry.spacing, origin=result.geometry.origin)
     return path
 
 
@@ -301,6 +307,7 @@ def run(
     out: str | os.PathLike,
     *,
     workers: int = 1,
+    scheduler: str | None = None,
     seed: int | None = None,
     progress: bool | None = None,
 ) -> RunSummary:
@@ -315,6 +322,14 @@ def run(
         Output folder: new, empty, or holding an earlier (partial) run of the same config/seed.
     workers : int
         Processes (spawned); 1 runs in this process.
+    scheduler : str, optional
+        Run the items as tasks on a dask.distributed scheduler instead: its address
+        (``"tcp://host:8786"``) or ``"local:N"`` for a LocalCluster of N worker processes (one
+        thread each) started and stopped here. Each worker makes its item in a scratch folder
+        of its own and sends the files back; this process writes them (atomically, the record
+        last), so workers need ao4d but no shared filesystem. The files, and so the manifest,
+        are byte-identical to a ``workers=1`` run on the same software and AO device; a worker
+        lost mid-item has its item redone on another worker (dask's own rescheduling).
     seed : int, optional
         Run seed; default the configuration's ``seed``.
     progress : bool, optional
@@ -333,6 +348,10 @@ def run(
 
     cfg = config if isinstance(config, Config) else load_config(config)
     workers = check_positive_int(workers, "workers")
+    if scheduler is not None:
+        _check_scheduler(scheduler)
+        if workers != 1:
+            raise ValueError(f"give `workers` ({workers}) or `scheduler` ({scheduler!r}), not both")
     seed = cfg.seed if seed is None else check_positive_int(seed, "seed", minimum=0)
     out = Path(out)
     _check_out(out, cfg, seed)
@@ -346,12 +365,15 @@ def run(
         else:
             todo.append(_Job(spec, seed, str(out), cfg.backend))
 
-    from tqdm.auto import tqdm
+    from ao4d import _progress
 
-    bar = tqdm(total=len(items), initial=summary.skipped, desc=f"{cfg.name} items", unit="item",
-               disable=(not sys.stderr.isatty()) if progress is None else not progress)
+    # on a terminal a bar; in a log a line every few seconds (items take seconds to minutes)
+    bar = _progress.bar(len(items), f"{cfg.name} items", unit="item", initial=summary.skipped,
+                        show=True if progress is None else bool(progress))
     try:
-        if workers == 1 or len(todo) <= 1:
+        if scheduler is not None and todo:
+            _run_distributed(todo, scheduler, out, summary, bar)
+        elif workers == 1 or len(todo) <= 1:
             for job in todo:
                 _collect(summary, job, lambda job=job: make_item(job))
                 bar.update()
@@ -396,6 +418,98 @@ def _run_parallel(todo: list[_Job], workers: int, summary: RunSummary, bar) -> N
             for proc in workers_:
                 proc.terminate()  # their unfinished items are redone on the next run
             raise
+
+
+def _check_scheduler(scheduler: Any) -> int | None:
+    """The worker count of ``"local:N"``, None for an address; errors name the parameter."""
+    if not isinstance(scheduler, str) or not scheduler.strip():
+        raise TypeError(f"`scheduler` must be an address or 'local:N', got {scheduler!r}")
+    if scheduler.startswith("local:"):
+        count = scheduler[len("local:"):]
+        if not count.isdigit() or int(count) < 1:
+            raise ValueError(f"`scheduler` 'local:N' needs a worker count N >= 1, got {scheduler!r}")
+        return int(count)
+    return None
+
+
+def make_item_files(job: _Job) -> dict[str, Any]:
+    """Make an item in a scratch folder and return its files' bytes (runs on a dask worker).
+
+    The item is made by :func:`make_item` exactly as locally, only in a temporary folder of
+    the worker; the client writes the returned files with :func:`write_item_files`.
+    """
+    import dataclasses
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="datasets_gen-item-") as scratch:
+        timing = make_item(dataclasses.replace(job, out=scratch))
+        folder = item_dir(Path(scratch), job.spec.index)
+        files = {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+    if "record.json" not in files:
+        raise RuntimeError(f"item {job.spec.index} left no record.json")
+    return {"index": job.spec.index, "files": files, "timing": timing}
+
+
+def write_item_files(out: Path, index: int, files: dict[str, bytes]) -> None:
+    """Write an item's files into its folder, each atomically, ``record.json`` last (it marks
+    the item complete), after deleting leftovers of an interrupted attempt."""
+    folder = item_dir(out, index)
+    folder.mkdir(parents=True, exist_ok=True)
+    for stale in folder.iterdir():
+        if stale.is_file() and stale.name not in files:
+            stale.unlink()
+    (folder / "record.json").unlink(missing_ok=True)
+    for name in sorted(files, key=lambda n: n == "record.json"):
+        with atomic_open(folder / name, "wb") as fh:
+            fh.write(files[name])
+
+
+def _run_distributed(todo: list[_Job], scheduler: str, out: Path, summary: RunSummary, bar) -> None:
+    """Items as tasks on a dask.distributed scheduler; results written here as they arrive."""
+    import uuid
+
+    from distributed import Client, LocalCluster, as_completed
+
+    count = _check_scheduler(scheduler)
+    cluster = None
+    try:
+        if count is not None:
+            from ao4d.blockwise import worker_environment
+
+            # glibc's default malloc in the workers: dask's MALLOC_TRIM_THRESHOLD_ slows numpy
+            with worker_environment():
+                cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
+                                       dashboard_address=":0")
+            client = Client(cluster)
+        else:
+            client = Client(scheduler)  # waits distributed.comm.timeouts.connect (30 s)
+    except (OSError, TimeoutError) as exc:
+        if cluster is not None:
+            cluster.close()
+        raise ValueError(f"cannot reach the dask scheduler at `scheduler` {scheduler!r}: {exc}") from None
+    run_id = uuid.uuid4().hex[:8]
+    futures: dict[Any, _Job] = {}
+    try:
+        for job in todo:
+            key = f"datasets_gen-item-{job.spec.index:05d}-{run_id}"
+            futures[client.submit(make_item_files, job, key=key, pure=False)] = job
+        for future in as_completed(list(futures)):
+            job = futures[future]
+
+            def write(future=future, job=job) -> None:
+                result = future.result()
+                write_item_files(out, job.spec.index, result["files"])
+
+            _collect(summary, job, write)
+            future.release()
+            bar.update()
+    except KeyboardInterrupt:
+        client.cancel(list(futures))  # unfinished items are redone on the next run
+        raise
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
 
 
 def _ignore_sigint() -> None:
@@ -462,12 +576,19 @@ def _device_name() -> str:
     devices, so a dataset is byte-reproducible on the same software and device)."""
     from ao4d import cl
 
-    runtime = cl.get_runtime(warn=False)
-    return runtime.name if runtime else "numpy backend (no OpenCL device)"
+    return cl.describe(cl.resolve_backend("auto", warn=False))
+
+
+def _backend_ran(backend: str) -> str:
+    """The backend that computes for a requested ``backend`` ("auto" resolves to one)."""
+    from ao4d import cl
+
+    return cl.backend_name(cl.resolve_backend(backend, warn=False))
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Command line: ``python -m datasets_gen CONFIG --out DIR [--workers N] [--seed S]``."""
+    """Command line: ``python -m datasets_gen CONFIG --out DIR [--workers N | --scheduler
+    ADDRESS|local:N] [--seed S]``."""
     import argparse
 
     from .config import ConfigError, describe, shipped_configs
@@ -478,11 +599,16 @@ def main(argv: list[str] | None = None) -> int:
         epilog="shipped configs: " + ", ".join(shipped_configs()) + "\nexamples:\n"
                "  python -m datasets_gen smoke --out /tmp/smoke\n"
                "  python -m datasets_gen tori --out data/tori --workers 2 --seed 7\n"
+               "  python -m datasets_gen tori --out data/tori --scheduler local:4\n"
+               "  python -m datasets_gen tori --out data/tori --scheduler tcp://head:8786\n"
                "  python -m datasets_gen my.toml --out data/mine   # rerun to resume",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("config", nargs="?", help="a TOML file or the name of a shipped config")
     parser.add_argument("--out", help="output folder (created; reruns resume); required unless --list")
     parser.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    parser.add_argument("--scheduler", metavar="ADDRESS|local:N",
+                        help="run the items on a dask.distributed scheduler (an address such as "
+                             "tcp://head:8786, or local:N for a LocalCluster of N processes)")
     parser.add_argument("--seed", type=int, default=None, help="run seed (default: the config's)")
     parser.add_argument("--list", action="store_true", help="show the items' families and exit")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -504,7 +630,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.list:
             print(f"{cfg.name} ({cfg.source}): {len(cfg.items())} items\n{describe(cfg)}")
             return 0
-        summary = run(cfg, args.out, workers=args.workers, seed=args.seed,
+        if args.no_progress:
+            from ao4d import _progress
+
+            _progress.set_enabled(False)
+        summary = run(cfg, args.out, workers=args.workers, scheduler=args.scheduler, seed=args.seed,
                       progress=False if args.no_progress else None)
     except (FileNotFoundError, FileExistsError, ConfigError, ValueError, TypeError) as exc:
         print(f"error: {exc}", file=sys.stderr)

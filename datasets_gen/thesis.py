@@ -13,8 +13,9 @@ Every scene is mirror-symmetric about the hyperplane x = 0, and the camera's eye
 hyperplane with its image x axis along world x, so the rendered volume must equal its own flip
 along image axis 0 up to Monte Carlo noise (``tests/test_thesis.py`` checks this).
 
-Run ``python -m datasets_gen.thesis --out DIR --size 50``: renders each scene at size^3 with
-and without AO, writes the volumes (``.vti``) and a side-by-side PNG.
+Run ``python -m datasets_gen.thesis --out DIR --size 50``: renders each scene at size^3 without
+AO, with AO alone, and with the full illumination model (AO, Lambert, 4D Blinn-Phong
+highlights, 4D shadows, colour), writes the volumes (``.vti``) and a side-by-side PNG.
 """
 
 from __future__ import annotations
@@ -31,8 +32,10 @@ import numpy as np
 import ao4d
 from ao4d.camera import Camera4D
 from ao4d.mesh import SimplexMesh
+from ao4d.cl import BACKENDS
 
-__all__ = ["raw_scenes", "closed_scenes", "thesis_camera", "render_pair", "main", "SCENES"]
+__all__ = ["raw_scenes", "closed_scenes", "thesis_camera", "render_pair", "render_full", "main",
+           "SCENES"]
 
 SCENES = ("two tetrahedra", "tetrahedra structure", "indented cubes")
 # V-shaped walls: w = -SLOPE * |x|, so both walls lean towards the viewer (at -w)
@@ -106,7 +109,7 @@ def _pentatope(vertices: np.ndarray):
     normals, offsets = [], []
     for k in range(5):
         facet = np.delete(vertices, k, axis=0)
-        n = ao4d.camera.cross(*(facet[1:] - facet[0]))
+        n = ao4d.geometry.cross(*(facet[1:] - facet[0]))
         n /= np.linalg.norm(n)
         if n @ (vertices[k] - facet[0]) > 0:  # point away from the opposite vertex
             n = -n
@@ -173,6 +176,9 @@ def thesis_camera() -> Camera4D:
 
 
 LIGHT = np.array([0.0, 0.6, -0.3, -1.0])
+# the full model: every object in one colour (the scenes stay mirror-symmetric)
+FULL = dict(ambient=0.45, diffuse=0.3, specular=0.25, shininess=16.0, shadows=True,
+            color=(1.0, 0.72, 0.42))
 
 
 def render_pair(meshes, size: int, *, samples: int = 64, seed: int = 0, backend: str = "auto"):
@@ -196,6 +202,24 @@ def render_pair(meshes, size: int, *, samples: int = 64, seed: int = 0, backend:
     return plain, with_ao
 
 
+def render_full(meshes, size: int, *, samples: int = 64, seed: int = 0, backend: str = "auto"):
+    """Render a scene with the full illumination model (AO at every hit, lights, shadows, colour).
+
+    Returns
+    -------
+    RenderResult
+        ``shade = 0.5 (1 - A) + V (0.5 max(0, n . l) + 0.35 max(0, n . h)^16)`` with ``V``
+        the 4D shadow visibility of :data:`LIGHT` (the AO-alone render is the same without
+        the last two factors); ``rgba`` in the colour of :data:`FULL`.
+    """
+    from ao4d.mesh import concatenate
+
+    if not isinstance(meshes, SimplexMesh):
+        meshes = concatenate(meshes)
+    return ao4d.render(meshes, thesis_camera(), (size,) * 3, ao="hits", samples=samples, seed=seed,
+                       light=LIGHT, backend=backend, **FULL)
+
+
 def _middle_slice(result) -> int:
     """The z-slice through the centre of the hit voxels (where the objects' middles are)."""
     k = np.nonzero(result.hit)[2]
@@ -203,13 +227,15 @@ def _middle_slice(result) -> int:
 
 
 def side_by_side_png(path: Path, results: dict, size: int, samples: int) -> Path:
-    """One row per scene: raw without/with AO, closed without/with AO (middle z-slice)."""
+    """One row per scene: raw without AO, with AO, full model; the same closed (middle z-slice)."""
     import matplotlib
 
-    from ao4d.io import _figure, _save_figure
+    from ao4d.pictures import figure, over_background, save_figure
 
-    columns = [("raw", "no AO"), ("raw", "AO"), ("closed", "no AO"), ("closed", "AO")]
-    fig = _figure(2.3 * len(columns) + 1.0, 2.3 * len(results) + 0.8)
+    columns = [("raw", "no AO"), ("raw", "AO"), ("raw", "full"),
+               ("closed", "no AO"), ("closed", "AO"), ("closed", "full")]
+    index = {"no AO": 0, "AO": 1, "full": 2}
+    fig = figure(2.3 * len(columns) + 1.0, 2.3 * len(results) + 0.8)
     grid = fig.add_gridspec(len(results), len(columns) + 1,
                             width_ratios=[1] * len(columns) + [0.07], left=0.09, right=0.92,
                             top=1 - 0.75 / fig.get_figheight(), bottom=0.02, wspace=0.06,
@@ -226,12 +252,17 @@ def side_by_side_png(path: Path, results: dict, size: int, samples: int) -> Path
         hi = lo + side
         crop = (slice(lo[0], hi[0]), slice(lo[1], hi[1]))
         for col, (kind, shading) in enumerate(columns):
-            res = variants[kind][shading == "AO"]
+            res = variants[kind][index[shading]]
             k = _middle_slice(variants[kind][1])
             ax = fig.add_subplot(grid[row, col])
-            data = np.ma.masked_array(res.shade[:, :, k], ~res.hit[:, :, k])[crop]
-            image = ax.imshow(data.T, origin="lower", cmap=cmap, vmin=0, vmax=1,
-                              interpolation="nearest")
+            if shading == "full":  # the voxels' own colours over the background grey-blue
+                colour = over_background(res.rgba[:, :, k])[crop]
+                ax.imshow(np.swapaxes(np.clip(colour, 0, 1), 0, 1), origin="lower",
+                          interpolation="nearest")
+            else:
+                data = np.ma.masked_array(res.shade[:, :, k], ~res.hit[:, :, k])[crop]
+                image = ax.imshow(data.T, origin="lower", cmap=cmap, vmin=0, vmax=1,
+                                  interpolation="nearest")
             ax.set_xticks([])
             ax.set_yticks([])
             if row == 0:
@@ -239,10 +270,11 @@ def side_by_side_png(path: Path, results: dict, size: int, samples: int) -> Path
             if col == 0:
                 ax.set_ylabel(name, fontsize=9)
     bar = fig.colorbar(image, cax=fig.add_subplot(grid[:, -1]))
-    bar.set_label("shade", fontsize=9)
-    fig.suptitle(f"Thesis scenes redone: {size}^3 images, AO with {samples} rays per voxel; "
-                 "graded and mirror-symmetric", fontsize=10)
-    return _save_figure(fig, path)
+    bar.set_label("shade (grey panels)", fontsize=9)
+    fig.suptitle(f"Thesis scenes redone: {size}^3 images, AO with {samples} rays per voxel "
+                 "(graded, mirror-symmetric); full: + 4D highlights and shadows, colour",
+                 fontsize=10)
+    return save_figure(fig, path)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -253,7 +285,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--samples", type=int, default=64, help="AO rays per voxel (default 64)")
     parser.add_argument("--grid", type=int, default=24,
                         help="grid points per axis for the closed objects (default 24)")
-    parser.add_argument("--backend", choices=("auto", "opencl", "numpy"), default="auto")
+    parser.add_argument("--backend", choices=BACKENDS, default="auto")
     args = parser.parse_args(argv)
     if args.size < 2 or args.samples < 1 or args.grid < 4:
         parser.error("--size >= 2, --samples >= 1 and --grid >= 4 are required")
@@ -263,12 +295,13 @@ def main(argv: list[str] | None = None) -> int:
 
 def run(out: Path, *, size: int = 50, samples: int = 64, grid: int = 24,
         backend: str = "auto", stream=None) -> dict:
-    """Render every scene (raw and closed, with and without AO); write .vti files and a PNG.
+    """Render every scene (raw and closed: no AO, AO, full model); write .vti files and a PNG.
 
     Returns
     -------
     dict
-        ``results[scene][kind] = (plain, with_ao)`` RenderResults, kind in {"raw", "closed"}.
+        ``results[scene][kind] = (plain, with_ao, full)`` RenderResults, kind in {"raw",
+        "closed"}.
     """
     stream = sys.stdout if stream is None else stream
     out = Path(out)
@@ -280,10 +313,12 @@ def run(out: Path, *, size: int = 50, samples: int = 64, grid: int = 24,
         for kind, meshes in (("raw", raw[name]), ("closed", closed[name])):
             start = time.perf_counter()
             plain, with_ao = render_pair(meshes, size, samples=samples, backend=backend)
-            results[name][kind] = (plain, with_ao)
+            full = render_full(meshes, size, samples=samples, backend=backend)
+            results[name][kind] = (plain, with_ao, full)
             stem = name.replace(" ", "_") + f"_{kind}"
             plain.save(out / f"{stem}_noao.vti")
             with_ao.save(out / f"{stem}_ao.vti")
+            full.save(out / f"{stem}_full.vti")
             occ = with_ao.occlusion[with_ao.hit]
             inner = occ[(occ > 0) & (occ < 1)]
             print(f"{name:<22}{kind:<8} AO in (0,1) at {inner.size / max(occ.size, 1):.0%} of "

@@ -8,9 +8,9 @@
 
 inline int trace(const int use_bvh, __global const floatW *boxes, __global const int *children,
                  __global const floatL *blocks, const int n_blocks, const float4 o,
-                 const float4 w, const float t_max, const int any_hit, float *t_out)
+                 const float4 w, const float t_max, const int any_hit, float *t_out VISITS_PARAM)
 {
-    if (use_bvh) return trace_bvh(boxes, children, blocks, o, w, t_max, any_hit, t_out);
+    if (use_bvh) return trace_bvh(boxes, children, blocks, o, w, t_max, any_hit, t_out VISITS_ARG);
     return trace_brute(blocks, n_blocks, o, w, t_max, any_hit, t_out);
 }
 
@@ -19,7 +19,7 @@ inline int occlusion_count(const int use_bvh, __global const floatW *boxes,
                            __global const int *children, __global const floatL *blocks,
                            const int n_blocks, const float4 p, const float4 n, const uint index,
                            __global const uint *table, const int samples, const uint seed,
-                           const float offset, const float max_distance)
+                           const float offset, const float max_distance VISITS_PARAM)
 {
     uint shift[DIM - 1];
     for (int k = 0; k < DIM - 1; ++k) shift[k] = point_shift(index, seed, (uint)k);
@@ -31,7 +31,7 @@ inline int occlusion_count(const int use_bvh, __global const floatW *boxes,
     for (int s = 0; s < samples; ++s) {
         const float4 w = cosine_direction(n, frame, table, s, shift);
         float t;
-        hits += trace(use_bvh, boxes, children, blocks, n_blocks, o, w, max_distance, 1, &t) >= 0;
+        hits += trace(use_bvh, boxes, children, blocks, n_blocks, o, w, max_distance, 1, &t VISITS_ARG) >= 0;
     }
     return hits;
 }
@@ -40,11 +40,20 @@ __kernel __attribute__((vec_type_hint(float4))) void ao_bvh(__global const float
                      __global const floatL *blocks, __global const float4 *points, __global const float4 *normals,
                      __global const uint *index, __global const uint *table, const int samples,
                      const uint seed, const float offset, const float max_distance,
-                     __global int *counts)
+                     __global int *counts
+#ifdef COUNT_VISITS
+                     , __global int *visits_out  // per point: wide nodes visited, blocks tested
+#endif
+                     )
 {
     const size_t i = get_global_id(0);
+    VISITS_DECL
     counts[i] = occlusion_count(1, boxes, children, blocks, 0, points[i], normals[i], index[i],
-                                table, samples, seed, offset, max_distance);
+                                table, samples, seed, offset, max_distance VISITS_ARG);
+#ifdef COUNT_VISITS
+    visits_out[2 * i] = visits[0];
+    visits_out[2 * i + 1] = visits[1];
+#endif
 }
 
 __kernel __attribute__((vec_type_hint(float4))) void ao_brute(__global const floatL *blocks, const int n_blocks,
@@ -54,8 +63,9 @@ __kernel __attribute__((vec_type_hint(float4))) void ao_brute(__global const flo
                        __global int *counts)
 {
     const size_t i = get_global_id(0);
+    VISITS_DECL
     counts[i] = occlusion_count(0, 0, 0, blocks, n_blocks, points[i], normals[i], index[i],
-                                table, samples, seed, offset, max_distance);
+                                table, samples, seed, offset, max_distance VISITS_ARG);
 }
 
 // one ray per work-item: closest (any_hit = 0) or any hit within max_distance; hit_out is
@@ -66,9 +76,10 @@ __kernel __attribute__((vec_type_hint(float4))) void cast_bvh(__global const flo
                        __global int *hit_out)
 {
     const size_t i = get_global_id(0);
+    VISITS_DECL
     float t;
     hit_out[i] = trace_bvh(boxes, children, blocks, origins[i], directions[i], max_distance,
-                           any_hit, &t);
+                           any_hit, &t VISITS_ARG);
     t_out[i] = t;
 }
 

@@ -8,8 +8,26 @@
 
 #include "geometry.h"
 
-// ao4d.bvh.STACK_SIZE; the host refuses trees with depth * 7 + 1 > STACK_SIZE
-#define STACK_SIZE 256
+// traversal stack entries: ao4d.bvh.STACK_SIZE, passed by the host, which refuses trees with
+// depth * (WIDTH - 1) + 1 > STACK_SIZE (a node visit pops one entry and pushes at most WIDTH)
+#ifndef STACK_SIZE
+#error "compile with -D STACK_SIZE=n (ao4d.bvh.STACK_SIZE)"
+#endif
+
+// -D COUNT_VISITS builds a debug variant whose any-hit traversal also counts the wide nodes it
+// visits (visits[0]) and the leaf blocks it tests (visits[1]); callers pass `visits` along
+// (ao4d.raycast.traversal_counts). Without it the macros vanish.
+#ifdef COUNT_VISITS
+#define VISITS_PARAM , int *visits
+#define VISITS_ARG , visits
+#define VISITS_DECL int visits[2] = {0, 0};
+#define COUNT_VISIT(k) (visits[k] += 1)
+#else
+#define VISITS_PARAM
+#define VISITS_ARG
+#define VISITS_DECL
+#define COUNT_VISIT(k)
+#endif
 
 // a ray's coordinates and its box-test constants (see hit_boxes)
 typedef struct {
@@ -26,8 +44,13 @@ inline void load_ray(const float4 o4, const float4 w4, Ray *r)
         r->o[j] = a[j];
         r->w[j] = b[j];
         // a zero component gives a huge finite inverse, not inf: the box test then never meets
-        // 0 * inf = NaN and can use plain min / max (see hit_boxes)
-        r->inv_w[j] = 1.0f / (fabs(b[j]) > 1e-30f ? b[j] : copysign(1e-30f, b[j]));
+        // 0 * inf = NaN and can use plain min / max (see hit_boxes). The stand-in for zero
+        // scales with |o| so that o * inv_w stays finite (at most 2^100): 1e-30 alone overflowed
+        // float32 for |o| > 3.4e8 and rejected boxes the ray meets. fma(box, inv_w, -o_inv) is
+        // then finite or an overflow with the right sign; the slab error stays |o| 2^-24 in
+        // coordinates, which the boxes' margin covers as for any other direction.
+        const float tiny = fmax(1e-30f, fabs(a[j]) * 0x1p-100f);
+        r->inv_w[j] = 1.0f / (fabs(b[j]) > tiny ? b[j] : copysign(tiny, b[j]));
         r->o_inv[j] = a[j] * r->inv_w[j];
         const int negative = signbit(r->inv_w[j]) != 0;
         r->near[j] = negative ? DIM + j : j;
@@ -40,7 +63,7 @@ inline void load_ray(const float4 o4, const float4 w4, Ray *r)
 // AO rays mostly escape. No distances on the stack: t_max never shrinks before the return.
 inline int trace_any(__global const floatW *boxes, __global const int *children,
                      __global const floatL *blocks, const float4 o4, const float4 w4,
-                     const float t_max, float *t_out)
+                     const float t_max, float *t_out VISITS_PARAM)
 {
     Ray ray;
     load_ray(o4, w4, &ray);
@@ -48,6 +71,7 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
     int sp = 0;
     int node = 0;
     for (;;) {
+        COUNT_VISIT(0);
         floatW tnw;
         const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, ray.near, ray.far, ray.inv_w,
                                     ray.o_inv, t_max, &tnw);
@@ -66,6 +90,7 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
                 const int end = first + ((-c - 1) & 3) + 1;
                 for (int b = first; b < end; ++b) {
                     float t;
+                    COUNT_VISIT(1);
                     const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, ray.o, ray.w, t_max, &t);
                     if (lane >= 0) {
                         *t_out = t;
@@ -81,12 +106,11 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
     return -1;
 }
 
-// closest (any_hit = 0) or any (any_hit = 1) hit with 0 < t <= t_max: LANES * block + lane or -1
+// the closest hit with 0 < t <= t_max: LANES * block + lane, or -1 (t_out: its t, else t_max)
 inline int trace_closest(__global const floatW *boxes, __global const int *children,
                      __global const floatL *blocks, const float4 o4, const float4 w4,
                      float t_max, float *t_out)
 {
-    const int any_hit = 0;
     Ray ray;
     load_ray(o4, w4, &ray);
     int stack[STACK_SIZE];
@@ -130,10 +154,6 @@ inline int trace_closest(__global const floatW *boxes, __global const int *child
                     if (lane >= 0) {
                         best = LANES * b + lane;
                         t_max = t;
-                        if (any_hit) {
-                            *t_out = t;
-                            return best;
-                        }
                     }
                 }
             }
@@ -156,9 +176,9 @@ inline int trace_closest(__global const floatW *boxes, __global const int *child
 // closest (any_hit = 0) or any (any_hit = 1) hit with 0 < t <= t_max: LANES * block + lane or -1
 inline int trace_bvh(__global const floatW *boxes, __global const int *children,
                      __global const floatL *blocks, const float4 o4, const float4 w4,
-                     float t_max, const int any_hit, float *t_out)
+                     float t_max, const int any_hit, float *t_out VISITS_PARAM)
 {
-    if (any_hit) return trace_any(boxes, children, blocks, o4, w4, t_max, t_out);
+    if (any_hit) return trace_any(boxes, children, blocks, o4, w4, t_max, t_out VISITS_ARG);
     return trace_closest(boxes, children, blocks, o4, w4, t_max, t_out);
 }
 

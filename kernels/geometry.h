@@ -87,12 +87,10 @@ inline int hit_block(__global const floatL *blk, const float *o, const float *w,
 #define floatW float8
 #define intW int8
 #define vstoreW vstore8
-#define vloadW vload8
 #elif WIDTH == 16
 #define floatW float16
 #define intW int16
 #define vstoreW vstore16
-#define vloadW vload16
 #else
 #error "WIDTH must be 8 or 16"
 #endif

@@ -7,10 +7,46 @@ import os
 import pytest
 from hypothesis import settings
 
+# helper modules and scripts (tests/_*.py) are imported by tests, never collected: --doctest-modules
+# would otherwise import scripts such as _oclgrind_check.py, which set up OpenCL on import
+collect_ignore_glob = ["_*.py"]
+
 # CI replays the same examples on every run (reproducible verdicts); local runs keep exploring.
 settings.register_profile("ci", derandomize=True, print_blob=True)
 if os.environ.get("CI"):
     settings.load_profile("ci")
+
+
+@pytest.fixture(params=["numpy", "opencl"])
+def backend(request):
+    """Both ray-casting backends; the OpenCL case skips (saying why) without a device."""
+    if request.param == "opencl":
+        request.getfixturevalue("cl_runtime")
+    return request.param
+
+
+@pytest.fixture(params=["host", "device"])
+def build_bvh(request):
+    """Both BVH builders as ``build_bvh(vertices, simplices, leaf_size=16)``: numpy on the host
+    and the OpenCL kernels (ao4d.bvh_build; skips, saying why, without a device)."""
+    from ao4d import bvh, bvh_build
+
+    if request.param == "host":
+        return bvh.build
+    runtime = request.getfixturevalue("cl_runtime")
+
+    def build(vertices, simplices, *, leaf_size=16):
+        return bvh_build.build(vertices, simplices, leaf_size=leaf_size, runtime=runtime)
+
+    return build
+
+
+@pytest.fixture(scope="module")
+def ball4():
+    """A convex polytope inscribed in the unit 4-ball (qhull), outward oriented."""
+    from _shapes import ball_polytope
+
+    return ball_polytope(4, 8)
 
 
 @pytest.fixture(scope="session")

@@ -3,104 +3,20 @@ OpenCL vs numpy, symmetry, grading, convergence and bad input."""
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import numpy as np
 import pytest
-from scipy.spatial import ConvexHull
 
 import ao4d
-from ao4d import ao, bvh, sampling
+from _scenes import embree_scene, flat_patch, sphere_hull, sphere_over_ground, up_points
+from ao4d import ao, bvh, raycast, sampling
 
 DIMS = (2, 3, 4)
 
 
-@pytest.fixture(params=["numpy", "opencl"])
-def backend(request):
-    if request.param == "opencl":
-        request.getfixturevalue("cl_runtime")  # skips (saying why) without a device
-    return request.param
 
 
-# -- scenes -----------------------------------------------------------------------------------
-
-
-def oriented(vertices, simplices, direction):
-    """Swap two vertices of simplices whose normal points against ``direction`` (V, d) or (d,)."""
-    simplices = np.array(simplices)
-    n = bvh.simplex_normals(vertices[simplices])
-    ref = np.broadcast_to(direction, n.shape) if np.ndim(direction) == 1 else direction
-    flip = np.einsum("sd,sd->s", n, ref) < 0
-    simplices[flip, :2] = simplices[flip, 1::-1]
-    return simplices
-
-
-def flat_patch(d, lo, hi, height, n=4, axis=None):
-    """A Kuhn-triangulated axis-aligned (d-1)-box at ``x[axis] = height`` (default: last axis).
-
-    ``lo``/``hi`` bound the other d-1 coordinates; normals point towards +axis.
-    """
-    axis = d - 1 if axis is None else axis
-    others = [k for k in range(d) if k != axis]
-    lo = np.broadcast_to(np.asarray(lo, float), (d - 1,))
-    hi = np.broadcast_to(np.asarray(hi, float), (d - 1,))
-    ticks = [np.linspace(a, b, n + 1) for a, b in zip(lo, hi)]
-    grid = np.stack(np.meshgrid(*ticks, indexing="ij"), -1).reshape(-1, d - 1)
-    vertices = np.zeros((len(grid), d))
-    vertices[:, others] = grid
-    vertices[:, axis] = height
-    strides = (n + 1) ** np.arange(d - 2, -1, -1)
-    cells = np.stack(np.meshgrid(*[np.arange(n)] * (d - 1), indexing="ij"), -1).reshape(-1, d - 1)
-    simplices = []
-    for perm in itertools.permutations(range(d - 1)):
-        corner, ids = cells.copy(), [cells @ strides]
-        for k in perm:
-            corner = corner.copy()
-            corner[:, k] += 1
-            ids.append(corner @ strides)
-        simplices.append(np.stack(ids, 1))
-    up = np.eye(d)[axis]
-    return vertices, oriented(vertices, np.concatenate(simplices), up)
-
-
-def sphere_hull(rng, d, n_points, radius=1.0, centre=0.0):
-    """Outward-oriented convex hull of points on a sphere: a closed (d-1)-manifold."""
-    points = rng.normal(size=(n_points, d))
-    points /= np.linalg.norm(points, axis=1, keepdims=True)
-    hull = ConvexHull(points)
-    simplices = oriented(points, hull.simplices, hull.equations[:, :d])
-    return radius * points + centre, simplices
-
-
-def merge(*parts):
-    vertices, simplices, offset = [], [], 0
-    for v, s in parts:
-        vertices.append(v)
-        simplices.append(s + offset)
-        offset += len(v)
-    return ao4d.SimplexMesh(np.concatenate(vertices), np.concatenate(simplices))
-
-
-def sphere_over_ground(rng, d, *, mirrored=False):
-    """A sphere of radius 0.5 at height 0.6 over a ground patch [-2, 2]^(d-1) at height 0."""
-    ground = flat_patch(d, -2.0, 2.0, 0.0, n=6 if d < 4 else 4)
-    v, s = sphere_hull(rng, d, {2: 40, 3: 300, 4: 400}[d])
-    if mirrored:  # make the point set symmetric in x so the hull is a mirror-symmetric solid
-        v = np.concatenate([v, v * np.r_[-1.0, np.ones(d - 1)]])
-        hull = ConvexHull(v)
-        s = oriented(v, hull.simplices, hull.equations[:, :d])
-    centre = np.zeros(d)
-    centre[-1] = 0.6
-    return merge(ground, (0.5 * v + centre, s))
-
-
-def up_points(rng, d, n, half):
-    """Points on the ground plane within ``half`` of the origin, with normal +e_last."""
-    p = np.zeros((n, d))
-    p[:, :-1] = rng.uniform(-half, half, size=(n, d - 1))
-    normals = np.tile(np.eye(d)[-1], (n, 1))
-    return p, normals
 
 
 def binomial_tolerance(expected, n_rays, k=4.0):
@@ -144,7 +60,7 @@ def test_parallel_plane(d, h, L, backend):
     samples = 256
     a = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=samples, max_distance=L, backend=backend)
     # rays start ORIGIN_OFFSET diagonals above the point: the plane is that much closer
-    eps = ao.ORIGIN_OFFSET * bvh.get_bvh(mesh).diagonal
+    eps = ao.ORIGIN_OFFSET * raycast.get_bvh(mesh).diagonal
     expected = parallel_plane_occlusion(d, h - eps, L)
     assert abs(a.mean() - expected) <= binomial_tolerance(expected, a.size * samples)
     if d == 4 and (h, L) == (1.0, 2.0):
@@ -203,7 +119,7 @@ def test_points_inside_a_closed_surface_are_fully_occluded(d, backend):
     assert (a == 1.0).all()
     # aimed exactly at the hull's vertices (shared by many simplices): still no leak
     target = mesh.vertices[rng.choice(len(mesh.vertices), 200)]
-    hits = ao.cast_rays(mesh, np.zeros((200, d)), target, backend=backend)
+    hits = raycast.cast_rays(mesh, np.zeros((200, d)), target, backend=backend)
     assert hits.hit.all()
     np.testing.assert_allclose(hits.t, 1.0, atol=1e-9)  # the vertices lie on the unit sphere
     # from outside, a convex surface does not occlude itself: exactly zero at its vertices
@@ -265,153 +181,6 @@ def test_error_falls_like_inverse_sqrt_samples(cl_runtime):
 # -- backends and trusted tools ---------------------------------------------------------------
 
 
-def random_rays(rng, d, n, spread=1.5):
-    o = rng.uniform(-spread, spread, size=(n, d))
-    w = rng.normal(size=(n, d))
-    return o, w / np.linalg.norm(w, axis=1, keepdims=True)
-
-
-def soup_scene(rng, d, n=300):
-    centres = rng.uniform(-1, 1, size=(n, 1, d))
-    v = (centres + 0.25 * rng.normal(size=(n, d, d))).reshape(-1, d)
-    return ao4d.SimplexMesh(v, np.arange(n * d).reshape(n, d))
-
-
-@pytest.mark.parametrize("d", DIMS)
-@pytest.mark.parametrize("closest", [True, False])
-@pytest.mark.parametrize("shift", [0.0, 1000.0])  # far from the coordinate origin: float32 slabs
-def test_bvh_equals_brute_force(d, closest, shift, backend):
-    rng = np.random.default_rng(900 + d)
-    mesh = soup_scene(rng, d)
-    mesh = ao4d.SimplexMesh(mesh.vertices + shift, mesh.simplices)
-    o, w = random_rays(rng, d, 3000)
-    o = o + shift
-    for max_distance in (np.inf, 0.7):
-        fast = ao.cast_rays(mesh, o, w, closest=closest, backend=backend, max_distance=max_distance)
-        slow = ao.cast_rays(mesh, o, w, closest=closest, backend=backend, accel="brute", max_distance=max_distance)
-        # same primitive test on the same data; the boxes are conservative: identical answers
-        np.testing.assert_array_equal(fast.hit, slow.hit)
-        assert 0.01 < fast.hit.mean() < 0.95  # a scene where the question is not trivial
-        if closest:
-            np.testing.assert_array_equal(fast.t, slow.t)
-            same = fast.simplex == slow.simplex
-            # a different simplex only on exact ties (a ray through a shared point)
-            np.testing.assert_array_equal(fast.t[~same], slow.t[~same])
-
-
-@pytest.mark.parametrize("d", DIMS)
-@pytest.mark.parametrize("shift", [0.0, 30.0])
-def test_box_margin_keeps_corner_hits(d, shift, backend):
-    # rays aimed at the vertices of a simplex hit it at its box's corners, where the float32
-    # slab test is closest to rejecting (its error grows with |o|: bvh._BOX_FMA_MARGIN)
-    rng = np.random.default_rng(1100 + d)
-    corners = rng.uniform(-1, 1, size=(d, d)) + shift
-    mesh = ao4d.SimplexMesh(corners, [list(range(d))])
-    o = np.repeat(corners, 500, axis=0) + rng.normal(size=(500 * d, d))
-    w = np.repeat(corners, 500, axis=0) - o
-    w /= np.linalg.norm(w, axis=1, keepdims=True)
-    fast = ao.cast_rays(mesh, o, w, backend=backend, closest=False)
-    slow = ao.cast_rays(mesh, o, w, backend=backend, closest=False, accel="brute")
-    np.testing.assert_array_equal(fast.hit, slow.hit)
-    assert slow.hit.mean() > 0.5  # the primitive test takes most of them (BARY_EPS)
-
-
-@pytest.mark.parametrize("d", DIMS)
-def test_gpu_block_layout_gives_the_same_answers(d, cl_runtime, monkeypatch):
-    # GPUs get leaf blocks of 4 simplices, CPUs of 16 (ao._block_lanes); the per-lane
-    # arithmetic is the same explicit fma sequence, so answers agree exactly
-    rng = np.random.default_rng(1200 + d)
-    mesh = soup_scene(rng, d)
-    o, w = random_rays(rng, d, 3000)
-    pts, nrm = o[:200], w[:200]
-    results = {}
-    for lanes in (16, 4):
-        monkeypatch.setattr(ao, "_block_lanes", lambda runtime, lanes=lanes: lanes)
-        hits = ao.cast_rays(mesh, o, w, backend="opencl")
-        occ = ao4d.ambient_occlusion(mesh, points=pts, normals=nrm, samples=32, backend="opencl")
-        results[lanes] = hits, occ
-    (h16, a16), (h4, a4) = results[16], results[4]
-    np.testing.assert_array_equal(h4.simplex, h16.simplex)
-    np.testing.assert_array_equal(h4.t, h16.t)
-    np.testing.assert_array_equal(a4, a16)
-    assert 0.01 < h4.hit.mean() < 0.95
-
-
-@pytest.mark.parametrize("d", DIMS)
-def test_hits_are_consistent(d, backend):
-    rng = np.random.default_rng(1000 + d)
-    mesh = soup_scene(rng, d)
-    o, w = random_rays(rng, d, 2000)
-    hits = ao.cast_rays(mesh, o, w, backend=backend)
-    anyhit = ao.cast_rays(mesh, o, w, backend=backend, closest=False)
-    np.testing.assert_array_equal(hits.hit, anyhit.hit)
-    assert (anyhit.t[anyhit.hit] >= hits.t[hits.hit]).all()
-    h = hits.hit
-    assert np.isinf(hits.t[~h]).all() and (hits.barycentric[~h] == 0).all()
-    np.testing.assert_allclose(hits.barycentric[h].sum(1), 1.0, atol=1e-12)
-    assert (hits.barycentric[h] > -2 * bvh.BARY_EPS).all()
-    corners = mesh.vertices[mesh.simplices[hits.simplex[h]]]
-    points = np.einsum("si,sid->sd", hits.barycentric[h], corners)
-    np.testing.assert_allclose(points, o[h] + hits.t[h, None] * w[h], atol=1e-9)
-    # nothing closer: the closest hit of a ray shortened to just below t is a miss
-    short = ao.cast_rays(mesh, o[h], w[h], backend=backend, max_distance=1.0)
-    assert (short.hit == (hits.t[h] <= 1.0)).all()
-
-
-@pytest.mark.parametrize("d", DIMS)
-def test_opencl_and_numpy_agree(d, cl_runtime):
-    rng = np.random.default_rng(1100 + d)
-    mesh = soup_scene(rng, d)
-    o, w = random_rays(rng, d, 5000)
-    gpu = ao.cast_rays(mesh, o, w, backend="opencl")
-    cpu = ao.cast_rays(mesh, o, w, backend="numpy")
-    # float32 vs float64 decide differently only for rays grazing an edge: < 0.1%
-    assert (gpu.hit != cpu.hit).mean() <= 1e-3
-    both = gpu.hit & cpu.hit & (gpu.simplex == cpu.simplex)
-    assert both.mean() > 0.99 * min(gpu.hit.mean(), cpu.hit.mean())
-    np.testing.assert_allclose(gpu.t[both], cpu.t[both], rtol=1e-12)  # refined in float64
-    scene = sphere_over_ground(rng, d)
-    a = ao4d.ambient_occlusion(scene, samples=64, backend="opencl")
-    b = ao4d.ambient_occlusion(scene, samples=64, backend="numpy")
-    # same seed: same directions; a point may differ by a grazing ray or two
-    assert np.mean(a == b) >= 0.97
-    assert np.abs(a - b).max() <= 2 / 64
-
-
-def embree_scene(rng):
-    import trimesh
-
-    parts = [
-        trimesh.creation.icosphere(subdivisions=3, radius=0.6),
-        trimesh.creation.box(extents=(0.5, 0.4, 0.3)).apply_translation((0.9, 0.0, 0.0)),
-    ]
-    tri = rng.uniform(-1.2, 1.2, size=(1000, 1, 3)) + 0.12 * rng.normal(size=(1000, 3, 3))
-    parts.append(trimesh.Trimesh(tri.reshape(-1, 3), np.arange(3000).reshape(-1, 3), process=False))
-    scene = trimesh.util.concatenate(parts)
-    return scene, ao4d.SimplexMesh(scene.vertices, scene.faces)
-
-
-def test_closest_hits_match_embree(backend):
-    pytest.importorskip("embreex")
-    from trimesh.ray.ray_pyembree import RayMeshIntersector
-
-    rng = np.random.default_rng(1200)
-    scene, mesh = embree_scene(rng)
-    o, w = random_rays(rng, 3, 20000)
-    ours = ao.cast_rays(mesh, o, w, backend=backend)
-    locations, index_ray, index_tri = RayMeshIntersector(scene).intersects_location(o, w, multiple_hits=False)
-    theirs = np.zeros(len(o), dtype=bool)
-    theirs[index_ray] = True
-    # Embree and we disagree only on rays grazing an edge: at most 0.1%
-    assert np.mean(ours.hit != theirs) <= 1e-3
-    t_embree = np.full(len(o), np.inf)
-    t_embree[index_ray] = np.einsum("nd,nd->n", locations - o[index_ray], w[index_ray])
-    both = ours.hit & theirs
-    # Embree works in float32: distances of order 1 agree to ~1e-5
-    close = np.isclose(ours.t[both], t_embree[both], atol=1e-4)
-    assert close.mean() >= 0.999
-
-
 def test_ao_matches_embree_with_the_same_directions(backend):
     pytest.importorskip("embreex")
     from trimesh.ray.ray_pyembree import RayMeshIntersector
@@ -423,7 +192,7 @@ def test_ao_matches_embree_with_the_same_directions(backend):
     samples = 64
     ours = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=samples, backend=backend)
     w = sampling.cosine_hemisphere(n, samples).reshape(-1, 3)
-    origins = np.repeat(p + ao.ORIGIN_OFFSET * bvh.get_bvh(mesh).diagonal * n, samples, axis=0)
+    origins = np.repeat(p + ao.ORIGIN_OFFSET * raycast.get_bvh(mesh).diagonal * n, samples, axis=0)
     theirs = RayMeshIntersector(scene).intersects_any(origins, w).reshape(-1, samples).mean(1)
     # identical rays: per point at most a couple of grazing rays differ, and no bias
     assert np.abs(ours - theirs).max() <= 3 / samples
@@ -449,7 +218,7 @@ def test_launch_size_does_not_change_results(monkeypatch, cl_runtime):
     rng = np.random.default_rng(1500)
     mesh = sphere_over_ground(rng, 4)
     whole = ao4d.ambient_occlusion(mesh, samples=32, backend="opencl")
-    monkeypatch.setattr(ao, "RAYS_PER_LAUNCH", 1000)
+    monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 1000)
     np.testing.assert_array_equal(whole, ao4d.ambient_occlusion(mesh, samples=32, backend="opencl"))
 
 
@@ -457,7 +226,7 @@ def test_numpy_step_size_does_not_change_results(monkeypatch):
     rng = np.random.default_rng(1600)
     mesh = sphere_over_ground(rng, 3)
     whole = ao4d.ambient_occlusion(mesh, samples=16, backend="numpy")
-    monkeypatch.setattr(ao, "_NUMPY_RAYS_PER_STEP", 100)
+    monkeypatch.setattr(raycast, "_NUMPY_RAYS_PER_STEP", 100)
     np.testing.assert_array_equal(whole, ao4d.ambient_occlusion(mesh, samples=16, backend="numpy"))
 
 
@@ -468,22 +237,6 @@ def test_undefined_normals_give_nan():
     assert np.isnan(a[3])  # unreferenced vertex
     s = ao4d.ambient_occlusion(mesh, samples=8, at="simplices", backend="numpy")
     assert np.isnan(s[1]) and not np.isnan(s[0])  # (0, 1, 4) is degenerate (collinear)
-
-
-def test_device_memory_is_checked_before_work():
-    class Device:
-        max_mem_alloc_size = 1000
-        global_mem_size = 4000
-
-    class Runtime:
-        device = Device()
-        name = "tiny device"
-
-    with pytest.raises(MemoryError, match="tiny device"):
-        ao._check_device_memory(Runtime(), {"the BVH": 2000})
-    with pytest.raises(MemoryError, match="80%"):
-        ao._check_device_memory(Runtime(), {"a": 900, "b": 900, "c": 900, "d": 900})
-    ao._check_device_memory(Runtime(), {"a": 900})
 
 
 def test_bad_inputs():
@@ -525,13 +278,6 @@ def test_bad_inputs():
         run(ao4d.SimplexMesh(np.eye(3), [[0, 1, 1]]), backend="numpy")
     with pytest.raises(TypeError, match="unexpected keyword"):
         run(mesh, sample=4)  # typo: unknown options are errors
-    o, w = random_rays(rng, 3, 5)
-    with pytest.raises(ValueError, match="`directions` has 1 zero-length"):
-        ao.cast_rays(mesh, o, np.r_[w[:4], [[0, 0, 0]]], backend="numpy")
-    with pytest.raises(ValueError, match="`origins` and `directions` must have the same length"):
-        ao.cast_rays(mesh, o, w[:3], backend="numpy")
-    with pytest.raises(TypeError, match="`closest`"):
-        ao.cast_rays(mesh, o, w, closest="yes", backend="numpy")
 
 
 # -- command line -----------------------------------------------------------------------------
@@ -547,7 +293,7 @@ def test_cli_stores_ao_and_reports_rate(tmp_path, capsys):
     argv = ["ao", str(tmp_path / "scene.npz"), "--samples", "16", "--out", str(out), "--backend", "numpy"]
     assert cli.main(argv) == 0
     text = capsys.readouterr().out
-    assert "M rays/s" in text and "numpy backend" in text
+    assert "M rays/s" in text and "device: numpy" in text
     stored = ao4d.SimplexMesh.load(out).point_data["ao"]
     np.testing.assert_array_equal(stored, ao4d.ambient_occlusion(mesh, samples=16, backend="numpy"))
     argv = ["ao", str(tmp_path / "scene.npz"), "--at", "simplices", "--samples", "4", "--out", str(out), "--backend", "numpy"]
@@ -641,10 +387,10 @@ def test_interrupt_between_launches_leaves_a_usable_state(monkeypatch, request, 
             if InterruptingBar.calls == 2:
                 raise KeyboardInterrupt  # what Ctrl-C raises after a launch returns
 
-    monkeypatch.setattr(ao, "RAYS_PER_LAUNCH", 500)
-    monkeypatch.setattr(ao, "_NUMPY_RAYS_PER_STEP", 500)
+    monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 500)
+    monkeypatch.setattr(raycast, "_NUMPY_RAYS_PER_STEP", 500)
     with monkeypatch.context() as patch:
-        patch.setattr(ao, "_progress_bar", lambda *args: InterruptingBar())
+        patch.setattr(ao, "progress_bar", lambda *args: InterruptingBar())
         with pytest.raises(KeyboardInterrupt):
             ao4d.ambient_occlusion(mesh, samples=16, backend=backend_name)
     assert InterruptingBar.calls == 2  # stopped after the first launch, not at the end
@@ -668,7 +414,7 @@ def test_without_opencl_auto_falls_back_and_opencl_is_refused():
         "try:\n"
         "    ao4d.ambient_occlusion(mesh, points=p, normals=n, backend='opencl')\n"
         "except RuntimeError as exc:\n"
-        "    assert 'no OpenCL device works' in str(exc), exc\n"
+        "    assert 'no OpenCL device' in str(exc), exc\n"
         "else:\n"
         "    raise AssertionError('backend=opencl without a device must fail')\n"
     )

@@ -8,24 +8,19 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 import ao4d
-from ao4d import bvh
+from _scenes import random_soup
+from ao4d import bvh, raycast
+from ao4d.geometry import cross
 
 DIMS = (2, 3, 4)
 
 
-def random_soup(rng, d, n, size=0.15):
-    """n random (d-1)-simplices with corners near uniform centres in the unit cube."""
-    centres = rng.random((n, 1, d))
-    vertices = (centres + size * rng.normal(size=(n, d, d))).reshape(-1, d)
-    return vertices, np.arange(n * d).reshape(n, d)
-
-
 @pytest.mark.parametrize("d", DIMS)
-@pytest.mark.parametrize("leaf_size", [1, 4, 7])
-def test_tree_structure_and_bounds(d, leaf_size):
+@pytest.mark.parametrize("leaf_size", [1, 4, 7, 16])
+def test_tree_structure_and_bounds(d, leaf_size, build_bvh):
     rng = np.random.default_rng(100 * d + leaf_size)
     vertices, simplices = random_soup(rng, d, 500)
-    tree = bvh.build(vertices, simplices, leaf_size=leaf_size)
+    tree = build_bvh(vertices, simplices, leaf_size=leaf_size)
     assert sorted(tree.prim.tolist()) == list(range(500))  # every simplex exactly once
     corners = vertices[simplices[tree.prim]]
     lo, hi = tree.lo[:, :d], tree.hi[:, :d]
@@ -40,6 +35,7 @@ def test_tree_structure_and_bounds(d, leaf_size):
             box = corners[first : first + count]
             assert (box.min((0, 1)) >= lo[k]).all() and (box.max((0, 1)) <= hi[k]).all()
         else:
+            assert a > k and b > k  # numbered breadth first: children after their parent
             reached[[a, b]] += 1
             for c in (a, b):
                 assert (lo[c] >= lo[k]).all() and (hi[c] <= hi[k]).all()
@@ -49,37 +45,19 @@ def test_tree_structure_and_bounds(d, leaf_size):
     assert tree.depth < 64  # the kernels' stack bound
     # the stored inverse really inverts [e1 .. e_{d-1} | n]
     edges = corners[:, 1:] - corners[:, :1]
-    normals = bvh.simplex_normals(corners)
+    normals = corner_normals(corners)
     matrix = np.concatenate([edges, normals[:, None]], axis=1).transpose(0, 2, 1)
     np.testing.assert_allclose(tree.inverse @ matrix, np.broadcast_to(np.eye(d), matrix.shape), atol=1e-8)
 
 
-def test_degenerate_simplices_are_skipped():
+def test_degenerate_simplices_are_skipped(build_bvh):
     rng = np.random.default_rng(7)
     vertices, simplices = random_soup(rng, 4, 50)
     flat = simplices.copy()
     flat[:5, 1] = flat[:5, 0]  # repeated vertex: zero volume
-    tree = bvh.build(vertices, flat)
+    tree = build_bvh(vertices, flat)
     assert tree.n_skipped == 5 and tree.n_prims == 45
     assert set(tree.prim.tolist()) == set(range(5, 50))
-
-
-def test_simplex_normals_follow_the_design_convention():
-    rng = np.random.default_rng(8)
-    tri = rng.normal(size=(20, 3, 3))
-    expected = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    np.testing.assert_allclose(bvh.simplex_normals(tri), expected, atol=1e-12)
-    tets = rng.normal(size=(20, 4, 4))
-    n = bvh.simplex_normals(tets)
-    edges = tets[:, 1:] - tets[:, :1]
-    np.testing.assert_allclose(np.einsum("sid,sd->si", edges, n), 0, atol=1e-10)
-    # n . x = det[e1; e2; e3; x]: with x = n this is |n|^2 > 0
-    dets = np.linalg.det(np.concatenate([edges, n[:, None]], axis=1))
-    np.testing.assert_allclose(dets, (n**2).sum(1), rtol=1e-10)
-    # the mesh module computes the same normals
-    mesh = ao4d.SimplexMesh(tets.reshape(-1, 4), np.arange(80).reshape(20, 4))
-    raw = mesh.simplex_normals * (mesh.simplex_measures * 6)[:, None]  # |n| = 3! * measure
-    np.testing.assert_allclose(raw, n, atol=1e-9)
 
 
 @settings(max_examples=80, deadline=None)
@@ -91,7 +69,7 @@ def test_simplex_normals_follow_the_design_convention():
 def test_ray_hits_the_point_it_aims_at(d, seed, distance):
     rng = np.random.default_rng(seed)
     corners = rng.normal(size=(1, d, d))
-    n = bvh.simplex_normals(corners)[0]
+    n = corner_normals(corners)[0]
     edges = corners[0, 1:] - corners[0, :1]
     # well-shaped simplices only: the tolerance is relative to barycentric units
     assume(np.linalg.norm(n) > 0.05 * np.prod(np.linalg.norm(edges, axis=1)))
@@ -122,10 +100,10 @@ def test_bvh_is_cached_on_the_mesh_and_rebuilt_after_edits():
     rng = np.random.default_rng(9)
     vertices, simplices = random_soup(rng, 3, 40)
     mesh = ao4d.SimplexMesh(vertices, simplices)
-    first = bvh.get_bvh(mesh)
-    assert bvh.get_bvh(mesh) is first
+    first = raycast.get_bvh(mesh)
+    assert raycast.get_bvh(mesh) is first
     mesh.vertices = vertices + 1.0
-    second = bvh.get_bvh(mesh)
+    second = raycast.get_bvh(mesh)
     assert second is not first
     np.testing.assert_allclose(second.origin, first.origin + 1.0)
 
@@ -137,30 +115,30 @@ def test_fallback_cache_for_plain_objects():
     rng = np.random.default_rng(10)
     obj = Plain()
     obj.vertices, obj.simplices = random_soup(rng, 3, 10)
-    first = bvh.get_bvh(obj)
-    assert bvh.get_bvh(obj) is first
+    first = raycast.get_bvh(obj)
+    assert raycast.get_bvh(obj) is first
     obj.vertices = obj.vertices * 2  # arrays replaced: the fingerprint changes
-    assert bvh.get_bvh(obj) is not first
+    assert raycast.get_bvh(obj) is not first
 
 
-def test_bad_inputs():
+def test_bad_inputs(build_bvh):
     good_v = np.eye(3)
     with pytest.raises(ValueError, match="`simplices` is empty"):
-        bvh.build(good_v, np.zeros((0, 3), dtype=int))
+        build_bvh(good_v, np.zeros((0, 3), dtype=int))
     with pytest.raises(ValueError, match="`vertices`.*non-finite"):
-        bvh.build([[0, 0, np.nan], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+        build_bvh([[0, 0, np.nan], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
     with pytest.raises(ValueError, match="`simplices` indices"):
-        bvh.build(good_v, [[0, 1, 3]])
+        build_bvh(good_v, [[0, 1, 3]])
     with pytest.raises(ValueError, match="`vertices` must have 2, 3 or 4 columns"):
-        bvh.build(np.eye(5), [[0, 1, 2, 3, 4]])
+        build_bvh(np.eye(5), [[0, 1, 2, 3, 4]])
     with pytest.raises(ValueError, match="`simplices` must have shape"):
-        bvh.build(good_v, [[0, 1]])
+        build_bvh(good_v, [[0, 1]])
     with pytest.raises(ValueError, match="all 1 simplices are degenerate"):
-        bvh.build(good_v, [[0, 1, 1]])
+        build_bvh(good_v, [[0, 1, 1]])
     with pytest.raises(ValueError, match="leaf_size"):
-        bvh.build(good_v, [[0, 1, 2]], leaf_size=0)
+        build_bvh(good_v, [[0, 1, 2]], leaf_size=0)
     with pytest.raises(TypeError, match="`simplices` must hold integers"):
-        bvh.build(good_v, [[0.0, 1.0, 2.0]])
+        build_bvh(good_v, [[0.0, 1.0, 2.0]])
 
 
 @pytest.mark.parametrize("d", DIMS)
@@ -227,29 +205,6 @@ def test_wide_tree_needs_small_leaves():
         tree.wide(5)
 
 
-@settings(max_examples=25, deadline=None)
-@given(
-    d=st.sampled_from(DIMS),
-    seed=st.integers(0, 2**32 - 1),
-    n=st.integers(1, 60),
-    leaf_size=st.integers(1, 6),
-    max_distance=st.sampled_from([np.inf, 0.3, 1.0]),
-)
-def test_numpy_bvh_traversal_equals_brute_force(d, seed, n, leaf_size, max_distance):
-    from ao4d import ao
-
-    rng = np.random.default_rng(seed)
-    vertices, simplices = random_soup(rng, d, n, size=rng.uniform(0.02, 0.4))
-    try:
-        tree = bvh.build(vertices, simplices, leaf_size=leaf_size)
-    except ValueError:
-        assume(False)  # every random simplex degenerate: nothing to trace
-    o = rng.uniform(-0.2, 1.2, size=(200, d))
-    w = rng.normal(size=(200, d))
-    w /= np.linalg.norm(w, axis=1, keepdims=True)
-    for any_hit in (True, False):
-        t1, p1 = ao._trace_numpy_bvh(tree, o, w, max_distance, any_hit)
-        t2, p2 = ao._trace_numpy_brute(tree, o, w, max_distance, any_hit)
-        np.testing.assert_array_equal(p1 >= 0, p2 >= 0)
-        if not any_hit:
-            np.testing.assert_array_equal(t1, t2)
+def corner_normals(corners: np.ndarray) -> np.ndarray:
+    """DESIGN.md normals of simplices given by their corners (S, d, d)."""
+    return cross(*np.moveaxis(corners[:, 1:] - corners[:, :1], 1, 0))

@@ -5,11 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ao4d import cli, io
+from ao4d import cli
+from ao4d import volumes as io
 from ao4d.mesh import SimplexMesh
 
 EXPECTED = ["scene.npz", "image.mhd", "image.raw", "image.vti", "image_slices.png",
-            "image_volume.png", "slice_w0.ply", "slice_w0.glb", "slice_w0.png"]
+            "image_volume.png", "image_color_slices.png", "image_color_volume.png",
+            "slice_w0.ply", "slice_w0.glb", "slice_w0.png", "view.html"]
 
 
 @pytest.fixture(scope="module")
@@ -29,12 +31,13 @@ def test_demo_writes_every_file(demo_dir):
     assert sorted(p.name for p in demo_dir.iterdir()) == sorted(EXPECTED)
     vol = io.read_mhd(demo_dir / "image.mhd")
     assert vol.data.shape == (16, 16, 16) and vol.data.dtype == np.float32
-    # shade = 0.8 (1 - AO) + 0.2 Lambert lies in [0, 1]; some voxels hit, some background
+    # shade = 0.4 (1 - AO) + 0.3 Lambert + 0.3 specular lies in [0, 1]; some voxels hit, some not
     assert 0.0 <= vol.data.min() and vol.data.max() <= 1.0 + 1e-6
     assert 0 < (vol.data > 0).mean() < 1
     ids = io.read_vti(demo_dir / "image.vti", array="object_id").data
     assert set(np.unique(ids)) <= {-1, 0, 1, 2, 3} and len(np.unique(ids)) >= 3
-    for png in ("image_slices.png", "image_volume.png", "slice_w0.png"):
+    for png in ("image_slices.png", "image_volume.png", "image_color_slices.png",
+                "image_color_volume.png", "slice_w0.png"):
         assert _not_blank(demo_dir / png), png
 
 
@@ -84,7 +87,7 @@ def test_render_and_slice_commands(demo_dir, tmp_path, capsys):
     [
         (["render", "nope.npz", "--out", "x.mhd"], "nope.npz"),
         (["render", "{scene}", "--out", "x.mhd", "--size", "4", "4"], "--size"),
-        (["render", "{scene}", "--out", "x.nii"], "path extension"),
+        (["render", "{scene}", "--out", "x.nii"], "must end in .vti or .mhd"),
         (["render", "{scene}", "--out", "x.mhd", "--eye", "0", "0", "0", "-4"], "--eye"),
         (["slice", "{scene}", "--w", "99", "--out", "s.ply"], "misses the mesh"),
     ],

@@ -255,7 +255,7 @@ def test_inside_out_and_badly_wound_inputs_are_refused():
     (lift.cone, {"apex": (0.0, 1.0)}, "`apex` must have shape"),
     (lift.prism, {"base": "low"}, "`base` must be a real number"),
     (lift.tetrahedralize, {"method": "delaunay"}, "`method` must be one of"),
-    (lift.tetrahedralize, {"method": "tetwild", "edge_length": 0.0}, "`edge_length` must lie"),
+    (lift.tetrahedralize, {"method": "tetwild", "edge_length": 0.0}, "`edge_length` must be in"),
 ])
 def test_bad_options_are_refused(func, kwargs, match):
     with pytest.raises((ValueError, TypeError), match=match):

@@ -109,6 +109,7 @@ def _tricky_grid(draw):
     return v, level
 
 
+@pytest.mark.filterwarnings("ignore::ao4d.march.EmptyMeshWarning")
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(grid=_tricky_grid(), method=st.sampled_from(METHODS))
 def test_random_fields_give_closed_oriented_meshes(grid, method):
@@ -362,7 +363,8 @@ def test_extract_field_never_holds_the_whole_grid():
     n = 56
     full_grid = 8 * n**4  # bytes of the sampled float64 grid (75 MiB)
     field = F.hypersphere(0.15)  # small object in a big box: the output stays tiny (< 1 MiB)
-    ao4d.extract_field(field, 8, (-1.2, 1.2))  # load the lookup table outside the measurement
+    with pytest.warns(march.EmptyMeshWarning):  # too coarse to see the ball; loads the table
+        ao4d.extract_field(field, 8, (-1.2, 1.2))
     tracemalloc.start()
     try:
         mesh = ao4d.extract_field(field, n, (-1.2, 1.2), chunk=2, progress=False)
@@ -375,9 +377,14 @@ def test_extract_field_never_holds_the_whole_grid():
     assert peak < full_grid / 2
 
 
-def test_progress_bar_is_shown_on_request(capsys):
+def test_progress_bar_is_shown_on_request(capsys, monkeypatch):
+    from ao4d import _progress
+
+    monkeypatch.setattr(_progress, "LOG_INTERVAL", 0.0)  # a line per update (stderr is not a TTY)
     ao4d.extract_field(F.hypersphere(1.0), 8, (-1.2, 1.2), progress=True)
-    assert "extract" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "extract: " in err and "layers" in err
+    assert "\r" not in err and "\x1b" not in err  # plain lines in logs, no bar redraws
     ao4d.extract_field(F.hypersphere(1.0), 8, (-1.2, 1.2))  # small grid: silent by default
     assert capsys.readouterr().err == ""
 
@@ -385,7 +392,9 @@ def test_progress_bar_is_shown_on_request(capsys):
 def test_level_outside_the_data_gives_an_empty_mesh():
     v = _noise(np.random.default_rng(0), (5, 5, 5, 5))
     for level in (-5.0, 5.0):
-        mesh = ao4d.extract(v, level)
+        # issue 12: this passed silently; now the warning gives the data's range
+        with pytest.warns(march.EmptyMeshWarning, match=r"`level` [-0-9.]+ is outside the data range \[-?[0-9.]+, [0-9.]+\]"):
+            mesh = ao4d.extract(v, level)
         assert mesh.n_simplices == 0 and mesh.n_vertices == 0 and mesh.dim == 4
 
 
@@ -506,3 +515,19 @@ def test_cli_extract_reports_bad_input(tmp_path, capsys):
     assert not (tmp_path / "m.npz").exists()
     with pytest.raises(SystemExit):
         main(["extract", "--shape", "klein", "--out", str(tmp_path / "m.npz")])
+
+
+@pytest.mark.slow
+def test_slab_extraction_of_a_160_grid_stays_under_1_5_gb():
+    # issue 12: the slab path needs the output plus bounded slabs, whatever the grid (measured
+    # 0.57 GB peak RSS for this 160^4 grid, whose float64 samples alone would be 5.2 GB)
+    import resource
+    import subprocess
+    import sys
+
+    code = ("import ao4d\n"
+            "m = ao4d.extract_field(ao4d.fields.hypersphere(0.3), 160, (-1.2, 1.2), progress=False)\n"
+            "assert m.check().ok\n")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=900)
+    peak_gb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024 / 1e9  # kB on Linux
+    assert peak_gb < 1.5, f"peak RSS {peak_gb:.2f} GB"

@@ -82,7 +82,7 @@ def test_script_writes_volumes_and_png(tmp_path):
     assert set(results) == set(thesis.SCENES)
     names = {p.name for p in out.iterdir()}
     assert "thesis_scenes.png" in names
-    assert sum(n.endswith(".vti") for n in names) == 12
+    assert sum(n.endswith(".vti") for n in names) == 18  # 3 scenes x raw/closed x 3 models
     import matplotlib.image
 
     img = matplotlib.image.imread(out / "thesis_scenes.png")

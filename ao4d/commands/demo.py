@@ -1,7 +1,8 @@
 """``ao4d demo``: the whole pipeline on the embedded default scene, into ``./ao4d-demo/``.
 
 Scene (ao4d.scenes.default_scene) -> extraction per object -> one mesh with object ids ->
-per-vertex 4D ambient occlusion -> 3D image volume from a 4D camera -> files and pictures.
+per-vertex 4D ambient occlusion -> 3D image volume from a 4D camera (AO, Lambert, 4D
+highlights and shadows, object colours) -> files and pictures.
 """
 
 from __future__ import annotations
@@ -12,12 +13,18 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
+from ..cl import BACKENDS
 
 HELP = "run the whole pipeline on a built-in 4D scene and write volumes, meshes and pictures"
 EXAMPLES = """  ao4d demo                          writes ./ao4d-demo/ (under a minute on 2 CPU cores)
   ao4d demo --out pictures --quality high
-  paraview ao4d-demo/image.vti       3D image: shade, depth, object_id, occlusion
+  paraview ao4d-demo/image.vti       3D image: shade, depth, object_id, occlusion, rgba
+                                     (colour by rgba, untick Map Scalars: the voxels' own colours)
 """
+
+
+# shade = 0.4 (1 - AO) + 0.3 Lambert + 0.3 Blinn-Phong (lit, unshadowed voxels)
+_AMBIENT, _DIFFUSE = 0.4, 0.3
 
 
 @dataclass
@@ -69,10 +76,7 @@ def _size(path: Path) -> str:
 def _device(backend: str) -> str:
     from .. import cl
 
-    if backend == "numpy":
-        return "numpy"
-    runtime = cl.get_runtime(warn=False)
-    return runtime.name if runtime is not None else "numpy (no OpenCL device)"
+    return cl.describe(cl.resolve_backend(backend, warn=False))
 
 
 def run_demo(
@@ -101,21 +105,21 @@ def run_demo(
     -------
     DemoReport
     """
-    import numpy as np
 
-    from .. import io as aio
+    from .. import cl
+    from .._atomic import all_or_nothing, check_output_folder
     from .._validate import check_choice
     from ..ao import ambient_occlusion
-    from ..bvh import get_bvh
+    from ..raycast import get_bvh
     from ..mesh import concatenate
-    from ..render import render
+    from ..rendering import render
     from ..scenes import QUALITY, default_scene, extract_scene
 
     check_choice(quality, "quality", tuple(QUALITY))
-    check_choice(backend, "backend", ("auto", "opencl", "numpy"))
+    check_choice(backend, "backend", cl.BACKENDS)
     stream = sys.stdout if stream is None else stream
     settings = QUALITY[quality]
-    out = Path(out)
+    out = check_output_folder(out, "out")  # before the work: a file there, or no write access
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     stages: dict[str, float] = {}
@@ -134,12 +138,15 @@ def run_demo(
     stages["extract"] = time.perf_counter() - t
     say(f"extracted {scene.n_simplices:,} tetrahedra in {stages['extract']:.1f} s")
 
-    # BVH build and kernel compilation once, timed apart from the AO rays themselves
+    # BVH build (on the device that traces, its wide form included), then kernel loading and
+    # the sampling tables once, each timed apart from the AO rays themselves
     t = time.perf_counter()
-    get_bvh(scene)
+    get_bvh(scene, runtime=cl.resolve_backend(backend, warn=False))
+    stages["BVH"] = time.perf_counter() - t
+    t = time.perf_counter()
     ambient_occlusion(scene, points=scene.vertices[:1], normals=[[0.0, 1.0, 0.0, 0.0]],
                       samples=1, backend=backend, progress=False)
-    stages["BVH+kernels"] = time.perf_counter() - t
+    stages["kernels"] = time.perf_counter() - t
 
     t = time.perf_counter()
     occlusion = ambient_occlusion(scene, samples=settings["samples"], seed=0, backend=backend,
@@ -151,13 +158,22 @@ def run_demo(
     say(f"ambient occlusion: {ao_rays:,} rays in {ao_seconds:.1f} s")
 
     t = time.perf_counter()
+    # the full model: AO, Lambert, 4D Blinn-Phong highlights, 4D shadows, object colours
+    # (weights sum to 1, so shade stays in [0, 1])
     image = render(scene, scene_def.camera, (n, n, n), ao="vertices", light=scene_def.light,
-                   ambient=0.8, diffuse=0.2, backend=backend, progress=progress)
+                   ambient=_AMBIENT, diffuse=_DIFFUSE, specular=scene_def.speculars,
+                   shininess=scene_def.shininess, shadows=True, color=scene_def.colors,
+                   backend=backend, progress=progress)
     stages["render"] = time.perf_counter() - t
     say(f"rendered {n}^3 voxels in {stages['render']:.1f} s")
 
     t = time.perf_counter()
-    files = _write_files(out, scene, image, settings, aio, np)
+    from ..viewer import split_objects, view  # the same scene, sliced in the browser
+
+    with all_or_nothing(folder=out):  # a failing picture takes the files of this run with it
+        files = _write_files(out, scene, image, settings)
+        files.append(view(split_objects(scene), out / "view.html", title="ao4d demo",
+                          names=[o.name for o in scene_def.objects]))
     stages["files"] = time.perf_counter() - t
 
     report = DemoReport(
@@ -174,30 +190,42 @@ def run_demo(
     return report
 
 
-def _write_files(out: Path, scene, image, settings, aio, np) -> list[Path]:
+def _write_files(out: Path, scene, image, settings) -> list[Path]:
     """Every file of the demo; returns their paths in the order written."""
+    from ..mesh_files import save_slice_mesh
+    from ..pictures import (save_montage, save_rgba_montage, save_rgba_volume_png, save_slice_png,
+                            save_volume_png)
+
     geo = image.geometry
     samples = settings["samples"]
     params = f"{geo.shape[0]}^3 voxels, {samples} AO samples"
+    model = f"{_AMBIENT:g} (1 - AO) + {_DIFFUSE:g} Lambert + specular, 4D shadows"
     files = []
     scene.save(out / "scene.npz")
     files.append(out / "scene.npz")
     files.append(image.save(out / "image.mhd"))
     files.append(out / "image.raw")
     files.append(image.save(out / "image.vti"))
-    files.append(aio.save_montage(
+    files.append(save_montage(
         out / "image_slices.png", image.shade, background=~image.hit, cmap="magma",
-        title=f"ao4d demo: z-slices of the 3D image, shade = 0.8 (1 - AO) + 0.2 Lambert ({params})",
+        title=f"ao4d demo: z-slices of the 3D image, shade = {model} ({params})",
         label="shade", spacing=geo.spacing, origin=geo.origin))
-    aio.save_volume_png(
+    files.append(save_volume_png(
         out / "image_volume.png", image.shade, background=~image.hit, cmap="magma",
         title=f"ao4d demo: 3D image of a 4D scene ({params})",
-        label="shade", spacing=geo.spacing, origin=geo.origin)
-    files.append(out / "image_volume.png")
+        label="shade", spacing=geo.spacing, origin=geo.origin))
+    files.append(save_rgba_montage(
+        out / "image_color_slices.png", image.rgba,
+        title=f"ao4d demo: z-slices of the colour 3D image: 4D AO, highlights and shadows ({params})",
+        n_slices=8, spacing=geo.spacing, origin=geo.origin))
+    files.append(save_rgba_volume_png(
+        out / "image_color_volume.png", image.rgba,
+        title=f"ao4d demo: colour 3D image of a 4D scene ({params})",
+        spacing=geo.spacing, origin=geo.origin))
     tri = scene.slice([0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0], attributes=["ao"])
     for suffix in (".ply", ".glb"):
-        files.append(aio.save_slice_mesh(out / f"slice_w0{suffix}", tri, occlusion="ao"))
-    files.append(aio.save_slice_png(
+        files.append(save_slice_mesh(out / f"slice_w0{suffix}", tri, occlusion="ao"))
+    files.append(save_slice_png(
         out / "slice_w0.png", tri, occlusion="ao",
         title=f"ao4d demo: slice w = 0 coloured by 4D AO ({samples} samples)"))
     return files
@@ -209,7 +237,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quality", choices=("default", "high"), default="default",
                         help="default: under a minute on 2 cores; high: finer grids, 128^3 image, "
                              "128 AO samples")
-    parser.add_argument("--backend", choices=("auto", "opencl", "numpy"), default="auto",
+    parser.add_argument("--backend", choices=BACKENDS, default="auto",
                         help="OpenCL device (auto) or the numpy fallback")
     parser.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)  # for tests
 

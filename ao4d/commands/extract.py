@@ -1,15 +1,21 @@
-"""``ao4d extract``: a closed tetrahedral mesh from a named 4D shape or a .npy array."""
+"""``ao4d extract``: a closed tetrahedral mesh from a named 4D shape or a data file."""
 
 from __future__ import annotations
 
 import argparse
 import time
 
-HELP = "extract a closed, oriented simplex mesh from a named shape or a 2D/3D/4D .npy array"
+HELP = "extract a closed, oriented simplex mesh from a named shape or a 2D/3D/4D data file"
 EXAMPLES = """  ao4d extract --shape spheritorus --grid 48 --out torus.npz
   ao4d extract --shape tiger --grid 64 --method simplices --out tiger.npz --vtu tiger.vtu
   ao4d extract --shape hypersphere --grid 32 --bounds -1.5 1.5 --out ball.npz
   ao4d extract --input ct.npy --level 300 --inside above --spacing 0.5 --out bone.npz
+  ao4d extract --input fmri.nii.gz --level 0.5 --inside above --out blob.npz
+  ao4d extract --input sim.h5:/fields/density --level 1 --out shock.npz
+  ao4d extract --input 'frames_*.vti' --spacing 1 1 1 0.1 --out series.npz
+inputs: .npy (memory-mapped), .nii/.nii.gz, .zarr[:/array], file.h5:/dataset, .mhd/.mha,
+  or a quoted glob of 3D frames (.vti, .mhd, .npy, .nii.gz) stacked along w in natural order;
+  spacing and origin come from the file where it has them (--spacing/--origin override)
 shapes: hypersphere, spheritorus, torisphere, ditorus, tiger, duocylinder, tesseract,
   indented_cube, metaballs, gyroid (default parameters; see ao4d.fields for your own)
 """
@@ -21,7 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--shape", choices=sorted(PRESETS), help="a named 4D shape")
-    src.add_argument("--input", metavar="FILE.npy", help="a 2D/3D/4D array (read memory-mapped)")
+    src.add_argument("--input", metavar="FILE",
+                     help="a 2D/3D/4D data file or a glob of 3D frames (see inputs below)")
     parser.add_argument("--out", required=True, metavar="MESH.npz", help="output mesh (.npz)")
     parser.add_argument("--vtu", metavar="MESH.vtu", help="also write a VTK unstructured grid")
     parser.add_argument("--grid", type=int, default=48, help="points per axis for --shape (48)")
@@ -35,13 +42,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--inside", choices=("below", "above"), default="below",
         help="solid is f < level (below, signed distances) or f > level (above, CT data)",
     )
-    parser.add_argument("--spacing", type=float, nargs="+", default=[1.0], help="grid step(s) for --input")
-    parser.add_argument("--origin", type=float, nargs="+", default=[0.0], help="grid origin for --input")
+    parser.add_argument("--spacing", type=float, nargs="+",
+                        help="grid step(s) for --input (default: from the file, else 1)")
+    parser.add_argument("--origin", type=float, nargs="+",
+                        help="grid origin for --input (default: from the file, else 0)")
+    parser.add_argument("--dim", type=int, choices=(2, 3, 4),
+                        help="refuse --input files of another dimension")
     parser.add_argument("--chunk", type=int, help="cell layers per slab (default: ~100 MB slabs)")
     parser.add_argument("--no-check", action="store_true", help="skip the closedness check")
 
 
-def _one_or_many(values: list[float]):
+def _one_or_many(values: list[float] | None):
+    if values is None:
+        return None
     return values[0] if len(values) == 1 else values
 
 
@@ -66,17 +79,24 @@ def run(args: argparse.Namespace) -> int:
         )
         what = f"{field.name} on a {args.grid}^{field.dim} grid"
     else:
-        values = np.load(args.input, mmap_mode="r")
+        from ..readers import read_grid
+
+        grid = read_grid(args.input, spacing=_one_or_many(args.spacing),
+                         origin=_one_or_many(args.origin), ndim=args.dim)
+        print(f"read {grid.source}: shape {grid.shape}, {grid.values.dtype}"
+              f"{' (lazy, block by block)' if grid.lazy else ''}; spacing "
+              f"{np.round(grid.spacing, 6).tolist()}, origin {np.round(grid.origin, 6).tolist()}"
+              + (f" ({'; '.join(grid.notes)})" if grid.notes else ""))
         mesh = extract(
-            values,
+            grid.values,
             args.level,
-            spacing=_one_or_many(args.spacing),
-            origin=_one_or_many(args.origin),
+            spacing=grid.spacing,
+            origin=grid.origin,
             method=args.method,
             inside=args.inside,
             chunk=args.chunk,
         )
-        what = f"{args.input} {values.shape} at level {args.level:g}"
+        what = f"{args.input} {grid.shape} at level {args.level:g}"
     elapsed = time.perf_counter() - start
     print(f"extracted {what} ({args.method}) in {elapsed:.2f} s")
     if not args.no_check:

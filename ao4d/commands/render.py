@@ -4,12 +4,20 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from ..cl import BACKENDS
 
 HELP = "render 4D meshes (.npz) into a 3D image volume (.mhd or .vti) with a 4D camera"
 EXAMPLES = """  ao4d render scene.npz --out image.mhd
   ao4d render a.npz b.npz --out image.vti --size 96 --ao hits --samples 64 --png image.png
   ao4d render scene.npz --out image.mhd --eye 0 1.6 -0.6 -5.5 --target 0 0.45 0 0 --fov 40
+  ao4d render ball.npz ground.npz --out lit.vti --light 0 1 0 -0.5 --specular 0.4 --shadows \\
+      --color ball 0.9 0.2 0.1 --opacity ball 0.5 --png lit.png
+  ao4d render scene.npz --out two.vti --light point 0 3 0 -1 1 0.9 0.8 --light 1 1 0 0 0.3 0.4 1 0.5
 """
+
+LIGHT_HELP = ("a light (repeatable): X Y Z W is the direction towards a white directional light; "
+              "'point X Y Z W' a point light at that position; optional R G B colour (0..1) and "
+              "intensity I after the four numbers")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,29 +36,100 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ao", choices=("vertices", "hits", "none"), default="vertices",
                         help="AO per vertex (stored 'ao' or computed), at each hit, or none")
     parser.add_argument("--samples", type=int, default=64, help="AO rays per point")
-    parser.add_argument("--light", type=float, nargs=4, metavar="X",
-                        help="direction towards a directional light (adds a Lambert term)")
-    parser.add_argument("--backend", choices=("auto", "opencl", "numpy"), default="auto")
+    parser.add_argument("--light", action="append", nargs="+", metavar="ARG", help=LIGHT_HELP)
+    parser.add_argument("--ambient", type=float,
+                        help="weight of 1 - AO (default 1 without a light, else 0.7)")
+    parser.add_argument("--diffuse", type=float, default=0.3, help="Lambert weight (default 0.3)")
+    parser.add_argument("--specular", type=float, default=0.0,
+                        help="4D Blinn-Phong weight (default 0: no highlights)")
+    parser.add_argument("--shininess", type=float, default=32.0,
+                        help="Blinn-Phong exponent (default 32)")
+    parser.add_argument("--shadows", action="store_true",
+                        help="cast 4D shadow rays towards every light")
+    parser.add_argument("--depth-cue", type=float, nargs=3, metavar=("NEAR", "FAR", "STRENGTH"),
+                        help="fade to black with 4D distance along the view ray")
+    parser.add_argument("--color", action="append", nargs=4, metavar=("OBJ", "R", "G", "B"),
+                        help="RGB (0..1) of object OBJ: its index (0 = first mesh or object id "
+                             "0) or its file name (repeatable)")
+    parser.add_argument("--opacity", action="append", nargs=2, metavar=("OBJ", "A"),
+                        help="opacity (0..1) of object OBJ (repeatable)")
+    parser.add_argument("--layers", type=int, default=4,
+                        help="surfaces composited along a ray behind transparent hits (default 4)")
+    parser.add_argument("--backend", choices=BACKENDS, default="auto")
     parser.add_argument("--png", type=Path, metavar="FILE.png",
-                        help="also write a z-slice montage (FILE.png) and a volume rendering "
-                             "(FILE_volume.png)")
+                        help="also write a z-slice montage (FILE.png), a volume rendering "
+                             "(FILE_volume.png) and both in colour (FILE_color.png, "
+                             "FILE_color_volume.png)")
+
+
+def parse_light(tokens: list[str]):
+    """One ``--light`` value: ``[point] X Y Z W [R G B [I]]`` -> :class:`ao4d.Light`."""
+    from ..lighting import Light
+
+    words = list(tokens)
+    kind = words.pop(0) if words and words[0] in ("point", "dir", "direction") else "dir"
+    try:
+        numbers = [float(w) for w in words]
+    except ValueError:
+        raise ValueError(f"`--light` takes [point] X Y Z W [R G B [I]], got {' '.join(tokens)!r}"
+                         ) from None
+    if len(numbers) not in (4, 7, 8):
+        raise ValueError(f"`--light` takes [point] X Y Z W [R G B [I]] (4, 7 or 8 numbers), got "
+                         f"{len(numbers)}: {' '.join(tokens)!r}")
+    where = {"position" if kind == "point" else "direction": numbers[:4]}
+    color = numbers[4:7] if len(numbers) >= 7 else (1.0, 1.0, 1.0)
+    intensity = numbers[7] if len(numbers) == 8 else 1.0
+    return Light(**where, color=color, intensity=intensity)
+
+
+def object_index(name: str, paths: list[Path], n_objects: int, option: str) -> int:
+    """The object id an ``--color``/``--opacity`` OBJ names: an index or a mesh file name."""
+    for i, path in enumerate(paths):
+        if name in (path.name, path.stem):
+            return i
+    try:
+        index = int(name)
+    except ValueError:
+        names = ", ".join(p.stem for p in paths)
+        raise ValueError(f"`{option}` object {name!r} is neither an index nor one of the meshes "
+                         f"({names})") from None
+    if not 0 <= index < n_objects:
+        raise ValueError(f"`{option}` object {index} is out of range: the scene has {n_objects} "
+                         f"object(s), 0..{n_objects - 1}")
+    return index
 
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from .. import io as aio
     from ..camera import Camera4D
     from ..mesh import SimplexMesh, concatenate
-    from ..render import render
+    from .._atomic import all_or_nothing, check_output_file
+    from ..rendering import render
 
+    # every output checked before the work; .mhd also writes its .raw
+    outputs = [check_output_file(args.out, "--out", (".vti", ".mhd"))]
+    if Path(args.out).suffix.lower() == ".mhd":
+        outputs.append(check_output_file(Path(args.out).with_suffix(".raw"), "--out"))
+    if args.png is not None:
+        stem = check_output_file(args.png, "--png", (".png",)).with_suffix("")
+        outputs += [Path(args.png)] + [Path(f"{stem}{s}.png") for s in ("_volume", "_color", "_color_volume")]
     size = args.size * 3 if len(args.size) == 1 else args.size
     if len(size) != 3:
         raise ValueError(f"`--size` takes one or three numbers, got {len(size)}")
-    meshes = [SimplexMesh.load(p) for p in args.meshes]
-    scene = meshes[0] if len(meshes) == 1 else concatenate(meshes)
     if (args.eye is None) != (args.target is None):
         raise ValueError("`--eye` and `--target` go together (or leave both out to frame all)")
+    lights = [parse_light(tokens) for tokens in args.light or []]
+    meshes = [SimplexMesh.load(p) for p in args.meshes]
+    scene = meshes[0] if len(meshes) == 1 else concatenate(meshes)
+    ids = scene.cell_data.get("object_id") if len(meshes) == 1 else None
+    n_objects = len(meshes) if ids is None else int(np.max(ids)) + 1
+    color = np.ones((n_objects, 3))
+    for obj, *rgb in args.color or []:
+        color[object_index(obj, args.meshes, n_objects, "--color")] = [float(c) for c in rgb]
+    opacity = np.ones(n_objects)
+    for obj, alpha in args.opacity or []:
+        opacity[object_index(obj, args.meshes, n_objects, "--opacity")] = float(alpha)
     if args.eye is None:
         camera = Camera4D.framing(scene.bounds, up=args.up, over=args.over, fov=args.fov,
                                   projection=args.projection)
@@ -58,20 +137,36 @@ def run(args: argparse.Namespace) -> int:
         camera = Camera4D(args.eye, args.target, args.up, args.over, fov=args.fov,
                           projection=args.projection)
     print(camera)
-    light = None if args.light is None else np.asarray(args.light)
-    image = render(scene, camera, tuple(size), ao=args.ao, samples=args.samples, light=light,
-                   ambient=1.0 if light is None else 0.7, diffuse=0.3, backend=args.backend)
+    ambient = args.ambient if args.ambient is not None else (0.7 if lights else 1.0)
+    image = render(scene, camera, tuple(size), ao=args.ao, samples=args.samples,
+                   light=lights or None, ambient=ambient, diffuse=args.diffuse,
+                   specular=args.specular, shininess=args.shininess, shadows=args.shadows,
+                   depth_cue=args.depth_cue, color=color, opacity=opacity, layers=args.layers,
+                   backend=args.backend)
+    print(image)
+    with all_or_nothing(outputs):  # a failing picture leaves no new .vti behind
+        written = _write(args, image, size)
+    print(f"{int(image.hit.sum()):,} of {image.hit.size:,} voxels hit; wrote "
+          + ", ".join(map(str, written)))
+    return 0
+
+
+def _write(args: argparse.Namespace, image, size) -> list:
+    from ..pictures import save_montage, save_rgba_montage, save_rgba_volume_png, save_volume_png
+
     written = [image.save(args.out)]
     if args.png is not None:
         geo = image.geometry
         title = f"{', '.join(p.name for p in args.meshes)}: {'x'.join(map(str, size))} voxels, AO {args.ao}"
-        written.append(aio.save_montage(args.png, image.shade, background=~image.hit,
-                                        title=title, label="shade", spacing=geo.spacing,
-                                        origin=geo.origin))
-        volume_png = args.png.with_name(args.png.stem + "_volume.png")
-        aio.save_volume_png(volume_png, image.shade, background=~image.hit, title=title,
-                            label="shade", spacing=geo.spacing, origin=geo.origin)
-        written.append(volume_png)
-    print(f"{int(image.hit.sum()):,} of {image.hit.size:,} voxels hit; wrote "
-          + ", ".join(map(str, written)))
-    return 0
+        written.append(save_montage(args.png, image.shade, background=~image.hit,
+                                    title=title, label="shade", spacing=geo.spacing,
+                                    origin=geo.origin))
+        stem = args.png.with_suffix("")
+        written.append(save_volume_png(f"{stem}_volume.png", image.shade, background=~image.hit,
+                                       title=title, label="shade", spacing=geo.spacing,
+                                       origin=geo.origin))
+        written.append(save_rgba_montage(f"{stem}_color.png", image.rgba, title=title,
+                                         spacing=geo.spacing, origin=geo.origin))
+        written.append(save_rgba_volume_png(f"{stem}_color_volume.png", image.rgba, title=title,
+                                            spacing=geo.spacing, origin=geo.origin))
+    return written

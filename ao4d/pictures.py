@@ -1,330 +1,31 @@
-"""Files people open: 3D image volumes (MetaImage, VTK), PNG previews, and 3D slices of 4D meshes.
+"""Pictures made without a display: slice montages, volume renderings and 3D slice meshes (PNG).
 
-Volumes follow the grid convention of DESIGN.md: ``data[i, j, k]`` is the voxel at
-``origin + spacing * (i, j, k)`` along x, y, z. In files this becomes
-
-* MetaImage (``.mhd`` header + ``.raw`` data, written by hand per the ITK MetaIO spec):
-  ``DimSize = nx ny nz``, ``ElementSpacing``/``Offset`` in x, y, z order, and the raw bytes in
-  x-fastest (Fortran) order, little-endian. ITK, VTK, ParaView, 3D Slicer and Fiji therefore see
-  voxel ``(i, j, k)`` at the same place as numpy does; the tests read our files back with VTK's
-  own ``vtkMetaImageReader`` to prove it.
-* VTK ImageData (``.vti``, written by pyvista/VTK), which can hold several named arrays
-  (shade, depth, object id, AO) in one file.
-
-Pictures are made without a display: matplotlib's Agg canvas for slice montages, and pyvista
-off-screen for volume renderings (with a numpy front-to-back compositing fallback) and for 3D
-slice meshes. Every write goes through :func:`ao4d._atomic.atomic_path`.
-
-References
-----------
-MetaIO file format: https://itk.org/Wiki/ITK/MetaIO/Documentation
+matplotlib's Agg canvas draws the montages; pyvista off-screen draws volume renderings (with a
+numpy front-to-back compositing fallback, :func:`composite`) and 3D slices of 4D meshes,
+coloured by openness ``1 - AO`` (:func:`ao_colors`). Every write is atomic.
 """
 
 from __future__ import annotations
 
 import math
 import os
-from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
-from ._atomic import atomic_open, atomic_path
-from ._validate import as_array, check_choice, check_positive_int
+from ._atomic import atomic_path
+from ._validate import as_array, as_vector, check_choice, check_positive_int
+from .volumes import pyvista_offscreen, volume_array
 
-__all__ = [
-    "Volume",
-    "write_mhd",
-    "read_mhd",
-    "write_vti",
-    "read_vti",
-    "write_volume",
-    "read_volume",
-    "save_montage",
-    "save_volume_png",
-    "composite",
-    "save_slice_mesh",
-    "save_slice_png",
-    "ao_colors",
-]
-
-# numpy dtype -> MetaImage ElementType (the types both ITK and VTK's reader understand)
-_MET_TYPES = {
-    np.dtype(np.int8): "MET_CHAR",
-    np.dtype(np.uint8): "MET_UCHAR",
-    np.dtype(np.int16): "MET_SHORT",
-    np.dtype(np.uint16): "MET_USHORT",
-    np.dtype(np.int32): "MET_INT",
-    np.dtype(np.uint32): "MET_UINT",
-    np.dtype(np.float32): "MET_FLOAT",
-    np.dtype(np.float64): "MET_DOUBLE",
-}
-_MET_DTYPES = {v: k for k, v in _MET_TYPES.items()}
-
-
-@dataclass(frozen=True)
-class Volume:
-    """A 3D image read from a file.
-
-    Attributes
-    ----------
-    data : (nx, ny, nz) ndarray
-        ``data[i, j, k]`` is the voxel at ``origin + spacing * (i, j, k)``.
-    spacing : (3,) tuple of float
-    origin : (3,) tuple of float
-    name : str
-        Array name (``.vti``) or the file stem (``.mhd``).
-    """
-
-    data: np.ndarray
-    spacing: tuple[float, float, float]
-    origin: tuple[float, float, float]
-    name: str = ""
-
-
-# ---------------------------------------------------------------------------------------------
-# volumes
-
-
-def _volume_array(data, name: str = "data") -> np.ndarray:
-    arr = as_array(data, name, ndim=3, min_size=1)
-    if arr.dtype == bool:
-        arr = arr.astype(np.uint8)
-    if arr.dtype.kind not in "iuf":
-        raise TypeError(f"`{name}` must hold numbers, got dtype {arr.dtype}")
-    return arr
-
-
-def _triple(value, name: str, *, positive: bool) -> tuple[float, float, float]:
-    arr = as_array(value, name, ndim=(0, 1), dtype=np.float64, finite=True)
-    arr = np.broadcast_to(arr, (3,)) if arr.ndim == 0 or arr.shape == (1,) else arr
-    if arr.shape != (3,):
-        raise ValueError(f"`{name}` must be a scalar or 3 numbers (x, y, z), got shape {arr.shape}")
-    if positive and (arr <= 0).any():
-        raise ValueError(f"`{name}` must be positive, got {tuple(arr)}")
-    return tuple(float(x) for x in arr)  # type: ignore[return-value]
-
-
-def write_mhd(path: str | os.PathLike, data, *, spacing=1.0, origin=0.0) -> Path:
-    """Write a 3D image as MetaImage: ``path`` (``.mhd`` header) and a ``.raw`` file beside it.
-
-    Parameters
-    ----------
-    path : path-like
-        Header file name; must end in ``.mhd``. The data go to the same name with ``.raw``.
-    data : (nx, ny, nz) array_like
-        int8/16/32, uint8/16/32, float32/64 or bool (stored as uint8). Index order x, y, z.
-    spacing : float or (3,) array_like
-        Voxel size along x, y, z.
-    origin : float or (3,) array_like
-        Position of voxel ``(0, 0, 0)``.
-
-    Returns
-    -------
-    Path
-        The header path.
-
-    Examples
-    --------
-    >>> import tempfile, pathlib
-    >>> p = pathlib.Path(tempfile.mkdtemp()) / "v.mhd"
-    >>> _ = write_mhd(p, np.arange(24, dtype=np.float32).reshape(2, 3, 4), spacing=0.5)
-    >>> float(read_mhd(p).data[1, 2, 3])
-    23.0
-    """
-    path = Path(path)
-    if path.suffix.lower() != ".mhd":
-        raise ValueError(f"`path` must end in .mhd, got {path.name!r}")
-    arr = _volume_array(data)
-    if arr.dtype not in _MET_TYPES:
-        kinds = ", ".join(str(d) for d in _MET_TYPES)
-        raise TypeError(f"`data` dtype {arr.dtype} has no MetaImage type; use one of {kinds}")
-    spacing3 = _triple(spacing, "spacing", positive=True)
-    origin3 = _triple(origin, "origin", positive=False)
-    raw = path.with_suffix(".raw")
-    little = arr.astype(arr.dtype.newbyteorder("<"), copy=False)
-    fmt = lambda xs: " ".join(repr(float(x)) for x in xs)  # noqa: E731 - full precision
-    header = "\n".join(
-        [
-            "ObjectType = Image",
-            "NDims = 3",
-            "BinaryData = True",
-            "BinaryDataByteOrderMSB = False",
-            "CompressedData = False",
-            "TransformMatrix = 1 0 0 0 1 0 0 0 1",
-            f"Offset = {fmt(origin3)}",
-            "CenterOfRotation = 0 0 0",
-            f"ElementSpacing = {fmt(spacing3)}",
-            "DimSize = " + " ".join(str(n) for n in arr.shape),
-            f"ElementType = {_MET_TYPES[arr.dtype]}",
-            f"ElementDataFile = {raw.name}",  # must be the last field
-            "",
-        ]
-    )
-    # data first: a reader never finds a new header pointing at an old or missing .raw
-    with atomic_open(raw, "wb") as fh:
-        fh.write(np.asfortranarray(little).tobytes(order="F"))  # x varies fastest
-    with atomic_open(path, "w", encoding="ascii") as fh:
-        fh.write(header)
-    return path
-
-
-def read_mhd(path: str | os.PathLike) -> Volume:
-    """Read a 3D MetaImage written by :func:`write_mhd` (or any uncompressed 3D MetaImage).
-
-    Parameters
-    ----------
-    path : path-like
-        The ``.mhd`` header.
-
-    Returns
-    -------
-    Volume
-        ``data`` in x, y, z index order.
-    """
-    path = Path(path)
-    fields: dict[str, str] = {}
-    for line in path.read_text(encoding="ascii", errors="replace").splitlines():
-        key, sep, value = line.partition("=")
-        if sep:
-            fields[key.strip()] = value.strip()
-    missing = [k for k in ("NDims", "DimSize", "ElementType", "ElementDataFile") if k not in fields]
-    if missing:
-        raise ValueError(f"{path.name}: not a MetaImage header (missing {', '.join(missing)})")
-    if fields.get("CompressedData", "False").lower() == "true":
-        raise ValueError(f"{path.name}: compressed MetaImage data is not supported")
-    if int(fields.get("ElementNumberOfChannels", "1")) != 1:
-        raise ValueError(f"{path.name}: only single-channel images are supported")
-    dims = tuple(int(x) for x in fields["DimSize"].split())
-    if int(fields["NDims"]) != 3 or len(dims) != 3:
-        raise ValueError(f"{path.name}: expected a 3D image, got NDims = {fields['NDims']}")
-    try:
-        dtype = _MET_DTYPES[fields["ElementType"]]
-    except KeyError:
-        raise ValueError(f"{path.name}: unsupported ElementType {fields['ElementType']}") from None
-    msb = fields.get("BinaryDataByteOrderMSB", fields.get("ElementByteOrderMSB", "False"))
-    dtype = dtype.newbyteorder(">" if msb.lower() == "true" else "<")
-    if "TransformMatrix" in fields:
-        matrix = np.array(fields["TransformMatrix"].split(), dtype=float)
-        if not np.allclose(matrix, np.eye(3).ravel()):
-            raise ValueError(f"{path.name}: rotated images (TransformMatrix) are not supported")
-    raw = path.parent / fields["ElementDataFile"]
-    count = math.prod(dims)
-    flat = np.fromfile(raw, dtype=dtype, count=count)
-    if flat.size != count:
-        raise ValueError(f"{raw.name}: expected {count} values, file holds {flat.size}")
-    data = flat.reshape(dims, order="F").astype(dtype.newbyteorder("="))
-    spacing = _triple(fields.get("ElementSpacing", "1 1 1").split(), "ElementSpacing", positive=True)
-    origin = _triple(fields.get("Offset", "0 0 0").split(), "Offset", positive=False)
-    return Volume(np.ascontiguousarray(data), spacing, origin, path.stem)
-
-
-def _pyvista():
-    """Import pyvista for off-screen use, silencing VTK's harmless missing-X-server warning."""
-    import pyvista as pv
-    import vtk
-
-    pv.OFF_SCREEN = True
-    # VTK logs "bad X server connection" as a WARN before falling back to off-screen rendering
-    vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_ERROR)
-    return pv
-
-
-def write_vti(path: str | os.PathLike, arrays, *, spacing=1.0, origin=0.0) -> Path:
-    """Write one or more 3D arrays on the same grid as VTK ImageData (``.vti``, via pyvista).
-
-    Parameters
-    ----------
-    path : path-like
-        Must end in ``.vti``.
-    arrays : (nx, ny, nz) array_like or mapping of str to (nx, ny, nz) array_like
-        Point data; a bare array is stored under the name ``"data"``. The first one is active.
-    spacing, origin : float or (3,) array_like
-        As in :func:`write_mhd`.
-
-    Returns
-    -------
-    Path
-    """
-    path = Path(path)
-    if path.suffix.lower() != ".vti":
-        raise ValueError(f"`path` must end in .vti, got {path.name!r}")
-    named = dict(arrays) if isinstance(arrays, Mapping) else {"data": arrays}
-    if not named:
-        raise ValueError("`arrays` must hold at least one array")
-    checked = {str(k): _volume_array(v, f"arrays[{k!r}]") for k, v in named.items()}
-    shapes = {a.shape for a in checked.values()}
-    if len(shapes) != 1:
-        raise ValueError(f"`arrays` must all have the same shape, got {sorted(shapes)}")
-    spacing3 = _triple(spacing, "spacing", positive=True)
-    origin3 = _triple(origin, "origin", positive=False)
-    pv = _pyvista()
-    grid = pv.ImageData(dimensions=shapes.pop(), spacing=spacing3, origin=origin3)
-    for name, arr in checked.items():
-        grid.point_data[name] = arr.ravel(order="F")  # VTK point ids run x-fastest
-    grid.set_active_scalars(next(iter(checked)))
-    with atomic_path(path) as tmp:
-        grid.save(tmp, binary=True)
-    return path
-
-
-def read_vti(path: str | os.PathLike, *, array: str | None = None) -> Volume:
-    """Read one point-data array of a ``.vti`` file.
-
-    Parameters
-    ----------
-    path : path-like
-    array : str, optional
-        Array name; default the active scalars (the first array :func:`write_vti` wrote).
-
-    Returns
-    -------
-    Volume
-    """
-    pv = _pyvista()
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no such file: {path}")
-    grid = pv.read(path)
-    names = list(grid.point_data.keys())
-    if not names:
-        raise ValueError(f"{path.name}: holds no point-data arrays")
-    name = array if array is not None else (grid.active_scalars_name or names[0])
-    if name not in names:
-        raise ValueError(f"`array` must be one of {', '.join(map(repr, names))}; got {name!r}")
-    dims = tuple(int(n) for n in grid.dimensions)
-    data = np.asarray(grid.point_data[name]).reshape(dims, order="F")
-    return Volume(
-        np.ascontiguousarray(data),
-        tuple(float(s) for s in grid.spacing),  # type: ignore[arg-type]
-        tuple(float(o) for o in grid.origin),  # type: ignore[arg-type]
-        name,
-    )
-
-
-def write_volume(path: str | os.PathLike, data, *, spacing=1.0, origin=0.0) -> Path:
-    """Write a 3D array as ``.mhd`` (+ ``.raw``) or ``.vti``, chosen by the file extension."""
-    suffix = Path(path).suffix.lower()
-    check_choice(suffix, "path extension", (".mhd", ".vti"))
-    if suffix == ".mhd":
-        return write_mhd(path, data, spacing=spacing, origin=origin)
-    return write_vti(path, data, spacing=spacing, origin=origin)
-
-
-def read_volume(path: str | os.PathLike, *, array: str | None = None) -> Volume:
-    """Read a ``.mhd`` or ``.vti`` volume (``array`` picks a ``.vti`` array)."""
-    suffix = Path(path).suffix.lower()
-    check_choice(suffix, "path extension", (".mhd", ".vti"))
-    return read_mhd(path) if suffix == ".mhd" else read_vti(path, array=array)
-
+__all__ = ["save_montage", "save_volume_png", "composite", "save_slice_png", "ao_colors", "slice_scalars",
+           "rgba_array", "over_background", "save_rgba_montage", "composite_rgba", "save_rgba_volume_png"]
 
 # ---------------------------------------------------------------------------------------------
 # pictures
 
 
-def _figure(width: float, height: float):
+def figure(width: float, height: float):
     """A matplotlib Figure on an Agg canvas: no display, no pyplot global state."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -334,7 +35,7 @@ def _figure(width: float, height: float):
     return fig
 
 
-def _save_figure(fig, path: Path) -> Path:
+def save_figure(fig, path: Path) -> Path:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=fig.dpi, facecolor=fig.get_facecolor())
     return path
@@ -414,11 +115,11 @@ def save_montage(
     Path
     """
     path = _png_path(path)
-    arr = _masked(_volume_array(data).astype(np.float64), background)
+    arr = _masked(volume_array(data).astype(np.float64), background)
     n_slices = min(check_positive_int(n_slices, "n_slices"), arr.shape[2])
     columns = check_positive_int(columns, "columns")
-    spacing3 = _triple(spacing, "spacing", positive=True)
-    origin3 = _triple(origin, "origin", positive=False)
+    spacing3 = tuple(as_vector(spacing, "spacing", 3, positive=True))
+    origin3 = tuple(as_vector(origin, "origin", 3))
     lo, hi = _value_range(arr, vmin, vmax)
     # slices through the occupied z range only: empty panels say nothing
     occupied = np.flatnonzero((~np.ma.getmaskarray(arr)).any(axis=(0, 1)))
@@ -437,7 +138,7 @@ def save_montage(
     ]
     aspect = (extent[3] - extent[2]) / (extent[1] - extent[0])
     panel = 2.2
-    fig = _figure(panel * columns + 1.2, panel * aspect * rows + 0.9)
+    fig = figure(panel * columns + 1.2, panel * aspect * rows + 0.9)
     grid = fig.add_gridspec(rows, columns + 1, width_ratios=[1] * columns + [0.06],
                             left=0.04, right=0.9, top=1 - 0.55 / fig.get_figheight(),
                             bottom=0.03, wspace=0.08, hspace=0.25)
@@ -454,7 +155,7 @@ def save_montage(
     bar.set_label(label, fontsize=9)
     bar.ax.tick_params(labelsize=8)
     fig.suptitle(title, fontsize=10)
-    return _save_figure(fig, path)
+    return save_figure(fig, path)
 
 
 def composite(
@@ -494,7 +195,7 @@ def composite(
     if not (0.0 < opacity <= 1.0):
         raise ValueError(f"`opacity` must be in (0, 1], got {opacity}")
     check_choice(axis, "axis", (0, 1, 2))
-    arr = _masked(_volume_array(data).astype(np.float64), background)
+    arr = _masked(volume_array(data).astype(np.float64), background)
     lo, hi = _value_range(arr, vmin, vmax)
     colours = matplotlib.colormaps[cmap]((arr.filled(lo) - lo) / (hi - lo))[..., :3]
     alpha = np.where(arr.mask, 0.0, opacity)
@@ -522,7 +223,7 @@ def save_volume_png(
     origin=0.0,
     backend: Literal["auto", "pyvista", "numpy"] = "auto",
     size: tuple[int, int] = (720, 640),
-) -> str:
+) -> Path:
     """Save a volume rendering of a 3D image, as ParaView would show it (PNG).
 
     Background voxels are fully transparent; surface voxels take their colour from ``cmap`` and
@@ -543,30 +244,31 @@ def save_volume_png(
 
     Returns
     -------
-    str
-        The backend that made the picture, ``"pyvista"`` or ``"numpy"``.
+    Path
+        The picture written (``"auto"`` falls back to numpy when pyvista has no OpenGL context;
+        the picture's title says "composited along z" then).
     """
     path = _png_path(path)
     check_choice(backend, "backend", ("auto", "pyvista", "numpy"))
-    arr = _masked(_volume_array(data).astype(np.float64), background)
-    spacing3 = _triple(spacing, "spacing", positive=True)
-    origin3 = _triple(origin, "origin", positive=False)
+    arr = _masked(volume_array(data).astype(np.float64), background)
+    spacing3 = tuple(as_vector(spacing, "spacing", 3, positive=True))
+    origin3 = tuple(as_vector(origin, "origin", 3))
     lo, hi = _value_range(arr, vmin, vmax)
     if backend in ("auto", "pyvista"):
         try:
             _volume_png_pyvista(path, arr, lo, hi, title=title, label=label, cmap=cmap,
                                 spacing=spacing3, origin=origin3, size=size)
-            return "pyvista"
+            return path
         except Exception:  # no usable OpenGL context: fall back unless pyvista was demanded
             if backend == "pyvista":
                 raise
     _volume_png_numpy(path, arr, lo, hi, title=title, label=label, cmap=cmap,
                       spacing=spacing3, origin=origin3)
-    return "numpy"
+    return path
 
 
 def _volume_png_pyvista(path, arr, lo, hi, *, title, label, cmap, spacing, origin, size):
-    pv = _pyvista()
+    pv = pyvista_offscreen()
     # Background gets a value below the colour range; the opacity table (linear over the
     # scalar range) makes that first bin transparent and everything else nearly opaque.
     # With 64 opacity entries spread over [floor, hi], entry 1 sits exactly at lo.
@@ -611,7 +313,7 @@ def _volume_png_numpy(path, arr, lo, hi, *, title, label, cmap, spacing, origin)
     picture = rgba[..., :3] + (1.0 - rgba[..., 3:]) * white  # over a white background
     extent = [origin[0] - spacing[0] / 2, origin[0] + spacing[0] * (arr.shape[0] - 0.5),
               origin[1] - spacing[1] / 2, origin[1] + spacing[1] * (arr.shape[1] - 0.5)]
-    fig = _figure(6.4, 5.4)
+    fig = figure(6.4, 5.4)
     ax = fig.add_axes([0.08, 0.08, 0.72, 0.8])
     ax.imshow(np.swapaxes(np.clip(picture, 0, 1), 0, 1), origin="lower", extent=extent,
               interpolation="nearest")
@@ -622,7 +324,228 @@ def _volume_png_numpy(path, arr, lo, hi, *, title, label, cmap, spacing, origin)
     mappable = matplotlib.cm.ScalarMappable(
         norm=matplotlib.colors.Normalize(lo, hi), cmap=matplotlib.colormaps[cmap])
     fig.colorbar(mappable, cax=cax).set_label(label, fontsize=9)
-    _save_figure(fig, path)
+    save_figure(fig, path)
+
+
+# ---------------------------------------------------------------------------------------------
+# colour pictures of RGBA images (ao4d.RenderResult.rgba)
+
+_BACKGROUND = (0.33, 0.38, 0.45)  # the montages' blue-grey for voxels no ray hit
+
+
+def rgba_array(rgba, name: str = "rgba") -> np.ndarray:
+    """``rgba`` as an (nx, ny, nz, 4) float64 array in [0, 1] (uint8 is scaled by 1/255)."""
+    arr = as_array(rgba, name, ndim=4, shape_tail=(4,))
+    if arr.dtype == np.uint8:
+        return arr.astype(np.float64) / 255.0
+    arr = as_array(arr, name, dtype=np.float64)
+    if not np.isfinite(arr).all() or arr.min() < 0 or arr.max() > 1:
+        raise ValueError(f"`{name}` must hold finite values in [0, 1] (or be uint8)")
+    return arr
+
+
+def over_background(rgba: np.ndarray, background=_BACKGROUND) -> np.ndarray:
+    """Straight (not premultiplied) RGBA shown over a background colour: ``rgb a + b (1 - a)``.
+
+    Parameters
+    ----------
+    rgba : (..., 4) float array_like in [0, 1]
+    background : (3,) array_like
+
+    Returns
+    -------
+    rgb : (..., 3) float64
+
+    Examples
+    --------
+    >>> over_background(np.array([1.0, 0.0, 0.0, 0.25]), (0.0, 0.0, 1.0)).tolist()
+    [0.25, 0.0, 0.75]
+    """
+    arr = np.asarray(rgba, dtype=np.float64)
+    bg = as_vector(background, "background", 3)
+    return arr[..., :3] * arr[..., 3:] + bg * (1.0 - arr[..., 3:])
+
+
+def save_rgba_montage(
+    path: str | os.PathLike,
+    rgba,
+    *,
+    title: str = "",
+    n_slices: int = 12,
+    spacing=1.0,
+    origin=0.0,
+    columns: int = 4,
+) -> Path:
+    """Save a montage of z-slices of an RGBA image in its own colours (PNG).
+
+    Like :func:`save_montage` (x to the right, y up, panels titled with their z), but each
+    voxel shows its colour over the blue-grey background by its alpha; no colour map.
+
+    Parameters
+    ----------
+    path : path-like
+        Output ``.png``.
+    rgba : (nx, ny, nz, 4) array_like
+        Straight RGBA in [0, 1] (float) or 0..255 (uint8), e.g. ``RenderResult.rgba``.
+    title, n_slices, spacing, origin, columns
+        As in :func:`save_montage`; slices span the z range where alpha > 0.
+
+    Returns
+    -------
+    Path
+    """
+    path = _png_path(path)
+    arr = rgba_array(rgba)
+    n_slices = min(check_positive_int(n_slices, "n_slices"), arr.shape[2])
+    columns = check_positive_int(columns, "columns")
+    spacing3 = tuple(as_vector(spacing, "spacing", 3, positive=True))
+    origin3 = tuple(as_vector(origin, "origin", 3))
+    occupied = np.flatnonzero((arr[..., 3] > 0).any(axis=(0, 1)))
+    k0, k1 = (occupied[0], occupied[-1]) if occupied.size else (0, arr.shape[2] - 1)
+    ks = np.unique(np.linspace(k0, k1, n_slices).round().astype(int))
+    columns = min(columns, len(ks))
+    rows = math.ceil(len(ks) / columns)
+    extent = [
+        origin3[0] - spacing3[0] / 2,
+        origin3[0] + spacing3[0] * (arr.shape[0] - 0.5),
+        origin3[1] - spacing3[1] / 2,
+        origin3[1] + spacing3[1] * (arr.shape[1] - 0.5),
+    ]
+    aspect = (extent[3] - extent[2]) / (extent[1] - extent[0])
+    panel = 2.2
+    fig = figure(panel * columns + 0.4, panel * aspect * rows + 0.9)
+    grid = fig.add_gridspec(rows, columns, left=0.03, right=0.97,
+                            top=1 - 0.55 / fig.get_figheight(), bottom=0.03, wspace=0.08,
+                            hspace=0.25)
+    shown = np.clip(over_background(arr), 0.0, 1.0)
+    for n, k in enumerate(ks):
+        ax = fig.add_subplot(grid[n // columns, n % columns])
+        ax.imshow(np.swapaxes(shown[:, :, k], 0, 1), origin="lower", extent=extent,
+                  interpolation="nearest")
+        ax.set_title(f"z = {origin3[2] + spacing3[2] * k:.3g}", fontsize=8, pad=2)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.suptitle(title, fontsize=10)
+    return save_figure(fig, path)
+
+
+def composite_rgba(rgba, *, opacity: float = 0.9, axis: int = 2) -> np.ndarray:
+    """Numpy front-to-back compositing of an RGBA image along one axis (index 0 first).
+
+    Each voxel has its own colour and opacity ``opacity * alpha``; layers are blended with
+    ``C += (1 - A) a c``, ``A += (1 - A) a`` as in :func:`composite`.
+
+    Parameters
+    ----------
+    rgba : (nx, ny, nz, 4) array_like
+        Straight RGBA (float in [0, 1] or uint8).
+    opacity : float
+        Opacity of a voxel of alpha 1, in (0, 1].
+    axis : {0, 1, 2}
+        Viewing axis.
+
+    Returns
+    -------
+    rgba : (n_u, n_v, 4) float64
+        Premultiplied colour and accumulated opacity of the two remaining axes (in order).
+
+    Examples
+    --------
+    >>> image = np.zeros((1, 1, 2, 4)); image[0, 0, 0] = (1, 0, 0, 0.5); image[0, 0, 1] = (0, 0, 1, 1)
+    >>> composite_rgba(image, opacity=1.0)[0, 0].tolist()
+    [0.5, 0.0, 0.5, 1.0]
+    """
+    if not (0.0 < opacity <= 1.0):
+        raise ValueError(f"`opacity` must be in (0, 1], got {opacity}")
+    check_choice(axis, "axis", (0, 1, 2))
+    arr = np.moveaxis(rgba_array(rgba), axis, 0)
+    out = np.zeros(arr.shape[1:3] + (4,))
+    for layer in arr:
+        weight = (1.0 - out[..., 3]) * opacity * layer[..., 3]
+        out[..., :3] += weight[..., None] * layer[..., :3]
+        out[..., 3] += weight
+    return out
+
+
+def save_rgba_volume_png(
+    path: str | os.PathLike,
+    rgba,
+    *,
+    title: str = "",
+    spacing=1.0,
+    origin=0.0,
+    backend: Literal["auto", "pyvista", "numpy"] = "auto",
+    size: tuple[int, int] = (720, 640),
+) -> Path:
+    """Save a volume rendering of an RGBA image in its own colours (PNG), as ParaView shows it.
+
+    The voxels keep their colours (VTK's direct RGBA volume mode, what ParaView does for a
+    4-component unsigned-char array with *Map Scalars* off); alpha sets opacity, so background
+    is transparent and opaque hits read as a solid object.
+
+    Parameters
+    ----------
+    path : path-like
+        Output ``.png``.
+    rgba : (nx, ny, nz, 4) array_like
+        Straight RGBA in [0, 1] (float) or 0..255 (uint8), e.g. ``RenderResult.rgba``.
+    title, spacing, origin, backend, size
+        As in :func:`save_volume_png` (the numpy fallback composites along z with
+        :func:`composite_rgba`).
+
+    Returns
+    -------
+    Path
+    """
+    path = _png_path(path)
+    check_choice(backend, "backend", ("auto", "pyvista", "numpy"))
+    arr = rgba_array(rgba)
+    spacing3 = tuple(as_vector(spacing, "spacing", 3, positive=True))
+    origin3 = tuple(as_vector(origin, "origin", 3))
+    if backend in ("auto", "pyvista"):
+        try:
+            _rgba_volume_png_pyvista(path, arr, title=title, spacing=spacing3, origin=origin3,
+                                     size=size)
+            return path
+        except Exception:  # no usable OpenGL context: fall back unless pyvista was demanded
+            if backend == "pyvista":
+                raise
+    layered = composite_rgba(arr, axis=2)  # premultiplied: over white is C + (1 - A) white
+    picture = layered[..., :3] + (1.0 - layered[..., 3:])
+    extent = [origin3[0] - spacing3[0] / 2, origin3[0] + spacing3[0] * (arr.shape[0] - 0.5),
+              origin3[1] - spacing3[1] / 2, origin3[1] + spacing3[1] * (arr.shape[1] - 0.5)]
+    fig = figure(6.0, 5.4)
+    ax = fig.add_axes([0.1, 0.08, 0.85, 0.8])
+    ax.imshow(np.swapaxes(np.clip(picture, 0, 1), 0, 1), origin="lower", extent=extent,
+              interpolation="nearest")
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+    ax.set_title(f"{title}\n(composited along z)", fontsize=9)
+    return save_figure(fig, path)
+
+
+def _rgba_volume_png_pyvista(path, arr, *, title, spacing, origin, size):
+    pv = pyvista_offscreen()
+    grid = pv.ImageData(dimensions=arr.shape[:3], spacing=spacing, origin=origin)
+    grid.point_data["rgba"] = np.round(arr * 255.0).astype(np.uint8).reshape(-1, 4, order="F")
+    plotter = pv.Plotter(off_screen=True, window_size=list(size))
+    try:
+        plotter.set_background("white")
+        # alpha is opacity per quarter voxel: an opaque voxel hides what lies behind it (at
+        # VTK's default of about one voxel the solid looks hazy)
+        actor = plotter.add_volume(grid, scalars="rgba", mapper="smart", shade=False,
+                                   opacity_unit_distance=0.25 * min(spacing))
+        actor.prop.interpolation_type = "nearest"  # no blending with transparent background
+        plotter.add_title(title, font_size=7, color="black")
+        plotter.show_bounds(color="black", font_size=12, xtitle="x", ytitle="y", ztitle="z",
+                            n_xlabels=3, n_ylabels=3, n_zlabels=3, fmt="%.1f",
+                            location="outer", ticks="outside", minor_ticks=False)
+        plotter.view_vector((0.45, 0.55, 1.0), viewup=(0.0, 1.0, 0.0))
+        plotter.camera.zoom(0.85)
+        with atomic_path(path) as tmp:
+            plotter.screenshot(str(tmp))
+    finally:
+        plotter.close()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -649,7 +572,8 @@ def ao_colors(occlusion, *, cmap: str = "magma") -> np.ndarray:
     return (np.asarray(colours) * 255).round().astype(np.uint8)
 
 
-def _slice_scalars(tri, scalars, name: str) -> np.ndarray | None:
+def slice_scalars(tri, scalars, name: str) -> np.ndarray | None:
+    """Per-vertex values of a slice mesh: an array, or the name of one of its vertex attributes."""
     if scalars is None:
         return None
     if isinstance(scalars, str):
@@ -663,37 +587,6 @@ def _slice_scalars(tri, scalars, name: str) -> np.ndarray | None:
         raise ValueError(f"`{name}` must have one value per vertex ({len(tri.vertices)}), "
                          f"got {arr.shape[0]}")
     return arr
-
-
-def save_slice_mesh(path: str | os.PathLike, tri, *, occlusion=None, cmap: str = "magma") -> Path:
-    """Write a 3D slice mesh as ``.ply`` or ``.glb`` with per-vertex colours from occlusion.
-
-    Parameters
-    ----------
-    path : path-like
-        ``.ply`` (keeps the occlusion as a vertex property too) or ``.glb``.
-    tri : trimesh.Trimesh
-        A slice, e.g. from ``SimplexMesh.slice``.
-    occlusion : (V,) array_like or str, optional
-        Per-vertex occlusion in [0, 1], or the name of one of ``tri.vertex_attributes``.
-        Colours show ``1 - occlusion`` with ``cmap``.
-    cmap : str
-
-    Returns
-    -------
-    Path
-    """
-    path = Path(path)
-    suffix = check_choice(path.suffix.lower(), "path extension", (".ply", ".glb"))
-    occ = _slice_scalars(tri, occlusion, "occlusion")
-    out = tri.copy()
-    if occ is not None:
-        out.visual.vertex_colors = ao_colors(occ, cmap=cmap)
-        if suffix == ".ply":
-            out.vertex_attributes = {"ao": occ.astype(np.float32)}
-    with atomic_path(path) as tmp:
-        out.export(tmp, file_type=suffix[1:])
-    return path
 
 
 def save_slice_png(
@@ -713,7 +606,7 @@ def save_slice_png(
         Output ``.png``.
     tri : trimesh.Trimesh
     occlusion : (V,) array_like or str, optional
-        As in :func:`save_slice_mesh`; without it the mesh is drawn in one colour.
+        As in :func:`ao4d.mesh_files.save_slice_mesh`; without it the mesh is drawn in one colour.
     title : str
     cmap : str
     size : (2,) tuple of int
@@ -725,8 +618,8 @@ def save_slice_png(
     path = _png_path(path)
     if len(tri.faces) == 0:
         raise ValueError("`tri` has no faces: the hyperplane misses the mesh")
-    occ = _slice_scalars(tri, occlusion, "occlusion")
-    pv = _pyvista()
+    occ = slice_scalars(tri, occlusion, "occlusion")
+    pv = pyvista_offscreen()
     faces = np.hstack([np.full((len(tri.faces), 1), 3), tri.faces]).ravel()
     poly = pv.PolyData(np.asarray(tri.vertices, dtype=np.float64), faces)
     plotter = pv.Plotter(off_screen=True, window_size=list(size))

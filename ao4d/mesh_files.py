@@ -1,16 +1,20 @@
-"""Reading and writing :class:`~ao4d.mesh.SimplexMesh` files.
+"""Simplex mesh files: the formats behind :meth:`SimplexMesh.save <ao4d.mesh.SimplexMesh.save>`
+and :meth:`SimplexMesh.load <ao4d.mesh.SimplexMesh.load>`, and 3D slice-mesh export.
 
-Three formats, every write atomic (an interrupted write leaves the old file or the new one):
+This module knows arrays, not the mesh class (``mesh`` imports it, never the reverse): writers
+take a :class:`MeshArrays`, readers return one. :func:`write` and :func:`read` choose the format
+by suffix. Three formats, every write atomic (an interrupted write leaves the old file or the
+new one):
 
-``.npz`` (:func:`save_npz`, :func:`load_npz`)
+``.npz`` (suffix ``.npz``)
     Lossless: ``vertices``, ``simplices`` and every point/cell data array (stored under
     ``point_data/<name>`` and ``cell_data/<name>``), plus a format version.
-``.vtu`` (:func:`save_vtu`, :func:`load_vtu`)
+``.vtu`` (suffix ``.vtu``)
     For ParaView. Points need three coordinates: a 4D mesh writes x, y, z as the points, the
     fourth coordinate as point array ``"w"`` and its tetrahedra as ``VTK_TETRA``; a 3D mesh writes
     triangles (``VTK_TRIANGLE``), a 2D mesh line segments (``VTK_LINE``, z = 0). Point and cell
-    data go along as arrays. :func:`load_vtu` rebuilds the mesh (w from ``"w"``).
-Plain text (:func:`save_text`, :func:`load_text`)
+    data go along as arrays. Reading rebuilds the mesh (w from ``"w"``).
+Plain text (any other suffix, e.g. ``.txt``)
     Human-readable geometry (no data arrays)::
 
         # ao4d simplex mesh (text format 1)     <- lines starting with '#' are comments
@@ -22,32 +26,69 @@ Plain text (:func:`save_text`, :func:`load_text`)
         i j k l                                  <- S lines, 0-based vertex indices
 
     Floats are written with ``repr`` precision, so a round trip is exact.
+
+3D slices of 4D meshes (``trimesh.Trimesh``) are written by :func:`save_slice_mesh` as PLY, GLB,
+OBJ or STL, coloured by AO.
 """
 
 from __future__ import annotations
 
 import os
 import re
+import zipfile
+import zlib
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import NamedTuple
 
 import numpy as np
 
 from ._atomic import atomic_open, atomic_path
 from ._npz import write_npz
-from .mesh import SimplexMesh
+from ._validate import check_choice
+from .pictures import ao_colors, slice_scalars
 
-__all__ = ["save_npz", "load_npz", "save_vtu", "load_vtu", "to_pyvista", "save_text", "load_text", "load"]
+__all__ = ["MeshArrays", "write", "read", "to_pyvista", "save_slice_mesh", "SUFFIXES", "SLICE_SUFFIXES"]
+
+SUFFIXES = (".npz", ".vtu", ".txt")  # the formats SimplexMesh.save writes (text: any other suffix)
+SLICE_SUFFIXES = (".ply", ".glb")  # 3D slice meshes (save_slice_mesh)
 
 NPZ_FORMAT = 1
 TEXT_FORMAT = 1
 _TEXT_MAGIC = "ao4d-mesh"
 
 
-def _check_mesh(mesh: Any) -> SimplexMesh:
-    if not isinstance(mesh, SimplexMesh):
-        raise TypeError(f"`mesh` must be a SimplexMesh, got {type(mesh).__name__}")
-    return mesh
+class MeshArrays(NamedTuple):
+    """What a mesh file holds: the arguments of :class:`~ao4d.mesh.SimplexMesh`."""
+
+    vertices: np.ndarray
+    simplices: np.ndarray
+    point_data: Mapping[str, np.ndarray]
+    cell_data: Mapping[str, np.ndarray]
+
+    @property
+    def dim(self) -> int:
+        return int(self.vertices.shape[1])
+
+
+def _format(path: str | os.PathLike) -> str:
+    suffix = Path(path).suffix.lower()
+    return {".npz": "npz", ".vtu": "vtu"}.get(suffix, "text")
+
+
+def write(path: str | os.PathLike, mesh: MeshArrays) -> Path:
+    """Write ``mesh`` in the format its suffix names (``.npz``, ``.vtu``, else text), atomically."""
+    if not isinstance(mesh, MeshArrays):
+        raise TypeError(f"`mesh` must be a MeshArrays (see SimplexMesh.save), got {type(mesh).__name__}")
+    writer = {"npz": _save_npz, "vtu": _save_vtu, "text": _save_text}[_format(path)]
+    writer(mesh, path)
+    return Path(path)
+
+
+def read(path: str | os.PathLike) -> MeshArrays:
+    """Read a mesh file in the format its suffix names (``.npz``, ``.vtu``, else text)."""
+    reader = {"npz": _load_npz, "vtu": _load_vtu, "text": _load_text}[_format(path)]
+    return reader(path)
 
 
 def _existing(path: str | os.PathLike) -> Path:
@@ -58,17 +99,16 @@ def _existing(path: str | os.PathLike) -> Path:
 
 
 # ------------------------------------------------------------------------------------ npz
-def save_npz(mesh: SimplexMesh, path: str | os.PathLike) -> None:
+def _save_npz(mesh: MeshArrays, path: str | os.PathLike) -> None:
     """Write a mesh with all its data to a compressed ``.npz`` file, atomically and reproducibly.
 
     Parameters
     ----------
-    mesh : SimplexMesh
+    mesh : MeshArrays
         The mesh.
     path : path-like
         Destination; ``.npz`` is not appended automatically.
     """
-    mesh = _check_mesh(mesh)
     arrays = {
         "format": np.array(NPZ_FORMAT),
         "vertices": mesh.vertices,
@@ -83,19 +123,23 @@ def save_npz(mesh: SimplexMesh, path: str | os.PathLike) -> None:
     write_npz(path, arrays)  # fixed zip dates: the same mesh always gives the same bytes
 
 
-def load_npz(path: str | os.PathLike) -> SimplexMesh:
-    """Read a mesh written by :func:`save_npz`.
+def _load_npz(path: str | os.PathLike) -> MeshArrays:
+    """Read a mesh written by :func:`_save_npz`.
 
     Returns
     -------
-    mesh : SimplexMesh
+    mesh : MeshArrays
     """
     p = _existing(path)
+    if not zipfile.is_zipfile(p):
+        what = "empty" if p.stat().st_size == 0 else "not a zip archive"
+        raise ValueError(f"`path` {str(p)!r} is not a readable .npz file ({what})")
     try:
         with np.load(p, allow_pickle=False) as data:
             files = dict(data.items())
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"`path` {str(p)!r} is not a readable .npz file: {exc}") from None
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        # truncated or bit-flipped archives fail here (CRC, inflate, short reads)
+        raise ValueError(f"`path` {str(p)!r} is not a readable .npz file (damaged: {exc})") from None
     missing = {"format", "vertices", "simplices"} - set(files)
     if missing:
         raise ValueError(f"`path` {str(p)!r} is not an ao4d mesh file (missing {sorted(missing)})")
@@ -104,7 +148,7 @@ def load_npz(path: str | os.PathLike) -> SimplexMesh:
         raise ValueError(f"`path` {str(p)!r} has mesh format {version}; this ao4d reads up to {NPZ_FORMAT}")
     point_data = {k.split("/", 1)[1]: v for k, v in files.items() if k.startswith("point_data/")}
     cell_data = {k.split("/", 1)[1]: v for k, v in files.items() if k.startswith("cell_data/")}
-    return SimplexMesh(files["vertices"], files["simplices"], point_data=point_data, cell_data=cell_data)
+    return MeshArrays(files["vertices"], files["simplices"], point_data, cell_data)
 
 
 # ------------------------------------------------------------------------------------ vtu
@@ -114,12 +158,11 @@ def _vtk_cell_type(dim: int) -> int:
     return {2: pv.CellType.LINE, 3: pv.CellType.TRIANGLE, 4: pv.CellType.TETRA}[dim]
 
 
-def to_pyvista(mesh: SimplexMesh):
+def to_pyvista(mesh: MeshArrays):
     """The mesh as a ``pyvista.UnstructuredGrid`` (layout as in the module docstring)."""
     import pyvista as pv
 
-    mesh = _check_mesh(mesh)
-    points = np.zeros((mesh.n_vertices, 3))
+    points = np.zeros((len(mesh.vertices), 3))
     points[:, : min(3, mesh.dim)] = mesh.vertices[:, :3]
     grid = pv.UnstructuredGrid({_vtk_cell_type(mesh.dim): mesh.simplices}, points)
     if mesh.dim == 4:
@@ -133,12 +176,12 @@ def to_pyvista(mesh: SimplexMesh):
     return grid
 
 
-def save_vtu(mesh: SimplexMesh, path: str | os.PathLike) -> None:
+def _save_vtu(mesh: MeshArrays, path: str | os.PathLike) -> None:
     """Write a VTK unstructured grid (``.vtu``, binary) for ParaView, atomically.
 
     Parameters
     ----------
-    mesh : SimplexMesh
+    mesh : MeshArrays
         Any dimension (see the module docstring for the layout).
     path : path-like
         Destination ending in ``.vtu``.
@@ -150,18 +193,24 @@ def save_vtu(mesh: SimplexMesh, path: str | os.PathLike) -> None:
         grid.save(tmp, binary=True)
 
 
-def load_vtu(path: str | os.PathLike) -> SimplexMesh:
-    """Read a ``.vtu`` written by :func:`save_vtu` (a tetrahedral grid with ``"w"`` is 4D).
+def _load_vtu(path: str | os.PathLike) -> MeshArrays:
+    """Read a ``.vtu`` written by :func:`_save_vtu` (a tetrahedral grid with ``"w"`` is 4D).
 
     Returns
     -------
-    mesh : SimplexMesh
+    mesh : MeshArrays
         Point and cell data arrays are restored (``"w"`` becomes the 4th coordinate).
     """
     import pyvista as pv
 
     p = _existing(path)
-    grid = pv.read(p)
+    try:
+        grid = pv.read(p)
+        n_cells = grid.n_cells
+    except Exception as exc:  # VTK raises assorted errors on foreign or damaged files
+        raise ValueError(f"`path` {str(p)!r} is not a readable .vtu file ({exc})") from None
+    if n_cells == 0 and grid.n_points == 0:
+        raise ValueError(f"`path` {str(p)!r} is not a readable .vtu file (no points or cells)")
     kinds = {int(c) for c in np.unique(grid.celltypes)}
     known = {int(pv.CellType.TETRA): 4, int(pv.CellType.TRIANGLE): 3, int(pv.CellType.LINE): 2}
     if len(kinds) != 1 or next(iter(kinds)) not in known:
@@ -178,32 +227,37 @@ def load_vtu(path: str | os.PathLike) -> SimplexMesh:
     else:
         vertices = points[:, :d]
     cell_data = {k: np.asarray(v) for k, v in grid.cell_data.items()}
-    return SimplexMesh(vertices, simplices, point_data=point_data, cell_data=cell_data)
+    return MeshArrays(vertices, simplices, point_data, cell_data)
 
 
 # ------------------------------------------------------------------------------------ text
-def save_text(mesh: SimplexMesh, path: str | os.PathLike) -> None:
+def _save_text(mesh: MeshArrays, path: str | os.PathLike) -> None:
     """Write the plain-text format (geometry only; see the module docstring), atomically."""
-    mesh = _check_mesh(mesh)
     with atomic_open(path, "w", encoding="ascii", newline="\n") as fh:
         fh.write(f"# ao4d simplex mesh (text format {TEXT_FORMAT}); '#' starts a comment\n")
-        fh.write(f"{_TEXT_MAGIC} {TEXT_FORMAT}\ndim {mesh.dim}\nvertices {mesh.n_vertices}\n")
+        fh.write(f"{_TEXT_MAGIC} {TEXT_FORMAT}\ndim {mesh.dim}\nvertices {len(mesh.vertices)}\n")
         # repr() of a Python float is the shortest string that reads back to the same double
         fh.writelines(" ".join(map(repr, row)) + "\n" for row in mesh.vertices.tolist())
-        fh.write(f"simplices {mesh.n_simplices}\n")
+        fh.write(f"simplices {len(mesh.simplices)}\n")
         fh.writelines(" ".join(map(str, row)) + "\n" for row in mesh.simplices.tolist())
 
 
-def load_text(path: str | os.PathLike) -> SimplexMesh:
-    """Read the plain-text format written by :func:`save_text`.
+def _load_text(path: str | os.PathLike) -> MeshArrays:
+    """Read the plain-text format written by :func:`_save_text`.
 
     Returns
     -------
-    mesh : SimplexMesh
+    mesh : MeshArrays
     """
     p = _existing(path)
-    with open(p, encoding="ascii") as fh:
-        lines = [ln.split("#", 1)[0].strip() for ln in fh]
+    try:
+        with open(p, encoding="ascii") as fh:
+            lines = [ln.split("#", 1)[0].strip() for ln in fh]
+    except UnicodeDecodeError:
+        raise ValueError(
+            f"`path` {str(p)!r} is not an ao4d mesh file (binary data; mesh files are .npz, .vtu "
+            "or ao4d text)"
+        ) from None
     lines = [ln for ln in lines if ln]
     where = f"`path` {str(p)!r}"
 
@@ -227,7 +281,7 @@ def load_text(path: str | os.PathLike) -> SimplexMesh:
         raise ValueError(f"{where}: expected {n_simplices} simplex lines after the header, file has {len(lines) - 4 - n_vertices}")
     vertices = _parse_rows(vertex_lines, dim, float, where, "vertex")
     simplices = _parse_rows(simplex_lines, dim, int, where, "simplex")
-    return SimplexMesh(vertices, simplices)
+    return MeshArrays(vertices, simplices, {}, {})
 
 
 def _parse_rows(rows: list[str], width: int, kind: type, where: str, what: str) -> np.ndarray:
@@ -243,11 +297,33 @@ def _parse_rows(rows: list[str], width: int, kind: type, where: str, what: str) 
     return out
 
 
-def load(path: str | os.PathLike) -> SimplexMesh:
-    """Read any of the three formats, chosen by extension (``.npz``, ``.vtu``, else text)."""
-    suffix = Path(path).suffix.lower()
-    if suffix == ".npz":
-        return load_npz(path)
-    if suffix == ".vtu":
-        return load_vtu(path)
-    return load_text(path)
+# ------------------------------------------------------------------------------------ 3D slices
+def save_slice_mesh(path: str | os.PathLike, tri, *, occlusion=None, cmap: str = "magma") -> Path:
+    """Write a 3D slice mesh as ``.ply`` or ``.glb`` with per-vertex colours from occlusion.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.ply`` (keeps the occlusion as a vertex property too) or ``.glb``.
+    tri : trimesh.Trimesh
+        A slice, e.g. from ``SimplexMesh.slice``.
+    occlusion : (V,) array_like or str, optional
+        Per-vertex occlusion in [0, 1], or the name of one of ``tri.vertex_attributes``.
+        Colours show ``1 - occlusion`` with ``cmap``.
+    cmap : str
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    suffix = check_choice(path.suffix.lower(), "path extension", SLICE_SUFFIXES)
+    occ = slice_scalars(tri, occlusion, "occlusion")
+    out = tri.copy()
+    if occ is not None:
+        out.visual.vertex_colors = ao_colors(occ, cmap=cmap)
+        if suffix == ".ply":
+            out.vertex_attributes = {"ao": occ.astype(np.float32)}
+    with atomic_path(path) as tmp:
+        out.export(tmp, file_type=suffix[1:])
+    return path

@@ -1,0 +1,126 @@
+"""The orientation convention of DESIGN.md, written once: the generalised cross product.
+
+Simplex (p0, ..., p_{d-1}) in R^d has normal n with ``n . x = det[p1 - p0; ...; p_{d-1} - p0; x]``
+(rows, x last). n is the cross product of the d-1 edge vectors: component k is the cofactor of
+entry (d-1, k). In 3D it is the usual cross product ``(p1 - p0) x (p2 - p0)``; in 2D it is
+``(p1 - p0)`` turned clockwise. ``|n| = (d-1)! * measure``. The mesh, the BVH, the lookup-table
+builder and the camera all use these functions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["cross", "cross_components", "simplex_normals"]
+
+# Simplices per block when gathering corners: bounds temporaries to ~100 MB.
+_BLOCK = 1 << 20
+
+
+def cross_components(rows: Sequence[Any]) -> np.ndarray:
+    """Generalised cross product X of d-1 vectors stored component-major.
+
+    ``X . x = det[v_1; ...; v_{d-1}; x]``. Each of the d-1 entries of ``rows`` is indexable by
+    component first (shape (d, ...)): contiguous per-component arrays make the closed-form
+    cofactors fast (a batched ``np.linalg.det`` costs ten times more). Exact for integer input.
+    No validation.
+
+    Parameters
+    ----------
+    rows : sequence of d-1 arrays of shape (d, ...)
+
+    Returns
+    -------
+    X : (d, ...) array, dtype of the inputs' products
+    """
+    d = len(rows) + 1
+    if d == 2:
+        (a,) = rows
+        return np.stack([-a[1], a[0]])
+    if d == 3:
+        a, b = rows
+        return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+    a, b, c = rows
+    # 2x2 minors of the last two rows, then expansion along the first row of each 3x3 minor
+    m = {(p, q): b[p] * c[q] - b[q] * c[p] for p in range(4) for q in range(p + 1, 4)}
+    out = []
+    for j in range(4):
+        p, q, r = (k for k in range(4) if k != j)
+        det = a[p] * m[q, r] - a[q] * m[p, r] + a[r] * m[p, q]
+        out.append(det if j % 2 else -det)  # sign (-1)^(d-1+j)
+    return np.stack(out)
+
+
+def cross(*vectors: Any) -> np.ndarray:
+    """Generalised cross product of ``d - 1`` vectors in R^d (DESIGN.md orientation).
+
+    Returns ``n`` with ``n . x = det[v_1; ...; v_{d-1}; x]`` for every ``x`` (cofactors of the
+    last row); in 3D this is the usual cross product.
+
+    Parameters
+    ----------
+    *vectors : (..., d) array_like
+        ``d - 1`` vectors (broadcast together), d in {2, 3, 4}.
+
+    Returns
+    -------
+    n : (..., d) ndarray
+        Orthogonal to every input; its length is the (d-1)-volume of their parallelotope.
+        Integer input gives an exact integer result; otherwise float64.
+
+    Examples
+    --------
+    >>> cross([1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0])
+    array([0, 0, 0, 1])
+    >>> cross([1.0, 0, 0], [0, 1.0, 0])
+    array([0., 0., 1.])
+    """
+    arrays = [np.asarray(v) for v in vectors]
+    if not arrays:
+        raise ValueError("`vectors` must be d - 1 vectors of length d, got none")
+    if any(a.dtype.kind not in "biuf" for a in arrays):
+        raise TypeError("`vectors` must be real numbers")
+    if not all(a.dtype.kind in "biu" for a in arrays):
+        arrays = [a.astype(np.float64) for a in arrays]
+    arrays = np.broadcast_arrays(*arrays)
+    d = arrays[0].shape[-1] if arrays[0].ndim else 0
+    if d not in (2, 3, 4) or len(arrays) != d - 1:
+        raise ValueError(
+            f"`vectors` must be d - 1 vectors of length d (d in 2, 3, 4), got {len(arrays)} of length {d}"
+        )
+    out = np.moveaxis(cross_components([np.moveaxis(a, -1, 0) for a in arrays]), 0, -1)
+    return out + 0 if out.dtype.kind != "f" else out + 0.0  # -0.0 -> 0.0 for readable output
+
+
+def simplex_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
+    """Unnormalised simplex normals ``n`` with ``n . x = det[p1 - p0; ...; p_{d-1} - p0; x]``.
+
+    Parameters
+    ----------
+    vertices : (V, d) float64
+        Vertex coordinates, d in {2, 3, 4}.
+    simplices : (S, d) int
+        Vertex indices of each simplex.
+
+    Returns
+    -------
+    normals : (S, d) float64
+        ``|normals| = (d-1)! * measure``; zero for degenerate simplices. No input validation.
+
+    Examples
+    --------
+    >>> simplex_normals(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
+    array([[0., 0., 1.]])
+    """
+    d = vertices.shape[1]
+    coords = np.ascontiguousarray(vertices.T, dtype=np.float64)  # (d, V): contiguous gathers
+    out = np.empty((len(simplices), d), dtype=np.float64)
+    for start in range(0, len(simplices), _BLOCK):
+        ids = np.ascontiguousarray(simplices[start:start + _BLOCK].T)  # (d, B)
+        p0 = np.take(coords, ids[0], axis=1)
+        edges = [np.take(coords, ids[k], axis=1) - p0 for k in range(1, d)]
+        out[start:start + _BLOCK] = cross_components(edges).T
+    return out

@@ -1,0 +1,685 @@
+"""Ray casting on simplex meshes in 2D, 3D and 4D: the device trees and every traversal.
+
+Both backends trace the same rays through the same BVH (:mod:`ao4d.bvh`) with the same
+ray-simplex test and barycentric tolerance ``ao4d.bvh.BARY_EPS``. The OpenCL kernels
+(``kernels/ao.cl`` with ``kernels/bvh.h``) compute in float32 and traverse the tree's 8-wide form;
+the numpy traversal walks the binary tree in float64. They differ only on rays that graze an edge
+or the ``max_distance`` sphere.
+
+Three traversals: :func:`cast_rays` (closest or any hit of given rays: rendering, shadows),
+:func:`count_occluded` (any-hit counts of cosine-distributed rays generated on the device:
+ambient occlusion), and :func:`sample_directions` (the directions that kernel traces, for tests).
+Device copies of a mesh's tree are uploaded once per OpenCL context and kept in the mesh's
+``cache``, so a render after an AO call reuses them.
+
+Work is split into launches of at most ``RAYS_PER_LAUNCH`` rays with a tqdm bar; Ctrl-C stops
+between launches.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import weakref
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from . import bvh as _bvh
+from . import _progress, bvh_build, cl
+from ._validate import as_array, as_real, check_bool, check_choice, check_memory, check_positive_int
+from .sampling import cosine_hemisphere, sobol_table
+
+__all__ = ["cast_rays", "count_occluded", "sample_directions", "traversal_counts", "get_bvh", "RayHits",
+           "mesh_arrays", "unit_rows", "progress_bar", "RAYS_PER_LAUNCH", "ACCELS", "BUILDERS"]
+
+RAYS_PER_LAUNCH = 1 << 21  # ~0.5-2 s per launch on a 2-core CPU: responsive bar and Ctrl-C
+ACCELS = ("bvh", "brute")
+BUILDERS = ("auto", "host", "device")
+_NUMPY_RAYS_PER_STEP = 1 << 14  # bounds the (ray, node) frontier of the numpy traversal
+_PROGRESS_MIN_RAYS = 1 << 22  # show a bar by default only for work this large
+
+
+@dataclass(frozen=True)
+class RayHits:
+    """Result of :func:`cast_rays`.
+
+    Attributes
+    ----------
+    t : (N,) float64
+        Distance along the (normalised) direction to the hit; ``inf`` on a miss.
+    simplex : (N,) int64
+        Index of the hit simplex in ``mesh.simplices``; -1 on a miss.
+    barycentric : (N, d) float64
+        Weights of the hit simplex's d vertices (in ``mesh.simplices`` order) at the hit point,
+        summing to 1; zeros on a miss.
+    """
+
+    t: np.ndarray
+    simplex: np.ndarray
+    barycentric: np.ndarray
+
+    @property
+    def hit(self) -> np.ndarray:
+        """(N,) bool: rays that hit."""
+        return self.simplex >= 0
+
+
+# -- input handling ---------------------------------------------------------------------------
+
+
+# Typical rates (rays/s) on this project's 2-core machine, for estimates before long work; a
+# GPU is faster, which only makes the estimate cautious.
+RAYS_PER_SECOND = {"opencl": 8e6, "numpy": 7e4}
+# Refuse more rays than this by default: about half an hour at the typical rate.
+MAX_RAYS = {backend: 1800 * rate for backend, rate in RAYS_PER_SECOND.items()}
+
+
+def duration(seconds: float) -> str:
+    """A rough duration for estimates ("about 40 s", "about 3 h", "about 12 days")."""
+    for unit, size in (("days", 86400), ("h", 3600), ("min", 60)):
+        if seconds >= 2 * size:
+            return f"about {seconds / size:.0f} {unit}"
+    return f"about {max(seconds, 1):.0f} s"
+
+
+def check_rays(n_rays: float, backend: str, limit: float | None, *, what: str, hint: str) -> None:
+    """Refuse, before any work, to trace more than ``limit`` rays (default ``MAX_RAYS[backend]``)."""
+    limit = MAX_RAYS[backend] if limit is None else as_real(limit, "max_rays", finite=False, gt=0)
+    if n_rays > limit:
+        raise ValueError(
+            f"{what} asks for {n_rays:.3g} rays, {duration(n_rays / RAYS_PER_SECOND[backend])} on the "
+            f"{backend} backend at ~{RAYS_PER_SECOND[backend]:.2g} rays/s, above the limit of "
+            f"{limit:.3g} rays; {hint}"
+        )
+
+
+def check_distance(max_distance: Any) -> float:
+    """``max_distance`` as a float > 0 (``inf`` allowed: unlimited), else an error naming it."""
+    return as_real(max_distance, "max_distance", finite=False, gt=0, unit=" (inf for unlimited)")
+
+
+def mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``mesh``'s vertices (V, d) and simplices (S, d), else an error naming `mesh`."""
+    try:
+        vertices, simplices = np.asarray(mesh.vertices), np.asarray(mesh.simplices)
+    except AttributeError:
+        raise TypeError(
+            f"`mesh` must be an ao4d.SimplexMesh (vertices and simplices), got {type(mesh).__name__}"
+        ) from None
+    if vertices.ndim != 2 or vertices.shape[1] not in (2, 3, 4):
+        raise ValueError(f"`mesh` must live in 2D, 3D or 4D, got vertices of shape {vertices.shape}")
+    if simplices.ndim != 2 or simplices.shape[0] == 0:
+        raise ValueError("`mesh` has no simplices: nothing can occlude or be hit")
+    return vertices, simplices
+
+
+def unit_rows(values: np.ndarray, name: str) -> np.ndarray:
+    """Rows of ``values`` scaled to unit length; zero-length rows are an error naming ``name``."""
+    length = np.linalg.norm(values, axis=1)
+    bad = np.flatnonzero(~(length > 0))
+    if bad.size:
+        raise ValueError(f"`{name}` has {bad.size} zero-length row(s), first at index {bad[0]}")
+    return values / length[:, None]
+
+
+def progress_bar(progress: bool | None, total: int, desc: str):
+    """Progress over ``total`` rays (:mod:`ao4d._progress`), shown by default only for large work."""
+    show = total >= _PROGRESS_MIN_RAYS if progress is None else bool(progress)
+    return _progress.bar(total, desc, unit="ray", unit_scale=True, show=show)
+
+
+def _morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
+    """Order of points along a d-dimensional Z curve (neighbouring rays trace similar nodes)."""
+    lo, hi = points.min(0), points.max(0)
+    q = ((points - lo) / np.where(hi > lo, hi - lo, 1.0) * ((1 << bits) - 1)).astype(np.uint64)
+    code = np.zeros(len(points), dtype=np.uint64)
+    d = points.shape[1]
+    for b in range(bits):
+        for k in range(d):
+            code |= ((q[:, k] >> np.uint64(b)) & np.uint64(1)) << np.uint64(b * d + k)
+    return np.argsort(code, kind="stable")
+
+
+# -- the tree of a mesh -------------------------------------------------------------------------
+
+_fallback_cache: "weakref.WeakKeyDictionary[Any, dict]" = weakref.WeakKeyDictionary()
+
+
+def _fingerprint(vertices: np.ndarray, simplices: np.ndarray) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    for a in (vertices, simplices):
+        a = np.ascontiguousarray(a)
+        h.update(str((a.shape, a.dtype.str)).encode())
+        h.update(memoryview(a).cast("B"))
+    return h.hexdigest()
+
+
+def _build_tree(builder: str, vertices, simplices, leaf_size: int, runtime) -> _bvh.BVH:
+    if builder == "device":
+        if runtime is None:
+            runtime = cl.get_runtime(warn=False)
+            if runtime is None:
+                raise cl.NoOpenCLDeviceError("builder='device' needs an OpenCL device; none works (see `ao4d info`)")
+        return bvh_build.build(vertices, simplices, leaf_size=leaf_size, runtime=runtime,
+                               lanes=_block_lanes(runtime))
+    return _bvh.build(vertices, simplices, leaf_size=leaf_size)
+
+
+def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: Any = None) -> _bvh.BVH:
+    """The BVH of ``mesh``, built once and cached on it.
+
+    Parameters
+    ----------
+    mesh : SimplexMesh or any object with ``vertices`` and ``simplices``
+    leaf_size : int
+        Most simplices per leaf.
+    builder : {"auto", "host", "device"}
+        ``"host"``: :func:`ao4d.bvh.build` (numpy); ``"device"``: :func:`ao4d.bvh_build.build` on
+        ``runtime`` (default: the device :func:`ao4d.cl.get_runtime` chooses). ``"auto"``: a
+        tree already cached for the mesh, whichever built it; else the device builder when
+        ``runtime`` is given (the ray-casting functions pass theirs), the host builder otherwise.
+    runtime : ao4d.cl.Runtime, optional
+        The OpenCL device that will trace the tree.
+
+    Returns
+    -------
+    ao4d.bvh.BVH
+        A :class:`ao4d.bvh_build.DeviceBVH` when built on the device.
+
+    Uses the mesh's ``cache`` dict when it has one (dropped when the mesh changes); otherwise a
+    weak-keyed cache checked against a hash of the vertex and simplex arrays.
+    """
+    check_choice(builder, "builder", BUILDERS)
+    leaf_size = check_positive_int(leaf_size, "leaf_size")
+    keys = {b: f"ao4d.bvh/{b}/leaf={leaf_size}" for b in ("device", "host")}
+    cache = getattr(mesh, "cache", None)
+    stamp = None
+    if cache is None:
+        vertices, simplices = np.asarray(mesh.vertices), np.asarray(mesh.simplices)
+        stamp = _fingerprint(vertices, simplices)
+        try:
+            entry = _fallback_cache.setdefault(mesh, {})
+        except TypeError:  # not weak-referenceable: build every time
+            entry = {}
+        cache = {k: v[1] for k, v in entry.items() if v[0] == stamp}
+    if builder == "auto":
+        for b in ("device", "host"):
+            if keys[b] in cache:
+                return cache[keys[b]]
+        builder = "device" if runtime is not None else "host"
+    tree = cache.get(keys[builder])
+    if tree is None:
+        tree = _build_tree(builder, mesh.vertices, mesh.simplices, leaf_size, runtime)
+        if stamp is None:
+            cache[keys[builder]] = tree
+        else:
+            entry[keys[builder]] = (stamp, tree)
+    return tree
+
+
+# -- OpenCL side ------------------------------------------------------------------------------
+
+
+def _check_device_memory(runtime, nbytes: dict[str, int]) -> None:
+    dev = runtime.device
+    for what, size in nbytes.items():
+        if size > dev.max_mem_alloc_size:
+            raise MemoryError(
+                f"{what} needs {size / 2**20:.0f} MiB in one buffer, above the "
+                f"{dev.max_mem_alloc_size / 2**20:.0f} MiB allowed by {runtime.name}; "
+                "use a smaller mesh or backend='numpy'"
+            )
+    total = sum(nbytes.values())
+    if total > 0.8 * dev.global_mem_size:
+        raise MemoryError(
+            f"ray tracing needs {total / 2**20:.0f} MiB on {runtime.name}, above 80% of its "
+            f"{dev.global_mem_size / 2**20:.0f} MiB; use a smaller mesh or backend='numpy'"
+        )
+
+
+def _block_lanes(runtime) -> int:
+    """Simplices per leaf block on this device: ``bvh.LANES`` (16) on CPUs, 4 elsewhere (why:
+    bvh.widen)."""
+    import pyopencl as pcl
+
+    return _bvh.LANES if runtime.device.type & pcl.device_type.CPU else 4
+
+
+def _device_tree(mesh: Any, tree: _bvh.BVH, runtime) -> dict[str, Any]:
+    """Device copies of the wide tree, uploaded once per context and kept in ``mesh.cache``
+    (dropped with the tree when the mesh changes; meshes without a cache upload per call)."""
+    lanes = _block_lanes(runtime)
+    key = ("ao4d.raycast/device-tree", id(runtime.context), lanes, id(tree), _bvh.STACK_SIZE)
+    cache = getattr(mesh, "cache", None)
+    if cache is not None and key in cache:
+        return cache[key]
+    import pyopencl as pcl
+
+    dev = bvh_build.device_wide_tree(tree, runtime, lanes)  # a tree built on this device
+    if dev is not None:
+        if cache is not None:
+            cache[key] = dev
+        return dev
+    wide = tree.wide(lanes)
+    _check_device_memory(
+        runtime,
+        {
+            "the BVH leaf blocks": wide.blocks.nbytes,
+            "the BVH nodes": wide.boxes.nbytes,
+            "the BVH": wide.nbytes(),
+        },
+    )
+    flags = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
+    ctx = runtime.context
+    dev = {
+        "boxes": pcl.Buffer(ctx, flags, hostbuf=np.ascontiguousarray(wide.boxes)),
+        "children": pcl.Buffer(ctx, flags, hostbuf=np.ascontiguousarray(wide.children)),
+        "blocks": pcl.Buffer(ctx, flags, hostbuf=np.ascontiguousarray(wide.blocks)),
+        "n_blocks": np.int32(len(wide.blocks)),
+        "lanes": lanes,
+        "block_first": wide.block_prim[:, 0],
+    }
+    if cache is not None:
+        cache[key] = dev
+    return dev
+
+
+def _kernels(runtime, dim: int, lanes: int, count_visits: bool = False) -> dict[str, Any]:
+    defines = {"DIM": dim, "BARY_EPS": f"{_bvh.BARY_EPS:.9g}f", "WIDTH": _bvh.WIDTH, "LANES": lanes,
+               "STACK_SIZE": _bvh.STACK_SIZE}
+    if count_visits:  # the debug variant of traversal_counts
+        defines["COUNT_VISITS"] = 1
+    return cl.build_kernels(runtime, "ao.cl", defines)
+
+
+def _pad4(a: np.ndarray) -> np.ndarray:
+    out = np.zeros((len(a), 4), dtype=np.float32)
+    out[:, : a.shape[1]] = a
+    return out
+
+
+def _trace_opencl(mesh, tree, runtime, origins, directions, max_distance, any_hit, accel, bar):
+    """Return (t float32, tree-order simplex or -1) per ray, launch by launch."""
+    import pyopencl as pcl
+
+    n = len(origins)
+    _check_device_memory(runtime, {"the rays": n * 32, "the ray results": n * 8})
+    ctx, queue = runtime.context, runtime.queue
+    mf = pcl.mem_flags
+    buf_o = pcl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=_pad4(origins))
+    buf_w = pcl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=_pad4(directions))
+    t = np.empty(n, dtype=np.float32)
+    hit = np.empty(n, dtype=np.int32)
+    buf_t = pcl.Buffer(ctx, mf.WRITE_ONLY, t.nbytes)
+    buf_h = pcl.Buffer(ctx, mf.WRITE_ONLY, hit.nbytes)
+    dev = _device_tree(mesh, tree, runtime)
+    kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast", accel)
+    args = head + [buf_o, buf_w, np.float32(max_distance), np.int32(any_hit), buf_t, buf_h]
+    for start in range(0, n, RAYS_PER_LAUNCH):
+        count = min(RAYS_PER_LAUNCH, n - start)
+        kernel(queue, (count,), None, *args, global_offset=(start,)).wait()
+        bar.update(count)
+    pcl.enqueue_copy(queue, t, buf_t)
+    pcl.enqueue_copy(queue, hit, buf_h)
+    queue.finish()
+    # kernels report LANES * leaf block + lane: map to tree-order simplices
+    safe = np.maximum(hit, 0)
+    lanes = dev["lanes"]
+    prim = np.where(hit >= 0, dev["block_first"][safe // lanes] + safe % lanes, -1)
+    return t, prim
+
+
+def _traversal_kernel(runtime, dim: int, dev: dict, name: str, accel: str, count_visits: bool = False):
+    """The ``{name}_bvh`` or ``{name}_brute`` kernel and its leading scene arguments."""
+    kernels = _kernels(runtime, dim, dev["lanes"], count_visits)
+    if accel == "bvh":
+        return kernels[f"{name}_bvh"], [dev["boxes"], dev["children"], dev["blocks"]]
+    return kernels[f"{name}_brute"], [dev["blocks"], dev["n_blocks"]]
+
+
+def _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_distance, accel, bar,
+               visits=None):
+    """Occluded-ray counts per point on the device (points Morton-sorted for coherence); with
+    ``visits`` ((N, 2) int64), the counting kernels fill it (see :func:`traversal_counts`)."""
+    import pyopencl as pcl
+
+    n = len(points)
+    _check_device_memory(runtime, {"the AO points": n * 36, "the AO results": n * 4})
+    order = _morton_order(points)
+    ctx, queue = runtime.context, runtime.queue
+    mf = pcl.mem_flags
+    ro = mf.READ_ONLY | mf.COPY_HOST_PTR
+    table = sobol_table(samples, tree.dim - 1, seed=seed)
+    buffers = [
+        pcl.Buffer(ctx, ro, hostbuf=_pad4(points[order])),
+        pcl.Buffer(ctx, ro, hostbuf=_pad4(normals[order])),
+        pcl.Buffer(ctx, ro, hostbuf=order.astype(np.uint32)),  # global index: same directions
+        pcl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(table)),
+    ]
+    counts = np.empty(n, dtype=np.int32)
+    buf_counts = pcl.Buffer(ctx, mf.WRITE_ONLY, counts.nbytes)
+    dev = _device_tree(mesh, tree, runtime)
+    kernel, head = _traversal_kernel(runtime, tree.dim, dev, "ao", accel, visits is not None)
+    args = head + buffers + [
+        np.int32(samples), np.uint32(seed & 0xFFFFFFFF), np.float32(offset),
+        np.float32(max_distance), buf_counts,
+    ]
+    if visits is not None:
+        counted = np.empty((n, 2), dtype=np.int32)
+        buf_visits = pcl.Buffer(ctx, mf.WRITE_ONLY, counted.nbytes)
+        args.append(buf_visits)
+    per_launch = max(1, RAYS_PER_LAUNCH // samples)
+    for start in range(0, n, per_launch):
+        count = min(per_launch, n - start)
+        kernel(queue, (count,), None, *args, global_offset=(start,)).wait()
+        bar.update(count * samples)
+    pcl.enqueue_copy(queue, counts, buf_counts)
+    if visits is not None:
+        pcl.enqueue_copy(queue, counted, buf_visits)
+        visits[order] = counted
+    queue.finish()
+    out = np.empty(n, dtype=np.int64)
+    out[order] = counts
+    return out
+
+
+def sample_directions(runtime, normals: np.ndarray, samples: int, seed: int) -> np.ndarray:
+    """The directions the AO kernel traces, computed on the device: (N, samples, d) float64.
+
+    For tests: they must equal :func:`ao4d.sampling.cosine_hemisphere` on the host.
+    """
+    import pyopencl as pcl
+
+    n, d = normals.shape
+    ctx, queue = runtime.context, runtime.queue
+    ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
+    out = np.empty((n * samples, 4), dtype=np.float32)
+    buf = pcl.Buffer(ctx, pcl.mem_flags.WRITE_ONLY, out.nbytes)
+    _kernels(runtime, d, _block_lanes(runtime))["sample_directions"](
+        queue, (n,), None,
+        pcl.Buffer(ctx, ro, hostbuf=_pad4(normals)),
+        pcl.Buffer(ctx, ro, hostbuf=np.arange(n, dtype=np.uint32)),
+        pcl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(sobol_table(samples, d - 1, seed=seed))),
+        np.int32(samples), np.uint32(seed & 0xFFFFFFFF), buf,
+    )
+    pcl.enqueue_copy(queue, out, buf)
+    queue.finish()
+    return out[:, :d].reshape(n, samples, d).astype(np.float64)
+
+
+# -- numpy side -------------------------------------------------------------------------------
+
+
+def _box_hits(lo, hi, o, inv_w, t_max):
+    """Slab test in float64 like ``hit_boxes`` in kernels/geometry.h (which keeps the inverse
+    direction finite instead; both are conservative for rays parallel to a slab)."""
+    with np.errstate(invalid="ignore"):
+        t0, t1 = (lo - o) * inv_w, (hi - o) * inv_w
+    # fmin/fmax skip the NaN of 0 * inf: the slab of a parallel ray counts as hit
+    t_near = np.fmax(np.fmax.reduce(np.fmin(t0, t1), axis=1), 0.0)
+    t_far = np.fmin(np.fmin.reduce(np.fmax(t0, t1), axis=1), t_max)
+    return t_near <= t_far
+
+
+def _leaf_pairs(rays: np.ndarray, meta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    first, count = -meta[:, 0] - 1, meta[:, 1]
+    ray = np.repeat(rays, count)
+    start = np.cumsum(count) - count
+    prim = np.repeat(first, count) + (np.arange(ray.size) - np.repeat(start, count))
+    return ray, prim
+
+
+def _record_hits(best, best_t, ray, prim, t, any_hit):
+    if any_hit:
+        best[ray], best_t[ray] = prim, t
+        return
+    order = np.lexsort((t, ray))
+    ray, prim, t = ray[order], prim[order], t[order]
+    first = np.ones(ray.size, dtype=bool)
+    first[1:] = ray[1:] != ray[:-1]
+    ray, prim, t = ray[first], prim[first], t[first]
+    closer = t <= best_t[ray]
+    best[ray[closer]], best_t[ray[closer]] = prim[closer], t[closer]
+
+
+def _trace_numpy_bvh(tree, o, w, max_distance, any_hit):
+    """Breadth-first traversal of (ray, node) pairs, vectorised over the whole frontier."""
+    d = tree.dim
+    n = len(o)
+    lo, hi = tree.lo[:, :d].astype(np.float64), tree.hi[:, :d].astype(np.float64)
+    with np.errstate(divide="ignore"):
+        inv_w = 1.0 / w
+    best = np.full(n, -1, dtype=np.int64)
+    best_t = np.full(n, max_distance)
+    ray, node = np.arange(n), np.zeros(n, dtype=np.int64)
+    while ray.size:
+        meta = tree.meta[node].astype(np.int64)
+        leaf = meta[:, 0] < 0
+        if leaf.any():
+            r, p = _leaf_pairs(ray[leaf], meta[leaf])
+            ok, t = _bvh.intersect(tree.inverse[p], tree.origin[p], o[r], w[r], best_t[r])
+            _record_hits(best, best_t, r[ok], p[ok], t[ok], any_hit)
+        r, m = ray[~leaf], meta[~leaf]
+        if any_hit:
+            live = best[r] < 0
+            r, m = r[live], m[live]
+        r = np.concatenate([r, r])
+        c = np.concatenate([m[:, 0], m[:, 1]])
+        keep = _box_hits(lo[c], hi[c], o[r], inv_w[r], best_t[r])
+        ray, node = r[keep], c[keep]
+    return best_t, best
+
+
+def _trace_numpy_brute(tree, o, w, max_distance, any_hit, block=64):
+    n = len(o)
+    best = np.full(n, -1, dtype=np.int64)
+    best_t = np.full(n, max_distance)
+    for start in range(0, tree.n_prims, block):
+        prims = np.arange(start, min(start + block, tree.n_prims))
+        r = np.repeat(np.arange(n), prims.size)
+        p = np.tile(prims, n)
+        ok, t = _bvh.intersect(tree.inverse[p], tree.origin[p], o[r], w[r], best_t[r])
+        _record_hits(best, best_t, r[ok], p[ok], t[ok], any_hit)
+    return best_t, best
+
+
+def _trace_numpy(tree, origins, directions, max_distance, any_hit, accel, bar):
+    n = len(origins)
+    t = np.empty(n)
+    hit = np.empty(n, dtype=np.int64)
+    trace = _trace_numpy_bvh if accel == "bvh" else _trace_numpy_brute
+    for start in range(0, n, _NUMPY_RAYS_PER_STEP):
+        sl = slice(start, min(n, start + _NUMPY_RAYS_PER_STEP))
+        t[sl], hit[sl] = trace(tree, origins[sl], directions[sl], max_distance, any_hit)
+        bar.update(sl.stop - sl.start)
+    return t, hit
+
+
+def _ao_numpy(tree, points, normals, samples, seed, offset, max_distance, accel, bar):
+    n = len(points)
+    counts = np.empty(n, dtype=np.int64)
+    per_step = max(1, _NUMPY_RAYS_PER_STEP // samples)
+    for start in range(0, n, per_step):
+        sl = slice(start, min(n, start + per_step))
+        w = cosine_hemisphere(normals[sl], samples, seed=seed, index_offset=start)
+        o = points[sl] + offset * normals[sl]
+        o = np.repeat(o, samples, axis=0)
+        _, hit = _trace_numpy(
+            tree, o, w.reshape(-1, tree.dim), max_distance, True, accel, _NullBar()
+        )
+        counts[sl] = (hit.reshape(-1, samples) >= 0).sum(1)
+        bar.update((sl.stop - sl.start) * samples)
+    return counts
+
+
+class _NullBar:
+    def update(self, n: int) -> None:
+        pass
+
+
+# -- public API -------------------------------------------------------------------------------
+
+
+def cast_rays(
+    mesh: Any,
+    origins: Any,
+    directions: Any,
+    *,
+    max_distance: float = math.inf,
+    closest: bool = True,
+    backend: str = "auto",
+    accel: str = "bvh",
+    progress: bool | None = None,
+) -> RayHits:
+    """Intersect rays with a simplex mesh: closest hit, or any hit.
+
+    Parameters
+    ----------
+    mesh : SimplexMesh
+        A mesh in R^d, d in {2, 3, 4}. Its BVH is built on first use and cached on it.
+    origins : (N, d) array_like of float
+    directions : (N, d) array_like of float
+        Normalised here; zero-length directions are an error.
+    max_distance : float
+        Hits count for ``0 < t <= max_distance``.
+    closest : bool
+        ``True``: the nearest hit. ``False``: any hit within ``max_distance`` (faster, for
+        shadow/occlusion rays; ``t`` and ``simplex`` belong to some hit, not the nearest).
+    backend : {"auto", "opencl", "numpy"}
+        ``"auto"`` uses OpenCL when a device works, else numpy.
+    accel : {"bvh", "brute"}
+        ``"brute"`` tests every simplex (for checks and benchmarks; gives the same answer).
+    progress : bool, optional
+        Show a tqdm bar (default: only for more than ~4M rays).
+
+    Returns
+    -------
+    RayHits
+        ``t`` (N,) float64, ``simplex`` (N,) int64 (-1 on a miss), ``barycentric`` (N, d) float64.
+        Distances and weights of hits are recomputed in float64 on the hit simplex.
+
+    Examples
+    --------
+    >>> import ao4d
+    >>> tri = ao4d.SimplexMesh([[0, 0, 1], [1, 0, 1], [0, 1, 1]], [[0, 1, 2]])
+    >>> hits = cast_rays(tri, [[0.2, 0.2, 0]], [[0, 0, 1]], backend="numpy")
+    >>> float(hits.t[0]), int(hits.simplex[0])
+    (1.0, 0)
+    """
+    vertices, _ = mesh_arrays(mesh)
+    d = vertices.shape[1]
+    origins = as_array(origins, "origins", ndim=2, shape_tail=(d,), dtype=np.float64, finite=True)
+    directions = as_array(
+        directions, "directions", ndim=2, shape_tail=(d,), dtype=np.float64, finite=True
+    )
+    if len(origins) != len(directions):
+        raise ValueError(
+            f"`origins` and `directions` must have the same length, got {len(origins)} and {len(directions)}"
+        )
+    directions = unit_rows(directions, "directions")
+    max_distance = check_distance(max_distance)
+    closest = check_bool(closest, "closest")
+    check_choice(accel, "accel", ACCELS)
+    runtime = cl.resolve_backend(backend)
+    n = len(origins)
+    if n == 0:  # OpenCL refuses buffers of zero bytes
+        return RayHits(t=np.zeros(0), simplex=np.zeros(0, dtype=np.int64), barycentric=np.zeros((0, d)))
+    tree = get_bvh(mesh, runtime=runtime)
+    with progress_bar(progress, n, "rays") as bar:
+        if runtime is not None:
+            _, hit = _trace_opencl(mesh, tree, runtime, origins, directions, max_distance, not closest, accel, bar)
+        else:
+            check_memory(n * 64.0, "the numpy ray arrays")
+            _, hit = _trace_numpy(tree, origins, directions, max_distance, not closest, accel, bar)
+    return _refine_hits(tree, origins, directions, hit)
+
+
+def _refine_hits(tree, origins, directions, hit) -> RayHits:
+    """Distances and barycentrics of the hits, recomputed in float64."""
+    n, d = origins.shape
+    t = np.full(n, np.inf)
+    simplex = np.full(n, -1, dtype=np.int64)
+    bary = np.zeros((n, d))
+    rows = np.flatnonzero(hit >= 0)
+    p = hit[rows].astype(np.int64)
+    inv, origin = tree.frames(p)
+    nrow = inv[:, -1, :]
+    o, w = origins[rows], directions[rows]
+    t_hit = -np.einsum("pk,pk->p", nrow, o - origin) / np.einsum("pk,pk->p", nrow, w)
+    t[rows] = t_hit
+    simplex[rows] = tree.prim[p]
+    bary[rows] = _bvh.barycentric(inv, origin, o + t_hit[:, None] * w)
+    return RayHits(t=t, simplex=simplex, barycentric=bary)
+
+
+def count_occluded(
+    mesh: Any,
+    points: np.ndarray,
+    normals: np.ndarray,
+    *,
+    samples: int,
+    seed: int,
+    offset: float,
+    max_distance: float,
+    runtime: Any,
+    accel: str = "bvh",
+    bar: Any = None,
+) -> np.ndarray:
+    """Per point, how many of ``samples`` cosine-weighted rays hit ``mesh`` (any hit).
+
+    The rays start at ``point + offset * normal``; their directions come from
+    :func:`ao4d.sampling.cosine_hemisphere` (on the device the same ones are generated in the
+    kernel). No validation: :func:`ao4d.ao.ambient_occlusion` checks the inputs.
+
+    Parameters
+    ----------
+    mesh : SimplexMesh
+    points, normals : (N, d) float64
+        Unit normals.
+    samples, seed : int
+    offset, max_distance : float
+    runtime : ao4d.cl.Runtime or None
+        The OpenCL device, or None for the numpy traversal.
+    accel : {"bvh", "brute"}
+    bar : tqdm-like, optional
+        Updated with the number of rays traced.
+
+    Returns
+    -------
+    counts : (N,) int64
+    """
+    tree = get_bvh(mesh, runtime=runtime)
+    bar = _NullBar() if bar is None else bar
+    if len(points) == 0:
+        return np.zeros(0, dtype=np.int64)
+    if runtime is not None:
+        return _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_distance, accel, bar)
+    return _ao_numpy(tree, points, normals, samples, seed, offset, max_distance, accel, bar)
+
+
+def traversal_counts(
+    mesh: Any,
+    points: np.ndarray,
+    normals: np.ndarray,
+    *,
+    samples: int,
+    offset: float,
+    runtime: Any,
+    seed: int = 0,
+    max_distance: float = math.inf,
+) -> tuple[float, float]:
+    """Wide nodes visited and leaf blocks tested per AO ray, on average (tree quality).
+
+    Traces the rays of :func:`count_occluded` with a debug build of the kernels
+    (``-D COUNT_VISITS``), which also counts, and returns ``(nodes per ray, blocks per ray)``.
+    """
+    tree = get_bvh(mesh, runtime=runtime)
+    if len(points) == 0:
+        return math.nan, math.nan
+    visits = np.zeros((len(points), 2), dtype=np.int64)
+    _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_distance, "bvh",
+               _NullBar(), visits=visits)
+    rays = len(points) * samples
+    return float(visits[:, 0].sum()) / rays, float(visits[:, 1].sum()) / rays

@@ -1,0 +1,96 @@
+"""Run every OpenCL kernel of ao4d on tiny scenes; tests/test_oclgrind.py runs this under Oclgrind.
+
+Prints one line per check and ``kernels run: ...``; exits non-zero when an answer is wrong. The
+device comes from ``AO4D_DEVICE`` (the test selects Oclgrind's simulator); answers are checked
+against brute force on the same device and against the numpy backend.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pyopencl as pcl
+
+import ao4d
+from ao4d import bvh, bvh_build, cl, raycast
+
+ran: set[str] = set()
+
+
+def _patch() -> None:
+    """Side effects of the check, applied in main() only (pytest's doctest collection imports
+    this file): only the device under test (Intel's CPU runtime, which ao4d would add, carries
+    its own LLVM, and two LLVMs in one process crash Oclgrind's compiler), and a record of every
+    kernel enqueued."""
+    cl._icd_library_candidates = lambda: []
+    call = pcl.Kernel.__call__
+
+    def recording_call(self, *args, **kwargs):
+        ran.add(self.function_name)
+        return call(self, *args, **kwargs)
+
+    pcl.Kernel.__call__ = recording_call
+
+
+def soup(rng, d, n):
+    centres = rng.uniform(-1, 1, size=(n, 1, d))
+    vertices = (centres + 0.4 * rng.normal(size=(n, d, d))).reshape(-1, d)
+    simplices = np.arange(n * d).reshape(n, d)
+    simplices[:3, 1] = simplices[:3, 0]  # degenerate: skipped
+    simplices[3:9] = simplices[9]  # duplicates: flat centroids, no SAH split
+    return ao4d.SimplexMesh(vertices, simplices)
+
+
+def check(name: str, ok: bool) -> None:
+    print(f"{'ok ' if ok else 'BAD'} {name}", flush=True)
+    if not ok:
+        sys.exit(1)
+
+
+def main() -> int:
+    _patch()
+    runtime = cl.get_runtime(warn=False)
+    if runtime is None:
+        print("no OpenCL device", file=sys.stderr)
+        return 2
+    print(f"device: {runtime.name}", flush=True)
+    rng = np.random.default_rng(0)
+    x = np.arange(8, dtype=np.float32)
+    buf = pcl.Buffer(runtime.context, pcl.mem_flags.READ_WRITE | pcl.mem_flags.COPY_HOST_PTR, hostbuf=x)
+    cl.build_kernels(runtime, "selftest.cl", {"SCALE": 3})["scale_add"](runtime.queue, (8,), None, buf, np.float32(1))
+    out = np.empty_like(x)
+    pcl.enqueue_copy(runtime.queue, out, buf)
+    check("selftest scale_add", np.array_equal(out, 3 * x + 1))
+    for d in (2, 3, 4):
+        mesh = soup(rng, d, 60)
+        host = bvh.build(mesh.vertices, mesh.simplices)
+        # small subtrees and chunks: the level passes and the per-work-item subtrees both run
+        tree = bvh_build.build(mesh.vertices, mesh.simplices, runtime=runtime, subtree=32, chunk=16)
+        check(f"{d}D device tree holds every kept simplex",
+              sorted(tree.prim.tolist()) == sorted(host.prim.tolist()) and tree.n_skipped == 3)
+        mesh.cache[f"ao4d.bvh/device/leaf={16}"] = tree
+        o = rng.uniform(-1.2, 1.2, size=(48, d))
+        w = rng.normal(size=(48, d))
+        w[::3, 0] = 0.0  # exact zero components
+        for closest in (True, False):
+            fast = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl")
+            slow = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel="brute")
+            ref = raycast.cast_rays(mesh, o, w, closest=closest, backend="numpy")
+            check(f"{d}D cast closest={closest}: BVH equals brute force",
+                  np.array_equal(fast.hit, slow.hit) and (not closest or np.array_equal(fast.t, slow.t)))
+            check(f"{d}D cast closest={closest}: near numpy", np.mean(fast.hit == ref.hit) >= 0.95)
+        p, n = o[:6], w[:6] / np.linalg.norm(w[:6], axis=1, keepdims=True)
+        a = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=8, backend="opencl")
+        b = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=8, backend="opencl", accel="brute")
+        check(f"{d}D AO: BVH equals brute force", np.array_equal(a, b))
+        nodes, blocks = raycast.traversal_counts(mesh, p, n, samples=8, offset=0.0, runtime=runtime)
+        check(f"{d}D traversal counts", nodes >= 1.0 and 0.0 <= blocks)
+        dirs = raycast.sample_directions(runtime, n, 8, 0)
+        check(f"{d}D sample directions are unit", np.allclose(np.linalg.norm(dirs, axis=2), 1, atol=1e-5))
+    print("kernels run: " + " ".join(sorted(ran)), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

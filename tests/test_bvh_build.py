@@ -1,0 +1,278 @@
+"""The BVH built by OpenCL kernels (ao4d.bvh_build) against the numpy builder and brute force.
+
+Structure, bounds, degenerate simplices and bad input are checked for both builders in
+tests/test_bvh.py (fixture ``build_bvh``), the numpy traversal of both trees in
+tests/test_raycast.py. Here: per-simplex data equal to the host's bit for bit, OpenCL hits equal
+to brute force with the device tree and with the host tree, identical AO, tree quality (SAH
+cost), independence of the work decomposition, and the cache on the mesh.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import ao4d
+from _scenes import random_rays, random_soup, soup_scene, sphere_over_ground
+from ao4d import bvh, bvh_build, raycast
+
+DIMS = (2, 3, 4)
+
+
+def has_double(runtime) -> bool:
+    return bvh_build._has_double(runtime.device)
+
+
+def extracted(d: int, n: int) -> ao4d.SimplexMesh:
+    """A closed surface extracted from a field: a sphere in 3D, a spheritorus in 4D."""
+    if d == 3:
+        return ao4d.extract_field(lambda p: np.linalg.norm(p, axis=-1) - 0.8, (n, n, n), (-1.0, 1.0))
+    field = ao4d.fields.spheritorus(1.0, 0.4)
+    return ao4d.extract_field(field, (n, n, n, max(6, n // 3)), ((-1.5, -1.5, -1.5, -0.5), (1.5, 1.5, 1.5, 0.5)))
+
+
+def device_blocks(runtime, tree, lanes):
+    import pyopencl as pcl
+
+    dev = bvh_build.device_wide_tree(tree, runtime, lanes)
+    blocks = np.empty((int(dev["n_blocks"]), tree.dim + 1, tree.dim, lanes), dtype=np.float32)
+    pcl.enqueue_copy(runtime.queue, blocks, dev["blocks"])
+    runtime.queue.finish()
+    return dev, blocks
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("lanes", [16, 4])
+def test_leaf_blocks_filled_on_the_device_equal_the_host_widening(d, lanes, cl_runtime):
+    # the kernels repeat the host's float64 operations: every lane of every block is bit-equal
+    # to bvh.widen's (which rounds the host's float64 inverse to float32)
+    if not has_double(cl_runtime):
+        pytest.skip("the device has no double precision: its inverses are float32 computations")
+    rng = np.random.default_rng(10 + d)
+    vertices, simplices = random_soup(rng, d, 1500)
+    tree = bvh_build.build(vertices, simplices, runtime=cl_runtime, subtree=128, chunk=64)
+    dev, blocks = device_blocks(cl_runtime, tree, lanes)
+    wide = bvh.widen(tree, lanes)  # host widening of the same tree, from the host's float64 data
+    np.testing.assert_array_equal(blocks, wide.blocks)
+    np.testing.assert_array_equal(dev["block_first"], wide.block_prim[:, 0])
+    host = bvh.build(vertices, simplices)
+    where = np.argsort(host.prim)[tree.prim]  # the host tree's position of each simplex
+    np.testing.assert_array_equal(tree.inverse, host.inverse[where])
+    np.testing.assert_array_equal(tree.origin, host.origin[where])
+    inv, org = tree.frames(np.array([5, 0, 17]))
+    np.testing.assert_array_equal(inv, host.inverse[where[[5, 0, 17]]])
+    np.testing.assert_array_equal(org, host.origin[where[[5, 0, 17]]])
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_boxes_equal_the_host_boxes_of_their_simplices(d, cl_runtime):
+    # with leaf_size=1 every host leaf box is one simplex's box (margins, outward rounding);
+    # a device node's box must be exactly the union of its simplices' host boxes
+    if not has_double(cl_runtime):
+        pytest.skip("the device has no double precision: boxes are float32 computations")
+    rng = np.random.default_rng(20 + d)
+    vertices, simplices = random_soup(rng, d, 800)
+    host = bvh.build(vertices, simplices, leaf_size=1)
+    leaf = host.meta[:, 0] < 0
+    box_lo = np.empty((host.n_prims, 4), dtype=np.float32)
+    box_hi = np.empty((host.n_prims, 4), dtype=np.float32)
+    simplex = host.prim[-host.meta[leaf, 0] - 1]
+    box_lo[simplex], box_hi[simplex] = host.lo[leaf], host.hi[leaf]
+    tree = bvh_build.build(vertices, simplices, runtime=cl_runtime, subtree=64, chunk=32)
+    for k, (a, b) in enumerate(tree.meta):
+        if a < 0:
+            ids = tree.prim[-a - 1 : -a - 1 + b]
+            np.testing.assert_array_equal(tree.lo[k], box_lo[ids].min(0))
+            np.testing.assert_array_equal(tree.hi[k], box_hi[ids].max(0))
+    assert tree.diagonal == host.diagonal
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_work_decomposition_does_not_change_the_tree(d, cl_runtime):
+    # subtree/chunk sizes follow the device (GPUs get small ones); the tree must not: the
+    # level passes over large nodes and the per-work-item subtrees choose the same splits
+    rng = np.random.default_rng(30 + d)
+    vertices, simplices = random_soup(rng, d, 3000, size=0.05)
+    trees = [
+        bvh_build.build(vertices, simplices, runtime=cl_runtime, subtree=s, chunk=c)
+        for s, c in ((None, None), (32, 16), (256, 1000), (4096, 256))
+    ]
+    for other in trees[1:]:
+        for name in ("lo", "hi", "meta", "prim"):
+            np.testing.assert_array_equal(getattr(other, name), getattr(trees[0], name))
+        assert other.depth == trees[0].depth
+    again = bvh_build.build(vertices, simplices, runtime=cl_runtime, subtree=32, chunk=16)
+    np.testing.assert_array_equal(again.meta, trees[1].meta)  # deterministic despite atomics
+
+
+@pytest.mark.parametrize("d", (3, 4))
+def test_sah_cost_is_no_worse_than_the_host_tree(d, cl_runtime):
+    mesh = extracted(d, 20 if d == 4 else 40)
+    host = bvh.build(mesh.vertices, mesh.simplices)
+    tree = bvh_build.build(mesh.vertices, mesh.simplices, runtime=cl_runtime)
+    assert tree.n_prims == host.n_prims > 5000
+    # the same binned SAH without rounding left sides to whole leaves: at most a few % worse
+    # (measured: 40% lower on the benchmark's spheritorus, whose AO then runs 6-15% faster)
+    assert bvh_build.sah_cost(tree) <= 1.03 * bvh_build.sah_cost(host)
+    assert tree.depth <= bvh._SAH_MAX_LEVEL + np.log2(tree.n_prims) + 1
+
+
+def test_sah_cost_of_a_two_leaf_tree():
+    # two unit squares' diagonals far apart in 3D: root box area A, leaf boxes a each
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [9, 0, 0], [10, 0, 0], [9, 1, 0]], float)
+    tree = bvh.build(v, [[0, 1, 2], [3, 4, 5]], leaf_size=1)
+    assert tree.n_nodes == 3
+    d = 3
+    area = bvh._box_area(tree.lo[:, :d].astype(float), tree.hi[:, :d].astype(float))
+    expected = (2.0 * area[0] + 3.0 * (area[1] + area[2])) / area[0]
+    assert bvh_build.sah_cost(tree, traversal=2.0, intersection=3.0) == pytest.approx(expected, rel=1e-12)
+    # about the analytic value: each leaf a flat 1 x 1 box, the root 10 x 1 (margins aside)
+    assert bvh_build.sah_cost(tree) == pytest.approx(1 + 2 * (2 * 1) / (2 * 10), rel=1e-3)
+
+
+def test_flat_centroids_and_duplicates(cl_runtime):
+    # 300 copies of one triangle: every centroid equal, no SAH split exists; halves instead
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    simplices = np.tile([0, 1, 2], (300, 1))
+    for subtree in (None, 32):
+        tree = bvh_build.build(v, simplices, runtime=cl_runtime, subtree=subtree, chunk=16)
+        assert sorted(tree.prim.tolist()) == list(range(300))
+        leaves = tree.meta[tree.meta[:, 0] < 0]
+        assert leaves[:, 1].max() <= 16 and leaves[:, 1].sum() == 300
+    mesh = ao4d.SimplexMesh(v, simplices)
+    raycast.get_bvh(mesh, builder="device", runtime=cl_runtime)
+    hits = raycast.cast_rays(mesh, [[0.2, 0.2, -1.0], [0.9, 0.9, -1]], [[0, 0, 1], [0, 0, 1]], backend="opencl")
+    assert hits.simplex[0] >= 0 and hits.simplex[1] == -1
+    assert hits.t[0] == pytest.approx(1.0)
+
+
+def test_all_degenerate_and_bad_parameters(cl_runtime):
+    with pytest.raises(ValueError, match="all 2 simplices are degenerate"):
+        bvh_build.build(np.eye(3), [[0, 1, 1], [2, 2, 2]], runtime=cl_runtime)
+    with pytest.raises(ValueError, match="`subtree`"):
+        bvh_build.build(np.eye(3), [[0, 1, 2]], runtime=cl_runtime, subtree=4)
+    with pytest.raises(ValueError, match="`chunk`"):
+        bvh_build.build(np.eye(3), [[0, 1, 2]], runtime=cl_runtime, chunk=0)
+    with pytest.raises(ValueError, match="`builder` must be one of"):
+        raycast.get_bvh(ao4d.SimplexMesh(np.eye(3), [[0, 1, 2]]), builder="gpu")
+
+
+# -- tracing both trees -----------------------------------------------------------------------
+
+
+def mesh_with_tree(mesh, builder, runtime):
+    """A fresh copy of ``mesh`` whose cached tree comes from ``builder``."""
+    fresh = ao4d.SimplexMesh(mesh.vertices, mesh.simplices)
+    raycast.get_bvh(fresh, builder=builder, runtime=runtime)
+    return fresh
+
+
+@pytest.mark.parametrize("d", (3, 4))
+@pytest.mark.parametrize("lanes", [16, 4])  # CPUs, GPUs (raycast._block_lanes)
+def test_both_trees_give_brute_force_hits_and_the_same_ao(d, lanes, cl_runtime, monkeypatch):
+    monkeypatch.setattr(raycast, "_block_lanes", lambda runtime: lanes)
+    rng = np.random.default_rng(40 + d)
+    scene = soup_scene(rng, d, n=600)
+    o, w = random_rays(rng, d, 4000)
+    ground = sphere_over_ground(rng, d)
+    results = {}
+    for builder in ("host", "device"):
+        mesh = mesh_with_tree(scene, builder, cl_runtime)
+        assert isinstance(raycast.get_bvh(mesh), bvh_build.DeviceBVH) == (builder == "device")
+        for closest in (True, False):
+            fast = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl")
+            slow = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel="brute")
+            np.testing.assert_array_equal(fast.hit, slow.hit)
+            assert 0.05 < fast.hit.mean() < 0.95
+            if closest:
+                np.testing.assert_array_equal(fast.t, slow.t)
+                results[builder] = fast
+        shaded = mesh_with_tree(ground, builder, cl_runtime)
+        results[builder + " ao"] = ao4d.ambient_occlusion(shaded, samples=32, backend="opencl")
+    np.testing.assert_array_equal(results["host"].t, results["device"].t)
+    np.testing.assert_array_equal(results["host"].hit, results["device"].hit)
+    a, b = results["host ao"], results["device ao"]
+    np.testing.assert_array_equal(a, b)  # bit-equal leaf data, exact trees: identical AO
+    assert 0.05 < np.nanmean(a) < 0.95
+
+
+@pytest.mark.parametrize("d", (3, 4))
+def test_numpy_backend_traces_a_device_tree(d, cl_runtime):
+    # a device-built tree computes its float64 frames on the host when the numpy traversal needs them
+    rng = np.random.default_rng(50 + d)
+    mesh = mesh_with_tree(soup_scene(rng, d), "device", cl_runtime)
+    o, w = random_rays(rng, d, 500)
+    numpy_hits = raycast.cast_rays(mesh, o, w, backend="numpy")
+    host_hits = raycast.cast_rays(mesh_with_tree(mesh, "host", None), o, w, backend="numpy")
+    np.testing.assert_array_equal(numpy_hits.simplex, host_hits.simplex)
+    np.testing.assert_array_equal(numpy_hits.t, host_hits.t)
+
+
+def test_tree_is_built_once_and_reused_by_render(cl_runtime, monkeypatch):
+    builds = []
+    real_build = bvh_build.build
+
+    def counting(*args, **kwargs):
+        builds.append(1)
+        return real_build(*args, **kwargs)
+
+    monkeypatch.setattr(bvh_build, "build", counting)
+    monkeypatch.setattr(bvh, "build", lambda *a, **k: pytest.fail("the host builder ran"))
+    rng = np.random.default_rng(60)
+    mesh = sphere_over_ground(rng, 4)
+    ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
+    assert len(builds) == 1
+    tree = raycast.get_bvh(mesh)
+    assert isinstance(tree, bvh_build.DeviceBVH)
+    camera = ao4d.Camera4D(eye=(0, -3, 1, 0), target=(0, 0, 0.3, 0), up=(0, 0, 1, 0), over=(0, 0, 0, 1))
+    ao4d.render(mesh, camera, (8, 8, 4), ao="vertices", backend="opencl")
+    ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
+    raycast.cast_rays(mesh, [[0, 0, 3, 0]], [[0, 0, -1, 0]], backend="opencl")
+    assert len(builds) == 1 and raycast.get_bvh(mesh) is tree
+    mesh.vertices = mesh.vertices * 2.0  # an edited mesh drops its tree
+    ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
+    assert len(builds) == 2
+
+
+def test_numpy_backend_builds_on_the_host(monkeypatch):
+    monkeypatch.setattr(bvh_build, "build", lambda *a, **k: pytest.fail("the device builder ran"))
+    mesh = soup_scene(np.random.default_rng(70), 3, n=50)
+    ao4d.ambient_occlusion(mesh, samples=4, backend="numpy")
+    assert not isinstance(raycast.get_bvh(mesh), bvh_build.DeviceBVH)
+
+
+def test_traversal_counts_of_a_one_leaf_tree(cl_runtime):
+    # one triangle: the wide tree is a root with one leaf slot, so every ray visits one node and
+    # tests the leaf block iff it meets the triangle's box; rays away from it test none
+    mesh = ao4d.SimplexMesh([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], [[0, 1, 2]])
+    raycast.get_bvh(mesh, runtime=cl_runtime)
+    up = np.tile([0.0, 0.0, 1.0], (50, 1))
+    points = np.column_stack([np.zeros((50, 2)), np.ones(50)])
+    nodes, blocks = raycast.traversal_counts(mesh, points, up, samples=16, offset=0.0, runtime=cl_runtime)
+    assert (nodes, blocks) == (1.0, 0.0)
+    nodes, blocks = raycast.traversal_counts(mesh, points, -up, samples=64, offset=0.0, runtime=cl_runtime)
+    occluded = ao4d.ambient_occlusion(mesh, points=points, normals=-up, samples=64, backend="opencl")
+    assert nodes == 1.0
+    assert occluded.mean() <= blocks <= 1.0  # every hit tested the block; so did near misses
+    assert 0.2 < occluded.mean() < 0.9
+
+
+@pytest.mark.parametrize("d", (3, 4))
+def test_single_precision_devices(d, cl_runtime, monkeypatch):
+    # devices without cl_khr_fp64 compute the per-simplex data in float: the tree must still
+    # answer exactly as brute force over its own leaf blocks, and AO stay near the host tree's
+    monkeypatch.setattr(bvh_build, "_has_double", lambda device: False)
+    rng = np.random.default_rng(80 + d)
+    scene = soup_scene(rng, d, n=400)
+    mesh = mesh_with_tree(scene, "device", cl_runtime)
+    o, w = random_rays(rng, d, 3000)
+    fast = raycast.cast_rays(mesh, o, w, backend="opencl")
+    slow = raycast.cast_rays(mesh, o, w, backend="opencl", accel="brute")
+    np.testing.assert_array_equal(fast.hit, slow.hit)
+    np.testing.assert_array_equal(fast.t, slow.t)
+    host = raycast.cast_rays(mesh_with_tree(scene, "host", None), o, w, backend="opencl")
+    assert (fast.hit != host.hit).mean() <= 1e-3  # float32 inverses: only grazing rays differ
+    ground = sphere_over_ground(rng, d)
+    a = ao4d.ambient_occlusion(mesh_with_tree(ground, "device", cl_runtime), samples=32, backend="opencl")
+    b = ao4d.ambient_occlusion(mesh_with_tree(ground, "host", None), samples=32, backend="opencl")
+    assert np.mean(a == b) >= 0.97 and np.nanmax(np.abs(a - b)) <= 2 / 32

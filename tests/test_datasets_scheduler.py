@@ -1,0 +1,160 @@
+"""datasets_gen on dask.distributed (``--scheduler``): the same bytes as a one-process run, also
+when a worker is killed mid-item or the client is killed and rerun."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from datasets_gen import run
+from datasets_gen import runner as runner_mod
+
+distributed = pytest.importorskip("distributed", reason="distributed is a dependency of ao4d")
+
+from test_datasets_gen import TINY  # noqa: E402  (the suite's tiny config: a few seconds)
+
+# TINY with somewhat heavier items (finer grids, more AO samples: 0.3 to 1.3 s each here), so
+# that a worker can be caught in the middle of one
+CONFIG = TINY.replace('name = "tiny"', 'name = "tiny14"').replace("grid = 10", "grid = 14").replace(
+    "samples = 4", "samples = 8")
+
+
+def _manifest(out: Path) -> bytes:
+    return (out / "manifest.json").read_bytes()
+
+
+@pytest.fixture(scope="module")
+def config(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cfg") / "tiny14.toml"
+    path.write_text(CONFIG, encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="module")
+def reference(config, tmp_path_factory):
+    """A one-process (``workers=1``) run: the bytes every distributed run must reproduce."""
+    out = tmp_path_factory.mktemp("ref") / "run"
+    summary = run(config, out, progress=False)
+    assert summary.made == 5 and not summary.failed, summary
+    return out
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """Two worker processes of one thread, shared by the tests of this module."""
+    from distributed import LocalCluster
+
+    from ao4d.blockwise import worker_environment
+
+    with worker_environment():
+        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                               dashboard_address=":0")
+    with cluster:
+        yield cluster
+
+
+def test_local_cluster_manifest_equals_one_process(config, reference, tmp_path, capsys):
+    out = tmp_path / "run"
+    assert runner_mod.main([str(config), "--out", str(out), "--scheduler", "local:2",
+                            "--no-progress"]) == 0
+    assert "5 made, 0 skipped (already complete), 0 failed of 5" in capsys.readouterr().out
+    assert _manifest(out) == _manifest(reference)
+    # the workers wrote nothing here but the client did: no scratch folders, no temp files left
+    assert not [p for p in (tmp_path / "run").rglob(".*")]
+
+
+def test_scheduler_address_and_resume(config, reference, cluster, tmp_path, capsys):
+    out = tmp_path / "run"
+    summary = run(config, out, scheduler=cluster.scheduler_address, progress=False)
+    assert (summary.made, summary.failed) == (5, {})
+    assert _manifest(out) == _manifest(reference)
+    items = out / "items"
+    (items / "00001" / "record.json").unlink()  # interrupted before its record
+    (items / "00002" / "mesh.npz").write_bytes(b"truncated")  # damaged after its record
+    (items / "00004" / ".view.png.abc.tmp.png").write_bytes(b"")  # stray temp file
+    summary = run(config, out, scheduler=cluster.scheduler_address, progress=False)
+    assert (summary.made, summary.skipped) == (2, 3)
+    assert _manifest(out) == _manifest(reference)
+
+
+def _executing(client) -> dict[str, list[str]]:
+    """Worker address -> keys of the item tasks it is running right now."""
+    return client.run(lambda dask_worker: [str(ts.key) for ts in dask_worker.state.executing
+                                           if "datasets_gen-item" in str(ts.key)])
+
+
+def test_worker_killed_mid_item_loses_nothing(config, reference, cluster, tmp_path):
+    from distributed import Client
+
+    out = tmp_path / "run"
+    result: dict = {}
+    thread = threading.Thread(target=lambda: result.setdefault(
+        "summary", run(config, out, scheduler=cluster.scheduler_address, progress=False)))
+    with Client(cluster) as client:
+        pids = client.run(os.getpid)
+        thread.start()
+        victim = key = None
+        deadline = time.monotonic() + 120
+        while victim is None and thread.is_alive() and time.monotonic() < deadline:
+            for worker, keys in _executing(client).items():
+                if keys:  # running now: kill its worker at once
+                    victim, key = worker, keys[0]
+                    break
+            time.sleep(0.005)
+        assert victim is not None, "no item was seen running on a worker"
+        os.kill(pids[victim], signal.SIGKILL)  # a worker process this test's cluster started
+        thread.join(timeout=300)
+        assert not thread.is_alive()
+        story = client.run_on_scheduler(
+            lambda dask_scheduler, key=key: [t[2] for t in dask_scheduler.story(key) if len(t) > 2])
+    summary = result["summary"]
+    assert (summary.made, summary.failed) == (5, {}), summary
+    # the killed worker's item was started again elsewhere, and nothing differs
+    assert story.count("processing") >= 2, story
+    assert _manifest(out) == _manifest(reference)
+    index = int(key.split("-")[2])
+    record = json.loads((out / "items" / f"{index:05d}" / "record.json").read_text())
+    assert record["index"] == index
+
+
+@pytest.mark.slow  # a second process importing ao4d; the resume itself is tested above
+def test_killed_client_resumes(config, reference, cluster, tmp_path):
+    out = tmp_path / "run"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "datasets_gen", str(config), "--out", str(out),
+                             "--scheduler", cluster.scheduler_address, "--no-progress"], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    records = out / "items"
+    deadline = time.monotonic() + 120
+    while proc.poll() is None and time.monotonic() < deadline and not list(records.glob("*/record.json")):
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    done = len(list(records.glob("*/record.json")))
+    assert 1 <= done < 5
+    summary = run(config, out, scheduler=cluster.scheduler_address, progress=False)
+    assert summary.skipped >= done and summary.made + summary.skipped == 5 and not summary.failed
+    assert _manifest(out) == _manifest(reference)
+
+
+def test_scheduler_errors(config, tmp_path, capsys):
+    with pytest.raises(ValueError, match="`scheduler` 'local:N' needs a worker count"):
+        run(config, tmp_path / "a", scheduler="local:0")
+    with pytest.raises(ValueError, match="`scheduler`"):
+        run(config, tmp_path / "b", scheduler="local:two")
+    with pytest.raises(ValueError, match="not both"):
+        run(config, tmp_path / "c", scheduler="local:2", workers=2)
+    import dask
+
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        assert runner_mod.main([str(config), "--out", str(tmp_path / "d"), "--scheduler",
+                                "tcp://127.0.0.1:9", "--no-progress"]) == 2
+    assert "cannot reach the dask scheduler" in capsys.readouterr().err

@@ -1,0 +1,146 @@
+"""Tests for the package as a whole (ao4d/__init__.py): lazy exports and the shape of the house.
+
+No module imports another in a cycle (function-level imports included: a lazy import only hides
+a cycle), no module is also a function, no module shares a name with the standard library or a
+well-known library, and every public module imports first in a fresh interpreter.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import pytest
+
+import ao4d
+
+PACKAGE = Path(ao4d.__file__).parent
+MODULES = sorted(
+    ".".join(p.relative_to(PACKAGE.parent).with_suffix("").parts)
+    for p in PACKAGE.rglob("*.py")
+    if p.name != "__main__.py"
+)
+PUBLIC = [m for m in MODULES if not any(part.startswith("_") for part in m.split("."))]
+# names a reader would take for something else: the standard library, and libraries ao4d's users
+# know (meshio, io, render engines...)
+_WELL_KNOWN = set(sys.stdlib_module_names) | {
+    "meshio", "trimesh", "pyvista", "vtk", "numpy", "scipy", "dask", "distributed", "zarr",
+    "h5py", "nibabel", "open3d", "embree", "skimage", "matplotlib", "tqdm", "pyopencl",
+}
+
+
+def _module_file(name: str) -> Path:
+    path = PACKAGE.parent.joinpath(*name.split("."))
+    return path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+
+
+def _imports(name: str) -> set[str]:
+    """ao4d modules that ``name`` imports anywhere in its source (top level or in functions)."""
+    tree = ast.parse(_module_file(name).read_text())
+    package = name if _module_file(name).name == "__init__.py" else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names if a.name.startswith("ao4d")}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if not target.startswith("ao4d"):
+                continue
+            for alias in node.names:  # `from . import mesh` names a module; `from .mesh import X` not
+                sub = f"{target}.{alias.name}"
+                found.add(sub if sub in MODULES else target)
+    return {m for m in found if m in MODULES and m != name}
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(graph[node]):
+            if state.get(nxt) == 1:
+                return stack[stack.index(nxt):] + [nxt]
+            if nxt not in state and (found := visit(nxt)):
+                return found
+        stack.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (found := visit(node)):
+            return found
+    return None
+
+
+def test_no_import_cycles():
+    # the package __init__ maps names lazily; it imports nothing but ao4d._tbb at import time
+    graph = {m: _imports(m) for m in MODULES if m != "ao4d"}
+    for deps in graph.values():
+        deps.discard("ao4d")
+    assert _cycle(graph) is None, f"import cycle: {' -> '.join(_cycle(graph))}"
+
+
+def test_cycle_finder_finds_cycles():
+    assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert _cycle({"a": {"b"}, "b": set()}) is None
+
+
+@pytest.mark.parametrize("name", PUBLIC)
+def test_every_public_module_imports_first_in_a_fresh_interpreter(name):
+    # each module first, so that no import order hides a missing or circular import
+    code = f"import {name}, sys; assert 'pyopencl' not in sys.modules or {name!r}.startswith('ao4d.cl')"
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
+
+
+def test_import_ao4d_is_cheap_and_touches_no_device():
+    code = "import ao4d, sys; assert 'pyopencl' not in sys.modules; assert 'numpy' not in sys.modules"
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+def test_no_module_shadows_a_well_known_name():
+    leaves = {m.rpartition(".")[2] for m in MODULES} - {"__init__"}
+    assert not leaves & _WELL_KNOWN, sorted(leaves & _WELL_KNOWN)
+
+
+def test_no_callable_modules():
+    import importlib
+
+    for name in PUBLIC:
+        module = importlib.import_module(name)
+        assert type(module) is types.ModuleType, f"{name} is a {type(module).__name__}"
+
+
+def test_render_is_the_function_whatever_the_import_order():
+    # issue 10: after `import ao4d.render`, ao4d.render was a module masquerading as the function
+    code = (
+        "import inspect, ao4d.rendering as m, ao4d\n"
+        "assert ao4d.render is m.render and callable(ao4d.render)\n"
+        "assert 'camera' in inspect.signature(ao4d.render).parameters\n"
+        "assert m.RenderResult is ao4d.RenderResult\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+def test_lazy_exports_resolve():
+    for name in ao4d.__all__:
+        assert getattr(ao4d, name) is not None
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        ao4d.nope  # noqa: B018
+
+
+def test_long_files_say_why():
+    # a file over about 700 lines states at its top why it stays one module
+    for path in list(PACKAGE.rglob("*.py")):
+        text = path.read_text()
+        if text.count("\n") > 720:
+            head = "\n".join(text.splitlines()[:40]).lower()
+            assert "one module" in head or "why this file is long" in head, path.name

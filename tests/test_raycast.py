@@ -1,0 +1,279 @@
+"""Tests for ao4d.raycast: closest and any hits on both backends, BVH against brute force, Embree.
+
+Hits are compared with brute force over every simplex, between OpenCL (float32) and numpy
+(float64), and with Embree (trimesh + embreex) on the same 3D rays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+
+import ao4d
+from _scenes import embree_scene, random_rays, random_soup, soup_scene, sphere_over_ground
+from ao4d import bvh, raycast
+
+DIMS = (2, 3, 4)
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("closest", [True, False])
+@pytest.mark.parametrize("shift", [0.0, 1000.0])  # far from the coordinate origin: float32 slabs
+def test_bvh_equals_brute_force(d, closest, shift, backend):
+    rng = np.random.default_rng(900 + d)
+    mesh = soup_scene(rng, d)
+    mesh = ao4d.SimplexMesh(mesh.vertices + shift, mesh.simplices)
+    o, w = random_rays(rng, d, 3000)
+    o = o + shift
+    for max_distance in (np.inf, 0.7):
+        fast = raycast.cast_rays(mesh, o, w, closest=closest, backend=backend, max_distance=max_distance)
+        slow = raycast.cast_rays(mesh, o, w, closest=closest, backend=backend, accel="brute", max_distance=max_distance)
+        # same primitive test on the same data; the boxes are conservative: identical answers
+        np.testing.assert_array_equal(fast.hit, slow.hit)
+        assert 0.01 < fast.hit.mean() < 0.95  # a scene where the question is not trivial
+        if closest:
+            np.testing.assert_array_equal(fast.t, slow.t)
+            same = fast.simplex == slow.simplex
+            # a different simplex only on exact ties (a ray through a shared point)
+            np.testing.assert_array_equal(fast.t[~same], slow.t[~same])
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("shift", [0.0, 30.0])
+def test_box_margin_keeps_corner_hits(d, shift, backend):
+    # rays aimed at the vertices of a simplex hit it at its box's corners, where the float32
+    # slab test is closest to rejecting (its error grows with |o|: bvh._BOX_FMA_MARGIN)
+    rng = np.random.default_rng(1100 + d)
+    corners = rng.uniform(-1, 1, size=(d, d)) + shift
+    mesh = ao4d.SimplexMesh(corners, [list(range(d))])
+    o = np.repeat(corners, 500, axis=0) + rng.normal(size=(500 * d, d))
+    w = np.repeat(corners, 500, axis=0) - o
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    fast = raycast.cast_rays(mesh, o, w, backend=backend, closest=False)
+    slow = raycast.cast_rays(mesh, o, w, backend=backend, closest=False, accel="brute")
+    np.testing.assert_array_equal(fast.hit, slow.hit)
+    assert slow.hit.mean() > 0.5  # the primitive test takes most of them (BARY_EPS)
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_gpu_block_layout_gives_the_same_answers(d, cl_runtime, monkeypatch):
+    # GPUs get leaf blocks of 4 simplices, CPUs of 16 (raycast._block_lanes); the per-lane
+    # arithmetic is the same explicit fma sequence, so answers agree exactly
+    rng = np.random.default_rng(1200 + d)
+    mesh = soup_scene(rng, d)
+    o, w = random_rays(rng, d, 3000)
+    pts, nrm = o[:200], w[:200]
+    results = {}
+    for lanes in (16, 4):
+        monkeypatch.setattr(raycast, "_block_lanes", lambda runtime, lanes=lanes: lanes)
+        hits = raycast.cast_rays(mesh, o, w, backend="opencl")
+        occ = ao4d.ambient_occlusion(mesh, points=pts, normals=nrm, samples=32, backend="opencl")
+        results[lanes] = hits, occ
+    (h16, a16), (h4, a4) = results[16], results[4]
+    np.testing.assert_array_equal(h4.simplex, h16.simplex)
+    np.testing.assert_array_equal(h4.t, h16.t)
+    np.testing.assert_array_equal(a4, a16)
+    assert 0.01 < h4.hit.mean() < 0.95
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_hits_are_consistent(d, backend):
+    rng = np.random.default_rng(1000 + d)
+    mesh = soup_scene(rng, d)
+    o, w = random_rays(rng, d, 2000)
+    hits = raycast.cast_rays(mesh, o, w, backend=backend)
+    anyhit = raycast.cast_rays(mesh, o, w, backend=backend, closest=False)
+    np.testing.assert_array_equal(hits.hit, anyhit.hit)
+    assert (anyhit.t[anyhit.hit] >= hits.t[hits.hit]).all()
+    h = hits.hit
+    assert np.isinf(hits.t[~h]).all() and (hits.barycentric[~h] == 0).all()
+    np.testing.assert_allclose(hits.barycentric[h].sum(1), 1.0, atol=1e-12)
+    assert (hits.barycentric[h] > -2 * bvh.BARY_EPS).all()
+    corners = mesh.vertices[mesh.simplices[hits.simplex[h]]]
+    points = np.einsum("si,sid->sd", hits.barycentric[h], corners)
+    np.testing.assert_allclose(points, o[h] + hits.t[h, None] * w[h], atol=1e-9)
+    # nothing closer: the closest hit of a ray shortened to just below t is a miss
+    short = raycast.cast_rays(mesh, o[h], w[h], backend=backend, max_distance=1.0)
+    assert (short.hit == (hits.t[h] <= 1.0)).all()
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_opencl_and_numpy_agree(d, cl_runtime):
+    rng = np.random.default_rng(1100 + d)
+    mesh = soup_scene(rng, d)
+    o, w = random_rays(rng, d, 5000)
+    gpu = raycast.cast_rays(mesh, o, w, backend="opencl")
+    cpu = raycast.cast_rays(mesh, o, w, backend="numpy")
+    # float32 vs float64 decide differently only for rays grazing an edge: < 0.1%
+    assert (gpu.hit != cpu.hit).mean() <= 1e-3
+    both = gpu.hit & cpu.hit & (gpu.simplex == cpu.simplex)
+    assert both.mean() > 0.99 * min(gpu.hit.mean(), cpu.hit.mean())
+    np.testing.assert_allclose(gpu.t[both], cpu.t[both], rtol=1e-12)  # refined in float64
+    scene = sphere_over_ground(rng, d)
+    a = ao4d.ambient_occlusion(scene, samples=64, backend="opencl")
+    b = ao4d.ambient_occlusion(scene, samples=64, backend="numpy")
+    # same seed: same directions; a point may differ by a grazing ray or two
+    assert np.mean(a == b) >= 0.97
+    assert np.abs(a - b).max() <= 2 / 64
+
+
+def test_closest_hits_match_embree(backend):
+    pytest.importorskip("embreex")
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    rng = np.random.default_rng(1200)
+    scene, mesh = embree_scene(rng)
+    o, w = random_rays(rng, 3, 20000)
+    ours = raycast.cast_rays(mesh, o, w, backend=backend)
+    locations, index_ray, index_tri = RayMeshIntersector(scene).intersects_location(o, w, multiple_hits=False)
+    theirs = np.zeros(len(o), dtype=bool)
+    theirs[index_ray] = True
+    # Embree and we disagree only on rays grazing an edge: at most 0.1%
+    assert np.mean(ours.hit != theirs) <= 1e-3
+    t_embree = np.full(len(o), np.inf)
+    t_embree[index_ray] = np.einsum("nd,nd->n", locations - o[index_ray], w[index_ray])
+    both = ours.hit & theirs
+    # Embree works in float32: distances of order 1 agree to ~1e-5
+    close = np.isclose(ours.t[both], t_embree[both], atol=1e-4)
+    assert close.mean() >= 0.999
+
+
+def test_device_memory_is_checked_before_work():
+    class Device:
+        max_mem_alloc_size = 1000
+        global_mem_size = 4000
+
+    class Runtime:
+        device = Device()
+        name = "tiny device"
+
+    with pytest.raises(MemoryError, match="tiny device"):
+        raycast._check_device_memory(Runtime(), {"the BVH": 2000})
+    with pytest.raises(MemoryError, match="80%"):
+        raycast._check_device_memory(Runtime(), {"a": 900, "b": 900, "c": 900, "d": 900})
+    raycast._check_device_memory(Runtime(), {"a": 900})
+
+
+def test_bad_inputs():
+    rng = np.random.default_rng(1700)
+    mesh = sphere_over_ground(rng, 3)
+    o, w = random_rays(rng, 3, 5)
+    with pytest.raises(ValueError, match="`directions` has 1 zero-length"):
+        raycast.cast_rays(mesh, o, np.r_[w[:4], [[0, 0, 0]]], backend="numpy")
+    with pytest.raises(ValueError, match="`origins` and `directions` must have the same length"):
+        raycast.cast_rays(mesh, o, w[:3], backend="numpy")
+    with pytest.raises(TypeError, match="`closest`"):
+        raycast.cast_rays(mesh, o, w, closest="yes", backend="numpy")
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    d=st.sampled_from(DIMS),
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(1, 60),
+    leaf_size=st.integers(1, 6),
+    max_distance=st.sampled_from([np.inf, 0.3, 1.0]),
+)
+def test_numpy_bvh_traversal_equals_brute_force(d, seed, n, leaf_size, max_distance, build_bvh):
+    # both builders' trees (the fixture is stateless: reusing it across examples is safe)
+    rng = np.random.default_rng(seed)
+    vertices, simplices = random_soup(rng, d, n, size=rng.uniform(0.02, 0.4))
+    try:
+        tree = build_bvh(vertices, simplices, leaf_size=leaf_size)
+    except ValueError:
+        assume(False)  # every random simplex degenerate: nothing to trace
+    o = rng.uniform(-0.2, 1.2, size=(200, d))
+    w = rng.normal(size=(200, d))
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    for any_hit in (True, False):
+        t1, p1 = raycast._trace_numpy_bvh(tree, o, w, max_distance, any_hit)
+        t2, p2 = raycast._trace_numpy_brute(tree, o, w, max_distance, any_hit)
+        np.testing.assert_array_equal(p1 >= 0, p2 >= 0)
+        if not any_hit:
+            np.testing.assert_array_equal(t1, t2)
+
+
+def test_kernel_macros_are_all_used():
+    # every macro a kernel header defines is used somewhere (vloadW was defined and never used)
+    import re
+
+    from ao4d._resources import data_dir
+
+    sources = {p.name: p.read_text() for p in data_dir("kernels").glob("*.[ch]*")}
+    text = "\n".join(sources.values())
+    defined = set(re.findall(r"^\s*#define\s+(\w+)", text, flags=re.M))
+    unused = sorted(m for m in defined if len(re.findall(rf"\b{m}\b", text)) < 2)
+    assert not unused, f"macros defined but never used in kernels/: {unused}"
+
+
+
+# -- kernel defects of issue 11 (found under Oclgrind and PoCL) --------------------------------
+
+
+@pytest.mark.parametrize("d", (3, 4))
+@pytest.mark.parametrize("closest", [True, False])
+def test_far_scene_with_zero_direction_components(d, closest, backend):
+    # at 1e9 the box test computed o * (1 / 1e-30) for a zero direction component: +-inf in
+    # float32, and the BVH rejected boxes its rays hit (axis-aligned orthographic cameras give
+    # exact zeros); the answer must still equal brute force
+    rng = np.random.default_rng(1300 + d)
+    scale = 1e9
+    base = soup_scene(rng, d)
+    mesh = ao4d.SimplexMesh(base.vertices * scale, base.simplices)
+    n = 6000
+    o, w = random_rays(rng, d, n, spread=1.2)
+    w[np.arange(n), rng.integers(0, d, n)] = 0.0  # one exactly zero component
+    axis = rng.integers(0, d, n // 2)
+    w[: n // 2] = np.eye(d)[axis] * rng.choice([-1.0, 1.0], size=(n // 2, 1))  # axis-aligned
+    fast = raycast.cast_rays(mesh, o * scale, w, closest=closest, backend=backend)
+    slow = raycast.cast_rays(mesh, o * scale, w, closest=closest, backend=backend, accel="brute")
+    assert slow.hit.sum() > 100  # the question is not trivial
+    np.testing.assert_array_equal(fast.hit, slow.hit)
+    if closest:
+        np.testing.assert_array_equal(fast.t, slow.t)
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_no_rays_give_empty_results(d, backend):
+    # OpenCL refused buffers of zero bytes (INVALID_BUFFER_SIZE); numpy returned empty arrays
+    mesh = soup_scene(np.random.default_rng(1400 + d), d, n=20)
+    for closest in (True, False):
+        hits = raycast.cast_rays(mesh, np.zeros((0, d)), np.zeros((0, d)), closest=closest, backend=backend)
+        assert hits.t.shape == (0,) and hits.simplex.shape == (0,) and hits.barycentric.shape == (0, d)
+    occ = ao4d.ambient_occlusion(mesh, points=np.zeros((0, d)), normals=np.zeros((0, d)), backend=backend)
+    assert occ.shape == (0,)
+
+
+def _private_bytes(runtime, kernel) -> int:
+    import pyopencl as pcl
+
+    return kernel.get_work_group_info(pcl.kernel_work_group_info.PRIVATE_MEM_SIZE, runtime.device)
+
+
+def test_traversal_stack_size_comes_from_python(cl_runtime, monkeypatch):
+    # the stack size was written in kernels/bvh.h and in ao4d/bvh.py separately; now Python
+    # passes it (-D STACK_SIZE) and refuses trees whose traversal could overflow it
+    rng = np.random.default_rng(1500)
+    mesh = soup_scene(rng, 3, n=2000)
+    o, w = random_rays(rng, 3, 3000)
+    depth = raycast.get_bvh(mesh, runtime=cl_runtime).wide(raycast._block_lanes(cl_runtime)).depth
+    assert depth >= 3
+    needed = depth * (bvh.WIDTH - 1) + 1
+    brute = raycast.cast_rays(mesh, o, w, backend="opencl", accel="brute")
+    sizes = {}
+    for stack in (needed, 4 * needed):
+        monkeypatch.setattr(bvh, "STACK_SIZE", stack)
+        fresh = ao4d.SimplexMesh(mesh.vertices, mesh.simplices)  # no cached device tree
+        hits = raycast.cast_rays(fresh, o, w, backend="opencl")
+        np.testing.assert_array_equal(hits.simplex >= 0, brute.simplex >= 0)
+        np.testing.assert_array_equal(hits.t, brute.t)
+        kernel = raycast._kernels(cl_runtime, 3, raycast._block_lanes(cl_runtime))["cast_bvh"]
+        sizes[stack] = _private_bytes(cl_runtime, kernel)
+    if sizes[needed] > 0:  # runtimes that report private memory: it follows the stack
+        assert sizes[4 * needed] >= sizes[needed] + 3 * needed * 4
+    monkeypatch.setattr(bvh, "STACK_SIZE", needed - 1)
+    fresh = ao4d.SimplexMesh(mesh.vertices, mesh.simplices)
+    with pytest.raises(RuntimeError, match="too deep for the kernels' traversal stack"):
+        raycast.cast_rays(fresh, o, w, backend="opencl")
