@@ -282,3 +282,37 @@ def test_render_refuses_bad_outputs_before_rendering(mesh_file, tmp_path, capsys
         code, text = _cli(capsys, "render", mesh_file, "--size", "8", *extra)
         assert code == 2 and problem in text, text
     assert not rendered
+
+
+def test_extract_command_estimates_and_refuses_huge_grids(tmp_path, capsys, monkeypatch):
+    # before: a 300^4 grid started without an estimate
+    sampled = []
+    monkeypatch.setattr("ao4d.march.extract_field", lambda *a, **k: sampled.append(1))
+    code, text = _cli(capsys, "extract", "--shape", "hypersphere", "--grid", "300", "--out", tmp_path / "x.npz")
+    assert code == 2 and "7.99e+09 cells: about 13 min" in text and "pass --force" in text
+    assert not sampled and not (tmp_path / "x.npz").exists()
+
+
+def test_extract_command_empty_result_is_an_error_with_the_reason(tmp_path, capsys):
+    # before: exit 0 and an empty mesh file
+    np.save(tmp_path / "ramp.npy", np.linspace(0.0, 1.0, 4**4).reshape((4,) * 4))
+    code, text = _cli(capsys, "extract", "--input", tmp_path / "ramp.npy", "--level", "3",
+                      "--out", tmp_path / "x.npz")
+    assert code == 2 and "outside the data range [0, 1]" in text
+    assert not (tmp_path / "x.npz").exists()
+
+
+def test_extract_command_checks_both_outputs_first(tmp_path, capsys):
+    code, text = _cli(capsys, "extract", "--shape", "hypersphere", "--grid", "10", "--out",
+                      tmp_path / "x.npz", "--vtu", tmp_path / "x.vtk")
+    assert code == 2 and "`--vtu` must end in .vtu" in text and not (tmp_path / "x.npz").exists()
+
+
+def test_slice_command_checks_outputs_before_loading(tmp_path, capsys, monkeypatch):
+    loaded = []
+    monkeypatch.setattr("ao4d.mesh.SimplexMesh.load", classmethod(lambda cls, p: loaded.append(p)))
+    for extra, problem in [(["--out", tmp_path / "s.obj"], "`--out` must end in .ply or .glb"),
+                           (["--out", tmp_path / "s.ply", "--png", tmp_path / "s.gif"], "`--png` must end in .png")]:
+        code, text = _cli(capsys, "slice", tmp_path / "any.npz", "--w", "0", *extra)
+        assert code == 2 and problem in text, text
+    assert not loaded

@@ -91,7 +91,7 @@ def test_series_errors(scene, tmp_path, capsys):
         assert message in capsys.readouterr().err
     (tmp_path / "file").write_text("")
     assert main(["slice", str(path), "--w-range", "0", "1", "--out", str(tmp_path / "file")]) == 2
-    assert "must be a folder" in capsys.readouterr().err
+    assert "is a file; give a folder" in capsys.readouterr().err
 
 
 def test_describe_hyperplane():

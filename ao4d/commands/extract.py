@@ -50,6 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="refuse --input files of another dimension")
     parser.add_argument("--chunk", type=int, help="cell layers per slab (default: ~100 MB slabs)")
     parser.add_argument("--no-check", action="store_true", help="skip the closedness check")
+    parser.add_argument("--force", action="store_true",
+                        help="extract even when the estimate is above the ten-minute limit")
 
 
 def _one_or_many(values: list[float] | None):
@@ -58,16 +60,45 @@ def _one_or_many(values: list[float] | None):
     return values[0] if len(values) == 1 else values
 
 
+# Typical rate here (cells/s: sampling a field and marching, 2 cores), for the estimate printed
+# before long work, and the largest grid extracted without --force (about ten minutes at that rate).
+CELLS_PER_SECOND = 1e7
+MAX_CELLS = 600 * CELLS_PER_SECOND
+
+
+def _estimate(n_cells: float, force: bool) -> None:
+    from ..raycast import duration
+
+    seconds = n_cells / CELLS_PER_SECOND
+    if n_cells >= 1e8:
+        print(f"{n_cells:.3g} cells: {duration(seconds)} at ~{CELLS_PER_SECOND:.0e} cells/s", flush=True)
+    if n_cells > MAX_CELLS and not force:
+        raise ValueError(f"{n_cells:.3g} cells would take {duration(seconds)}, above the limit of "
+                         f"{MAX_CELLS:.3g} cells; use a smaller --grid or pass --force")
+
+
 def run(args: argparse.Namespace) -> int:
+    import math
+    import warnings
+
     import numpy as np
 
+    from .._atomic import all_or_nothing, check_output_file
     from ..fields import preset
-    from ..march import extract, extract_field
+    from ..march import EmptyMeshWarning, extract, extract_field
+    from ..mesh_files import SUFFIXES
 
+    outputs = [check_output_file(args.out, "--out", SUFFIXES)]  # before any work
+    if args.vtu:
+        outputs.append(check_output_file(args.vtu, "--vtu", (".vtu",)))
     start = time.perf_counter()
     field = None
+    caught = warnings.catch_warnings(record=True)
+    seen = caught.__enter__()
+    warnings.simplefilter("always", EmptyMeshWarning)
     if args.shape is not None:
         field = preset(args.shape)
+        _estimate(float(args.grid - 1) ** field.dim, args.force)
         if args.bounds is not None:
             bounds = tuple(args.bounds)
         else:
@@ -87,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
               f"{' (lazy, block by block)' if grid.lazy else ''}; spacing "
               f"{np.round(grid.spacing, 6).tolist()}, origin {np.round(grid.origin, 6).tolist()}"
               + (f" ({'; '.join(grid.notes)})" if grid.notes else ""))
+        _estimate(float(math.prod(n - 1 for n in grid.shape)), args.force)
         mesh = extract(
             grid.values,
             args.level,
@@ -97,6 +129,11 @@ def run(args: argparse.Namespace) -> int:
             chunk=args.chunk,
         )
         what = f"{args.input} {grid.shape} at level {args.level:g}"
+    caught.__exit__(None, None, None)
+    for w in seen:
+        if issubclass(w.category, EmptyMeshWarning):  # nothing to write: say why, exit 2
+            raise ValueError(str(w.message))
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     elapsed = time.perf_counter() - start
     print(f"extracted {what} ({args.method}) in {elapsed:.2f} s")
     if not args.no_check:
@@ -104,11 +141,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"enclosed {mesh.dim}-volume:  {mesh.volume:.6g}" + _error(mesh.volume, field, "volume"))
     area_error = _error(mesh.measure, field, "boundary_measure")
     print(f"boundary {mesh.dim - 1}-volume:  {mesh.measure:.6g}" + area_error)
-    mesh.save(args.out)
-    print(f"wrote {args.out}")
-    if args.vtu:
-        mesh.to_vtu(args.vtu)
-        print(f"wrote {args.vtu}")
+    with all_or_nothing(outputs):
+        mesh.save(args.out)
+        if args.vtu:
+            mesh.to_vtu(args.vtu)
+    print("wrote " + ", ".join(map(str, outputs)))
     return 0
 
 

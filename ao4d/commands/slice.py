@@ -75,8 +75,18 @@ def run(args: argparse.Namespace) -> int:
     from ..mesh_files import save_slice_mesh
     from ..pictures import save_slice_png
 
+    from .._atomic import all_or_nothing, check_output_file, check_output_folder
+    from ..mesh_files import SLICE_SUFFIXES
+
     if args.w_range is None and args.count is not None:
         raise ValueError("`--count` needs `--w-range START STOP`")
+    outputs = []
+    if args.w_range is not None:
+        check_output_folder(args.out, "--out")  # before loading the mesh
+    else:
+        outputs.append(check_output_file(args.out, "--out", SLICE_SUFFIXES))
+        if args.png is not None:
+            outputs.append(check_output_file(args.png, "--png", (".png",)))
     mesh = SimplexMesh.load(args.mesh)
     if mesh.dim != 4:
         raise ValueError(f"`mesh` must be a 4D mesh, got dimension {mesh.dim}")
@@ -90,12 +100,13 @@ def run(args: argparse.Namespace) -> int:
     if len(tri.faces) == 0:
         raise ValueError("the hyperplane misses the mesh: the slice is empty")
     has_ao = "ao" in tri.vertex_attributes
-    written = [save_slice_mesh(args.out, _ply_safe(tri), occlusion="ao" if has_ao else None)]
-    if args.png is not None:
-        where = describe_hyperplane(point, normal)  # the plane actually cut, whatever the flags
-        written.append(save_slice_png(
-            args.png, tri, occlusion="ao" if has_ao else None,
-            title=f"{args.mesh.name}: slice {where}" + (", coloured by 4D AO" if has_ao else "")))
+    with all_or_nothing(outputs):  # a failing picture leaves no new slice mesh behind
+        written = [save_slice_mesh(args.out, _ply_safe(tri), occlusion="ao" if has_ao else None)]
+        if args.png is not None:
+            where = describe_hyperplane(point, normal)  # the plane actually cut, whatever the flags
+            written.append(save_slice_png(
+                args.png, tri, occlusion="ao" if has_ao else None,
+                title=f"{args.mesh.name}: slice {where}" + (", coloured by 4D AO" if has_ao else "")))
     print(f"slice: {len(tri.vertices):,} vertices, {len(tri.faces):,} triangles"
           + ("" if has_ao else " (mesh has no 'ao' point data: uncoloured)")
           + "; wrote " + ", ".join(map(str, written)))
