@@ -13,7 +13,7 @@ import numpy as np
 
 from ._validate import as_array
 
-__all__ = ["hyperplane_basis", "unit_normal", "slice_mesh"]
+__all__ = ["hyperplane_basis", "unit_normal", "slice_mesh", "SLICE_CASES"]
 
 def hyperplane_basis(normal: Any) -> np.ndarray:
     """Deterministic orthonormal basis (b1, b2, b3) of the hyperplane orthogonal to ``normal`` in R^4.
@@ -107,7 +107,7 @@ def _slice_cases() -> list[list[tuple[tuple[int, int], ...]]]:
     return table
 
 
-_SLICE_CASES = _slice_cases()
+SLICE_CASES = _slice_cases()
 
 
 def slice_mesh(mesh: Any, origin: np.ndarray, normal: np.ndarray, names: list[str]):
@@ -126,7 +126,7 @@ def slice_mesh(mesh: Any, origin: np.ndarray, normal: np.ndarray, names: list[st
         case |= positive[simplices[:, i]].astype(np.int64) << i
     keys, sources = [], []
     for c in np.unique(case):
-        triangles = _SLICE_CASES[c]
+        triangles = SLICE_CASES[c]
         if not triangles:
             continue
         tets = np.flatnonzero(case == c)

@@ -79,6 +79,7 @@ import numpy as np
 
 from ._atomic import atomic_open
 from ._validate import as_array, as_real, check_bool, check_choice
+from .slicing import SLICE_CASES
 
 if TYPE_CHECKING:  # pragma: no cover
     import trimesh
@@ -412,41 +413,6 @@ def _view_projection(cam: Camera) -> np.ndarray:
 
 # --------------------------------------------------------------------------- the cut table
 
-def _cut_cases() -> list[list[tuple[tuple[int, int], ...]]]:
-    """Triangles per tetrahedron case, each corner a (negative, positive) local vertex pair.
-
-    Bit i of the case is set iff local vertex i has ``s >= 0``. Same rule as
-    :meth:`SimplexMesh.slice`: a quad is split along its first corner; within the
-    tetrahedron's 3-space (oriented by its vertex order) a triangle's right-hand normal points
-    to the negative side, which makes slices of outward-oriented meshes outward-oriented.
-    """
-    ref = np.vstack([np.zeros(3), np.eye(3)])
-    table = []
-    for case in range(16):
-        positive = [(case >> i) & 1 == 1 for i in range(4)]
-        neg = [i for i in range(4) if not positive[i]]
-        pos = [i for i in range(4) if positive[i]]
-        if not neg or not pos:
-            table.append([])
-            continue
-        if len(neg) == 1 or len(pos) == 1:
-            polygon = [(a, b) for a in neg for b in pos]
-        else:
-            (a0, a1), (b0, b1) = neg, pos
-            polygon = [(a0, b0), (a0, b1), (a1, b1), (a1, b0)]
-        gradient = np.where(positive, 1.0, -1.0)[1:] - (1.0 if positive[0] else -1.0)
-        corner = {e: 0.5 * (ref[e[0]] + ref[e[1]]) for e in polygon}
-        triangles = []
-        for k in range(1, len(polygon) - 1):
-            tri = (polygon[0], polygon[k], polygon[k + 1])
-            normal = np.cross(corner[tri[1]] - corner[tri[0]], corner[tri[2]] - corner[tri[0]])
-            if normal @ gradient > 0:
-                tri = (tri[0], tri[2], tri[1])
-            triangles.append(tri)
-        table.append(triangles)
-    return table
-
-
 def cut_table() -> list[int]:
     """The page's marching-tetrahedra table: 16 ints, 4 bits per output vertex (6 per case).
 
@@ -455,7 +421,7 @@ def cut_table() -> list[int]:
     vertex ``code >> 2`` (s < 0) to ``code & 3`` (s >= 0).
     """
     packed = []
-    for triangles in _cut_cases():
+    for triangles in SLICE_CASES:  # the CPU slicer's table: page and mesh.slice cut alike
         codes = [a * 4 + b for tri in triangles for a, b in tri]
         codes += [15] * (6 - len(codes))
         packed.append(sum(c << (4 * k) for k, c in enumerate(codes)))
