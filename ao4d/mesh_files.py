@@ -319,7 +319,7 @@ def save_slice_mesh(path: str | os.PathLike, tri, *, occlusion=None, cmap: str =
     path = Path(path)
     suffix = check_choice(path.suffix.lower(), "path extension", SLICE_SUFFIXES)
     occ = slice_scalars(tri, occlusion, "occlusion")
-    out = tri.copy()
+    out = _ply_safe(tri) if suffix == ".ply" else tri.copy()
     if occ is not None:
         out.visual.vertex_colors = ao_colors(occ, cmap=cmap)
         if suffix == ".ply":
@@ -327,3 +327,19 @@ def save_slice_mesh(path: str | os.PathLike, tri, *, occlusion=None, cmap: str =
     with atomic_path(path) as tmp:
         out.export(tmp, file_type=suffix[1:])
     return path
+
+
+def _ply_safe(tri):
+    """``tri`` with 64-bit integer attributes (the source ``simplex`` of each triangle) stored
+    as 32-bit: PLY has no 64-bit integer type, and VTK's PLY reader (ParaView's) crashes on the
+    ``int64`` properties trimesh writes. Attributes that do not fit are left out."""
+    out = tri.copy()
+    for attrs in (out.face_attributes, out.vertex_attributes):
+        for name in list(attrs):
+            values = np.asarray(attrs[name])
+            if values.dtype.kind in "iu" and values.dtype.itemsize > 4:
+                if values.size and (values.min() < -2**31 or values.max() >= 2**31):
+                    del attrs[name]
+                else:
+                    attrs[name] = values.astype(np.int32)
+    return out

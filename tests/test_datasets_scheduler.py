@@ -125,7 +125,6 @@ def test_worker_killed_mid_item_loses_nothing(config, reference, cluster, tmp_pa
     assert record["index"] == index
 
 
-@pytest.mark.slow  # a second process importing ao4d; the resume itself is tested above
 def test_killed_client_resumes(config, reference, cluster, tmp_path):
     out = tmp_path / "run"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}

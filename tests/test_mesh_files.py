@@ -153,3 +153,14 @@ def test_slice_errors(tmp_path):
         mesh_files.save_slice_mesh(tmp_path / "s.obj", tri)
     with pytest.raises(ValueError, match="no faces"):
         pictures.save_slice_png(tmp_path / "s.png", trimesh.Trimesh())
+
+
+def test_slice_ply_has_no_64_bit_properties(ball4, tmp_path):
+    # VTK's PLY reader (ParaView) crashed on the int64 "simplex" face property trimesh wrote
+    tri = ball4.slice([0, 0, 0, 0.1], [0, 0, 0, 1])
+    assert tri.face_attributes["simplex"].dtype == np.int64
+    path = mesh_files.save_slice_mesh(tmp_path / "s.ply", tri)
+    header = path.read_bytes().split(b"end_header")[0].decode("ascii")
+    assert "simplex" in header and "int64" not in header and "uint64" not in header
+    back = trimesh.load(path, process=False)
+    np.testing.assert_array_equal(back.metadata["_ply_raw"]["face"]["data"]["simplex"], tri.face_attributes["simplex"])

@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("the hyperplane misses the mesh: the slice is empty")
     has_ao = "ao" in tri.vertex_attributes
     with all_or_nothing(outputs):  # a failing picture leaves no new slice mesh behind
-        written = [save_slice_mesh(args.out, _ply_safe(tri), occlusion="ao" if has_ao else None)]
+        written = [save_slice_mesh(args.out, tri, occlusion="ao" if has_ao else None)]
         if args.png is not None:
             where = describe_hyperplane(point, normal)  # the plane actually cut, whatever the flags
             written.append(save_slice_png(
@@ -156,7 +156,7 @@ def write_series(mesh, ws, out: Path, *, progress=None) -> list[dict]:
             name = f"slice_{k:0{digits}d}"
             has_ao = "ao" in tri.vertex_attributes
             if len(tri.faces):
-                save_slice_mesh(out / f"{name}.ply", _ply_safe(tri),
+                save_slice_mesh(out / f"{name}.ply", tri,
                                 occlusion="ao" if has_ao else None)
             else:
                 _empty_ply(out / f"{name}.ply")
@@ -208,19 +208,3 @@ def _empty_ply(path: Path) -> None:
         fh.write("ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
                  "property float z\nelement face 0\nproperty list uchar int vertex_indices\n"
                  "end_header\n")
-
-
-def _ply_safe(tri):
-    """``tri`` with 64-bit integer attributes (the source ``simplex`` of each triangle) stored
-    as 32-bit: PLY has no 64-bit integer type, and VTK's PLY reader (ParaView's) crashes on the
-    ``int64`` properties trimesh writes. Attributes that do not fit are left out."""
-    out = tri.copy()
-    for attrs in (out.face_attributes, out.vertex_attributes):
-        for name in list(attrs):
-            values = np.asarray(attrs[name])
-            if values.dtype.kind in "iu" and values.dtype.itemsize > 4:
-                if values.size and (values.min() < -2**31 or values.max() >= 2**31):
-                    del attrs[name]
-                else:
-                    attrs[name] = values.astype(np.int32)
-    return out
