@@ -201,7 +201,8 @@ def extract(
         return slab if slab.dtype.kind == "f" else slab.astype(np.float64)
 
     mesh = _run(read, geom, level, method, inside, chunk, progress, on_disk, arr.dtype.itemsize)
-    return _checked(mesh, level, inside, lambda: (float(np.min(arr)), float(np.max(arr))))
+    return _checked(mesh, level, inside, lambda: (float(np.min(arr)), float(np.max(arr))),
+                    lambda: float(arr[(0,) * d]))
 
 
 def _extract_dask(values, level, spacing, origin, method, inside, chunk, progress) -> SimplexMesh:
@@ -218,7 +219,7 @@ def _extract_dask(values, level, spacing, origin, method, inside, chunk, progres
         origin=as_vector(origin, "origin", d),
         method=check_choice(method, "method", METHODS), inside=check_choice(inside, "inside", _INSIDE),
         chunk=None if chunk is None else check_positive_int(chunk, "chunk"), progress=progress),
-        level, inside, None)
+        level, inside, None, None)
 
 
 def extract_field(
@@ -294,10 +295,11 @@ def extract_field(
         return _checked(extract_field_blocks(
             field, axes, level, origin=lo, spacing=spacing, method=method, inside=inside,
             chunk=None if chunk is None else check_positive_int(chunk, "chunk"), chunks=chunks,
-            progress=progress), level, inside, None)
+            progress=progress), level, inside, None, None)
     # engine axis 0 is the user's last axis, so each evaluated layer is one engine layer
     geom = _Geometry((n[-1], *n[:-1]), (d - 1, *range(d - 1)), lo, spacing)
     last: dict[int, np.ndarray] = {}
+    first: list[float] = []
 
     def read(a: int, b: int) -> np.ndarray:
         # reuse the previous slab's top layer instead of evaluating it twice
@@ -308,9 +310,12 @@ def extract_field(
         last.clear()
         last[b - 1] = slab[-1].copy()
         _check_field_values(slab, field, axes, a)
+        if a == 0:
+            first.append(float(slab[(0,) * slab.ndim]))  # the value at the grid's first corner
         return slab
 
-    return _checked(_run(read, geom, level, method, inside, chunk, progress, False, 8), level, inside, None)
+    return _checked(_run(read, geom, level, method, inside, chunk, progress, False, 8), level, inside,
+                    None, lambda: first[0])
 
 
 def _check_field_values(slab: np.ndarray, field: Callable, axes: list, first: int) -> None:
@@ -325,12 +330,22 @@ def _check_field_values(slab: np.ndarray, field: Callable, axes: list, first: in
         )
 
 
+def _in_solid(value: float, level: float, inside: str) -> bool:
+    return value < level if inside == "below" else value > level
+
+
 class EmptyMeshWarning(UserWarning):
     """The extracted level set is empty (the level misses the data)."""
 
 
-def _checked(mesh: SimplexMesh, level: float, inside: str, value_range: Callable | None) -> SimplexMesh:
-    """Warn about results that are almost always mistakes: empty, or closed and inside out."""
+def _checked(mesh: SimplexMesh, level: float, inside: str, value_range: Callable | None,
+             corner: Callable[[], float] | None) -> SimplexMesh:
+    """Warn about results that are almost always mistakes: empty, or closed and inside out.
+
+    Cheap in the usual case: a closed result leaves the whole (connected) grid boundary on one
+    side, so it is inside out exactly when the grid's first corner lies in the solid; only then
+    are the volume and the closedness computed (``corner=None``: always).
+    """
     import warnings
 
     from .mesh import InsideOutWarning
@@ -342,7 +357,7 @@ def _checked(mesh: SimplexMesh, level: float, inside: str, value_range: Callable
         else:
             why = f"no grid cell crosses `level` {level:g} (check `level` and the grid's bounds)"
         warnings.warn(f"the extracted mesh is empty: {why}", EmptyMeshWarning, stacklevel=3)
-    elif mesh.volume < 0 and mesh.check().closed:
+    elif (corner is None or _in_solid(corner(), level, inside)) and mesh.volume < 0 and mesh.check().closed:
         other = "below" if inside == "above" else "above"
         warnings.warn(
             f"the extracted mesh is closed but encloses a negative volume ({mesh.volume:.4g}): "
