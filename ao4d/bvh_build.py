@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from . import bvh as _bvh
+from . import cl
 from ._validate import check_positive_int
 
 __all__ = ["build", "DeviceBVH", "sah_cost", "device_wide_tree"]
@@ -117,27 +118,7 @@ def _frames_unfiltered(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarra
     return np.linalg.pinv(matrix)
 
 
-def _check_memory(runtime, nbytes: dict[str, int]) -> None:
-    """Refuse, before any work, buffers the device cannot hold (one of them, or all at once)."""
-    dev = runtime.device
-    for what, size in nbytes.items():
-        if size > dev.max_mem_alloc_size:
-            raise MemoryError(
-                f"{what} needs {size / 2**20:.0f} MiB in one buffer, above the "
-                f"{dev.max_mem_alloc_size / 2**20:.0f} MiB one allocation may take on {runtime.name}; "
-                "use a smaller mesh or the host builder"
-            )
-    total = sum(nbytes.values())
-    if total > 0.8 * dev.global_mem_size:
-        raise MemoryError(
-            f"the BVH build needs {total / 2**20:.0f} MiB on {runtime.name}, above 80% of its "
-            f"{dev.global_mem_size / 2**20:.0f} MiB; use a smaller mesh or the host builder"
-        )
-
-
 def _kernels(runtime, dim: int, use_double: bool) -> dict[str, Any]:
-    from . import cl
-
     defines: dict[str, Any] = {"DIM": dim, "SUBTREE_STACK": 64}
     if use_double:
         defines["USE_DOUBLE"] = 1
@@ -235,8 +216,6 @@ def build(
     if chunk is not None:
         chunk = check_positive_int(chunk, "chunk")
     if runtime is None:
-        from . import cl
-
         runtime = cl.get_runtime(warn=False)
         if runtime is None:
             raise RuntimeError("the device BVH builder needs an OpenCL device; none works (see `ao4d info`)")
@@ -245,7 +224,7 @@ def build(
     d = vertices.shape[1]
     n = len(simplices)
     # records (two buffers), node arrays (at most 2 n nodes), the mesh and the leaf blocks
-    _check_memory(runtime, {
+    cl.check_device_memory(runtime, fallback="the host builder", task="the BVH build", nbytes={
         "the BVH build's node bounds": 32 * n,
         "the BVH build": n * (2 * 52 + 2 * 40 + 6 + 4 * (d + 1) * d + 8 * d * d) + vertices.nbytes,
     })

@@ -1,5 +1,8 @@
 """OpenCL runtime discovery: the one place that finds, probes, chooses and names a device.
 
+Why this file is long: it stays one module because choosing, naming and checking a device (its
+memory, its kernel builds) are one idea that every other module asks about in one place.
+
 Every device is accepted only after it really builds and runs a tiny kernel (the PoCL inside
 some pyopencl wheels lists a CPU device but cannot compile for new CPUs). Then, unless
 ``AO4D_DEVICE`` says otherwise:
@@ -51,6 +54,7 @@ from ._validate import check_choice
 
 __all__ = [
     "BACKENDS",
+    "check_device_memory",
     "DeviceReport",
     "DeviceSelectionError",
     "NoOpenCLDeviceError",
@@ -668,6 +672,29 @@ def _make_runtime(rep: DeviceReport) -> Runtime:
 
 
 # -- kernels ----------------------------------------------------------------------------------
+
+
+def check_device_memory(runtime: Runtime, nbytes: dict[str, int], *, task: str,
+                        fallback: str = "backend='numpy'") -> None:
+    """Refuse, before any work, buffers the device cannot hold: one of them, or all at once.
+
+    ``nbytes`` maps what each buffer holds to its size; ``task`` names the work in the message
+    and ``fallback`` what to use instead.
+    """
+    dev = runtime.device
+    for what, size in nbytes.items():
+        if size > dev.max_mem_alloc_size:
+            raise MemoryError(
+                f"{what} needs {size / 2**20:.0f} MiB in one buffer, above the "
+                f"{dev.max_mem_alloc_size / 2**20:.0f} MiB one allocation may take on {runtime.name}; "
+                f"use a smaller mesh or {fallback}"
+            )
+    total = sum(nbytes.values())
+    if total > 0.8 * dev.global_mem_size:
+        raise MemoryError(
+            f"{task} needs {total / 2**20:.0f} MiB on {runtime.name}, above 80% of its "
+            f"{dev.global_mem_size / 2**20:.0f} MiB; use a smaller mesh or {fallback}"
+        )
 
 
 def build_kernels(

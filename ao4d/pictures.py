@@ -267,6 +267,19 @@ def save_volume_png(
     return path
 
 
+def _frame_and_save(plotter, path: Path, title: str, *, ticks: str | None) -> None:
+    """Title, labelled x/y/z bounds and the shared view of every 3D picture, then the PNG."""
+    plotter.add_title(title, font_size=7, color="black")
+    plotter.show_bounds(color="black", font_size=12, xtitle="x", ytitle="y", ztitle="z",
+                        n_xlabels=3, n_ylabels=3, n_zlabels=3, fmt="%.1f",
+                        location="outer", ticks=ticks, minor_ticks=False)
+    # from the front (+z), above (+y) and a little to the right: x right, y up on screen
+    plotter.view_vector((0.45, 0.55, 1.0), viewup=(0.0, 1.0, 0.0))
+    plotter.camera.zoom(0.85)
+    with atomic_path(path) as tmp:
+        plotter.screenshot(str(tmp))
+
+
 def _volume_png_pyvista(path, arr, lo, hi, *, title, label, cmap, spacing, origin, size):
     pv = pyvista_offscreen()
     # Background gets a value below the colour range; the opacity table (linear over the
@@ -292,15 +305,7 @@ def _volume_png_pyvista(path, arr, lo, hi, *, title, label, cmap, spacing, origi
         # nearest-voxel sampling: trilinear blending of surface voxels with the background
         # value would paint a dark fringe (low values) along every silhouette
         actor.prop.interpolation_type = "nearest"
-        plotter.add_title(title, font_size=7, color="black")
-        plotter.show_bounds(color="black", font_size=12, xtitle="x", ytitle="y", ztitle="z",
-                            n_xlabels=3, n_ylabels=3, n_zlabels=3, fmt="%.1f",
-                            location="outer", ticks="outside", minor_ticks=False)
-        # from the front (+z), above (+y) and a little to the right: x right, y up on screen
-        plotter.view_vector((0.45, 0.55, 1.0), viewup=(0.0, 1.0, 0.0))
-        plotter.camera.zoom(0.85)
-        with atomic_path(path) as tmp:
-            plotter.screenshot(str(tmp))
+        _frame_and_save(plotter, path, title, ticks="outside")
     finally:
         plotter.close()
 
@@ -536,14 +541,7 @@ def _rgba_volume_png_pyvista(path, arr, *, title, spacing, origin, size):
         actor = plotter.add_volume(grid, scalars="rgba", mapper="smart", shade=False,
                                    opacity_unit_distance=0.25 * min(spacing))
         actor.prop.interpolation_type = "nearest"  # no blending with transparent background
-        plotter.add_title(title, font_size=7, color="black")
-        plotter.show_bounds(color="black", font_size=12, xtitle="x", ytitle="y", ztitle="z",
-                            n_xlabels=3, n_ylabels=3, n_zlabels=3, fmt="%.1f",
-                            location="outer", ticks="outside", minor_ticks=False)
-        plotter.view_vector((0.45, 0.55, 1.0), viewup=(0.0, 1.0, 0.0))
-        plotter.camera.zoom(0.85)
-        with atomic_path(path) as tmp:
-            plotter.screenshot(str(tmp))
+        _frame_and_save(plotter, path, title, ticks="outside")
     finally:
         plotter.close()
 
@@ -635,14 +633,7 @@ def save_slice_png(
                                  "position_x": 0.86, "position_y": 0.15, "height": 0.7,
                                  "width": 0.07, "fmt": "%.1f"},
             )
-        plotter.add_title(title, font_size=7, color="black")
-        plotter.show_bounds(color="black", font_size=12, xtitle="x", ytitle="y", ztitle="z",
-                            n_xlabels=3, n_ylabels=3, n_zlabels=3, fmt="%.1f",
-                            location="outer", minor_ticks=False)
-        plotter.view_vector((0.45, 0.55, 1.0), viewup=(0.0, 1.0, 0.0))
-        plotter.camera.zoom(0.85)
-        with atomic_path(path) as tmp:
-            plotter.screenshot(str(tmp))
+        _frame_and_save(plotter, path, title, ticks=None)
     finally:
         plotter.close()
     return path

@@ -222,23 +222,6 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
 # -- OpenCL side ------------------------------------------------------------------------------
 
 
-def _check_device_memory(runtime, nbytes: dict[str, int]) -> None:
-    dev = runtime.device
-    for what, size in nbytes.items():
-        if size > dev.max_mem_alloc_size:
-            raise MemoryError(
-                f"{what} needs {size / 2**20:.0f} MiB in one buffer, above the "
-                f"{dev.max_mem_alloc_size / 2**20:.0f} MiB allowed by {runtime.name}; "
-                "use a smaller mesh or backend='numpy'"
-            )
-    total = sum(nbytes.values())
-    if total > 0.8 * dev.global_mem_size:
-        raise MemoryError(
-            f"ray tracing needs {total / 2**20:.0f} MiB on {runtime.name}, above 80% of its "
-            f"{dev.global_mem_size / 2**20:.0f} MiB; use a smaller mesh or backend='numpy'"
-        )
-
-
 def _block_lanes(runtime) -> int:
     """Simplices per leaf block on this device: ``bvh.LANES`` (16) on CPUs, 4 elsewhere (why:
     bvh.widen)."""
@@ -263,13 +246,14 @@ def _device_tree(mesh: Any, tree: _bvh.BVH, runtime) -> dict[str, Any]:
             cache[key] = dev
         return dev
     wide = tree.wide(lanes)
-    _check_device_memory(
+    cl.check_device_memory(
         runtime,
         {
             "the BVH leaf blocks": wide.blocks.nbytes,
             "the BVH nodes": wide.boxes.nbytes,
             "the BVH": wide.nbytes(),
         },
+        task="ray tracing",
     )
     flags = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
     ctx = runtime.context
@@ -305,7 +289,7 @@ def _trace_opencl(mesh, tree, runtime, origins, directions, max_distance, any_hi
     import pyopencl as pcl
 
     n = len(origins)
-    _check_device_memory(runtime, {"the rays": n * 32, "the ray results": n * 8})
+    cl.check_device_memory(runtime, {"the rays": n * 32, "the ray results": n * 8}, task="ray tracing")
     ctx, queue = runtime.context, runtime.queue
     mf = pcl.mem_flags
     buf_o = pcl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=_pad4(origins))
@@ -346,7 +330,7 @@ def _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_
     import pyopencl as pcl
 
     n = len(points)
-    _check_device_memory(runtime, {"the AO points": n * 36, "the AO results": n * 4})
+    cl.check_device_memory(runtime, {"the AO points": n * 36, "the AO results": n * 4}, task="ray tracing")
     order = _morton_order(points)
     ctx, queue = runtime.context, runtime.queue
     mf = pcl.mem_flags

@@ -10,7 +10,7 @@ import pytest
 
 import ao4d
 from _scenes import embree_scene, flat_patch, sphere_hull, sphere_over_ground, up_points
-from ao4d import ao, bvh, raycast, sampling
+from ao4d import ao, raycast, sampling
 
 DIMS = (2, 3, 4)
 

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 import ao4d
 from _scenes import embree_scene, random_rays, random_soup, soup_scene, sphere_over_ground
-from ao4d import bvh, raycast
+from ao4d import bvh, cl, raycast
 
 DIMS = (2, 3, 4)
 
@@ -150,10 +150,10 @@ def test_device_memory_is_checked_before_work():
         name = "tiny device"
 
     with pytest.raises(MemoryError, match="tiny device"):
-        raycast._check_device_memory(Runtime(), {"the BVH": 2000})
+        cl.check_device_memory(Runtime(), {"the BVH": 2000}, task="ray tracing")
     with pytest.raises(MemoryError, match="80%"):
-        raycast._check_device_memory(Runtime(), {"a": 900, "b": 900, "c": 900, "d": 900})
-    raycast._check_device_memory(Runtime(), {"a": 900})
+        cl.check_device_memory(Runtime(), {"a": 900, "b": 900, "c": 900, "d": 900}, task="ray tracing")
+    cl.check_device_memory(Runtime(), {"a": 900}, task="ray tracing")
 
 
 def test_bad_inputs():
