@@ -12,8 +12,8 @@ per-level gathers of float64 data). This is the reference builder and the numpy 
 where OpenCL runs, :mod:`ao4d.bvh_build` builds the same kind of tree on the device
 (:func:`ao4d.raycast.get_bvh` chooses and caches the tree on the mesh).
 
-The OpenCL kernels traverse its 8-wide form (:func:`widen`): binary nodes are collapsed by
-opening the child of largest area until 8 children; every leaf becomes blocks of ``lanes``
+The OpenCL kernels traverse its 8-wide form (:func:`widen`): the binary tree is collapsed into
+8-wide nodes by the SAH-optimal dynamic programme (:func:`ao4d.collapse.collapse`); every leaf becomes blocks of ``lanes``
 simplices stored as structure of arrays, and a subtree of at most ``LEAF_BLOCKS`` blocks (or one
 leaf's blocks) becomes one leaf slot of consecutive blocks. One node visit tests 8 boxes with
 float8 arithmetic and one block test ``lanes`` simplices at once (16 on CPUs, 4 on GPUs: see
@@ -41,6 +41,7 @@ import numpy as np
 
 from . import _progress
 from ._validate import as_array, check_positive_int
+from .collapse import collapse
 from .geometry import cross_components
 
 __all__ = ["BVH", "WideBVH", "build", "widen", "widen_topology", "intersect", "barycentric", "BARY_EPS"]
@@ -156,7 +157,7 @@ class WideBVH:
 
 
 def widen(tree: BVH, lanes: int = LANES) -> WideBVH:
-    """Collapse the binary tree into 8-wide nodes (open the child of largest box area first).
+    """Collapse the binary tree into 8-wide nodes (SAH-optimal, :func:`_collapse`).
 
     Each binary leaf becomes ``ceil(count / lanes)`` consecutive leaf blocks of ``lanes``
     (4, 8 or 16) simplices. :mod:`ao4d.ao` asks for 16 on CPUs (one AVX-512 register per row of
@@ -216,7 +217,6 @@ def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarra
         )
     block_of = np.full(tree.n_nodes, -1, dtype=np.int64)
     block_of[leaves] = np.cumsum(leaf_blocks) - leaf_blocks
-    area = _box_area(tree.lo[:, :d].astype(np.float64), tree.hi[:, :d].astype(np.float64))
     # a subtree of at most max_blocks blocks becomes one leaf slot: its blocks are consecutive
     # (blocks follow the simplex order)
     n_blocks = np.zeros(tree.n_nodes, dtype=np.int64)
@@ -226,33 +226,23 @@ def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarra
         ids = ids[left[ids] >= 0]
         n_blocks[ids] = n_blocks[left[ids]] + n_blocks[right[ids]]
         first_block[ids] = first_block[left[ids]]
-    is_leaf = n_blocks <= max_blocks
 
-    # wide nodes level by level; each holds up to 8 binary nodes (its children)
-    level = np.array([0]) if not is_leaf[0] else np.array([-1])
-    all_slots, depth = [], 0
-    while level.size:
-        slots = np.full((level.size, WIDTH), -1, dtype=np.int64)
-        if level[0] == -1:  # the whole tree is one leaf: a root with a single leaf child
-            slots[0, 0] = 0
-        else:
-            slots[:, 0], slots[:, 1] = left[level], right[level]
-        rows = np.arange(level.size)
-        for _ in range(WIDTH - 2):
+    # wide nodes level by level; each holds up to 8 binary nodes (its slots), chosen by the
+    # SAH-optimal collapse
+    area = _box_area(tree.lo[:, :d].astype(np.float64), tree.hi[:, :d].astype(np.float64))
+    plan = collapse(left, right, area, _levels(tree.meta), n_blocks, n_blocks <= max_blocks, WIDTH)
+    is_leaf = plan.leaf
+    if is_leaf[0]:  # the whole tree is one leaf: a root with a single leaf child
+        all_slots = [np.concatenate([[0], np.full(WIDTH - 1, -1)])[None]]
+        depth = 1
+    else:
+        level, all_slots, depth = np.array([0]), [], 0
+        while level.size:
+            slots = plan.slots(level)
+            all_slots.append(slots)
             valid = slots >= 0
-            inner = valid & ~is_leaf[np.where(valid, slots, 0)]
-            score = np.where(inner, area[np.where(valid, slots, 0)], -1.0)
-            j = np.argmax(score, axis=1)
-            free = valid.sum(1)
-            grow = inner[rows, j] & (free < WIDTH)
-            r, jj = rows[grow], j[grow]
-            node = slots[r, jj]
-            slots[r, jj] = left[node]
-            slots[r, free[grow]] = right[node]
-        all_slots.append(slots)
-        valid = slots >= 0
-        level = slots[valid & ~is_leaf[np.where(valid, slots, 0)]]
-        depth += 1
+            level = slots[valid & ~is_leaf[np.where(valid, slots, 0)]]
+            depth += 1
     slots = np.concatenate(all_slots)
     valid = slots >= 0
     safe = np.where(valid, slots, 0)

@@ -51,7 +51,8 @@ inline int hit_block(__global const floatL *blk, const float *o, const float *w,
         r = fma(blk[(DIM - 1) * DIM + j], (floatL)(w[j]), r);
     }
     const floatL t = -q / r;
-    intL ok = isgreater(t, (floatL)(0.0f)) & islessequal(t, (floatL)(t_max)) & isfinite(t);
+    // t <= min(t_max, FLT_MAX) also rejects t = inf (r = 0) and NaN (q = r = 0: unused lanes)
+    intL ok = isgreater(t, (floatL)(0.0f)) & islessequal(t, (floatL)(fmin(t_max, FLT_MAX)));
     if (!any(ok)) return -1;
     floatL x[DIM];
     for (int j = 0; j < DIM; ++j) x[j] = fma(t, (floatL)(w[j]), rel[j]);
