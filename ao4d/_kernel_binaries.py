@@ -19,7 +19,7 @@ import threading
 import warnings
 from pathlib import Path
 
-__all__ = ["build_log", "built_program", "cache_key", "kernel_build_stats", "kernel_cache_dir"]
+__all__ = ["build_log", "built_program", "cache_dir", "cache_key", "kernel_build_stats", "kernel_cache_dir"]
 
 _CACHE_FORMAT = "ao4d-kernel-binary-1"
 _lock = threading.Lock()
@@ -33,10 +33,15 @@ def kernel_cache_dir() -> Path | None:
     absolute path); when that cannot be written, a per-user folder in the temporary
     directory; when neither can, ``None`` (kernels are then compiled in every process).
     """
+    return cache_dir("kernels")
+
+
+def cache_dir(kind: str) -> Path | None:
+    """The per-user cache folder ``ao4d/<kind>`` (see :func:`kernel_cache_dir`), or ``None``."""
     xdg = os.environ.get("XDG_CACHE_HOME", "")
     base = Path(xdg) if os.path.isabs(xdg) else Path.home() / ".cache"
     uid = os.getuid() if hasattr(os, "getuid") else 0
-    for folder in (base / "ao4d" / "kernels", Path(tempfile.gettempdir()) / f"ao4d-kernels-{uid}"):
+    for folder in (base / "ao4d" / kind, Path(tempfile.gettempdir()) / f"ao4d-{kind}-{uid}"):
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError:

@@ -88,14 +88,57 @@ def point_shifts(index: np.ndarray, seed: int, ndim: int) -> np.ndarray:
 
 @lru_cache(maxsize=32)
 def _sobol_cached(samples: int, ndim: int, seed: int) -> np.ndarray:
+    path = _sobol_file(samples, ndim, seed)
+    table = _read_table(path, samples, ndim) if path is not None else None
+    if table is None:
+        table = _sobol_compute(samples, ndim, seed)
+        if path is not None:
+            from ._atomic import atomic_open
+
+            try:
+                with atomic_open(path, "wb") as fh:
+                    np.save(fh, table)
+            except OSError:  # read-only or full disk: computed again next time
+                pass
+    table.setflags(write=False)
+    return table
+
+
+def _sobol_compute(samples: int, ndim: int, seed: int) -> np.ndarray:
     from scipy.stats import qmc
 
     # random_base2 avoids scipy's warning for non-powers of two; a prefix keeps low discrepancy
     m = max(0, math.ceil(math.log2(samples)))
     pts = qmc.Sobol(ndim, scramble=True, seed=seed).random_base2(m)[:samples]
-    table = np.floor(pts * (1 << BITS)).astype(np.uint32)
-    table.setflags(write=False)
-    return table
+    return np.floor(pts * (1 << BITS)).astype(np.uint32)
+
+
+def _sobol_file(samples: int, ndim: int, seed: int):
+    """Where the table is kept across processes: importing scipy.stats costs 0.6-1.2 s, more
+    than a first AO call on a 1M-tet mesh spends tracing; keyed by scipy's version, whose
+    scrambling defines the table."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    from ._kernel_binaries import cache_dir
+
+    folder = cache_dir("sobol")
+    try:
+        scipy_version = version("scipy")
+    except PackageNotFoundError:
+        return None
+    if folder is None:
+        return None
+    return folder / f"sobol-{samples}-{ndim}-{seed}-{BITS}-scipy{scipy_version}.npy"
+
+
+def _read_table(path, samples: int, ndim: int) -> np.ndarray | None:
+    """The kept table, or None when it is missing or not a table of this shape (damaged)."""
+    try:
+        table = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError):
+        return None
+    ok = table.shape == (samples, ndim) and table.dtype == np.uint32 and (table < (1 << BITS)).all()
+    return table if ok else None
 
 
 def sobol_table(samples: int, ndim: int, *, seed: int = 0) -> np.ndarray:

@@ -171,3 +171,46 @@ def test_opencl_directions_equal_numpy(cl_runtime, d):
     host = sampling.cosine_hemisphere(normals, 37, seed=11)
     # same integers and formulas; float32 trigonometry and frame: a few ulp of 1
     np.testing.assert_allclose(dev, host, atol=1e-5)
+
+
+def test_sobol_tables_are_kept_across_processes(tmp_path, monkeypatch):
+    import os
+    import subprocess
+    import sys
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    sampling._sobol_cached.cache_clear()
+    try:
+        fresh = sampling._sobol_compute(40, 3, 5)
+        first = sampling.sobol_table(40, 3, seed=5)
+        assert np.array_equal(first, fresh)
+        kept = list((tmp_path / "ao4d" / "sobol").glob("sobol-40-3-5-*.npy"))
+        assert len(kept) == 1 and np.array_equal(np.load(kept[0]), fresh)
+        # another process reads the file and never imports scipy.stats (0.6-1.2 s)
+        code = ("import sys; from ao4d import sampling; t = sampling.sobol_table(40, 3, seed=5); "
+                "print(int(t.sum()), 'scipy.stats' in sys.modules)")
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                             env={**os.environ, "XDG_CACHE_HOME": str(tmp_path)}).stdout.split()
+        assert out == [str(int(fresh.sum())), "False"]
+        # a damaged or foreign file is computed again and replaced
+        for damage in (b"not a table", None):
+            if damage is None:
+                np.save(kept[0], np.zeros((40, 2), np.uint32))  # wrong shape
+            else:
+                kept[0].write_bytes(damage)
+            sampling._sobol_cached.cache_clear()
+            assert np.array_equal(sampling.sobol_table(40, 3, seed=5), fresh)
+            assert np.array_equal(np.load(kept[0]), fresh)
+    finally:
+        sampling._sobol_cached.cache_clear()
+
+
+def test_sobol_tables_work_without_a_writable_cache(tmp_path, monkeypatch):
+    from ao4d import _kernel_binaries
+
+    monkeypatch.setattr(_kernel_binaries, "cache_dir", lambda kind: None)
+    sampling._sobol_cached.cache_clear()
+    try:
+        assert np.array_equal(sampling.sobol_table(24, 2, seed=1), sampling._sobol_compute(24, 2, 1))
+    finally:
+        sampling._sobol_cached.cache_clear()
