@@ -188,6 +188,21 @@ def _levels(meta: np.ndarray) -> list[np.ndarray]:
         levels.append(np.stack([meta[inner, 0], meta[inner, 1]], 1).ravel().astype(np.int64))
 
 
+def block_ranges(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarray]:
+    """First tree-order simplex and simplex count (B,) int64 of every leaf block: each binary
+    leaf, in simplex order, becomes ``ceil(count / lanes)`` consecutive blocks, block k holding
+    its simplices ``k * lanes .. (k + 1) * lanes - 1``. The collapse does not change them, so
+    :mod:`ao4d.bvh_build` fills the blocks on the device while the host collapses."""
+    leaves = np.flatnonzero(tree.meta[:, 0] < 0)
+    leaves = leaves[np.argsort(tree.meta[leaves, 0])[::-1]]  # by first simplex: -(start + 1)
+    start = -tree.meta[leaves, 0].astype(np.int64) - 1
+    size = tree.meta[leaves, 1].astype(np.int64)
+    per_leaf = -(-size // lanes)
+    leaf = np.repeat(np.arange(leaves.size), per_leaf)
+    k = np.arange(leaf.size) - (np.cumsum(per_leaf) - per_leaf)[leaf]
+    return start[leaf] + k * lanes, np.minimum(size[leaf] - k * lanes, lanes)
+
+
 def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     """The wide form of :func:`widen` without the leaf blocks' contents.
 
@@ -222,7 +237,8 @@ def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarra
     n_blocks = np.zeros(tree.n_nodes, dtype=np.int64)
     n_blocks[leaves] = leaf_blocks
     first_block = block_of.copy()
-    for ids in reversed(_levels(tree.meta)):  # bottom up, each node once
+    levels = _levels(tree.meta)
+    for ids in reversed(levels):  # bottom up, each node once
         ids = ids[left[ids] >= 0]
         n_blocks[ids] = n_blocks[left[ids]] + n_blocks[right[ids]]
         first_block[ids] = first_block[left[ids]]
@@ -230,7 +246,7 @@ def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarra
     # wide nodes level by level; each holds up to 8 binary nodes (its slots), chosen by the
     # SAH-optimal collapse
     area = _box_area(tree.lo[:, :d].astype(np.float64), tree.hi[:, :d].astype(np.float64))
-    plan = collapse(left, right, area, _levels(tree.meta), n_blocks, n_blocks <= max_blocks, WIDTH)
+    plan = collapse(left, right, area, levels, n_blocks, n_blocks <= max_blocks, WIDTH)
     is_leaf = plan.leaf
     if is_leaf[0]:  # the whole tree is one leaf: a root with a single leaf child
         all_slots = [np.concatenate([[0], np.full(WIDTH - 1, -1)])[None]]
@@ -258,11 +274,7 @@ def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarra
     boxes[:, 1] = tree.hi[safe][..., :d].transpose(0, 2, 1)
     boxes[~np.broadcast_to(valid[:, None, None, :], boxes.shape)] = 0.0
 
-    # block k of a leaf holds its simplices k * lanes .. (k + 1) * lanes - 1
-    leaf = np.repeat(np.arange(leaves.size), leaf_blocks)
-    k = np.arange(leaf.size) - block_of[leaves][leaf]
-    first = -tree.meta[leaves, 0].astype(np.int64)[leaf] - 1 + k * lanes
-    count = np.minimum(tree.meta[leaves, 1].astype(np.int64)[leaf] - k * lanes, lanes)
+    first, count = block_ranges(tree, lanes)
     # a node visit pushes at most WIDTH - 1 more entries than it pops
     if depth * (WIDTH - 1) + 1 > STACK_SIZE:
         raise RuntimeError(

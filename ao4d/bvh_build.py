@@ -439,10 +439,10 @@ def device_wide_tree(tree: _bvh.BVH, runtime, lanes: int) -> dict[str, Any] | No
         return None
     if lanes in tree.device_wide:
         return tree.device_wide[lanes]
-    boxes, children, first, count, _ = _bvh.widen_topology(tree, lanes)
+    first, count = _bvh.block_ranges(tree, lanes)
     d = tree.dim
     n_blocks = len(first)
-    block_range = np.stack([first, count], 1)
+    block_range = np.stack([first, count], 1).astype(np.int32)
     ctx, queue = runtime.context, runtime.queue
     ro = cl_.mem_flags.READ_ONLY | cl_.mem_flags.COPY_HOST_PTR
     blocks = cl_.Buffer(ctx, cl_.mem_flags.READ_WRITE, 4 * n_blocks * (d + 1) * d * lanes)
@@ -450,6 +450,8 @@ def device_wide_tree(tree: _bvh.BVH, runtime, lanes: int) -> dict[str, Any] | No
         queue, (n_blocks * lanes,), None, source["vertices"], source["simplices"], source["order"],
         cl_.Buffer(ctx, ro, hostbuf=block_range), np.int32(lanes), blocks,
     )
+    queue.flush()  # the device fills the blocks while the host collapses the tree
+    boxes, children, _, _, _ = _bvh.widen_topology(tree, lanes)
     out = {
         "boxes": cl_.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(boxes)),
         "children": cl_.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(children)),

@@ -103,11 +103,10 @@ def collapse(left: np.ndarray, right: np.ndarray, area: np.ndarray, levels: list
         both = np.full((ids.size, width + 1), np.inf)  # both children, i slots between them
         k_best = np.zeros((ids.size, width + 1), dtype=np.int8)
         for i in range(2, width + 1):
-            for k in range(1, i):
-                c = cl[:, k] + cr[:, i - k]
-                better = c < both[:, i]
-                both[better, i] = c[better]
-                k_best[better, i] = k
+            c = cl[:, 1:i] + cr[:, i - 1 : 0 : -1]  # k = 1 .. i-1 slots for the left child
+            k = np.argmin(c, axis=1)  # the first of equal costs, as a loop over k would keep
+            both[:, i] = c[np.arange(ids.size), k]
+            k_best[:, i] = k + 1
         wide = area[ids] * COST_NODE + both[:, width]
         share[ids] = k_best[:, width]
         leaf[ids] = leaf_cost[ids] <= wide
