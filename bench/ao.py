@@ -16,8 +16,9 @@ measurement once, in turn, so that all see the same machine load; the table show
   its bundled TBB must not meet Intel's OpenCL runtime) and trimesh's ``intersects_any``
   (embreex: Embree from one Python thread). Build is the scene construction and the first query.
   ao4d traces exactly these rays on the same torus too (row "ao4d ... 3D torus").
-* Tree quality: SAH cost of each builder's tree and wide nodes visited / leaf blocks tested per
-  AO ray (``ao4d.raycast.traversal_counts``, on ``--quality-points`` vertices).
+* Tree quality: SAH cost of each builder's binary tree, its 8-wide form (nodes, share of slots
+  used, depth) and wide nodes visited / leaf blocks tested per AO ray
+  (``ao4d.raycast.traversal_counts``, on ``--quality-points`` vertices).
 * The numpy backend on a smaller 4D mesh, and the BVH kernel against the brute-force kernel.
 
 Rates count rays per wall-clock second; the machine's load average is printed before and after.
@@ -197,7 +198,7 @@ def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, points=No
 
 def quality(vertices, simplices, builder, runtime, samples, n_points, rng) -> dict:
     import ao4d
-    from ao4d import ao, bvh_build, raycast
+    from ao4d import ao, bvh, bvh_build, raycast
 
     mesh = ao4d.SimplexMesh(vertices, simplices)
     tree = raycast.get_bvh(mesh, builder=builder, runtime=runtime)
@@ -208,8 +209,10 @@ def quality(vertices, simplices, builder, runtime, samples, n_points, rng) -> di
         mesh, mesh.vertices[idx], normals[idx], samples=samples, offset=ao.ORIGIN_OFFSET * tree.diagonal,
         runtime=runtime,
     )
+    _, children, _, _, wide_depth = bvh.widen_topology(tree)
     return {"sah": bvh_build.sah_cost(tree), "nodes": nodes, "blocks": blocks, "depth": tree.depth,
-            "n_nodes": tree.n_nodes}
+            "n_nodes": tree.n_nodes, "wide": len(children), "used": float((children != 0).mean()),
+            "wide_depth": wide_depth}
 
 
 def timed(fn, repeat):
@@ -340,12 +343,13 @@ def main(argv=None) -> int:
                   f"{'met' if ratio >= 1.0 else 'missed'}")
 
     print(f"\ntree quality (AO rays from {args.quality_points:,} random vertices):")
-    print(f"{'':<30} {'SAH cost':>9} {'nodes/ray':>10} {'blocks/ray':>11} {'depth':>6} {'nodes':>9}")
+    print(f"{'':<30} {'SAH cost':>9} {'nodes/ray':>10} {'blocks/ray':>11} {'depth':>6} {'nodes':>9}"
+          f" {'wide nodes':>11} {'slots used':>11} {'wide depth':>11}")
     for name in shapes:
         for builder in ("host", "device"):
             qd = quality(*meshes[name], builder, runtime, args.samples, args.quality_points, rng)
             print(f"{name + ', ' + builder:<30} {qd['sah']:>9.1f} {qd['nodes']:>10.2f} {qd['blocks']:>11.2f} "
-                  f"{qd['depth']:>6} {qd['n_nodes']:>9,}")
+                  f"{qd['depth']:>6} {qd['n_nodes']:>9,} {qd['wide']:>11,} {qd['used']:>11.0%} {qd['wide_depth']:>11}")
 
     # the numpy backend, and the BVH kernel against brute force, on a smaller 4D mesh
     small = shape_mesh("spheritorus", args.numpy_tets)
