@@ -13,9 +13,9 @@ where OpenCL runs, :mod:`ao4d.bvh_build` builds the same kind of tree on the dev
 (:func:`ao4d.raycast.get_bvh` chooses and caches the tree on the mesh).
 
 The OpenCL kernels traverse its 8-wide form (:func:`widen`): the binary tree is collapsed into
-8-wide nodes by the SAH-optimal dynamic programme (:func:`ao4d.collapse.collapse`); every leaf becomes blocks of ``lanes``
-simplices stored as structure of arrays, and a subtree of at most ``LEAF_BLOCKS`` blocks (or one
-leaf's blocks) becomes one leaf slot of consecutive blocks. One node visit tests 8 boxes with
+8-wide nodes by the SAH-optimal dynamic programme of :mod:`ao4d.collapse`; every leaf becomes
+blocks of ``lanes`` simplices stored as structure of arrays, and a subtree of at most
+``LEAF_BLOCKS`` blocks (or one leaf's blocks) may become one leaf slot of consecutive blocks. One node visit tests 8 boxes with
 float8 arithmetic and one block test ``lanes`` simplices at once (16 on CPUs, 4 on GPUs: see
 :func:`widen`).
 
@@ -157,7 +157,7 @@ class WideBVH:
 
 
 def widen(tree: BVH, lanes: int = LANES) -> WideBVH:
-    """Collapse the binary tree into 8-wide nodes (SAH-optimal, :func:`_collapse`).
+    """Collapse the binary tree into 8-wide nodes (SAH-optimal: :func:`ao4d.collapse.collapse`).
 
     Each binary leaf becomes ``ceil(count / lanes)`` consecutive leaf blocks of ``lanes``
     (4, 8 or 16) simplices. :mod:`ao4d.ao` asks for 16 on CPUs (one AVX-512 register per row of

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
@@ -113,10 +114,10 @@ def _sobol_compute(samples: int, ndim: int, seed: int) -> np.ndarray:
     return np.floor(pts * (1 << BITS)).astype(np.uint32)
 
 
-def _sobol_file(samples: int, ndim: int, seed: int):
-    """Where the table is kept across processes: importing scipy.stats costs 0.6-1.2 s, more
-    than a first AO call on a 1M-tet mesh spends tracing; keyed by scipy's version, whose
-    scrambling defines the table."""
+def _sobol_file(samples: int, ndim: int, seed: int) -> Path | None:
+    """Where the table is kept across processes (importing scipy.stats costs 0.6-1.2 s, most of
+    what a first AO call on a 1M-tet mesh spends tracing), or None; keyed by scipy's version,
+    whose scrambling defines the table."""
     from importlib.metadata import PackageNotFoundError, version
 
     from ._kernel_binaries import cache_dir
@@ -131,7 +132,7 @@ def _sobol_file(samples: int, ndim: int, seed: int):
     return folder / f"sobol-{samples}-{ndim}-{seed}-{BITS}-scipy{scipy_version}.npy"
 
 
-def _read_table(path, samples: int, ndim: int) -> np.ndarray | None:
+def _read_table(path: Path, samples: int, ndim: int) -> np.ndarray | None:
     """The kept table, or None when it is missing or not a table of this shape (damaged)."""
     try:
         table = np.load(path, allow_pickle=False)
