@@ -277,8 +277,24 @@ def _as_dask(values: Any, chunks: Any, text: str) -> Any:
 # --------------------------------------------------------------------------------------------
 
 
+class _ArraySource:
+    """What dask reads of a lazy source besides ``__getitem__``: ``ndim`` and ``dtype``, from the
+    subclass's ``shape`` and ``dtype_str`` fields."""
+
+    shape: tuple[int, ...]
+    dtype_str: str
+
+    @property
+    def ndim(self) -> int:
+        return len(self.shape)
+
+    @property
+    def dtype(self) -> np.dtype:
+        return np.dtype(self.dtype_str)
+
+
 @dataclass(frozen=True)
-class _RawSource:
+class _RawSource(_ArraySource):
     """A raw array in a file (npy payload, MetaImage raw, uncompressed NIfTI), memory-mapped
     on first use in each process."""
 
@@ -288,14 +304,6 @@ class _RawSource:
     offset: int
     order: str
 
-    @property
-    def ndim(self) -> int:
-        return len(self.shape)
-
-    @property
-    def dtype(self) -> np.dtype:
-        return np.dtype(self.dtype_str)
-
     def __getitem__(self, index: Any) -> np.ndarray:
         mm = np.memmap(self.path, dtype=self.dtype, mode="r", offset=self.offset,
                        shape=self.shape, order=self.order)
@@ -303,20 +311,12 @@ class _RawSource:
 
 
 @dataclass(frozen=True)
-class _NiftiSource:
+class _NiftiSource(_ArraySource):
     """A NIfTI image read (with its scaling) through nibabel's array proxy."""
 
     path: str
     shape: tuple[int, ...]
     dtype_str: str
-
-    @property
-    def ndim(self) -> int:
-        return len(self.shape)
-
-    @property
-    def dtype(self) -> np.dtype:
-        return np.dtype(self.dtype_str)
 
     def __getitem__(self, index: Any) -> np.ndarray:
         import nibabel as nib
@@ -330,21 +330,13 @@ class _NiftiSource:
 
 
 @dataclass(frozen=True)
-class _H5Source:
+class _H5Source(_ArraySource):
     """An HDF5 dataset, opened by name (h5py objects do not pickle)."""
 
     path: str
     dataset: str
     shape: tuple[int, ...]
     dtype_str: str
-
-    @property
-    def ndim(self) -> int:
-        return len(self.shape)
-
-    @property
-    def dtype(self) -> np.dtype:
-        return np.dtype(self.dtype_str)
 
     def __getitem__(self, index: Any) -> np.ndarray:
         import h5py
