@@ -67,6 +67,42 @@ def _value_range(data: np.ma.MaskedArray, vmin, vmax) -> tuple[float, float]:
     return lo, hi
 
 
+def _xy_extent(shape, spacing, origin) -> list[float]:
+    """imshow's extent of an (x, y, ...) voxel array: voxel centres at origin + spacing * i."""
+    return [origin[0] - spacing[0] / 2, origin[0] + spacing[0] * (shape[0] - 0.5),
+            origin[1] - spacing[1] / 2, origin[1] + spacing[1] * (shape[1] - 0.5)]
+
+
+def _montage(occupied: np.ndarray, n_slices: int, columns: int, extent, z0: float, dz: float,
+             *, colorbar: bool):
+    """A figure of ``n_slices`` z-slice panels through the occupied z range only (empty panels
+    say nothing), with a narrow last column for a colour bar if asked: (figure, grid spec,
+    [(axes, z index)]); each panel is titled with its z and has no ticks."""
+    z = np.flatnonzero(occupied)
+    k0, k1 = (z[0], z[-1]) if z.size else (0, len(occupied) - 1)
+    ks = np.unique(np.linspace(k0, k1, n_slices).round().astype(int))
+    columns = min(columns, len(ks))
+    rows = math.ceil(len(ks) / columns)
+    aspect = (extent[3] - extent[2]) / (extent[1] - extent[0])
+    panel = 2.2
+    fig = figure(panel * columns + (1.2 if colorbar else 0.4), panel * aspect * rows + 0.9)
+    top = 1 - 0.55 / fig.get_figheight()
+    if colorbar:
+        grid = fig.add_gridspec(rows, columns + 1, width_ratios=[1] * columns + [0.06], left=0.04,
+                                right=0.9, top=top, bottom=0.03, wspace=0.08, hspace=0.25)
+    else:
+        grid = fig.add_gridspec(rows, columns, left=0.03, right=0.97, top=top, bottom=0.03,
+                                wspace=0.08, hspace=0.25)
+    panels = []
+    for n, k in enumerate(ks):
+        ax = fig.add_subplot(grid[n // columns, n % columns])
+        ax.set_title(f"z = {z0 + dz * k:.3g}", fontsize=8, pad=2)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        panels.append((ax, k))
+    return fig, grid, panels
+
+
 def save_montage(
     path: str | os.PathLike,
     data,
@@ -121,35 +157,17 @@ def save_montage(
     spacing3 = tuple(as_vector(spacing, "spacing", 3, positive=True))
     origin3 = tuple(as_vector(origin, "origin", 3))
     lo, hi = _value_range(arr, vmin, vmax)
-    # slices through the occupied z range only: empty panels say nothing
-    occupied = np.flatnonzero((~np.ma.getmaskarray(arr)).any(axis=(0, 1)))
-    k0, k1 = (occupied[0], occupied[-1]) if occupied.size else (0, arr.shape[2] - 1)
-    ks = np.unique(np.linspace(k0, k1, n_slices).round().astype(int))
-    columns = min(columns, len(ks))
-    rows = math.ceil(len(ks) / columns)
     import matplotlib
 
     colormap = matplotlib.colormaps[cmap].with_extremes(bad=(0.33, 0.38, 0.45))
-    extent = [
-        origin3[0] - spacing3[0] / 2,
-        origin3[0] + spacing3[0] * (arr.shape[0] - 0.5),
-        origin3[1] - spacing3[1] / 2,
-        origin3[1] + spacing3[1] * (arr.shape[1] - 0.5),
-    ]
-    aspect = (extent[3] - extent[2]) / (extent[1] - extent[0])
-    panel = 2.2
-    fig = figure(panel * columns + 1.2, panel * aspect * rows + 0.9)
-    grid = fig.add_gridspec(rows, columns + 1, width_ratios=[1] * columns + [0.06],
-                            left=0.04, right=0.9, top=1 - 0.55 / fig.get_figheight(),
-                            bottom=0.03, wspace=0.08, hspace=0.25)
+    extent = _xy_extent(arr.shape, spacing3, origin3)
+    occupied = (~np.ma.getmaskarray(arr)).any(axis=(0, 1))
+    fig, grid, panels = _montage(occupied, n_slices, columns, extent, origin3[2], spacing3[2],
+                                 colorbar=True)
     image = None
-    for n, k in enumerate(ks):
-        ax = fig.add_subplot(grid[n // columns, n % columns])
+    for ax, k in panels:
         image = ax.imshow(arr[:, :, k].T, origin="lower", cmap=colormap, vmin=lo, vmax=hi,
                           extent=extent, interpolation="nearest")
-        ax.set_title(f"z = {origin3[2] + spacing3[2] * k:.3g}", fontsize=8, pad=2)
-        ax.set_xticks([])
-        ax.set_yticks([])
     cax = fig.add_subplot(grid[:, -1])
     bar = fig.colorbar(image, cax=cax)
     bar.set_label(label, fontsize=9)
@@ -316,8 +334,7 @@ def _volume_png_numpy(path, arr, lo, hi, *, title, label, cmap, spacing, origin)
     rgba = composite(arr.data, background=arr.mask, cmap=cmap, vmin=lo, vmax=hi, axis=2)
     white = np.ones(3)
     picture = rgba[..., :3] + (1.0 - rgba[..., 3:]) * white  # over a white background
-    extent = [origin[0] - spacing[0] / 2, origin[0] + spacing[0] * (arr.shape[0] - 0.5),
-              origin[1] - spacing[1] / 2, origin[1] + spacing[1] * (arr.shape[1] - 0.5)]
+    extent = _xy_extent(arr.shape, spacing, origin)
     fig = figure(6.4, 5.4)
     ax = fig.add_axes([0.08, 0.08, 0.72, 0.8])
     ax.imshow(np.swapaxes(np.clip(picture, 0, 1), 0, 1), origin="lower", extent=extent,
@@ -405,31 +422,13 @@ def save_rgba_montage(
     columns = check_positive_int(columns, "columns")
     spacing3 = tuple(as_vector(spacing, "spacing", 3, positive=True))
     origin3 = tuple(as_vector(origin, "origin", 3))
-    occupied = np.flatnonzero((arr[..., 3] > 0).any(axis=(0, 1)))
-    k0, k1 = (occupied[0], occupied[-1]) if occupied.size else (0, arr.shape[2] - 1)
-    ks = np.unique(np.linspace(k0, k1, n_slices).round().astype(int))
-    columns = min(columns, len(ks))
-    rows = math.ceil(len(ks) / columns)
-    extent = [
-        origin3[0] - spacing3[0] / 2,
-        origin3[0] + spacing3[0] * (arr.shape[0] - 0.5),
-        origin3[1] - spacing3[1] / 2,
-        origin3[1] + spacing3[1] * (arr.shape[1] - 0.5),
-    ]
-    aspect = (extent[3] - extent[2]) / (extent[1] - extent[0])
-    panel = 2.2
-    fig = figure(panel * columns + 0.4, panel * aspect * rows + 0.9)
-    grid = fig.add_gridspec(rows, columns, left=0.03, right=0.97,
-                            top=1 - 0.55 / fig.get_figheight(), bottom=0.03, wspace=0.08,
-                            hspace=0.25)
+    extent = _xy_extent(arr.shape, spacing3, origin3)
+    fig, _, panels = _montage((arr[..., 3] > 0).any(axis=(0, 1)), n_slices, columns, extent,
+                              origin3[2], spacing3[2], colorbar=False)
     shown = np.clip(over_background(arr), 0.0, 1.0)
-    for n, k in enumerate(ks):
-        ax = fig.add_subplot(grid[n // columns, n % columns])
+    for ax, k in panels:
         ax.imshow(np.swapaxes(shown[:, :, k], 0, 1), origin="lower", extent=extent,
                   interpolation="nearest")
-        ax.set_title(f"z = {origin3[2] + spacing3[2] * k:.3g}", fontsize=8, pad=2)
-        ax.set_xticks([])
-        ax.set_yticks([])
     fig.suptitle(title, fontsize=10)
     return save_figure(fig, path)
 
@@ -517,8 +516,7 @@ def save_rgba_volume_png(
                 raise
     layered = composite_rgba(arr, axis=2)  # premultiplied: over white is C + (1 - A) white
     picture = layered[..., :3] + (1.0 - layered[..., 3:])
-    extent = [origin3[0] - spacing3[0] / 2, origin3[0] + spacing3[0] * (arr.shape[0] - 0.5),
-              origin3[1] - spacing3[1] / 2, origin3[1] + spacing3[1] * (arr.shape[1] - 0.5)]
+    extent = _xy_extent(arr.shape, spacing3, origin3)
     fig = figure(6.0, 5.4)
     ax = fig.add_axes([0.1, 0.08, 0.85, 0.8])
     ax.imshow(np.swapaxes(np.clip(picture, 0, 1), 0, 1), origin="lower", extent=extent,
