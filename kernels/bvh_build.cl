@@ -286,9 +286,21 @@ typedef struct {
     float4 lo[MAX_BINS], hi[MAX_BINS], c_lo[MAX_BINS], c_hi[MAX_BINS];
 } Bins;
 
-inline void bins_clear(Bins *b)
+// bin k takes n primitives with box [lo, hi] and centroids in [c_lo, c_hi]
+inline void bins_add(Bins *b, const int k, const int n, const float4 lo, const float4 hi,
+                     const float4 c_lo, const float4 c_hi)
 {
-    for (int k = 0; k < MAX_BINS; ++k) {
+    b->n[k] += n;
+    b->lo[k] = fmin(b->lo[k], lo);
+    b->hi[k] = fmax(b->hi[k], hi);
+    b->c_lo[k] = fmin(b->c_lo[k], c_lo);
+    b->c_hi[k] = fmax(b->c_hi[k], c_hi);
+}
+
+// empty the first `bins` bins
+inline void bins_clear(Bins *b, const int bins)
+{
+    for (int k = 0; k < bins; ++k) {
         b->n[k] = 0;
         b->lo[k] = b->c_lo[k] = (float4)(INFINITY);
         b->hi[k] = b->c_hi[k] = (float4)(-INFINITY);
@@ -377,16 +389,12 @@ __kernel __attribute__((vec_type_hint(float4))) void bin_chunks(
     const int4 ni = node_i[ch.x];
     const float4 nf = node_f[ch.x];
     Bins b;
-    bins_clear(&b);
+    bins_clear(&b, MAX_BINS);
     for (int i = ch.y; i < ch.z; ++i) {
         const float4 cen = rec[3 * (size_t)i + 2];
         const int k = bin_of_value(component(cen, ni.x), nf.x, nf.y, ni.y);
         bin_of[i] = (uchar)k;
-        b.n[k] += 1;
-        b.lo[k] = fmin(b.lo[k], rec[3 * (size_t)i]);
-        b.hi[k] = fmax(b.hi[k], rec[3 * (size_t)i + 1]);
-        b.c_lo[k] = fmin(b.c_lo[k], cen);
-        b.c_hi[k] = fmax(b.c_hi[k], cen);
+        bins_add(&b, k, 1, rec[3 * (size_t)i], rec[3 * (size_t)i + 1], cen, cen);
     }
     for (int k = 0; k < MAX_BINS; ++k) {
         const size_t at = (size_t)c * MAX_BINS + k;
@@ -411,15 +419,12 @@ __kernel void split_nodes(__global const int4 *node_i, __global const float4 *no
     const int4 ni = node_i[n];
     const int c0 = node_chunk[n], c1 = node_chunk[n + 1];
     Bins b;
-    bins_clear(&b);
+    bins_clear(&b, MAX_BINS);
     for (int c = c0; c < c1; ++c)
         for (int k = 0; k < ni.y; ++k) {
             const size_t at = (size_t)c * MAX_BINS + k;
-            b.n[k] += part_n[at];
-            b.lo[k] = fmin(b.lo[k], part_b[4 * at]);
-            b.hi[k] = fmax(b.hi[k], part_b[4 * at + 1]);
-            b.c_lo[k] = fmin(b.c_lo[k], part_b[4 * at + 2]);
-            b.c_hi[k] = fmax(b.c_hi[k], part_b[4 * at + 3]);
+            bins_add(&b, k, part_n[at], part_b[4 * at], part_b[4 * at + 1], part_b[4 * at + 2],
+                     part_b[4 * at + 3]);
         }
     float4 lo, hi, cb[4];
     int split = sah_split(&b, ni.y, &lo, &hi, cb);
@@ -559,20 +564,12 @@ __kernel __attribute__((vec_type_hint(float4))) void build_subtrees(
             reduce_range(rec, start + left, count - left, 2, &cb[2], &cb[3]);
         } else {
             const int bins = bins_for(count);
-            for (int k = 0; k < bins; ++k) {
-                b.n[k] = 0;
-                b.lo[k] = b.c_lo[k] = (float4)(INFINITY);
-                b.hi[k] = b.c_hi[k] = (float4)(-INFINITY);
-            }
+            bins_clear(&b, bins);
             for (int i = start; i < start + count; ++i) {
                 const float4 cen = rec[3 * (size_t)i + 2];
                 const int k = bin_of_value(component(cen, axis), origin, ext, bins);
                 bin_of[i] = (uchar)k;
-                b.n[k] += 1;
-                b.lo[k] = fmin(b.lo[k], rec[3 * (size_t)i]);
-                b.hi[k] = fmax(b.hi[k], rec[3 * (size_t)i + 1]);
-                b.c_lo[k] = fmin(b.c_lo[k], cen);
-                b.c_hi[k] = fmax(b.c_hi[k], cen);
+                bins_add(&b, k, 1, rec[3 * (size_t)i], rec[3 * (size_t)i + 1], cen, cen);
             }
             int split = sah_split(&b, bins, &lo, &hi, cb);
             if (level >= SAH_MAX_LEVEL) split = 0;
