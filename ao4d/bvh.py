@@ -193,14 +193,20 @@ def block_ranges(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarray]
     leaf, in simplex order, becomes ``ceil(count / lanes)`` consecutive blocks, block k holding
     its simplices ``k * lanes .. (k + 1) * lanes - 1``. The collapse does not change them, so
     :mod:`ao4d.bvh_build` fills the blocks on the device while the host collapses."""
-    leaves = np.flatnonzero(tree.meta[:, 0] < 0)
-    leaves = leaves[np.argsort(tree.meta[leaves, 0])[::-1]]  # by first simplex: -(start + 1)
+    leaves, per_leaf, first_block = _leaf_blocks(tree, lanes)
     start = -tree.meta[leaves, 0].astype(np.int64) - 1
     size = tree.meta[leaves, 1].astype(np.int64)
-    per_leaf = -(-size // lanes)
     leaf = np.repeat(np.arange(leaves.size), per_leaf)
-    k = np.arange(leaf.size) - (np.cumsum(per_leaf) - per_leaf)[leaf]
+    k = np.arange(leaf.size) - first_block[leaf]
     return start[leaf] + k * lanes, np.minimum(size[leaf] - k * lanes, lanes)
+
+
+def _leaf_blocks(tree: BVH, lanes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The binary leaves in simplex order, their block counts and their first blocks."""
+    leaves = np.flatnonzero(tree.meta[:, 0] < 0)
+    leaves = leaves[np.argsort(tree.meta[leaves, 0])[::-1]]  # by first simplex: -(start + 1)
+    per_leaf = -(-tree.meta[leaves, 1].astype(np.int64) // lanes)
+    return leaves, per_leaf, np.cumsum(per_leaf) - per_leaf
 
 
 def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
@@ -221,22 +227,18 @@ def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarra
     d = tree.dim
     left = np.where(tree.meta[:, 0] >= 0, tree.meta[:, 0], -1).astype(np.int64)
     right = np.where(tree.meta[:, 0] >= 0, tree.meta[:, 1], -1).astype(np.int64)
-    is_leaf = left < 0
-    leaves = np.flatnonzero(is_leaf)
-    leaves = leaves[np.argsort(tree.meta[leaves, 0])[::-1]]  # by first simplex: -(start + 1)
-    leaf_blocks = -(-tree.meta[leaves, 1].astype(np.int64) // lanes)
+    leaves, leaf_blocks, leaf_first = _leaf_blocks(tree, lanes)
     max_blocks = max(LEAF_BLOCKS, int(leaf_blocks.max()))
     if max_blocks > 4:  # the leaf encoding holds 1 to 4 blocks
         raise ValueError(
             f"the OpenCL kernels need leaves of at most {4 * lanes} simplices for {lanes} lanes"
         )
-    block_of = np.full(tree.n_nodes, -1, dtype=np.int64)
-    block_of[leaves] = np.cumsum(leaf_blocks) - leaf_blocks
-    # a subtree of at most max_blocks blocks becomes one leaf slot: its blocks are consecutive
-    # (blocks follow the simplex order)
+    # a subtree of at most max_blocks blocks may become one leaf slot: its blocks are
+    # consecutive (blocks follow the simplex order)
     n_blocks = np.zeros(tree.n_nodes, dtype=np.int64)
     n_blocks[leaves] = leaf_blocks
-    first_block = block_of.copy()
+    first_block = np.full(tree.n_nodes, -1, dtype=np.int64)
+    first_block[leaves] = leaf_first
     levels = _levels(tree.meta)
     for ids in reversed(levels):  # bottom up, each node once
         ids = ids[left[ids] >= 0]
