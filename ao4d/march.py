@@ -5,17 +5,7 @@ and hand a slab reader to one vectorised core, :func:`ao4d.cells._march`, which 
 its own; dask arrays and ``chunks=`` go to :mod:`ao4d.blockwise`, which runs the same core on
 blocks as dask tasks.
 
-How the core works is described in :mod:`ao4d.cells`.
-
-References
-----------
-.. [1] P. Bhaniramka, R. Wenger, R. Crawfis, "Isosurfacing in higher dimensions", IEEE
-   Visualization 2000, doi:10.1109/VISUAL.2000.885693; "Isosurface construction in any dimension
-   using convex hulls", IEEE TVCG 10(2) (2004), doi:10.1109/TVCG.2004.1260762.
-.. [2] W. E. Lorensen, H. E. Cline, "Marching cubes: a high resolution 3D surface construction
-   algorithm", SIGGRAPH 1987, doi:10.1145/37402.37422.
-.. [3] H. Freudenthal, "Simplizialzerlegungen von beschränkter Flachheit", Annals of Mathematics
-   43(3) (1942), doi:10.2307/1968813 (the Kuhn split).
+How the core works, and the papers it follows, are described in :mod:`ao4d.cells`.
 """
 
 from __future__ import annotations
