@@ -178,7 +178,7 @@ def ambient_occlusion(
     desc = f"{d}D AO ({cl.backend_name(runtime)})"
     with progress_bar(progress, idx.size * samples, desc) as bar:
         counts = count_occluded(mesh, pts, nrm, samples=samples, seed=seed,
-                                offset=ORIGIN_OFFSET * tree.diagonal, max_distance=max_distance,
+                                offset=ORIGIN_OFFSET * tree.world_diagonal, max_distance=max_distance,
                                 runtime=runtime, accel=accel, bar=bar)
     occlusion[idx] = counts / samples
     if points is None and at == "vertices":

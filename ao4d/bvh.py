@@ -44,7 +44,7 @@ from ._validate import as_array, check_positive_int
 from .collapse import collapse
 from .geometry import cross_components
 
-__all__ = ["BVH", "WideBVH", "build", "widen", "widen_topology", "intersect", "barycentric", "BARY_EPS"]
+__all__ = ["BVH", "Frame", "WideBVH", "build", "widen", "widen_topology", "intersect", "barycentric", "BARY_EPS"]
 
 # Barycentric tolerance: a ray through a face shared by two simplices counts for at least one of
 # them despite rounding (float32 dot products of O(1) barycentrics err by ~1e-7).
@@ -57,6 +57,53 @@ _DEGENERATE_RTOL = 1e-12  # |n| below this times (longest edge)^(d-1): zero meas
 _SAH_BINS = 32
 _SAH_MIN_COUNT = 16  # smaller nodes split at the median: 3 fewer levels, 20% less build time, same speed (8 and 32 measured)
 _SAH_MAX_LEVEL = 40  # deeper levels split at the median: depth <= 40 + log2(P) < 64
+
+
+@dataclass(frozen=True)
+class Frame:
+    """The float64 map from world coordinates to a tree's: ``x_tree = (x - centre) * scale``.
+
+    The ray-casting module builds every tree in the frame that :meth:`fit` gives a mesh: centred
+    on its bounding box and scaled by a power of two that brings the box's half extent into
+    [1/2, 1). Geometry and rays are mapped in float64 before anything is rounded to float32, so
+    rounding errs relative to the scene's size wherever the scene lies (a scene 1e6 from the
+    origin, or scanner millimetres, traces as it does at the origin), and the power of two keeps
+    lengths exact both ways.
+
+    Attributes
+    ----------
+    centre : (d,) float64
+    scale : float
+        A power of two.
+    """
+
+    centre: np.ndarray
+    scale: float
+
+    @classmethod
+    def identity(cls, dim: int) -> "Frame":
+        """The frame that leaves coordinates as they are."""
+        return cls(np.zeros(dim), 1.0)
+
+    @classmethod
+    def fit(cls, vertices: np.ndarray) -> "Frame":
+        """The frame of points ``vertices`` (V, d): their box's centre, half extent in [1/2, 1)."""
+        lo, hi = vertices.min(0).astype(np.float64), vertices.max(0).astype(np.float64)
+        half = float(np.max(hi - lo)) / 2
+        exponent = math.frexp(half)[1] if half > 0 else 0
+        return cls(0.5 * (lo + hi), math.ldexp(1.0, -exponent))
+
+    def points(self, x: np.ndarray) -> np.ndarray:
+        """Points (N, d) in tree coordinates, float64."""
+        return (np.asarray(x, dtype=np.float64) - self.centre) * self.scale
+
+    def length(self, t: float) -> float:
+        """A world length (or ray parameter of a unit direction) in tree units."""
+        return t * self.scale
+
+    def world_length(self, t):
+        """A tree length (scalar or array) in world units."""
+        return t / self.scale
 
 
 @dataclass
@@ -82,7 +129,10 @@ class BVH:
     depth : int
         Number of levels (root = 1).
     diagonal : float
-        Length of the scene's bounding box diagonal.
+        Length of the scene's bounding box diagonal (in the tree's coordinates).
+    frame : Frame
+        The map from world to tree coordinates (identity unless the caller set one: the trees
+        of :func:`ao4d.raycast.get_bvh` are built in ``Frame.fit(mesh.vertices)``).
     """
 
     dim: int
@@ -95,7 +145,17 @@ class BVH:
     n_skipped: int
     depth: int
     diagonal: float
+    frame: Frame | None = None  # None: the identity (set in __post_init__)
     _wide: dict = field(default_factory=dict, repr=False, compare=False)  # lanes -> WideBVH
+
+    def __post_init__(self) -> None:
+        if self.frame is None:
+            self.frame = Frame.identity(self.dim)
+
+    @property
+    def world_diagonal(self) -> float:
+        """``diagonal`` in world units (see ``frame``)."""
+        return float(self.frame.world_length(self.diagonal))
 
     @property
     def n_nodes(self) -> int:
@@ -172,7 +232,11 @@ def widen(tree: BVH, lanes: int = LANES) -> WideBVH:
     used = block_prim >= 0
     b, l = np.nonzero(used)
     inverse, origin = tree.frames(block_prim[used])
-    blocks[b, :d, :, l] = inverse
+    # a well-shaped simplex far below float32's resolution of the scene (1e-12 of it, where a
+    # grid value nearly equals the level) has inverse entries beyond FLT_MAX: they round to inf
+    # as on the device (convert_float), and its rays' t = inf / inf = NaN is never a hit
+    with np.errstate(over="ignore"):
+        blocks[b, :d, :, l] = inverse
     blocks[b, d, :, l] = origin
     return WideBVH(boxes=boxes, children=children, blocks=blocks, block_prim=block_prim, depth=depth)
 

@@ -157,14 +157,22 @@ def _fingerprint(vertices: np.ndarray, simplices: np.ndarray) -> str:
 
 
 def _build_tree(builder: str, vertices, simplices, leaf_size: int, runtime) -> _bvh.BVH:
+    """The tree of the mesh in its own frame (:class:`ao4d.bvh.Frame`): recentred and scaled in
+    float64, so that the float32 kernels see coordinates of order one wherever the mesh lies."""
+    vertices = np.asarray(vertices, dtype=np.float64)  # the builders check it
+    frame = _bvh.Frame.fit(vertices)
+    local = frame.points(vertices)
     if builder == "device":
         if runtime is None:
             runtime = cl.get_runtime(warn=False)
             if runtime is None:
                 raise cl.NoOpenCLDeviceError("builder='device' needs an OpenCL device; none works (see `ao4d info`)")
-        return bvh_build.build(vertices, simplices, leaf_size=leaf_size, runtime=runtime,
+        tree = bvh_build.build(local, simplices, leaf_size=leaf_size, runtime=runtime,
                                lanes=_block_lanes(runtime))
-    return _bvh.build(vertices, simplices, leaf_size=leaf_size)
+    else:
+        tree = _bvh.build(local, simplices, leaf_size=leaf_size)
+    tree.frame = frame
+    return tree
 
 
 def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: Any = None) -> _bvh.BVH:
@@ -186,7 +194,8 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
     Returns
     -------
     ao4d.bvh.BVH
-        A :class:`ao4d.bvh_build.DeviceBVH` when built on the device.
+        A :class:`ao4d.bvh_build.DeviceBVH` when built on the device. Its geometry is in the
+        tree's coordinates, ``tree.frame.points(mesh.vertices)``: rays must be mapped likewise.
 
     Uses the mesh's ``cache`` dict when it has one (dropped when the mesh changes); otherwise a
     weak-keyed cache checked against a hash of the vertex and simplex arrays.
@@ -571,13 +580,16 @@ def cast_rays(
     if n == 0:  # OpenCL refuses buffers of zero bytes
         return RayHits(t=np.zeros(0), simplex=np.zeros(0, dtype=np.int64), barycentric=np.zeros((0, d)))
     tree = get_bvh(mesh, runtime=runtime)
+    frame = tree.frame
+    origins, reach = frame.points(origins), frame.length(max_distance)
     with progress_bar(progress, n, "rays") as bar:
         if runtime is not None:
-            _, hit = _trace_opencl(mesh, tree, runtime, origins, directions, max_distance, not closest, accel, bar)
+            _, hit = _trace_opencl(mesh, tree, runtime, origins, directions, reach, not closest, accel, bar)
         else:
             check_memory(n * 64.0, "the numpy ray arrays")
-            _, hit = _trace_numpy(tree, origins, directions, max_distance, not closest, accel, bar)
-    return _refine_hits(tree, origins, directions, hit)
+            _, hit = _trace_numpy(tree, origins, directions, reach, not closest, accel, bar)
+    hits = _refine_hits(tree, origins, directions, hit)
+    return RayHits(t=frame.world_length(hits.t), simplex=hits.simplex, barycentric=hits.barycentric)
 
 
 def _refine_hits(tree, origins, directions, hit) -> RayHits:
@@ -615,7 +627,8 @@ def count_occluded(
 
     The rays start at ``point + offset * normal``; their directions come from
     :func:`ao4d.sampling.cosine_hemisphere` (on the device the same ones are generated in the
-    kernel). No validation: :func:`ao4d.ao.ambient_occlusion` checks the inputs.
+    kernel). Points, ``offset`` and ``max_distance`` are in world units and are mapped into the
+    tree's frame here. No validation: :func:`ao4d.ao.ambient_occlusion` checks the inputs.
 
     Parameters
     ----------
@@ -638,9 +651,12 @@ def count_occluded(
     bar = _NullBar() if bar is None else bar
     if len(points) == 0:
         return np.zeros(0, dtype=np.int64)
+    frame = tree.frame
+    args = (frame.points(points), normals, samples, seed, frame.length(offset), frame.length(max_distance),
+            accel, bar)
     if runtime is not None:
-        return _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_distance, accel, bar)
-    return _ao_numpy(tree, points, normals, samples, seed, offset, max_distance, accel, bar)
+        return _ao_opencl(mesh, tree, runtime, *args)
+    return _ao_numpy(tree, *args)
 
 
 def traversal_counts(
@@ -663,7 +679,8 @@ def traversal_counts(
     if len(points) == 0:
         return math.nan, math.nan
     visits = np.zeros((len(points), 2), dtype=np.int64)
-    _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_distance, "bvh",
-               _NullBar(), visits=visits)
+    frame = tree.frame
+    _ao_opencl(mesh, tree, runtime, frame.points(points), normals, samples, seed, frame.length(offset),
+               frame.length(max_distance), "bvh", _NullBar(), visits=visits)
     rays = len(points) * samples
     return float(visits[:, 0].sum()) / rays, float(visits[:, 1].sum()) / rays

@@ -206,7 +206,7 @@ def quality(vertices, simplices, builder, runtime, samples, n_points, rng) -> di
     ok = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)
     idx = np.sort(rng.choice(ok, size=min(n_points, ok.size), replace=False))
     nodes, blocks = raycast.traversal_counts(
-        mesh, mesh.vertices[idx], normals[idx], samples=samples, offset=ao.ORIGIN_OFFSET * tree.diagonal,
+        mesh, mesh.vertices[idx], normals[idx], samples=samples, offset=ao.ORIGIN_OFFSET * tree.world_diagonal,
         runtime=runtime,
     )
     _, children, _, _, wide_depth = bvh.widen_topology(tree)

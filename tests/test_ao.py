@@ -60,7 +60,7 @@ def test_parallel_plane(d, h, L, backend):
     samples = 256
     a = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=samples, max_distance=L, backend=backend)
     # rays start ORIGIN_OFFSET diagonals above the point: the plane is that much closer
-    eps = ao.ORIGIN_OFFSET * raycast.get_bvh(mesh).diagonal
+    eps = ao.ORIGIN_OFFSET * raycast.get_bvh(mesh).world_diagonal
     expected = parallel_plane_occlusion(d, h - eps, L)
     assert abs(a.mean() - expected) <= binomial_tolerance(expected, a.size * samples)
     if d == 4 and (h, L) == (1.0, 2.0):
@@ -192,7 +192,7 @@ def test_ao_matches_embree_with_the_same_directions(backend):
     samples = 64
     ours = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=samples, backend=backend)
     w = sampling.cosine_hemisphere(n, samples).reshape(-1, 3)
-    origins = np.repeat(p + ao.ORIGIN_OFFSET * raycast.get_bvh(mesh).diagonal * n, samples, axis=0)
+    origins = np.repeat(p + ao.ORIGIN_OFFSET * raycast.get_bvh(mesh).world_diagonal * n, samples, axis=0)
     theirs = RayMeshIntersector(scene).intersects_any(origins, w).reshape(-1, samples).mean(1)
     # identical rays: per point at most a couple of grazing rays differ, and no bias
     assert np.abs(ours - theirs).max() <= 3 / samples

@@ -105,7 +105,10 @@ def test_bvh_is_cached_on_the_mesh_and_rebuilt_after_edits():
     mesh.vertices = vertices + 1.0
     second = raycast.get_bvh(mesh)
     assert second is not first
-    np.testing.assert_allclose(second.origin, first.origin + 1.0)
+    # trees hold their mesh in its own frame: the same local geometry, a moved centre
+    np.testing.assert_allclose(second.frame.centre, first.frame.centre + 1.0)
+    world = [t.origin / t.frame.scale + t.frame.centre for t in (first, second)]
+    np.testing.assert_allclose(world[1], world[0] + 1.0)
 
 
 def test_fallback_cache_for_plain_objects():

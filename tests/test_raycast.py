@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 import ao4d
-from _scenes import embree_scene, random_rays, random_soup, soup_scene, sphere_over_ground
+from _scenes import embree_scene, flat_patch, random_rays, random_soup, soup_scene, sphere_over_ground
 from ao4d import bvh, cl, raycast
 
 DIMS = (2, 3, 4)
@@ -277,3 +277,91 @@ def test_traversal_stack_size_comes_from_python(cl_runtime, monkeypatch):
     fresh = ao4d.SimplexMesh(mesh.vertices, mesh.simplices)
     with pytest.raises(RuntimeError, match="too deep for the kernels' traversal stack"):
         raycast.cast_rays(fresh, o, w, backend="opencl")
+
+
+# -- geometry recentred and scaled in float64 before the float32 kernels ------------------------
+
+
+@pytest.fixture(scope="module")
+def hypersphere14():
+    mesh = ao4d.extract_field(ao4d.fields.hypersphere(1.0), 14, (-1.3, 1.3))
+    assert mesh.check().closed
+    return mesh
+
+
+# shift / scale up to 1e6: float64 itself keeps 1e-10 of the scene's size there
+@pytest.mark.parametrize("shift, scale", [(1e6, 1.0), (1e4, 1.0), (-0.3, 1e-6), (2e3, 1e6), (1e12, 1e6)])
+def test_far_and_scaled_scene_traces_as_at_the_origin(hypersphere14, shift, scale, backend):
+    # absolute float32 coordinates lost hits through a closed hypersphere 1e4 from the origin
+    # (105 of 15k rays), and its AO, exactly 0 for this convex shape, became 0.54 on OpenCL
+    rng = np.random.default_rng(1600)
+    base = hypersphere14
+    moved = ao4d.SimplexMesh(base.vertices * scale + shift, base.simplices)
+    n = 4000 if backend == "opencl" else 600
+    w = rng.normal(size=(n, 4))
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    o = rng.uniform(-0.3, 0.3, size=(n, 4))  # inside: every ray crosses the surface once
+    ref = raycast.cast_rays(base, o, w, backend=backend)
+    got = raycast.cast_rays(moved, o * scale + shift, w, backend=backend)
+    assert ref.hit.all() and got.hit.all()
+    assert (got.simplex == ref.simplex).mean() > 0.995  # other simplices only on shared faces
+    np.testing.assert_allclose(got.t / scale, ref.t, rtol=1e-7)
+    samples = 16
+    idx = rng.choice(len(base.vertices), 300 if backend == "opencl" else 40, replace=False)
+    normals = base.vertex_normals[idx]
+    a_ref = ao4d.ambient_occlusion(base, points=base.vertices[idx], normals=normals, samples=samples,
+                                   backend=backend)
+    a_got = ao4d.ambient_occlusion(moved, points=moved.vertices[idx], normals=normals, samples=samples,
+                                   backend=backend)
+    assert a_ref.max() == 0.0  # convex: nothing occludes
+    assert np.abs(a_got - a_ref).max() <= 1 / samples
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_ao_does_not_depend_on_the_scene_scale(scale, cl_runtime):
+    # the rays' start offset scales with the scene: a fixed offset would let rays hit their own
+    # simplices at scale 1e3 and jump over nearby occluders at 1e-3
+    rng = np.random.default_rng(1700)
+    base = sphere_over_ground(rng, 4)
+    scaled = ao4d.SimplexMesh(base.vertices * scale, base.simplices)
+    a = ao4d.ambient_occlusion(base, samples=32, backend="opencl")
+    b = ao4d.ambient_occlusion(scaled, samples=32, backend="opencl")
+    assert 0.05 < np.nanmean(a) < 0.9  # graded: the question is not trivial
+    np.testing.assert_array_equal(a, b)
+
+
+def test_hit_exactly_at_max_distance_counts(backend):
+    # hits count for 0 < t <= max_distance on both backends (t < max_distance lost them on OpenCL)
+    for d in DIMS:
+        patch = ao4d.SimplexMesh(*flat_patch(d, -1.0, 1.0, 1.0, n=2))
+        o = np.zeros((1, d))
+        w = np.eye(d)[-1:]
+        assert raycast.cast_rays(patch, o, w, max_distance=1.0, backend=backend).hit[0]
+        short = 1.0 - 2.0**-20  # a float32 value: the kernels' t_max is float32
+        assert not raycast.cast_rays(patch, o, w, max_distance=short, backend=backend).hit[0]
+        for closest in (True, False):
+            hit = raycast.cast_rays(patch, o, w, max_distance=1.0, closest=closest, backend=backend)
+            assert hit.hit[0] and hit.t[0] == 1.0
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_rays_at_the_barycentric_tolerance_equal_brute_force(d, backend):
+    # rays aimed just outside a simplex's extreme vertex, within the barycentric tolerance: the
+    # primitive test takes them, so the boxes must be grown to match (bvh's box margin), also
+    # for small simplices far from the origin (a tenth of the scene: float32 resolves a
+    # barycentric tolerance of 1e-5 on them)
+    rng = np.random.default_rng(1800 + d)
+    centres = 1e-3 * rng.uniform(-1, 1, size=(30, d)) + 5e4
+    corners = centres[:, None, :] + 1e-4 * rng.uniform(-1, 1, size=(30, d, d))
+    mesh = ao4d.SimplexMesh(corners.reshape(-1, d), np.arange(30 * d).reshape(30, d))
+    inside = corners.mean(axis=1, keepdims=True)
+    # each vertex pushed outwards by half the tolerance, in barycentric terms
+    targets = (corners + 0.5 * bvh.BARY_EPS * (corners - inside)).reshape(-1, d)
+    normals = mesh.simplex_normals
+    w = -np.repeat(normals, d, axis=0) + 0.3 * rng.normal(size=(len(targets), d))
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    o = targets - 1e-4 * w
+    fast = raycast.cast_rays(mesh, o, w, backend=backend, closest=False)
+    slow = raycast.cast_rays(mesh, o, w, backend=backend, closest=False, accel="brute")
+    assert slow.hit.mean() > 0.9  # the primitive test accepts them
+    np.testing.assert_array_equal(fast.hit, slow.hit)
