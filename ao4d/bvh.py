@@ -95,7 +95,9 @@ class Frame:
 
     def points(self, x: np.ndarray) -> np.ndarray:
         """Points (N, d) in tree coordinates, float64."""
-        return (np.asarray(x, dtype=np.float64) - self.centre) * self.scale
+        out = np.subtract(x, self.centre, dtype=np.float64)
+        out *= self.scale
+        return out
 
     def length(self, t: float) -> float:
         """A world length (or ray parameter of a unit direction) in tree units."""

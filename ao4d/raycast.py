@@ -21,7 +21,6 @@ from __future__ import annotations
 import hashlib
 import math
 import weakref
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -41,7 +40,6 @@ _NUMPY_RAYS_PER_STEP = 1 << 14  # bounds the (ray, node) frontier of the numpy t
 _PROGRESS_MIN_RAYS = 1 << 22  # show a bar by default only for work this large
 
 
-@dataclass(frozen=True)
 class RayHits:
     """Result of :func:`cast_rays`.
 
@@ -54,16 +52,40 @@ class RayHits:
     barycentric : (N, d) float64
         Weights of the hit simplex's d vertices (in ``mesh.simplices`` order) at the hit point,
         summing to 1; zeros on a miss.
+
+    ``t`` and ``barycentric`` are recomputed in float64 on the hit simplices when first read:
+    callers that only ask whether rays hit (shadow and occlusion rays) never pay for them.
     """
 
-    t: np.ndarray
-    simplex: np.ndarray
-    barycentric: np.ndarray
+    __slots__ = ("simplex", "_t", "_barycentric", "_pending")
+
+    def __init__(self, t: np.ndarray | None, simplex: np.ndarray, barycentric: np.ndarray | None,
+                 *, pending: Any = None) -> None:
+        self.simplex = simplex
+        self._t, self._barycentric, self._pending = t, barycentric, pending
+
+    def _resolve(self) -> None:
+        if self._pending is not None:
+            self._t, self._barycentric = self._pending()
+            self._pending = None
+
+    @property
+    def t(self) -> np.ndarray:
+        self._resolve()
+        return self._t
+
+    @property
+    def barycentric(self) -> np.ndarray:
+        self._resolve()
+        return self._barycentric
 
     @property
     def hit(self) -> np.ndarray:
         """(N,) bool: rays that hit."""
         return self.simplex >= 0
+
+    def __repr__(self) -> str:
+        return f"RayHits({len(self.simplex)} rays, {int(self.hit.sum())} hits)"
 
 
 # -- input handling ---------------------------------------------------------------------------
@@ -293,35 +315,37 @@ def _pad4(a: np.ndarray) -> np.ndarray:
     return out
 
 
-def _trace_opencl(mesh, tree, runtime, origins, directions, max_distance, any_hit, accel, bar):
-    """Return (t float32, tree-order simplex or -1) per ray, launch by launch."""
+def _trace_opencl(mesh, tree, runtime, rays, max_distance, any_hit, accel, bar):
+    """Tree-order simplex or -1 per ray of ``rays`` (:class:`_Rays`), launch by launch: each
+    launch's rays are mapped and rounded on the host just before it, so no full-size float32
+    copy of the rays is ever held."""
     import pyopencl as pcl
 
-    n = len(origins)
+    n = rays.n
     cl.check_device_memory(runtime, {"the rays": n * 32, "the ray results": n * 8}, task="ray tracing")
     ctx, queue = runtime.context, runtime.queue
     mf = pcl.mem_flags
-    buf_o = pcl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=_pad4(origins))
-    buf_w = pcl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=_pad4(directions))
-    t = np.empty(n, dtype=np.float32)
+    buf_o = pcl.Buffer(ctx, mf.READ_ONLY, n * 16)
+    buf_w = pcl.Buffer(ctx, mf.READ_ONLY, n * 16)
     hit = np.empty(n, dtype=np.int32)
-    buf_t = pcl.Buffer(ctx, mf.WRITE_ONLY, t.nbytes)
+    buf_t = pcl.Buffer(ctx, mf.WRITE_ONLY, n * 4)
     buf_h = pcl.Buffer(ctx, mf.WRITE_ONLY, hit.nbytes)
     dev = _device_tree(mesh, tree, runtime)
     kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast", accel)
     args = head + [buf_o, buf_w, np.float32(max_distance), np.int32(any_hit), buf_t, buf_h]
     for start in range(0, n, RAYS_PER_LAUNCH):
-        count = min(RAYS_PER_LAUNCH, n - start)
-        kernel(queue, (count,), None, *args, global_offset=(start,)).wait()
-        bar.update(count)
-    pcl.enqueue_copy(queue, t, buf_t)
+        stop = min(n, start + RAYS_PER_LAUNCH)
+        o, w = rays.chunk(start, stop, np.float32, 4)
+        pcl.enqueue_copy(queue, buf_o, o, dst_offset=start * 16)
+        pcl.enqueue_copy(queue, buf_w, w, dst_offset=start * 16)
+        kernel(queue, (stop - start,), None, *args, global_offset=(start,)).wait()
+        bar.update(stop - start)
     pcl.enqueue_copy(queue, hit, buf_h)
     queue.finish()
     # kernels report LANES * leaf block + lane: map to tree-order simplices
     safe = np.maximum(hit, 0)
     lanes = dev["lanes"]
-    prim = np.where(hit >= 0, dev["block_first"][safe // lanes] + safe % lanes, -1)
-    return t, prim
+    return np.where(hit >= 0, dev["block_first"][safe // lanes] + safe % lanes, -1)
 
 
 def _traversal_kernel(runtime, dim: int, dev: dict, name: str, accel: str, count_visits: bool = False):
@@ -478,16 +502,16 @@ def _trace_numpy_brute(tree, o, w, max_distance, any_hit, block=64):
     return best_t, best
 
 
-def _trace_numpy(tree, origins, directions, max_distance, any_hit, accel, bar):
-    n = len(origins)
-    t = np.empty(n)
-    hit = np.empty(n, dtype=np.int64)
+def _trace_numpy(tree, rays, max_distance, any_hit, accel, bar):
+    """Tree-order simplex or -1 per ray of ``rays`` (:class:`_Rays`), in float64."""
+    hit = np.empty(rays.n, dtype=np.int64)
     trace = _trace_numpy_bvh if accel == "bvh" else _trace_numpy_brute
-    for start in range(0, n, _NUMPY_RAYS_PER_STEP):
-        sl = slice(start, min(n, start + _NUMPY_RAYS_PER_STEP))
-        t[sl], hit[sl] = trace(tree, origins[sl], directions[sl], max_distance, any_hit)
-        bar.update(sl.stop - sl.start)
-    return t, hit
+    for start in range(0, rays.n, _NUMPY_RAYS_PER_STEP):
+        stop = min(rays.n, start + _NUMPY_RAYS_PER_STEP)
+        o, w = rays.chunk(start, stop, np.float64)
+        hit[start:stop] = trace(tree, o, w, max_distance, any_hit)[1]
+        bar.update(stop - start)
+    return hit
 
 
 def _ao_numpy(tree, points, normals, samples, seed, offset, max_distance, accel, bar):
@@ -499,9 +523,8 @@ def _ao_numpy(tree, points, normals, samples, seed, offset, max_distance, accel,
         w = cosine_hemisphere(normals[sl], samples, seed=seed, index_offset=start)
         o = points[sl] + offset * normals[sl]
         o = np.repeat(o, samples, axis=0)
-        _, hit = _trace_numpy(
-            tree, o, w.reshape(-1, tree.dim), max_distance, True, accel, _NullBar()
-        )
+        trace = _trace_numpy_bvh if accel == "bvh" else _trace_numpy_brute
+        hit = trace(tree, o, w.reshape(-1, tree.dim), max_distance, True)[1]
         counts[sl] = (hit.reshape(-1, samples) >= 0).sum(1)
         bar.update((sl.stop - sl.start) * samples)
     return counts
@@ -563,15 +586,13 @@ def cast_rays(
     """
     vertices, _ = mesh_arrays(mesh)
     d = vertices.shape[1]
-    origins = as_array(origins, "origins", ndim=2, shape_tail=(d,), dtype=np.float64, finite=True)
-    directions = as_array(
-        directions, "directions", ndim=2, shape_tail=(d,), dtype=np.float64, finite=True
-    )
+    # float32 or float64 inputs are kept as they are: each launch converts its own rays
+    origins = _float_rows(origins, "origins", d)
+    directions = _float_rows(directions, "directions", d)
     if len(origins) != len(directions):
         raise ValueError(
             f"`origins` and `directions` must have the same length, got {len(origins)} and {len(directions)}"
         )
-    directions = unit_rows(directions, "directions")
     max_distance = check_distance(max_distance)
     closest = check_bool(closest, "closest")
     check_choice(accel, "accel", ACCELS)
@@ -580,34 +601,77 @@ def cast_rays(
     if n == 0:  # OpenCL refuses buffers of zero bytes
         return RayHits(t=np.zeros(0), simplex=np.zeros(0, dtype=np.int64), barycentric=np.zeros((0, d)))
     tree = get_bvh(mesh, runtime=runtime)
-    frame = tree.frame
-    origins, reach = frame.points(origins), frame.length(max_distance)
+    rays = _Rays(tree.frame, origins, directions)
+    reach = tree.frame.length(max_distance)
     with progress_bar(progress, n, "rays") as bar:
         if runtime is not None:
-            _, hit = _trace_opencl(mesh, tree, runtime, origins, directions, reach, not closest, accel, bar)
+            hit = _trace_opencl(mesh, tree, runtime, rays, reach, not closest, accel, bar)
         else:
-            check_memory(n * 64.0, "the numpy ray arrays")
-            _, hit = _trace_numpy(tree, origins, directions, reach, not closest, accel, bar)
-    hits = _refine_hits(tree, origins, directions, hit)
-    return RayHits(t=frame.world_length(hits.t), simplex=hits.simplex, barycentric=hits.barycentric)
-
-
-def _refine_hits(tree, origins, directions, hit) -> RayHits:
-    """Distances and barycentrics of the hits, recomputed in float64."""
-    n, d = origins.shape
-    t = np.full(n, np.inf)
-    simplex = np.full(n, -1, dtype=np.int64)
-    bary = np.zeros((n, d))
+            check_memory(min(n, _NUMPY_RAYS_PER_STEP) * 64.0 + n * 8.0, "the numpy ray arrays")
+            hit = _trace_numpy(tree, rays, reach, not closest, accel, bar)
     rows = np.flatnonzero(hit >= 0)
     p = hit[rows].astype(np.int64)
+    simplex = np.full(n, -1, dtype=np.int64)
+    simplex[rows] = tree.prim[p]
+    o, w = rays.rows(rows)
+    return RayHits(None, simplex, None, pending=lambda: _refine_hits(tree, n, rows, p, o, w))
+
+
+def _float_rows(value: Any, name: str, d: int) -> np.ndarray:
+    """(N, d) finite float32 or float64 rows (other types become float64), else an error naming `name`."""
+    kept = isinstance(value, np.ndarray) and value.dtype in (np.float32, np.float64)
+    dtype = value.dtype if kept else np.float64
+    return as_array(value, name, ndim=2, shape_tail=(d,), dtype=dtype, finite=True)
+
+
+class _Rays:
+    """The rays of one :func:`cast_rays` call, handed out launch by launch in the tree's frame.
+
+    Directions are normalised and origins mapped into the frame (``tree.frame``) in float64,
+    chunk by chunk, then rounded to the kernels' float32: the whole call never holds more
+    than one launch's float64 or float32 copies besides the inputs.
+    """
+
+    def __init__(self, frame, origins: np.ndarray, directions: np.ndarray) -> None:
+        self.frame, self.origins, self.directions = frame, origins, directions
+        self.n, self.d = origins.shape
+        length2 = np.einsum("ij,ij->i", directions, directions, dtype=np.float64)
+        bad = np.flatnonzero(~(length2 > 0))
+        if bad.size:
+            raise ValueError(f"`directions` has {bad.size} zero-length row(s), first at index {bad[0]}")
+        self.inv_length = 1.0 / np.sqrt(length2)
+
+    def chunk(self, start: int, stop: int, dtype, width: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Origins and unit directions of rays ``start:stop`` in ``dtype``, zero-padded to
+        ``width`` columns (the kernels' float4)."""
+        width = self.d if width is None else width
+        o = np.zeros((stop - start, width), dtype=dtype)
+        w = np.zeros((stop - start, width), dtype=dtype)
+        sl = slice(start, stop)
+        scratch = self.frame.points(self.origins[sl])
+        o[:, : self.d] = scratch
+        np.multiply(self.directions[sl], self.inv_length[sl, None], out=scratch)
+        w[:, : self.d] = scratch
+        return o, w
+
+    def rows(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """float64 origins (in the frame) and unit directions of the rays ``rows``."""
+        return (self.frame.points(self.origins[rows]),
+                self.directions[rows].astype(np.float64) * self.inv_length[rows, None])
+
+
+def _refine_hits(tree, n: int, rows: np.ndarray, p: np.ndarray, o: np.ndarray, w: np.ndarray):
+    """``t`` (world units) and barycentrics of the hits, recomputed in float64 on the hit
+    simplices (tree-order ``p``) of rays ``rows`` (origins ``o`` in the tree's frame)."""
+    d = tree.dim
+    t = np.full(n, np.inf)
+    bary = np.zeros((n, d))
     inv, origin = tree.frames(p)
     nrow = inv[:, -1, :]
-    o, w = origins[rows], directions[rows]
     t_hit = -np.einsum("pk,pk->p", nrow, o - origin) / np.einsum("pk,pk->p", nrow, w)
-    t[rows] = t_hit
-    simplex[rows] = tree.prim[p]
+    t[rows] = tree.frame.world_length(t_hit)
     bary[rows] = _bvh.barycentric(inv, origin, o + t_hit[:, None] * w)
-    return RayHits(t=t, simplex=simplex, barycentric=bary)
+    return t, bary
 
 
 def count_occluded(
