@@ -185,6 +185,7 @@ WIDTH = 8  # children per node of the kernels' tree: one float8 per box coordina
 LANES = 16  # simplices per leaf block: one float16 per simplex coordinate (kernels' LANES)
 STACK_SIZE = 256  # traversal stack entries, passed to kernels/bvh.h as -D STACK_SIZE (1 KiB of ints)
 LEAF_BLOCKS = 1  # most leaf blocks per leaf slot of a wide node (the encoding allows 4)
+MAX_LEAF_BLOCKS = 4  # most leaf blocks one slot can name: leaves of at most 4 * lanes simplices
 
 
 @dataclass
@@ -295,9 +296,9 @@ def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarra
     right = np.where(tree.meta[:, 0] >= 0, tree.meta[:, 1], -1).astype(np.int64)
     leaves, leaf_blocks, leaf_first = _leaf_blocks(tree, lanes)
     max_blocks = max(LEAF_BLOCKS, int(leaf_blocks.max()))
-    if max_blocks > 4:  # the leaf encoding holds 1 to 4 blocks
+    if max_blocks > MAX_LEAF_BLOCKS:  # the leaf encoding holds 1 to 4 blocks
         raise ValueError(
-            f"the OpenCL kernels need leaves of at most {4 * lanes} simplices for {lanes} lanes"
+            f"the OpenCL kernels need leaves of at most {MAX_LEAF_BLOCKS * lanes} simplices for {lanes} lanes"
         )
     # a subtree of at most max_blocks blocks may become one leaf slot: its blocks are
     # consecutive (blocks follow the simplex order)

@@ -16,7 +16,9 @@ A device that reports several types at once (Oclgrind's simulator says ACCELERAT
 neither a GPU nor a CPU: it is used only when named (``AO4D_DEVICE=oclgrind``).
 
 ``AO4D_DEVICE`` takes ``cpu``, ``gpu``, ``none`` or a case-insensitive substring of a platform or
-device name (``intel``, ``NVIDIA``). A request that cannot be met (an unknown name, ``gpu`` on a
+device name (``intel``, ``NVIDIA``), each but ``none`` optionally followed by ``:k`` for the k-th
+working device it matches, from 0 (``gpu:1``: the second GPU, where two identical GPUs differ only
+by their place). A request that cannot be met (an unknown name, ``gpu`` on a
 machine without one) is a :class:`DeviceSelectionError` at the first device use, listing the
 devices that exist; it never falls back silently.
 
@@ -39,6 +41,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import sys
 import tempfile
 import threading
@@ -124,6 +127,7 @@ class DeviceReport:
     reason: str  # why it cannot be used, or "ok"
     types: str = ""  # every type the device reports, e.g. "ACCELERATOR|GPU|CPU"
     driver: str = ""
+    position: int = 0  # index among its platform's devices: tells identical devices apart
 
     @property
     def line(self) -> str:
@@ -347,7 +351,7 @@ def device_reports() -> list[DeviceReport]:
             except Exception as exc:
                 _problems.append(f"platform {pname!r} lists no devices: {str(exc).strip()}")
                 devices = []
-            for device in devices:
+            for position, device in enumerate(devices):
                 reason = _probe(cl, device)
                 kind, types = kind_of(device.type)
                 _reports.append(
@@ -362,6 +366,7 @@ def device_reports() -> list[DeviceReport]:
                         reason=reason,
                         types=types,
                         driver=str(device.driver_version).strip(),
+                        position=position,
                     )
                 )
         _problems.extend(_missing_platforms())
@@ -431,15 +436,19 @@ def device_request() -> tuple[str, str]:
     """``AO4D_DEVICE`` parsed: ``(request, raw value)``.
 
     ``request`` is ``"auto"`` (unset or empty), ``"cpu"``, ``"gpu"``, ``"none"`` or
-    ``"name:<lower-case substring>"``.
+    ``"name:<lower-case substring>"``; the last three may end in ``"#<k>"``, from a value such as
+    ``gpu:1`` or ``nvidia:1``: the k-th (from 0) of the working devices it matches, in the order
+    ``ao4d info`` lists them (two identical GPUs differ only by it).
     """
     raw = os.environ.get("AO4D_DEVICE", "")
     value = raw.strip().lower()
     if value in ("", "auto"):
         return "auto", raw
+    match = re.fullmatch(r"(.+?):(\d+)", value)
+    value, suffix = (match.group(1), f"#{int(match.group(2))}") if match else (value, "")
     if value in ("cpu", "gpu", "none"):
-        return value, raw
-    return f"name:{value}", raw
+        return value + ("" if value == "none" else suffix), raw
+    return f"name:{value}{suffix}", raw
 
 
 def _rank(rep: DeviceReport, index: int) -> tuple[int, int, int]:
@@ -496,9 +505,11 @@ def select_device(
         A ``cpu``/``gpu``/name request that no working device meets; the message lists the
         devices and what to set instead.
     """
+    request, _, which = request.partition("#")
     order = sorted(range(len(reports)), key=lambda i: _rank(reports[i], i))
     ranked = [reports[i] for i in order]
-    accepted = ["cpu", "gpu", "none", "or part of a platform/device name"]
+    accepted = ["cpu", "gpu", "none", "or part of a platform/device name", "each optionally with :k "
+                "for the k-th match (from 0)"]
     usage = "AO4D_DEVICE takes " + ", ".join(accepted) + "; unset it to choose automatically."
     if request == "none":
         return Selection(request, None, tuple((r, "not used: AO4D_DEVICE=none") for r in reports))
@@ -535,7 +546,13 @@ def select_device(
             )
     else:
         raise ValueError(f"`request` must be auto, cpu, gpu, none or name:<text>; got {request!r}")
-    chosen = pool[0] if pool else None
+    if which:
+        if int(which) >= len(pool):
+            raise _selection_error(
+                source, f"asks for working device {which} (from 0) of those it matches, but "
+                f"{len(pool)} match{'es' if len(pool) == 1 else ''}", reports, usage,
+            )
+    chosen = pool[int(which or 0)] if pool else None
     notes = []
     for rep in reports:
         if rep is chosen:
@@ -549,6 +566,8 @@ def select_device(
                 why = f"chosen: {'no working GPU; ' if request == 'auto' else ''}the first working CPU device"
         elif not rep.usable:
             why = f"skipped: {rep.reason}"
+        elif which and rep in pool:
+            why = f"works, not chosen: {source} asks for match {which} (from 0)"
         elif rep.kind == "OTHER" and not request.startswith("name:"):
             why = (
                 f"works, never chosen automatically: it reports several device types ({rep.types}), "
@@ -664,7 +683,9 @@ def _make_runtime(rep: DeviceReport) -> Runtime:
     for platform in cl.get_platforms():
         if platform.name.strip() != rep.platform:
             continue
-        for device in platform.get_devices():
+        devices = platform.get_devices()
+        if rep.position < len(devices):
+            device = devices[rep.position]
             if device.name.strip() == rep.device and kind_of(device.type)[0] == rep.kind:
                 ctx = cl.Context([device])
                 return Runtime(ctx, cl.CommandQueue(ctx), device, rep)

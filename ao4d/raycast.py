@@ -224,6 +224,11 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
     """
     check_choice(builder, "builder", BUILDERS)
     leaf_size = check_positive_int(leaf_size, "leaf_size")
+    if runtime is not None and leaf_size > _bvh.MAX_LEAF_BLOCKS * _block_lanes(runtime):
+        lanes = _block_lanes(runtime)
+        raise ValueError(f"`leaf_size` must be at most {_bvh.MAX_LEAF_BLOCKS * lanes} on this device "
+                         f"(leaf blocks of {lanes} simplices, at most {_bvh.MAX_LEAF_BLOCKS} per leaf), "
+                         f"got {leaf_size}")
     keys = {b: f"ao4d.bvh/{b}/leaf={leaf_size}" for b in ("device", "host")}
     cache = getattr(mesh, "cache", None)
     stamp = None

@@ -276,3 +276,27 @@ def test_single_precision_devices(d, cl_runtime, monkeypatch):
     a = ao4d.ambient_occlusion(mesh_with_tree(ground, "device", cl_runtime), samples=32, backend="opencl")
     b = ao4d.ambient_occlusion(mesh_with_tree(ground, "host", None), samples=32, backend="opencl")
     assert np.mean(a == b) >= 0.97 and np.nanmax(np.abs(a - b)) <= 2 / 32
+
+
+def test_build_copies_are_freed_once_the_traversed_tree_exists(cl_runtime):
+    # the build's device copies of the mesh (1.4 GB at 55 M tets) stayed for the mesh's lifetime
+    rng = np.random.default_rng(2100)
+    mesh = soup_scene(rng, 4, n=500)
+    tree = raycast.get_bvh(mesh, builder="device", runtime=cl_runtime)
+    assert tree.device_source is None and tree.device_wide  # the traversed form stays
+    o, w = random_rays(rng, 4, 2000)
+    hits = raycast.cast_rays(mesh, o, w, backend="opencl")
+    brute = raycast.cast_rays(mesh, o, w, backend="opencl", accel="brute")
+    np.testing.assert_array_equal(hits.simplex >= 0, brute.simplex >= 0)
+    # another block width is widened on the host from the same tree
+    assert bvh_build.device_wide_tree(tree, cl_runtime, 4) is None
+    assert tree.wide(4).blocks.shape[-1] == 4
+
+
+@pytest.mark.parametrize("lanes", [4, 16])  # 4: a GPU's blocks, accepted up to 64 and failing at the trace
+def test_leaf_size_beyond_the_leaf_encoding_is_refused_up_front(lanes, cl_runtime, monkeypatch):
+    monkeypatch.setattr(raycast, "_block_lanes", lambda runtime: lanes)
+    mesh = soup_scene(np.random.default_rng(2200), 3, n=50)
+    with pytest.raises(ValueError, match=rf"`leaf_size` must be at most {4 * lanes} on this device"):
+        raycast.get_bvh(mesh, leaf_size=4 * lanes + 1, runtime=cl_runtime)
+    assert raycast.get_bvh(mesh, leaf_size=4 * lanes, runtime=cl_runtime).n_prims == 50

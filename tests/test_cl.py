@@ -490,3 +490,26 @@ def test_no_writable_cache_still_builds(cl_runtime, monkeypatch):
     assert "scale_add" in kernels
     after = cl.kernel_build_stats()
     assert after["compiled"] == before["compiled"] + 1 and after["from_cache"] == before["from_cache"]
+
+
+def test_identical_devices_are_told_apart_by_their_place(monkeypatch):
+    # two identical GPUs gave equal reports: AO4D_DEVICE could not pick the second
+    first = _rep("NVIDIA CUDA", "NVIDIA H200", kind="GPU")
+    second = cl.DeviceReport(**{**first.__dict__, "position": 1})
+    assert first != second
+    reports = [INTEL, first, second]
+    for value, chosen in (("gpu", first), ("gpu:0", first), ("gpu:1", second), ("NVIDIA:1", second),
+                          ("h200:0", first), ("cpu:0", INTEL)):
+        monkeypatch.setenv("AO4D_DEVICE", value)
+        request, _ = cl.device_request()
+        sel = cl.select_device(reports, request, source=f"AO4D_DEVICE={value!r}")
+        assert sel.chosen is chosen, value
+    monkeypatch.setenv("AO4D_DEVICE", "gpu:1")
+    sel = cl.select_device(reports, cl.device_request()[0], source="AO4D_DEVICE='gpu:1'")
+    assert "asks for match 1" in dict((id(r), why) for r, why in sel.notes)[id(first)]
+    for value in ("gpu:2", "nvidia:5"):
+        monkeypatch.setenv("AO4D_DEVICE", value)
+        with pytest.raises(cl.DeviceSelectionError, match=r"asks for working device \d .* 2 match"):
+            cl.select_device(reports, cl.device_request()[0], source=value)
+    monkeypatch.setenv("AO4D_DEVICE", "none:1")
+    assert cl.device_request()[0] == "none"
