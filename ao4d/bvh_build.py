@@ -36,6 +36,7 @@ Work-group sizes are left to the runtime (NULL local size), bins are per-work-it
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -210,6 +211,37 @@ def build(
     (1, 1)
     """
     vertices, simplices, leaf_size = _check_inputs(vertices, simplices, leaf_size)
+    subtree, chunk, runtime = _check_build_options(subtree, chunk, runtime, leaf_size)
+    d, n = vertices.shape[1], len(simplices)
+    # records (two buffers), node arrays (at most 2 n nodes), the mesh and the leaf blocks
+    cl.check_device_memory(runtime, fallback="the host builder", task="the BVH build", nbytes={
+        "the BVH build's node bounds": 32 * n,
+        "the BVH build": n * (2 * 52 + 2 * 40 + 6 + 4 * (d + 1) * d + 8 * d * d) + vertices.nbytes,
+    })
+    job = _Job(runtime, vertices, simplices)
+    scan = _scan(job)
+    nodes = _Nodes(job, scan.n_prims)
+    c_lo, c_hi = _records(job, scan, nodes)
+    subtree_size, chunk_size = _sizes(scan.n_prims, int(runtime.device.max_compute_units), subtree, chunk)
+    subtree_size = max(subtree_size, 2 * leaf_size)
+    big, tasks = _split_large_nodes(job, nodes, scan.n_prims, c_lo, c_hi, subtree_size, chunk_size)
+    meta, lo, hi, order = _build_subtrees(job, nodes, tasks, big, leaf_size, scan.n_prims)
+    meta, lo, hi, depth = _breadth_first(meta, lo, hi)
+    lo[:, d:] = 0.0
+    hi[:, d:] = 0.0
+    tree = DeviceBVH(vertices=vertices, simplices=simplices, dim=d, lo=lo, hi=hi, meta=meta,
+                     prim=order.astype(np.int64), n_skipped=n - scan.n_prims, depth=depth,
+                     diagonal=scan.diagonal)
+    tree.device_source = {"context": job.ctx, "vertices": job.vertices, "simplices": job.simplices,
+                          "order": nodes.order, "kernels": job.k}
+    if lanes is not None:
+        device_wide_tree(tree, runtime, lanes)  # the form the device traverses
+        release_source(tree)
+    return tree
+
+
+def _check_build_options(subtree, chunk, runtime, leaf_size: int):
+    """``subtree``, ``chunk`` and the runtime of :func:`build`, checked (the default device)."""
     if subtree is not None:
         subtree = check_positive_int(subtree, "subtree", minimum=2 * leaf_size)
         if subtree > _SUBTREE_MAX:
@@ -220,36 +252,66 @@ def build(
         runtime = cl.get_runtime(warn=False)
         if runtime is None:
             raise RuntimeError("the device BVH builder needs an OpenCL device; none works (see `ao4d info`)")
-    import pyopencl as cl_
+    return subtree, chunk, runtime
 
-    d = vertices.shape[1]
-    n = len(simplices)
-    # records (two buffers), node arrays (at most 2 n nodes), the mesh and the leaf blocks
-    cl.check_device_memory(runtime, fallback="the host builder", task="the BVH build", nbytes={
-        "the BVH build's node bounds": 32 * n,
-        "the BVH build": n * (2 * 52 + 2 * 40 + 6 + 4 * (d + 1) * d + 8 * d * d) + vertices.nbytes,
-    })
-    use_double = _has_double(runtime.device)
-    real = np.float64 if use_double else np.float32
-    k = _kernels(runtime, d, use_double)
-    ctx, queue = runtime.context, runtime.queue
-    mf = cl_.mem_flags
-    ro = mf.READ_ONLY | mf.COPY_HOST_PTR
-    buf_v = cl_.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(vertices, dtype=real))
-    buf_s = cl_.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(simplices, dtype=np.int32))
 
-    # 1. keep/skip and the scene bounds, per chunk of simplices
+class _Job:
+    """One build's device, kernels and mesh buffers (float64 where the device has doubles)."""
+
+    def __init__(self, runtime, vertices: np.ndarray, simplices: np.ndarray) -> None:
+        import pyopencl as cl_
+
+        self.cl = cl_
+        self.d, self.n = vertices.shape[1], len(simplices)
+        use_double = _has_double(runtime.device)
+        self.real = np.float64 if use_double else np.float32
+        self.k = _kernels(runtime, self.d, use_double)
+        self.ctx, self.queue = runtime.context, runtime.queue
+        self.mf = cl_.mem_flags
+        self.vertices = self.input(np.ascontiguousarray(vertices, dtype=self.real))
+        self.simplices = self.input(np.ascontiguousarray(simplices, dtype=np.int32))
+
+    def input(self, array: np.ndarray):
+        """A read-only device copy of ``array``."""
+        return self.cl.Buffer(self.ctx, self.mf.READ_ONLY | self.mf.COPY_HOST_PTR, hostbuf=array)
+
+    def scratch(self, nbytes: int, flags=None):
+        """A device buffer of ``nbytes`` (read-write unless ``flags`` say otherwise)."""
+        return self.cl.Buffer(self.ctx, self.mf.READ_WRITE if flags is None else flags, max(int(nbytes), 1))
+
+    def read(self, *pairs) -> None:
+        """Copy each (host array, device buffer) pair to the host."""
+        for host, dev in pairs:
+            self.cl.enqueue_copy(self.queue, host, dev)
+
+
+@dataclass
+class _Scan:
+    """Pass 1's answer: which simplices are kept, the scene's diagonal and margin extent."""
+
+    keep: Any  # device buffer, one byte per simplex
+    used: np.ndarray  # chunks that kept a simplex
+    offsets: np.ndarray  # kept simplices before each chunk
+    n_chunks: int
+    n_prims: int
+    diagonal: float
+    extent: float
+
+
+def _scan(job: _Job) -> _Scan:
+    """1. keep/skip and the scene bounds, per chunk of simplices (the box margin depends on them)."""
+    d, n, real = job.d, job.n, job.real
     n_chunks = -(-n // _SCAN_CHUNK)
     kept = np.empty(n_chunks, dtype=np.int32)
     part_lo = np.empty((n_chunks, d), dtype=real)
     part_hi = np.empty((n_chunks, d), dtype=real)
     part_abs = np.empty(n_chunks, dtype=real)
-    bufs = [cl_.Buffer(ctx, mf.WRITE_ONLY, a.nbytes) for a in (kept, part_lo, part_hi, part_abs)]
-    buf_keep = cl_.Buffer(ctx, mf.READ_WRITE, n)
-    k["scan_simplices"](queue, (n_chunks,), None, buf_v, buf_s, np.int32(n), np.int32(_SCAN_CHUNK),
-                        buf_keep, *bufs)
-    for host, dev in zip((kept, part_lo, part_hi, part_abs), bufs):
-        cl_.enqueue_copy(queue, host, dev)
+    host = (kept, part_lo, part_hi, part_abs)
+    bufs = [job.scratch(a.nbytes, job.mf.WRITE_ONLY) for a in host]
+    keep = job.scratch(n)
+    job.k["scan_simplices"](job.queue, (n_chunks,), None, job.vertices, job.simplices, np.int32(n),
+                            np.int32(_SCAN_CHUNK), keep, *bufs)
+    job.read(*zip(host, bufs))
     n_prims = int(kept.sum())
     if n_prims == 0:
         raise ValueError(f"all {n} simplices are degenerate (zero measure)")
@@ -259,153 +321,144 @@ def build(
     diagonal = float(np.linalg.norm(p_hi - p_lo))
     extent = max(diagonal, _bvh._BOX_FMA_MARGIN * float(part_abs[used].max()), 1e-30)
     offsets = (np.cumsum(kept) - kept).astype(np.int32)
+    return _Scan(keep, used, offsets, n_chunks, n_prims, diagonal, extent)
 
-    # 2. records: boxes with margins, centroids
-    rec = [cl_.Buffer(ctx, mf.READ_WRITE, 48 * n_prims) for _ in range(2)]
-    ids = [cl_.Buffer(ctx, mf.READ_WRITE, 4 * n_prims) for _ in range(2)]
-    part_c = np.empty((n_chunks, 2, 4), dtype=np.float32)
-    buf_pc = cl_.Buffer(ctx, mf.WRITE_ONLY, part_c.nbytes)
-    k["make_records"](
-        queue, (n_chunks,), None, buf_v, buf_s, np.int32(n), np.int32(_SCAN_CHUNK), buf_keep,
-        cl_.Buffer(ctx, ro, hostbuf=offsets), real(2 * _bvh.BARY_EPS), real(_bvh._BOX_MARGIN * extent),
-        rec[0], ids[0], buf_pc,
+
+class _Nodes:
+    """The records (two buffers, ping-pong), node arrays (at most 2 P nodes) and the order."""
+
+    def __init__(self, job: _Job, n_prims: int) -> None:
+        self.rec = [job.scratch(48 * n_prims) for _ in range(2)]
+        self.ids = [job.scratch(4 * n_prims) for _ in range(2)]
+        self.bin_of = job.scratch(n_prims)
+        cap = 2 * n_prims
+        self.meta, self.lo, self.hi = job.scratch(8 * cap), job.scratch(16 * cap), job.scratch(16 * cap)
+        self.order = job.scratch(4 * n_prims)
+
+
+def _records(job: _Job, scan: _Scan, nodes: _Nodes) -> tuple[np.ndarray, np.ndarray]:
+    """2. records (boxes with margins, centroids) of the kept simplices, compacted in order into
+    the first record buffer; returns the centroid bounds, (4,) float32 each."""
+    part_c = np.empty((scan.n_chunks, 2, 4), dtype=np.float32)
+    buf_pc = job.scratch(part_c.nbytes, job.mf.WRITE_ONLY)
+    job.k["make_records"](
+        job.queue, (scan.n_chunks,), None, job.vertices, job.simplices, np.int32(job.n),
+        np.int32(_SCAN_CHUNK), scan.keep, job.input(scan.offsets), job.real(2 * _bvh.BARY_EPS),
+        job.real(_bvh._BOX_MARGIN * scan.extent), nodes.rec[0], nodes.ids[0], buf_pc,
     )
-    cl_.enqueue_copy(queue, part_c, buf_pc)
-    c_lo, c_hi = part_c[used, 0].min(0), part_c[used, 1].max(0)
+    job.read((part_c, buf_pc))
+    return part_c[scan.used, 0].min(0), part_c[scan.used, 1].max(0)
 
-    subtree_size, chunk_size = _sizes(n_prims, int(runtime.device.max_compute_units), subtree, chunk)
-    subtree_size = max(subtree_size, 2 * leaf_size)
-    bin_of = cl_.Buffer(ctx, mf.READ_WRITE, max(n_prims, 1))
-    cap = 2 * n_prims
-    meta_d = cl_.Buffer(ctx, mf.READ_WRITE, 8 * cap)
-    lo_d = cl_.Buffer(ctx, mf.READ_WRITE, 16 * cap)
-    hi_d = cl_.Buffer(ctx, mf.READ_WRITE, 16 * cap)
-    order_d = cl_.Buffer(ctx, mf.READ_WRITE, 4 * n_prims)
 
-    # 3. large nodes, level by level (host: node bookkeeping only)
-    big_meta: list[np.ndarray] = []  # (ids, left ids, lo, hi) per level
-    tasks: list[np.ndarray] = []  # (id, start, count, level + 256 parity), centroid bounds
-    task_c: list[np.ndarray] = []
+def _split_large_nodes(job: _Job, nodes: _Nodes, n_prims: int, c_lo, c_hi, subtree_size: int,
+                       chunk_size: int):
+    """3. nodes larger than ``subtree_size``, one level at a time (the host keeps only node
+    bookkeeping). Returns the split nodes as (ids with first child ids, boxes) per level and the
+    subtree tasks: (id, start, count, level + 256 parity) rows and their centroid bounds."""
+    big: list[tuple[np.ndarray, np.ndarray]] = []
+    tasks: list[tuple[np.ndarray, np.ndarray]] = []
     level_nodes = np.array([[0, 0, n_prims]], dtype=np.int64)  # id, start, count
     level_c = np.stack([c_lo, c_hi])[None].astype(np.float32)  # (m, 2, 4)
     next_id, level = 1, 0
     if n_prims <= subtree_size:
-        tasks.append(np.array([[0, 0, n_prims, 0]], dtype=np.int32))
-        task_c.append(level_c.reshape(-1, 4))
-        level_nodes = level_nodes[:0]
+        tasks.append((np.array([[0, 0, n_prims, 0]], dtype=np.int32), level_c.reshape(-1, 4)))
+        return big, tasks
     while len(level_nodes):
+        left, boxes, kids_c = _split_level(job, nodes, level_nodes, level_c, level, chunk_size)
         m = len(level_nodes)
         starts, counts = level_nodes[:, 1], level_nodes[:, 2]
-        per = -(-counts // chunk_size)
-        first = np.concatenate([[0], np.cumsum(per)]).astype(np.int32)
-        chunk_node = np.repeat(np.arange(m), per)
-        chunk_begin = starts[chunk_node] + (np.arange(first[-1]) - first[chunk_node]) * chunk_size
-        chunk_end = np.minimum(chunk_begin + chunk_size, (starts + counts)[chunk_node])
-        chunk_i = np.zeros((first[-1], 4), dtype=np.int32)
-        chunk_i[:, 0], chunk_i[:, 1], chunk_i[:, 2] = chunk_node, chunk_begin, chunk_end
-        ext = (level_c[:, 1] - level_c[:, 0])[:, :d]
-        axis = np.argmax(ext, axis=1)
-        width = ext[np.arange(m), axis]
-        node_i = np.zeros((m, 4), dtype=np.int32)
-        node_i[:, 0], node_i[:, 1] = axis, np.where(counts > 8 * _BINS, _BINS, _BINS // 2)
-        node_i[:, 2], node_i[:, 3] = starts, counts
-        node_f = np.zeros((m, 4), dtype=np.float32)
-        node_f[:, 0] = level_c[np.arange(m), 0, axis]
-        node_f[:, 1] = np.where(width > 0, width, np.inf)
-        n_ch = int(first[-1])
-        b_chunk = cl_.Buffer(ctx, ro, hostbuf=chunk_i)
-        b_node_i = cl_.Buffer(ctx, ro, hostbuf=node_i)
-        b_node_f = cl_.Buffer(ctx, ro, hostbuf=node_f)
-        b_node_c = cl_.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(level_c))
-        b_first = cl_.Buffer(ctx, ro, hostbuf=first)
-        b_pn = cl_.Buffer(ctx, mf.READ_WRITE, 4 * _BINS * n_ch)
-        b_pb = cl_.Buffer(ctx, mf.READ_WRITE, 64 * _BINS * n_ch)
-        b_off = cl_.Buffer(ctx, mf.READ_WRITE, 8 * n_ch)
-        res_i = np.empty((m, 4), dtype=np.int32)
-        res_f = np.empty((m, 6, 4), dtype=np.float32)
-        b_ri = cl_.Buffer(ctx, mf.READ_WRITE, res_i.nbytes)
-        b_rf = cl_.Buffer(ctx, mf.WRITE_ONLY, res_f.nbytes)
-        src, dst = level % 2, (level + 1) % 2
-        k["bin_chunks"](queue, (n_ch,), None, rec[src], b_chunk, b_node_i, b_node_f, bin_of, b_pn, b_pb)
-        k["split_nodes"](queue, (m,), None, b_node_i, b_node_c, b_first, b_chunk, b_pn, b_pb,
-                         np.int32(level), b_ri, b_rf, b_off)
-        k["scatter_chunks"](queue, (n_ch,), None, rec[src], ids[src], rec[dst], ids[dst], b_chunk,
-                            b_ri, bin_of, b_off)
-        cl_.enqueue_copy(queue, res_i, b_ri)
-        cl_.enqueue_copy(queue, res_f, b_rf)
-        left = res_i[:, 1].astype(np.int64)
         child = next_id + 2 * np.arange(m)
         next_id += 2 * m
-        big_meta.append(np.column_stack([level_nodes[:, 0], child]))
-        big_meta.append(res_f[:, :2].reshape(m, 8))
+        big.append((np.column_stack([level_nodes[:, 0], child]), boxes))
         kids = np.empty((2 * m, 3), dtype=np.int64)
         kids[0::2, 0], kids[1::2, 0] = child, child + 1
         kids[0::2, 1], kids[1::2, 1] = starts, starts + left
         kids[0::2, 2], kids[1::2, 2] = left, counts - left
-        kids_c = res_f[:, 2:].reshape(2 * m, 2, 4)
         level += 1
         small = kids[:, 2] <= subtree_size
         if small.any():
             t = np.zeros((int(small.sum()), 4), dtype=np.int32)
             t[:, :3] = kids[small]
             t[:, 3] = level + 256 * (level % 2)
-            tasks.append(t)
-            task_c.append(kids_c[small].reshape(-1, 4))
+            tasks.append((t, kids_c[small].reshape(-1, 4)))
         level_nodes, level_c = kids[~small], np.ascontiguousarray(kids_c[~small])
+    return big, tasks
 
-    # 4. small nodes: one work-item per subtree, the largest first
-    t_all = np.concatenate(tasks)
-    c_all = np.concatenate(task_c).reshape(-1, 2, 4)
+
+def _split_level(job: _Job, nodes: _Nodes, level_nodes: np.ndarray, level_c: np.ndarray, level: int,
+                 chunk_size: int):
+    """One level of large nodes: per chunk of a node's records partial bins, per node the
+    reduction and the SAH choice, per chunk a stable partition into the other record buffer.
+    Returns per node the left child's record count, the children's boxes (m, 8) and their
+    centroid bounds (2 m, 2, 4)."""
+    d, k = job.d, job.k
+    m = len(level_nodes)
+    starts, counts = level_nodes[:, 1], level_nodes[:, 2]
+    per = -(-counts // chunk_size)
+    first = np.concatenate([[0], np.cumsum(per)]).astype(np.int32)
+    chunk_node = np.repeat(np.arange(m), per)
+    chunk_begin = starts[chunk_node] + (np.arange(first[-1]) - first[chunk_node]) * chunk_size
+    chunk_end = np.minimum(chunk_begin + chunk_size, (starts + counts)[chunk_node])
+    chunk_i = np.zeros((first[-1], 4), dtype=np.int32)
+    chunk_i[:, 0], chunk_i[:, 1], chunk_i[:, 2] = chunk_node, chunk_begin, chunk_end
+    ext = (level_c[:, 1] - level_c[:, 0])[:, :d]
+    axis = np.argmax(ext, axis=1)
+    width = ext[np.arange(m), axis]
+    node_i = np.zeros((m, 4), dtype=np.int32)
+    node_i[:, 0], node_i[:, 1] = axis, np.where(counts > 8 * _BINS, _BINS, _BINS // 2)
+    node_i[:, 2], node_i[:, 3] = starts, counts
+    node_f = np.zeros((m, 4), dtype=np.float32)
+    node_f[:, 0] = level_c[np.arange(m), 0, axis]
+    node_f[:, 1] = np.where(width > 0, width, np.inf)
+    n_ch = int(first[-1])
+    b_chunk, b_node_i, b_node_f = job.input(chunk_i), job.input(node_i), job.input(node_f)
+    b_node_c, b_first = job.input(np.ascontiguousarray(level_c)), job.input(first)
+    b_pn, b_pb, b_off = job.scratch(4 * _BINS * n_ch), job.scratch(64 * _BINS * n_ch), job.scratch(8 * n_ch)
+    res_i = np.empty((m, 4), dtype=np.int32)
+    res_f = np.empty((m, 6, 4), dtype=np.float32)
+    b_ri, b_rf = job.scratch(res_i.nbytes), job.scratch(res_f.nbytes, job.mf.WRITE_ONLY)
+    src, dst = level % 2, (level + 1) % 2
+    rec, ids = nodes.rec, nodes.ids
+    k["bin_chunks"](job.queue, (n_ch,), None, rec[src], b_chunk, b_node_i, b_node_f, nodes.bin_of, b_pn, b_pb)
+    k["split_nodes"](job.queue, (m,), None, b_node_i, b_node_c, b_first, b_chunk, b_pn, b_pb,
+                     np.int32(level), b_ri, b_rf, b_off)
+    k["scatter_chunks"](job.queue, (n_ch,), None, rec[src], ids[src], rec[dst], ids[dst], b_chunk,
+                        b_ri, nodes.bin_of, b_off)
+    job.read((res_i, b_ri), (res_f, b_rf))
+    return res_i[:, 1].astype(np.int64), res_f[:, :2].reshape(m, 8), res_f[:, 2:].reshape(2 * m, 2, 4)
+
+
+def _build_subtrees(job: _Job, nodes: _Nodes, tasks, big, leaf_size: int, n_prims: int):
+    """4. every smaller node: one work-item builds its whole subtree, the largest first, taking
+    node ids from one atomic counter; then the large nodes' links and boxes are filled in.
+    Returns the node arrays meta (K, 2) int32, lo, hi (K, 4) float32 and the simplex order."""
+    next_id = 1 + sum(2 * len(ids) for ids, _ in big)
+    t_all = np.concatenate([t for t, _ in tasks])
+    c_all = np.concatenate([c for _, c in tasks]).reshape(-1, 2, 4)
     by_size = np.argsort(-t_all[:, 2], kind="stable")
     t_all, c_all = np.ascontiguousarray(t_all[by_size]), np.ascontiguousarray(c_all[by_size])
     counter = np.array([next_id, 0], dtype=np.int32)
-    b_counter = cl_.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=counter)
-    k["build_subtrees"](
-        queue, (len(t_all),), None, rec[0], ids[0], rec[1], ids[1], bin_of,
-        cl_.Buffer(ctx, ro, hostbuf=t_all), cl_.Buffer(ctx, ro, hostbuf=c_all.reshape(-1, 4)),
-        np.int32(leaf_size), b_counter, meta_d, lo_d, hi_d, order_d,
+    b_counter = job.cl.Buffer(job.ctx, job.mf.READ_WRITE | job.mf.COPY_HOST_PTR, hostbuf=counter)
+    job.k["build_subtrees"](
+        job.queue, (len(t_all),), None, nodes.rec[0], nodes.ids[0], nodes.rec[1], nodes.ids[1],
+        nodes.bin_of, job.input(t_all), job.input(c_all.reshape(-1, 4)), np.int32(leaf_size),
+        b_counter, nodes.meta, nodes.lo, nodes.hi, nodes.order,
     )
-    cl_.enqueue_copy(queue, counter, b_counter)
+    job.read((counter, b_counter))
     n_nodes = int(counter[0])
     meta = np.empty((n_nodes, 2), dtype=np.int32)
     lo = np.empty((n_nodes, 4), dtype=np.float32)
     hi = np.empty((n_nodes, 4), dtype=np.float32)
     order = np.empty(n_prims, dtype=np.int32)
-    for host, dev in ((meta, meta_d), (lo, lo_d), (hi, hi_d), (order, order_d)):
-        cl_.enqueue_copy(queue, host, dev)
-    queue.finish()
+    job.read((meta, nodes.meta), (lo, nodes.lo), (hi, nodes.hi), (order, nodes.order))
+    job.queue.finish()
     if counter[1]:
         raise RuntimeError("device BVH build: a subtree outgrew its work-item's stack")
-    for ids_, boxes in zip(big_meta[0::2], big_meta[1::2]):
-        node, first_child = ids_[:, 0], ids_[:, 1]
+    for ids, boxes in big:
+        node, first_child = ids[:, 0], ids[:, 1]
         meta[node, 0], meta[node, 1] = first_child, first_child + 1
         lo[node], hi[node] = boxes[:, :4], boxes[:, 4:]
-    meta, lo, hi, depth = _breadth_first(meta, lo, hi)
-    lo[:, d:] = 0.0
-    hi[:, d:] = 0.0
-    tree = DeviceBVH(
-        vertices=vertices,
-        simplices=simplices,
-        dim=d,
-        lo=lo,
-        hi=hi,
-        meta=meta,
-        prim=order.astype(np.int64),
-        n_skipped=n - n_prims,
-        depth=depth,
-        diagonal=diagonal,
-    )
-    tree.device_source = {
-        "context": ctx,
-        "vertices": buf_v,
-        "simplices": buf_s,
-        "order": order_d,
-        "kernels": k,
-    }
-    if lanes is not None:
-        device_wide_tree(tree, runtime, lanes)  # the form the device traverses
-        release_source(tree)
-    return tree
+    return meta, lo, hi, order
 
 
 def release_source(tree: DeviceBVH) -> None:
