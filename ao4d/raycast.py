@@ -1,4 +1,4 @@
-"""Ray casting on simplex meshes in 2D, 3D and 4D: the device trees and every traversal.
+"""Ray casting on simplex meshes in 2D, 3D and 4D: every traversal of a mesh's tree.
 
 Both backends trace the same rays through the same BVH (:mod:`ao4d.bvh`) with the same
 ray-simplex test and barycentric tolerance ``ao4d.bvh.BARY_EPS``. The OpenCL kernels
@@ -9,8 +9,9 @@ or the ``max_distance`` sphere.
 Three traversals: :func:`cast_rays` (closest or any hit of given rays: rendering, shadows),
 :func:`count_occluded` (any-hit counts of cosine-distributed rays generated on the device:
 ambient occlusion), and :func:`sample_directions` (the directions that kernel traces, for tests).
-Device copies of a mesh's tree are uploaded once per OpenCL context and kept in the mesh's
-``cache``, so a render after an AO call reuses them.
+The trees and their device copies come from :func:`ao4d.bvh.get_bvh` and
+:func:`ao4d.bvh.device_tree` (cached on the mesh); rays are mapped into a tree's frame in float64
+before they are rounded for the kernels.
 
 Work is split into launches of at most ``RAYS_PER_LAUNCH`` rays with a tqdm bar; Ctrl-C stops
 between launches.
@@ -18,16 +19,15 @@ between launches.
 
 from __future__ import annotations
 
-import hashlib
 import math
-import weakref
 from typing import Any
 
 import numpy as np
 
 from . import bvh as _bvh
-from . import _progress, bvh_build, cl
-from ._validate import as_array, as_real, check_bool, check_choice, check_memory, check_positive_int
+from . import _progress, cl
+from .bvh import BUILDERS, get_bvh
+from ._validate import as_array, as_real, check_bool, check_choice, check_memory
 from .sampling import cosine_hemisphere, sobol_table
 
 __all__ = ["cast_rays", "count_occluded", "sample_directions", "traversal_counts", "get_bvh", "RayHits",
@@ -35,7 +35,6 @@ __all__ = ["cast_rays", "count_occluded", "sample_directions", "traversal_counts
 
 RAYS_PER_LAUNCH = 1 << 21  # ~0.5-2 s per launch on a 2-core CPU: responsive bar and Ctrl-C
 ACCELS = ("bvh", "brute")
-BUILDERS = ("auto", "host", "device")
 _NUMPY_RAYS_PER_STEP = 1 << 14  # bounds the (ray, node) frontier of the numpy traversal
 _PROGRESS_MIN_RAYS = 1 << 22  # show a bar by default only for work this large
 
@@ -164,151 +163,9 @@ def _morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
     return np.argsort(code, kind="stable")
 
 
-# -- the tree of a mesh -------------------------------------------------------------------------
-
-_fallback_cache: "weakref.WeakKeyDictionary[Any, dict]" = weakref.WeakKeyDictionary()
-
-
-def _fingerprint(vertices: np.ndarray, simplices: np.ndarray) -> str:
-    h = hashlib.blake2b(digest_size=16)
-    for a in (vertices, simplices):
-        a = np.ascontiguousarray(a)
-        h.update(str((a.shape, a.dtype.str)).encode())
-        h.update(memoryview(a).cast("B"))
-    return h.hexdigest()
-
-
-def _build_tree(builder: str, vertices, simplices, leaf_size: int, runtime) -> _bvh.BVH:
-    """The tree of the mesh in its own frame (:class:`ao4d.bvh.Frame`): recentred and scaled in
-    float64, so that the float32 kernels see coordinates of order one wherever the mesh lies."""
-    vertices = np.asarray(vertices, dtype=np.float64)  # the builders check it
-    frame = _bvh.Frame.fit(vertices)
-    local = frame.points(vertices)
-    if builder == "device":
-        if runtime is None:
-            runtime = cl.get_runtime(warn=False)
-            if runtime is None:
-                raise cl.NoOpenCLDeviceError("builder='device' needs an OpenCL device; none works (see `ao4d info`)")
-        tree = bvh_build.build(local, simplices, leaf_size=leaf_size, runtime=runtime,
-                               lanes=_block_lanes(runtime))
-    else:
-        tree = _bvh.build(local, simplices, leaf_size=leaf_size)
-    tree.frame = frame
-    return tree
-
-
-def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: Any = None) -> _bvh.BVH:
-    """The BVH of ``mesh``, built once and cached on it.
-
-    Parameters
-    ----------
-    mesh : SimplexMesh or any object with ``vertices`` and ``simplices``
-    leaf_size : int
-        Most simplices per leaf.
-    builder : {"auto", "host", "device"}
-        ``"host"``: :func:`ao4d.bvh.build` (numpy); ``"device"``: :func:`ao4d.bvh_build.build` on
-        ``runtime`` (default: the device :func:`ao4d.cl.get_runtime` chooses). ``"auto"``: a
-        tree already cached for the mesh, whichever built it; else the device builder when
-        ``runtime`` is given (the ray-casting functions pass theirs), the host builder otherwise.
-    runtime : ao4d.cl.Runtime, optional
-        The OpenCL device that will trace the tree.
-
-    Returns
-    -------
-    ao4d.bvh.BVH
-        A :class:`ao4d.bvh_build.DeviceBVH` when built on the device. Its geometry is in the
-        tree's coordinates, ``tree.frame.points(mesh.vertices)``: rays must be mapped likewise.
-
-    Uses the mesh's ``cache`` dict when it has one (dropped when the mesh changes); otherwise a
-    weak-keyed cache checked against a hash of the vertex and simplex arrays.
-    """
-    check_choice(builder, "builder", BUILDERS)
-    leaf_size = check_positive_int(leaf_size, "leaf_size")
-    if runtime is not None and leaf_size > _bvh.MAX_LEAF_BLOCKS * _block_lanes(runtime):
-        lanes = _block_lanes(runtime)
-        raise ValueError(f"`leaf_size` must be at most {_bvh.MAX_LEAF_BLOCKS * lanes} on this device "
-                         f"(leaf blocks of {lanes} simplices, at most {_bvh.MAX_LEAF_BLOCKS} per leaf), "
-                         f"got {leaf_size}")
-    keys = {b: f"ao4d.bvh/{b}/leaf={leaf_size}" for b in ("device", "host")}
-    cache = getattr(mesh, "cache", None)
-    stamp = None
-    if cache is None:
-        vertices, simplices = np.asarray(mesh.vertices), np.asarray(mesh.simplices)
-        stamp = _fingerprint(vertices, simplices)
-        try:
-            entry = _fallback_cache.setdefault(mesh, {})
-        except TypeError:  # not weak-referenceable: build every time
-            entry = {}
-        cache = {k: v[1] for k, v in entry.items() if v[0] == stamp}
-    if builder == "auto":
-        for b in ("device", "host"):
-            if keys[b] in cache:
-                return cache[keys[b]]
-        builder = "device" if runtime is not None else "host"
-    tree = cache.get(keys[builder])
-    if tree is None:
-        tree = _build_tree(builder, mesh.vertices, mesh.simplices, leaf_size, runtime)
-        if stamp is None:
-            cache[keys[builder]] = tree
-        else:
-            entry[keys[builder]] = (stamp, tree)
-    return tree
-
-
-# -- OpenCL side ------------------------------------------------------------------------------
-
-
-def _block_lanes(runtime) -> int:
-    """Simplices per leaf block on this device: ``bvh.LANES`` (16) on CPUs, 4 elsewhere (why:
-    bvh.widen)."""
-    import pyopencl as pcl
-
-    return _bvh.LANES if runtime.device.type & pcl.device_type.CPU else 4
-
-
-def _device_tree(mesh: Any, tree: _bvh.BVH, runtime) -> dict[str, Any]:
-    """Device copies of the wide tree, uploaded once per context and kept in ``mesh.cache``
-    (dropped with the tree when the mesh changes; meshes without a cache upload per call)."""
-    lanes = _block_lanes(runtime)
-    key = ("ao4d.raycast/device-tree", id(runtime.context), lanes, id(tree), _bvh.STACK_SIZE)
-    cache = getattr(mesh, "cache", None)
-    if cache is not None and key in cache:
-        return cache[key]
-    import pyopencl as pcl
-
-    dev = bvh_build.device_wide_tree(tree, runtime, lanes)  # a tree built on this device
-    if dev is not None:
-        if cache is not None:
-            cache[key] = dev
-        return dev
-    wide = tree.wide(lanes)
-    cl.check_device_memory(
-        runtime,
-        {
-            "the BVH leaf blocks": wide.blocks.nbytes,
-            "the BVH nodes": wide.boxes.nbytes,
-            "the BVH": wide.nbytes(),
-        },
-        task="ray tracing",
-    )
-    flags = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
-    ctx = runtime.context
-    dev = {
-        "boxes": pcl.Buffer(ctx, flags, hostbuf=np.ascontiguousarray(wide.boxes)),
-        "children": pcl.Buffer(ctx, flags, hostbuf=np.ascontiguousarray(wide.children)),
-        "blocks": pcl.Buffer(ctx, flags, hostbuf=np.ascontiguousarray(wide.blocks)),
-        "n_blocks": np.int32(len(wide.blocks)),
-        "lanes": lanes,
-        "block_first": wide.block_prim[:, 0],
-    }
-    if cache is not None:
-        cache[key] = dev
-    return dev
-
-
 def _kernels(runtime, dim: int, lanes: int, count_visits: bool = False) -> dict[str, Any]:
     defines = {"DIM": dim, "BARY_EPS": f"{_bvh.BARY_EPS:.9g}f", "WIDTH": _bvh.WIDTH, "LANES": lanes,
-               "STACK_SIZE": _bvh.STACK_SIZE}
+               "STACK_SIZE": _bvh.layout.STACK_SIZE}
     if count_visits:  # the debug variant of traversal_counts
         defines["COUNT_VISITS"] = 1
     return cl.build_kernels(runtime, "ao.cl", defines)
@@ -335,7 +192,7 @@ def _trace_opencl(mesh, tree, runtime, rays, max_distance, any_hit, accel, bar):
     hit = np.empty(n, dtype=np.int32)
     buf_t = pcl.Buffer(ctx, mf.WRITE_ONLY, n * 4)
     buf_h = pcl.Buffer(ctx, mf.WRITE_ONLY, hit.nbytes)
-    dev = _device_tree(mesh, tree, runtime)
+    dev = _bvh.device_tree(mesh, tree, runtime)
     kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast", accel)
     args = head + [buf_o, buf_w, np.float32(max_distance), np.int32(any_hit), buf_t, buf_h]
     for start in range(0, n, RAYS_PER_LAUNCH):
@@ -382,7 +239,7 @@ def _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_
     ]
     counts = np.empty(n, dtype=np.int32)
     buf_counts = pcl.Buffer(ctx, mf.WRITE_ONLY, counts.nbytes)
-    dev = _device_tree(mesh, tree, runtime)
+    dev = _bvh.device_tree(mesh, tree, runtime)
     kernel, head = _traversal_kernel(runtime, tree.dim, dev, "ao", accel, visits is not None)
     args = head + buffers + [
         np.int32(samples), np.uint32(seed & 0xFFFFFFFF), np.float32(offset),
@@ -419,7 +276,7 @@ def sample_directions(runtime, normals: np.ndarray, samples: int, seed: int) -> 
     ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
     out = np.empty((n * samples, 4), dtype=np.float32)
     buf = pcl.Buffer(ctx, pcl.mem_flags.WRITE_ONLY, out.nbytes)
-    _kernels(runtime, d, _block_lanes(runtime))["sample_directions"](
+    _kernels(runtime, d, _bvh.block_lanes(runtime))["sample_directions"](
         queue, (n,), None,
         pcl.Buffer(ctx, ro, hostbuf=_pad4(normals)),
         pcl.Buffer(ctx, ro, hostbuf=np.arange(n, dtype=np.uint32)),

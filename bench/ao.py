@@ -6,7 +6,7 @@ measurement once, in turn, so that all see the same machine load; the table show
 * ao4d OpenCL, every vertex of a 4D mesh of about ``--tets`` tetrahedra, ``--samples`` rays per
   vertex (cosine-weighted, any hit, unlimited distance), on the spheritorus and on a second 4D
   shape (``--shapes``), once with each BVH builder: ``host`` (numpy, :func:`ao4d.bvh.build`) and
-  ``device`` (OpenCL kernels, :mod:`ao4d.bvh_build`, the default where OpenCL runs). End to end
+  ``device`` (OpenCL kernels, :mod:`ao4d.bvh.device`, the default where OpenCL runs). End to end
   is a first ``ambient_occlusion(mesh, samples=64)`` on a fresh mesh (the device builder runs
   inside it; the host tree is built by ``get_bvh(mesh, builder="host")`` just before); trace is
   the second call on the same mesh, build the difference.
@@ -177,7 +177,7 @@ def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, points=No
     """A fresh mesh: build = its tree and the tree's device copy (what the first AO call adds),
     trace = the AO call."""
     import ao4d
-    from ao4d import raycast
+    from ao4d import bvh, raycast
 
     mesh = ao4d.SimplexMesh(vertices, simplices)
     if points is None:
@@ -187,7 +187,7 @@ def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, points=No
         kwargs.update(points=points, normals=normals)
     clock = Clock()
     tree = raycast.get_bvh(mesh, builder=builder, runtime=runtime)
-    raycast._device_tree(mesh, tree, runtime)  # the host tree's upload; the device tree has it
+    bvh.device_tree(mesh, tree, runtime)  # the host tree's upload; the device tree has it
     build = clock.lap()
     occlusion = ao4d.ambient_occlusion(mesh, **kwargs)
     trace = clock.lap()
@@ -198,7 +198,7 @@ def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, points=No
 
 def quality(vertices, simplices, builder, runtime, samples, n_points, rng) -> dict:
     import ao4d
-    from ao4d import ao, bvh, bvh_build, raycast
+    from ao4d import ao, bvh, raycast
 
     mesh = ao4d.SimplexMesh(vertices, simplices)
     tree = raycast.get_bvh(mesh, builder=builder, runtime=runtime)
@@ -210,7 +210,7 @@ def quality(vertices, simplices, builder, runtime, samples, n_points, rng) -> di
         runtime=runtime,
     )
     _, children, _, _, wide_depth = bvh.widen_topology(tree)
-    return {"sah": bvh_build.sah_cost(tree), "nodes": nodes, "blocks": blocks, "depth": tree.depth,
+    return {"sah": bvh.sah_cost(tree), "nodes": nodes, "blocks": blocks, "depth": tree.depth,
             "n_nodes": tree.n_nodes, "wide": len(children), "used": float((children != 0).mean()),
             "wide_depth": wide_depth}
 

@@ -13,7 +13,8 @@ import numpy as np
 import pyopencl as pcl
 
 import ao4d
-from ao4d import bvh, bvh_build, cl, raycast
+from ao4d import bvh, cl, raycast
+from ao4d.bvh import device
 
 ran: set[str] = set()
 
@@ -66,7 +67,7 @@ def main() -> int:
         mesh = soup(rng, d, 60)
         host = bvh.build(mesh.vertices, mesh.simplices)
         # small subtrees and chunks: the level passes and the per-work-item subtrees both run
-        tree = bvh_build.build(mesh.vertices, mesh.simplices, runtime=runtime, subtree=32, chunk=16)
+        tree = device.build(mesh.vertices, mesh.simplices, runtime=runtime, subtree=32, chunk=16)
         check(f"{d}D device tree holds every kept simplex",
               sorted(tree.prim.tolist()) == sorted(host.prim.tolist()) and tree.n_skipped == 3)
         mesh.cache[f"ao4d.bvh/device/leaf={16}"] = tree

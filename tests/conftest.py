@@ -28,15 +28,16 @@ def backend(request):
 @pytest.fixture(params=["host", "device"])
 def build_bvh(request):
     """Both BVH builders as ``build_bvh(vertices, simplices, leaf_size=16)``: numpy on the host
-    and the OpenCL kernels (ao4d.bvh_build; skips, saying why, without a device)."""
-    from ao4d import bvh, bvh_build
+    and the OpenCL kernels (ao4d.bvh.device; skips, saying why, without a device)."""
+    from ao4d import bvh
+    from ao4d.bvh import device
 
     if request.param == "host":
         return bvh.build
     runtime = request.getfixturevalue("cl_runtime")
 
     def build(vertices, simplices, *, leaf_size=16):
-        return bvh_build.build(vertices, simplices, leaf_size=leaf_size, runtime=runtime)
+        return device.build(vertices, simplices, leaf_size=leaf_size, runtime=runtime)
 
     return build
 

@@ -151,8 +151,8 @@ def test_wide_tree_holds_the_binary_tree(d, lanes, leaf_size):
     rng = np.random.default_rng(200 + d)
     vertices, simplices = random_soup(rng, d, 700)
     tree = bvh.build(vertices, simplices, leaf_size=leaf_size)
-    wide = tree.wide(lanes)
-    assert wide is tree.wide(lanes)  # built once
+    wide = bvh.wide(tree, lanes)
+    assert wide is bvh.wide(tree, lanes)  # built once
     assert wide.blocks.shape[1:] == (d + 1, d, lanes)
     # every simplex sits in exactly one lane of one leaf block
     used = wide.block_prim >= 0
@@ -193,7 +193,7 @@ def test_wide_tree_holds_the_binary_tree(d, lanes, leaf_size):
 
 def test_wide_tree_of_a_single_simplex():
     tree = bvh.build(np.eye(3), [[0, 1, 2]])
-    wide = tree.wide(bvh.LANES)
+    wide = bvh.wide(tree, bvh.LANES)
     assert wide.children.tolist() == [[-1, 0, 0, 0, 0, 0, 0, 0]]  # block 0, one block
     assert wide.block_prim.tolist() == [[0] + [-1] * (bvh.LANES - 1)]
 
@@ -201,11 +201,11 @@ def test_wide_tree_of_a_single_simplex():
 def test_wide_tree_needs_small_leaves():
     rng = np.random.default_rng(11)
     tree = bvh.build(*random_soup(rng, 3, 80), leaf_size=20)
-    assert len(tree.wide(16).blocks) >= 4  # two blocks of 16 per leaf of 20
+    assert len(bvh.wide(tree, 16).blocks) >= 4  # two blocks of 16 per leaf of 20
     with pytest.raises(ValueError, match="at most 16 simplices for 4 lanes"):
-        tree.wide(4)  # five blocks of 4: more than a leaf slot encodes
+        bvh.wide(tree, 4)  # five blocks of 4: more than a leaf slot encodes
     with pytest.raises(ValueError, match="`lanes` must be 4, 8 or 16"):
-        tree.wide(5)
+        bvh.wide(tree, 5)
 
 
 def corner_normals(corners: np.ndarray) -> np.ndarray:

@@ -44,7 +44,7 @@ def test_bvh_equals_brute_force(d, closest, shift, backend):
 @pytest.mark.parametrize("shift", [0.0, 30.0])
 def test_box_margin_keeps_corner_hits(d, shift, backend):
     # rays aimed at the vertices of a simplex hit it at its box's corners, where the float32
-    # slab test is closest to rejecting (its error grows with |o|: bvh._BOX_FMA_MARGIN)
+    # slab test is closest to rejecting (its error grows with |o|: ao4d.bvh.layout._BOX_FMA_MARGIN)
     rng = np.random.default_rng(1100 + d)
     corners = rng.uniform(-1, 1, size=(d, d)) + shift
     mesh = ao4d.SimplexMesh(corners, [list(range(d))])
@@ -59,7 +59,7 @@ def test_box_margin_keeps_corner_hits(d, shift, backend):
 
 @pytest.mark.parametrize("d", DIMS)
 def test_gpu_block_layout_gives_the_same_answers(d, cl_runtime, monkeypatch):
-    # GPUs get leaf blocks of 4 simplices, CPUs of 16 (raycast._block_lanes); the per-lane
+    # GPUs get leaf blocks of 4 simplices, CPUs of 16 (bvh.block_lanes); the per-lane
     # arithmetic is the same explicit fma sequence, so answers agree exactly
     rng = np.random.default_rng(1200 + d)
     mesh = soup_scene(rng, d)
@@ -67,7 +67,7 @@ def test_gpu_block_layout_gives_the_same_answers(d, cl_runtime, monkeypatch):
     pts, nrm = o[:200], w[:200]
     results = {}
     for lanes in (16, 4):
-        monkeypatch.setattr(raycast, "_block_lanes", lambda runtime, lanes=lanes: lanes)
+        monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime, lanes=lanes: lanes)
         hits = raycast.cast_rays(mesh, o, w, backend="opencl")
         occ = ao4d.ambient_occlusion(mesh, points=pts, normals=nrm, samples=32, backend="opencl")
         results[lanes] = hits, occ
@@ -253,27 +253,27 @@ def _private_bytes(runtime, kernel) -> int:
 
 
 def test_traversal_stack_size_comes_from_python(cl_runtime, monkeypatch):
-    # the stack size was written in kernels/bvh.h and in ao4d/bvh.py separately; now Python
+    # the stack size was written in kernels/bvh.h and in ao4d/bvh separately; now Python
     # passes it (-D STACK_SIZE) and refuses trees whose traversal could overflow it
     rng = np.random.default_rng(1500)
     mesh = soup_scene(rng, 3, n=2000)
     o, w = random_rays(rng, 3, 3000)
-    depth = raycast.get_bvh(mesh, runtime=cl_runtime).wide(raycast._block_lanes(cl_runtime)).depth
+    depth = bvh.wide(raycast.get_bvh(mesh, runtime=cl_runtime), bvh.block_lanes(cl_runtime)).depth
     assert depth >= 3
     needed = depth * (bvh.WIDTH - 1) + 1
     brute = raycast.cast_rays(mesh, o, w, backend="opencl", accel="brute")
     sizes = {}
     for stack in (needed, 4 * needed):
-        monkeypatch.setattr(bvh, "STACK_SIZE", stack)
+        monkeypatch.setattr(bvh.layout, "STACK_SIZE", stack)
         fresh = ao4d.SimplexMesh(mesh.vertices, mesh.simplices)  # no cached device tree
         hits = raycast.cast_rays(fresh, o, w, backend="opencl")
         np.testing.assert_array_equal(hits.simplex >= 0, brute.simplex >= 0)
         np.testing.assert_array_equal(hits.t, brute.t)
-        kernel = raycast._kernels(cl_runtime, 3, raycast._block_lanes(cl_runtime))["cast_bvh"]
+        kernel = raycast._kernels(cl_runtime, 3, bvh.block_lanes(cl_runtime))["cast_bvh"]
         sizes[stack] = _private_bytes(cl_runtime, kernel)
     if sizes[needed] > 0:  # runtimes that report private memory: it follows the stack
         assert sizes[4 * needed] >= sizes[needed] + 3 * needed * 4
-    monkeypatch.setattr(bvh, "STACK_SIZE", needed - 1)
+    monkeypatch.setattr(bvh.layout, "STACK_SIZE", needed - 1)
     fresh = ao4d.SimplexMesh(mesh.vertices, mesh.simplices)
     with pytest.raises(RuntimeError, match="too deep for the kernels' traversal stack"):
         raycast.cast_rays(fresh, o, w, backend="opencl")

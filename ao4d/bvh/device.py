@@ -1,9 +1,9 @@
 """The BVH built by OpenCL kernels on the device that traces it (``kernels/bvh_build.cl``).
 
-It builds the kind of tree :func:`ao4d.bvh.build` builds (binned SAH along the longest
+It builds the kind of tree :func:`ao4d.bvh.host.build` builds (binned SAH along the longest
 centroid axis, 32 bins, 16 for nodes of at most 256 simplices; median splits for nodes of at
 most 16 and halves below level 40; leaves are ranges of the reordered simplices) and returns the
-same :class:`ao4d.bvh.BVH`, so :func:`ao4d.bvh.widen` and both traversals apply unchanged. One
+same :class:`ao4d.bvh.BVH`, so :func:`ao4d.bvh.blocks.widen` and both traversals apply unchanged. One
 difference: splits follow the SAH bins exactly, where the host builder rounds a left side to
 whole leaves of 16; not rounding costs more, partly filled leaf blocks but gives a much better
 tree (on bench/ao.py's spheritorus: SAH cost 73 against 128, 2.4 leaf blocks tested per AO ray
@@ -20,7 +20,7 @@ bookkeeping per node:
 3. every smaller node: one work-item builds its whole subtree (bins and partitions in its own
    range), taking node ids from one atomic counter;
 4. the host renumbers the nodes breadth first (deterministic ids) and widens the tree
-   (:func:`ao4d.bvh.widen`'s topology); the leaf blocks are filled on the device from the
+   (:func:`ao4d.bvh.blocks.widen`'s topology); the leaf blocks are filled on the device from the
    vertices, never copied through the host.
 
 On devices with double precision every per-simplex value (keep/skip, box, centroid, the leaf
@@ -41,18 +41,20 @@ from typing import Any
 
 import numpy as np
 
-from . import bvh as _bvh
-from . import cl
-from ._validate import check_positive_int
+from .. import cl
+from .._validate import check_positive_int
+from . import host
+from .blocks import device_wide_tree, release_source
+from .layout import _BOX_FMA_MARGIN, _BOX_MARGIN, BARY_EPS, BVH
 
-__all__ = ["build", "DeviceBVH", "sah_cost", "device_wide_tree", "release_source"]
+__all__ = ["build", "DeviceBVH"]
 
 _SCAN_CHUNK = 4096  # simplices per work-item of the per-simplex passes
 _BINS = 32  # kernels' MAX_BINS
 _SUBTREE_MAX = 1 << 15  # largest subtree one work-item builds (its stack holds 40 + 16 levels)
 
 
-class DeviceBVH(_bvh.BVH):
+class DeviceBVH(BVH):
     """A :class:`ao4d.bvh.BVH` built on an OpenCL device.
 
     ``inverse`` and ``origin`` (float64, tree order) are computed from the mesh on first access:
@@ -96,7 +98,7 @@ class DeviceBVH(_bvh.BVH):
             return self._inverse[p], self._origin[p]
         vertices, simplices = self._source
         chosen = simplices[self.prim[p]]
-        idx, pts, inverse = _bvh._prepare(vertices, chosen)
+        idx, pts, inverse = host.frames(vertices, chosen)
         if idx.size != len(chosen):  # the device kept a simplex the float64 test skips
             inverse = _frames_unfiltered(vertices, chosen)
             return inverse, vertices[chosen[:, 0]].astype(np.float64)
@@ -136,8 +138,8 @@ def _has_double(device) -> bool:
 
 
 def _check_inputs(vertices: Any, simplices: Any, leaf_size: Any) -> tuple[np.ndarray, np.ndarray, int]:
-    """:func:`ao4d.bvh.build`'s checks, plus the device builder's 32-bit and leaf limits."""
-    vertices, simplices, leaf_size = _bvh.check_mesh_arrays(vertices, simplices, leaf_size)
+    """:func:`ao4d.bvh.host.build`'s checks, plus the device builder's 32-bit and leaf limits."""
+    vertices, simplices, leaf_size = host.check_mesh_arrays(vertices, simplices, leaf_size)
     if len(simplices) >= 2**30 or len(vertices) >= 2**31:
         raise ValueError(
             f"the device builder indexes with 32-bit integers: at most 2^30 simplices, got {len(simplices):,}"
@@ -199,13 +201,13 @@ def build(
     Raises
     ------
     ValueError
-        Bad input (as :func:`ao4d.bvh.build`), or every simplex degenerate.
+        Bad input (as :func:`ao4d.bvh.host.build`), or every simplex degenerate.
     RuntimeError
         If no OpenCL device works.
 
     Examples
     --------
-    >>> import ao4d.bvh_build as bb
+    >>> from ao4d.bvh import device as bb
     >>> tree = bb.build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])  # doctest: +SKIP
     >>> tree.n_prims, tree.n_nodes  # doctest: +SKIP
     (1, 1)
@@ -319,7 +321,7 @@ def _scan(job: _Job) -> _Scan:
     p_lo = part_lo[used].min(0).astype(np.float64)
     p_hi = part_hi[used].max(0).astype(np.float64)
     diagonal = float(np.linalg.norm(p_hi - p_lo))
-    extent = max(diagonal, _bvh._BOX_FMA_MARGIN * float(part_abs[used].max()), 1e-30)
+    extent = max(diagonal, _BOX_FMA_MARGIN * float(part_abs[used].max()), 1e-30)
     offsets = (np.cumsum(kept) - kept).astype(np.int32)
     return _Scan(keep, used, offsets, n_chunks, n_prims, diagonal, extent)
 
@@ -343,8 +345,8 @@ def _records(job: _Job, scan: _Scan, nodes: _Nodes) -> tuple[np.ndarray, np.ndar
     buf_pc = job.scratch(part_c.nbytes, job.mf.WRITE_ONLY)
     job.k["make_records"](
         job.queue, (scan.n_chunks,), None, job.vertices, job.simplices, np.int32(job.n),
-        np.int32(_SCAN_CHUNK), scan.keep, job.input(scan.offsets), job.real(2 * _bvh.BARY_EPS),
-        job.real(_bvh._BOX_MARGIN * scan.extent), nodes.rec[0], nodes.ids[0], buf_pc,
+        np.int32(_SCAN_CHUNK), scan.keep, job.input(scan.offsets), job.real(2 * BARY_EPS),
+        job.real(_BOX_MARGIN * scan.extent), nodes.rec[0], nodes.ids[0], buf_pc,
     )
     job.read((part_c, buf_pc))
     return part_c[scan.used, 0].min(0), part_c[scan.used, 1].max(0)
@@ -461,16 +463,6 @@ def _build_subtrees(job: _Job, nodes: _Nodes, tasks, big, leaf_size: int, n_prim
     return meta, lo, hi, order
 
 
-def release_source(tree: DeviceBVH) -> None:
-    """Free the build's device copies of the mesh (vertices, simplices, simplex order: about
-    1.4 GB at 55 M tetrahedra) once the traversed wide form exists; another leaf-block width
-    is then widened on the host."""
-    source, tree.device_source = tree.device_source, None
-    for key in ("vertices", "simplices", "order"):
-        if source is not None:
-            source[key].release()
-
-
 def _breadth_first(meta: np.ndarray, lo: np.ndarray, hi: np.ndarray):
     """Renumber nodes breadth first (children of a level in order, left before right)."""
     levels = [np.array([0])]
@@ -488,59 +480,3 @@ def _breadth_first(meta: np.ndarray, lo: np.ndarray, hi: np.ndarray):
     out[inner, 0] = new_of[out[inner, 0]]
     out[inner, 1] = new_of[out[inner, 1]]
     return out.astype(np.int32), lo[old], hi[old], len(levels)
-
-
-def device_wide_tree(tree: _bvh.BVH, runtime, lanes: int) -> dict[str, Any] | None:
-    """Device buffers of ``tree``'s wide form with the leaf blocks filled on the device.
-
-    Returns ``None`` when ``tree`` was not built on ``runtime``'s context (then the host widens
-    it). The dict holds ``boxes``, ``children``, ``blocks`` (buffers), ``n_blocks``, ``lanes``
-    and ``block_first`` (the tree-order simplex in lane 0 of each block; lane l holds the next).
-    """
-    import pyopencl as cl_
-
-    source = getattr(tree, "device_source", None)
-    if source is None or source["context"] is not runtime.context:
-        return None
-    if lanes in tree.device_wide:
-        return tree.device_wide[lanes]
-    first, count = _bvh.block_ranges(tree, lanes)
-    d = tree.dim
-    n_blocks = len(first)
-    block_range = np.stack([first, count], 1).astype(np.int32)
-    ctx, queue = runtime.context, runtime.queue
-    ro = cl_.mem_flags.READ_ONLY | cl_.mem_flags.COPY_HOST_PTR
-    blocks = cl_.Buffer(ctx, cl_.mem_flags.READ_WRITE, 4 * n_blocks * (d + 1) * d * lanes)
-    source["kernels"]["fill_blocks"](
-        queue, (n_blocks * lanes,), None, source["vertices"], source["simplices"], source["order"],
-        cl_.Buffer(ctx, ro, hostbuf=block_range), np.int32(lanes), blocks,
-    )
-    queue.flush()  # the device fills the blocks while the host collapses the tree
-    boxes, children, _, _, _ = _bvh.widen_topology(tree, lanes)
-    out = {
-        "boxes": cl_.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(boxes)),
-        "children": cl_.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(children)),
-        "blocks": blocks,
-        "n_blocks": np.int32(n_blocks),
-        "lanes": lanes,
-        "block_first": first,
-    }
-    queue.finish()
-    tree.device_wide[lanes] = out
-    return out
-
-
-def sah_cost(tree: _bvh.BVH, *, traversal: float = 1.0, intersection: float = 1.0) -> float:
-    """Surface-area-heuristic cost of a binary BVH, relative to its root box.
-
-    ``sum over inner nodes of A(n) * traversal + sum over leaves of A(l) * count(l) *
-    intersection``, divided by ``A(root)``, with ``A`` the boxes' boundary (d-1)-measure (the
-    weight :mod:`ao4d.bvh` splits by): the expected cost of a random ray that meets the root.
-    """
-    d = tree.dim
-    area = _bvh._box_area(tree.lo[:, :d].astype(np.float64), tree.hi[:, :d].astype(np.float64))
-    leaf = tree.meta[:, 0] < 0
-    inner = float(area[~leaf].sum()) * traversal
-    leaves = float((area[leaf] * tree.meta[leaf, 1]).sum()) * intersection
-    return (inner + leaves) / float(area[0]) if area[0] > 0 else math.nan
-

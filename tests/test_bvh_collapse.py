@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from _scenes import random_soup
 from ao4d import bvh
-from ao4d.collapse import COST_BLOCK, COST_NODE, collapse
+from ao4d.bvh.collapse import COST_BLOCK, COST_NODE, collapse
 
 
 def random_tree(rng, n_leaves: int):

@@ -1,4 +1,4 @@
-"""The BVH built by OpenCL kernels (ao4d.bvh_build) against the numpy builder and brute force.
+"""The BVH built by OpenCL kernels (ao4d.bvh.device) against the numpy builder and brute force.
 
 Structure, bounds, degenerate simplices and bad input are checked for both builders in
 tests/test_bvh.py (fixture ``build_bvh``), the numpy traversal of both trees in
@@ -14,13 +14,14 @@ import pytest
 
 import ao4d
 from _scenes import random_rays, random_soup, soup_scene, sphere_over_ground
-from ao4d import bvh, bvh_build, raycast
+from ao4d import bvh, raycast
+from ao4d.bvh import cache, device
 
 DIMS = (2, 3, 4)
 
 
 def has_double(runtime) -> bool:
-    return bvh_build._has_double(runtime.device)
+    return device._has_double(runtime.device)
 
 
 def extracted(d: int, n: int) -> ao4d.SimplexMesh:
@@ -34,7 +35,7 @@ def extracted(d: int, n: int) -> ao4d.SimplexMesh:
 def device_blocks(runtime, tree, lanes):
     import pyopencl as pcl
 
-    dev = bvh_build.device_wide_tree(tree, runtime, lanes)
+    dev = bvh.blocks.device_wide_tree(tree, runtime, lanes)
     blocks = np.empty((int(dev["n_blocks"]), tree.dim + 1, tree.dim, lanes), dtype=np.float32)
     pcl.enqueue_copy(runtime.queue, blocks, dev["blocks"])
     runtime.queue.finish()
@@ -50,7 +51,7 @@ def test_leaf_blocks_filled_on_the_device_equal_the_host_widening(d, lanes, cl_r
         pytest.skip("the device has no double precision: its inverses are float32 computations")
     rng = np.random.default_rng(10 + d)
     vertices, simplices = random_soup(rng, d, 1500)
-    tree = bvh_build.build(vertices, simplices, runtime=cl_runtime, subtree=128, chunk=64)
+    tree = device.build(vertices, simplices, runtime=cl_runtime, subtree=128, chunk=64)
     dev, blocks = device_blocks(cl_runtime, tree, lanes)
     wide = bvh.widen(tree, lanes)  # host widening of the same tree, from the host's float64 data
     np.testing.assert_array_equal(blocks, wide.blocks)
@@ -78,7 +79,7 @@ def test_boxes_equal_the_host_boxes_of_their_simplices(d, cl_runtime):
     box_hi = np.empty((host.n_prims, 4), dtype=np.float32)
     simplex = host.prim[-host.meta[leaf, 0] - 1]
     box_lo[simplex], box_hi[simplex] = host.lo[leaf], host.hi[leaf]
-    tree = bvh_build.build(vertices, simplices, runtime=cl_runtime, subtree=64, chunk=32)
+    tree = device.build(vertices, simplices, runtime=cl_runtime, subtree=64, chunk=32)
     for k, (a, b) in enumerate(tree.meta):
         if a < 0:
             ids = tree.prim[-a - 1 : -a - 1 + b]
@@ -94,14 +95,14 @@ def test_work_decomposition_does_not_change_the_tree(d, cl_runtime):
     rng = np.random.default_rng(30 + d)
     vertices, simplices = random_soup(rng, d, 3000, size=0.05)
     trees = [
-        bvh_build.build(vertices, simplices, runtime=cl_runtime, subtree=s, chunk=c)
+        device.build(vertices, simplices, runtime=cl_runtime, subtree=s, chunk=c)
         for s, c in ((None, None), (32, 16), (256, 1000), (4096, 256))
     ]
     for other in trees[1:]:
         for name in ("lo", "hi", "meta", "prim"):
             np.testing.assert_array_equal(getattr(other, name), getattr(trees[0], name))
         assert other.depth == trees[0].depth
-    again = bvh_build.build(vertices, simplices, runtime=cl_runtime, subtree=32, chunk=16)
+    again = device.build(vertices, simplices, runtime=cl_runtime, subtree=32, chunk=16)
     np.testing.assert_array_equal(again.meta, trees[1].meta)  # deterministic despite atomics
 
 
@@ -109,12 +110,12 @@ def test_work_decomposition_does_not_change_the_tree(d, cl_runtime):
 def test_sah_cost_is_no_worse_than_the_host_tree(d, cl_runtime):
     mesh = extracted(d, 20 if d == 4 else 40)
     host = bvh.build(mesh.vertices, mesh.simplices)
-    tree = bvh_build.build(mesh.vertices, mesh.simplices, runtime=cl_runtime)
+    tree = device.build(mesh.vertices, mesh.simplices, runtime=cl_runtime)
     assert tree.n_prims == host.n_prims > 5000
     # the same binned SAH without rounding left sides to whole leaves: at most a few % worse
     # (measured: 40% lower on the benchmark's spheritorus, whose AO then runs 6-15% faster)
-    assert bvh_build.sah_cost(tree) <= 1.03 * bvh_build.sah_cost(host)
-    assert tree.depth <= bvh._SAH_MAX_LEVEL + np.log2(tree.n_prims) + 1
+    assert bvh.sah_cost(tree) <= 1.03 * bvh.sah_cost(host)
+    assert tree.depth <= bvh.host._SAH_MAX_LEVEL + np.log2(tree.n_prims) + 1
 
 
 def test_sah_cost_of_a_two_leaf_tree():
@@ -123,11 +124,11 @@ def test_sah_cost_of_a_two_leaf_tree():
     tree = bvh.build(v, [[0, 1, 2], [3, 4, 5]], leaf_size=1)
     assert tree.n_nodes == 3
     d = 3
-    area = bvh._box_area(tree.lo[:, :d].astype(float), tree.hi[:, :d].astype(float))
+    area = bvh.box_area(tree.lo[:, :d].astype(float), tree.hi[:, :d].astype(float))
     expected = (2.0 * area[0] + 3.0 * (area[1] + area[2])) / area[0]
-    assert bvh_build.sah_cost(tree, traversal=2.0, intersection=3.0) == pytest.approx(expected, rel=1e-12)
+    assert bvh.sah_cost(tree, traversal=2.0, intersection=3.0) == pytest.approx(expected, rel=1e-12)
     # about the analytic value: each leaf a flat 1 x 1 box, the root 10 x 1 (margins aside)
-    assert bvh_build.sah_cost(tree) == pytest.approx(1 + 2 * (2 * 1) / (2 * 10), rel=1e-3)
+    assert bvh.sah_cost(tree) == pytest.approx(1 + 2 * (2 * 1) / (2 * 10), rel=1e-3)
 
 
 def test_flat_centroids_and_duplicates(cl_runtime):
@@ -135,7 +136,7 @@ def test_flat_centroids_and_duplicates(cl_runtime):
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
     simplices = np.tile([0, 1, 2], (300, 1))
     for subtree in (None, 32):
-        tree = bvh_build.build(v, simplices, runtime=cl_runtime, subtree=subtree, chunk=16)
+        tree = device.build(v, simplices, runtime=cl_runtime, subtree=subtree, chunk=16)
         assert sorted(tree.prim.tolist()) == list(range(300))
         leaves = tree.meta[tree.meta[:, 0] < 0]
         assert leaves[:, 1].max() <= 16 and leaves[:, 1].sum() == 300
@@ -148,11 +149,11 @@ def test_flat_centroids_and_duplicates(cl_runtime):
 
 def test_all_degenerate_and_bad_parameters(cl_runtime):
     with pytest.raises(ValueError, match="all 2 simplices are degenerate"):
-        bvh_build.build(np.eye(3), [[0, 1, 1], [2, 2, 2]], runtime=cl_runtime)
+        device.build(np.eye(3), [[0, 1, 1], [2, 2, 2]], runtime=cl_runtime)
     with pytest.raises(ValueError, match="`subtree`"):
-        bvh_build.build(np.eye(3), [[0, 1, 2]], runtime=cl_runtime, subtree=4)
+        device.build(np.eye(3), [[0, 1, 2]], runtime=cl_runtime, subtree=4)
     with pytest.raises(ValueError, match="`chunk`"):
-        bvh_build.build(np.eye(3), [[0, 1, 2]], runtime=cl_runtime, chunk=0)
+        device.build(np.eye(3), [[0, 1, 2]], runtime=cl_runtime, chunk=0)
     with pytest.raises(ValueError, match="`builder` must be one of"):
         raycast.get_bvh(ao4d.SimplexMesh(np.eye(3), [[0, 1, 2]]), builder="gpu")
 
@@ -168,9 +169,9 @@ def mesh_with_tree(mesh, builder, runtime):
 
 
 @pytest.mark.parametrize("d", (3, 4))
-@pytest.mark.parametrize("lanes", [16, 4])  # CPUs, GPUs (raycast._block_lanes)
+@pytest.mark.parametrize("lanes", [16, 4])  # CPUs, GPUs (bvh.block_lanes)
 def test_both_trees_give_brute_force_hits_and_the_same_ao(d, lanes, cl_runtime, monkeypatch):
-    monkeypatch.setattr(raycast, "_block_lanes", lambda runtime: lanes)
+    monkeypatch.setattr(cache, "block_lanes", lambda runtime: lanes)
     rng = np.random.default_rng(40 + d)
     scene = soup_scene(rng, d, n=600)
     o, w = random_rays(rng, d, 4000)
@@ -178,7 +179,7 @@ def test_both_trees_give_brute_force_hits_and_the_same_ao(d, lanes, cl_runtime, 
     results = {}
     for builder in ("host", "device"):
         mesh = mesh_with_tree(scene, builder, cl_runtime)
-        assert isinstance(raycast.get_bvh(mesh), bvh_build.DeviceBVH) == (builder == "device")
+        assert isinstance(raycast.get_bvh(mesh), device.DeviceBVH) == (builder == "device")
         for closest in (True, False):
             fast = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl")
             slow = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel="brute")
@@ -210,20 +211,20 @@ def test_numpy_backend_traces_a_device_tree(d, cl_runtime):
 
 def test_tree_is_built_once_and_reused_by_render(cl_runtime, monkeypatch):
     builds = []
-    real_build = bvh_build.build
+    real_build = device.build
 
     def counting(*args, **kwargs):
         builds.append(1)
         return real_build(*args, **kwargs)
 
-    monkeypatch.setattr(bvh_build, "build", counting)
-    monkeypatch.setattr(bvh, "build", lambda *a, **k: pytest.fail("the host builder ran"))
+    monkeypatch.setattr(device, "build", counting)
+    monkeypatch.setattr(bvh.host, "build", lambda *a, **k: pytest.fail("the host builder ran"))
     rng = np.random.default_rng(60)
     mesh = sphere_over_ground(rng, 4)
     ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
     assert len(builds) == 1
     tree = raycast.get_bvh(mesh)
-    assert isinstance(tree, bvh_build.DeviceBVH)
+    assert isinstance(tree, device.DeviceBVH)
     camera = ao4d.Camera4D(eye=(0, -3, 1, 0), target=(0, 0, 0.3, 0), up=(0, 0, 1, 0), over=(0, 0, 0, 1))
     ao4d.render(mesh, camera, (8, 8, 4), ao="vertices", backend="opencl")
     ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
@@ -235,10 +236,10 @@ def test_tree_is_built_once_and_reused_by_render(cl_runtime, monkeypatch):
 
 
 def test_numpy_backend_builds_on_the_host(monkeypatch):
-    monkeypatch.setattr(bvh_build, "build", lambda *a, **k: pytest.fail("the device builder ran"))
+    monkeypatch.setattr(device, "build", lambda *a, **k: pytest.fail("the device builder ran"))
     mesh = soup_scene(np.random.default_rng(70), 3, n=50)
     ao4d.ambient_occlusion(mesh, samples=4, backend="numpy")
-    assert not isinstance(raycast.get_bvh(mesh), bvh_build.DeviceBVH)
+    assert not isinstance(raycast.get_bvh(mesh), device.DeviceBVH)
 
 
 def test_traversal_counts_of_a_one_leaf_tree(cl_runtime):
@@ -261,7 +262,7 @@ def test_traversal_counts_of_a_one_leaf_tree(cl_runtime):
 def test_single_precision_devices(d, cl_runtime, monkeypatch):
     # devices without cl_khr_fp64 compute the per-simplex data in float: the tree must still
     # answer exactly as brute force over its own leaf blocks, and AO stay near the host tree's
-    monkeypatch.setattr(bvh_build, "_has_double", lambda device: False)
+    monkeypatch.setattr(device, "_has_double", lambda device: False)
     rng = np.random.default_rng(80 + d)
     scene = soup_scene(rng, d, n=400)
     mesh = mesh_with_tree(scene, "device", cl_runtime)
@@ -289,13 +290,13 @@ def test_build_copies_are_freed_once_the_traversed_tree_exists(cl_runtime):
     brute = raycast.cast_rays(mesh, o, w, backend="opencl", accel="brute")
     np.testing.assert_array_equal(hits.simplex >= 0, brute.simplex >= 0)
     # another block width is widened on the host from the same tree
-    assert bvh_build.device_wide_tree(tree, cl_runtime, 4) is None
-    assert tree.wide(4).blocks.shape[-1] == 4
+    assert bvh.blocks.device_wide_tree(tree, cl_runtime, 4) is None
+    assert bvh.wide(tree, 4).blocks.shape[-1] == 4
 
 
 @pytest.mark.parametrize("lanes", [4, 16])  # 4: a GPU's blocks, accepted up to 64 and failing at the trace
 def test_leaf_size_beyond_the_leaf_encoding_is_refused_up_front(lanes, cl_runtime, monkeypatch):
-    monkeypatch.setattr(raycast, "_block_lanes", lambda runtime: lanes)
+    monkeypatch.setattr(cache, "block_lanes", lambda runtime: lanes)
     mesh = soup_scene(np.random.default_rng(2200), 3, n=50)
     with pytest.raises(ValueError, match=rf"`leaf_size` must be at most {4 * lanes} on this device"):
         raycast.get_bvh(mesh, leaf_size=4 * lanes + 1, runtime=cl_runtime)
