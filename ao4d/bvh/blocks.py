@@ -104,63 +104,68 @@ def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarra
     d = tree.dim
     left = np.where(tree.meta[:, 0] >= 0, tree.meta[:, 0], -1).astype(np.int64)
     right = np.where(tree.meta[:, 0] >= 0, tree.meta[:, 1], -1).astype(np.int64)
-    leaves, leaf_blocks, leaf_first = _leaf_blocks(tree, lanes)
-    max_blocks = max(LEAF_BLOCKS, int(leaf_blocks.max()))
-    if max_blocks > MAX_LEAF_BLOCKS:  # the leaf encoding holds 1 to 4 blocks
-        raise ValueError(
-            f"the OpenCL kernels need leaves of at most {MAX_LEAF_BLOCKS * lanes} simplices for {lanes} lanes"
-        )
-    # a subtree of at most max_blocks blocks may become one leaf slot: its blocks are
-    # consecutive (blocks follow the simplex order)
-    n_blocks = np.zeros(tree.n_nodes, dtype=np.int64)
-    n_blocks[leaves] = leaf_blocks
-    first_block = np.full(tree.n_nodes, -1, dtype=np.int64)
-    first_block[leaves] = leaf_first
     levels = _levels(tree.meta)
-    for ids in reversed(levels):  # bottom up, each node once
-        ids = ids[left[ids] >= 0]
-        n_blocks[ids] = n_blocks[left[ids]] + n_blocks[right[ids]]
-        first_block[ids] = first_block[left[ids]]
-
+    n_blocks, first_block, max_blocks = _subtree_blocks(tree, lanes, left, right, levels)
     # wide nodes level by level; each holds up to 8 binary nodes (its slots), chosen by the
     # SAH-optimal collapse
     area = box_area(tree.lo[:, :d].astype(np.float64), tree.hi[:, :d].astype(np.float64))
     plan = collapse(left, right, area, levels, n_blocks, n_blocks <= max_blocks, WIDTH)
-    is_leaf = plan.leaf
-    if is_leaf[0]:  # the whole tree is one leaf: a root with a single leaf child
-        all_slots = [np.concatenate([[0], np.full(WIDTH - 1, -1)])[None]]
-        depth = 1
-    else:
-        level, all_slots, depth = np.array([0]), [], 0
-        while level.size:
-            slots = plan.slots(level)
-            all_slots.append(slots)
-            valid = slots >= 0
-            level = slots[valid & ~is_leaf[np.where(valid, slots, 0)]]
-            depth += 1
-    slots = np.concatenate(all_slots)
-    valid = slots >= 0
-    safe = np.where(valid, slots, 0)
-    inner = valid & ~is_leaf[safe]
-    # wide ids follow creation order: the inner slots in row-major order are nodes 1, 2, ...
-    children = np.zeros(slots.shape, dtype=np.int64)
-    children[inner] = 1 + np.arange(inner.sum())
-    leafy = valid & is_leaf[safe]
-    leaf_nodes = slots[leafy]
-    children[leafy] = -(1 + 4 * first_block[leaf_nodes] + (n_blocks[leaf_nodes] - 1))
-    boxes = np.zeros((len(slots), 2, d, WIDTH), dtype=np.float32)
-    boxes[:, 0] = tree.lo[safe][..., :d].transpose(0, 2, 1)
-    boxes[:, 1] = tree.hi[safe][..., :d].transpose(0, 2, 1)
-    boxes[~np.broadcast_to(valid[:, None, None, :], boxes.shape)] = 0.0
-
-    first, count = block_ranges(tree, lanes)
+    slots, depth = _wide_slots(plan)
     # a node visit pushes at most WIDTH - 1 more entries than it pops
     if depth * (WIDTH - 1) + 1 > layout.STACK_SIZE:  # read at call time: tests vary it
         raise RuntimeError(
             f"BVH too deep for the kernels' traversal stack: {depth} wide levels need "
             f"{depth * (WIDTH - 1) + 1} entries, STACK_SIZE is {layout.STACK_SIZE}"
         )
+    valid = slots >= 0
+    safe = np.where(valid, slots, 0)
+    inner = valid & ~plan.leaf[safe]
+    # wide ids follow creation order: the inner slots in row-major order are nodes 1, 2, ...
+    children = np.zeros(slots.shape, dtype=np.int64)
+    children[inner] = 1 + np.arange(inner.sum())
+    leafy = valid & plan.leaf[safe]
+    leaf_nodes = slots[leafy]
+    children[leafy] = -(1 + 4 * first_block[leaf_nodes] + (n_blocks[leaf_nodes] - 1))
+    boxes = np.zeros((len(slots), 2, d, WIDTH), dtype=np.float32)
+    boxes[:, 0] = tree.lo[safe][..., :d].transpose(0, 2, 1)
+    boxes[:, 1] = tree.hi[safe][..., :d].transpose(0, 2, 1)
+    boxes[~np.broadcast_to(valid[:, None, None, :], boxes.shape)] = 0.0
+    first, count = block_ranges(tree, lanes)
     return boxes, children.astype(np.int32), first.astype(np.int32), count.astype(np.int32), depth
+
+
+def _subtree_blocks(tree: BVH, lanes: int, left, right, levels):
+    """Per binary node, its subtree's leaf-block count and first block (B,) int64 each, and the
+    most blocks one leaf slot may hold: a subtree of at most that many may become one slot
+    (its blocks are consecutive: blocks follow the simplex order)."""
+    leaves, leaf_blocks, leaf_first = _leaf_blocks(tree, lanes)
+    max_blocks = max(LEAF_BLOCKS, int(leaf_blocks.max()))
+    if max_blocks > MAX_LEAF_BLOCKS:  # the leaf encoding holds 1 to 4 blocks
+        raise ValueError(
+            f"the OpenCL kernels need leaves of at most {MAX_LEAF_BLOCKS * lanes} simplices for {lanes} lanes"
+        )
+    n_blocks = np.zeros(tree.n_nodes, dtype=np.int64)
+    n_blocks[leaves] = leaf_blocks
+    first_block = np.full(tree.n_nodes, -1, dtype=np.int64)
+    first_block[leaves] = leaf_first
+    for ids in reversed(levels):  # bottom up, each node once
+        ids = ids[left[ids] >= 0]
+        n_blocks[ids] = n_blocks[left[ids]] + n_blocks[right[ids]]
+        first_block[ids] = first_block[left[ids]]
+    return n_blocks, first_block, max_blocks
+
+
+def _wide_slots(plan) -> tuple[np.ndarray, int]:
+    """The binary nodes in each wide node's slots (K, WIDTH), -1 for none, and the wide depth."""
+    if plan.leaf[0]:  # the whole tree is one leaf: a root with a single leaf child
+        return np.concatenate([[0], np.full(WIDTH - 1, -1)])[None], 1
+    level, all_slots = np.array([0]), []
+    while level.size:
+        slots = plan.slots(level)
+        all_slots.append(slots)
+        valid = slots >= 0
+        level = slots[valid & ~plan.leaf[np.where(valid, slots, 0)]]
+    return np.concatenate(all_slots), len(all_slots)
 
 
 def device_wide_tree(tree: BVH, runtime, lanes: int) -> dict[str, Any] | None:

@@ -127,106 +127,153 @@ def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, lea
     that order, per node ``start``, ``count``, ``left``, ``right`` (-1 for leaves) and the node
     ids per level.
     """
-    n, d = centroids.shape
-    # float32 working copy [lo | centroid | hi] (bounds rounded outwards), component-major:
-    # half the memory traffic of float64, and contiguous rows gather and reduce fastest
-    data = np.empty((3 * d, n), dtype=np.float32)
-    data[:d] = np.nextafter(p_lo.T.astype(np.float32), np.float32(-np.inf))
-    data[d : 2 * d] = centroids.T
-    data[2 * d :] = np.nextafter(p_hi.T.astype(np.float32), np.float32(np.inf))
-    spare = np.empty_like(data)
-    order = np.arange(n)
-    cap = 2 * n + 1  # a binary tree with non-empty leaves has fewer than 2n nodes
-    start = np.zeros(cap, dtype=np.int64)
-    count = np.zeros(cap, dtype=np.int64)
-    left = np.full(cap, -1, dtype=np.int64)
-    right = np.full(cap, -1, dtype=np.int64)
-    c_lo = np.zeros((cap, d), dtype=np.float32)  # centroid bounds of nodes still to split
-    c_hi = np.zeros((cap, d), dtype=np.float32)
-    c_known = np.zeros(cap, dtype=bool)
-    count[0] = n
-    is_start = np.zeros(n, dtype=bool)  # first primitive of a current node (leaf or not)
-    is_start[0] = True
-    node_at = np.zeros(n, dtype=np.int64)  # node id by its first primitive
-    levels = [np.array([0])]
-    n_nodes = 1
-    index = np.arange(n)
-    while True:
-        ids = levels[-1]
-        if not (count[ids] > leaf_size).any():
-            break
-        seg_start = np.flatnonzero(is_start)
-        seg_node = node_at[seg_start]
-        seg_count = count[seg_node]
-        active = seg_count > leaf_size
-        ids = seg_node[active]
-        s_start, s_count = seg_start[active], seg_count[active]
-        unknown = ~c_known[ids]
-        if unknown.any():  # the root and children of median splits: reduce their ranges
-            edges = np.stack([s_start[unknown], s_start[unknown] + s_count[unknown]], 1).ravel()
-            cent = np.concatenate([data[d : 2 * d], data[d : 2 * d, -1:]], axis=1)  # edges may be n
-            c_lo[ids[unknown]] = np.minimum.reduceat(cent, edges, axis=1).T[::2]
-            c_hi[ids[unknown]] = np.maximum.reduceat(cent, edges, axis=1).T[::2]
-        node_lo, node_hi = c_lo[seg_node], c_hi[seg_node]
-        axis = np.argmax(node_hi - node_lo, axis=1)
-        rows = np.arange(seg_start.size)
-        ext = (node_hi - node_lo)[rows, axis]
-        # finished leaves and flat nodes sort by position: they keep their order
-        ext = np.where(active & (ext > 0), ext, np.inf)
-        # per-segment values spread to the primitives with repeat (contiguous writes: several
-        # times faster than gathers by segment rank)
-        rank = np.repeat(rows, seg_count)  # segment of every primitive
-        value = np.choose(np.repeat(axis, seg_count), data[d : 2 * d])
-        frac = np.clip((value - np.repeat(node_lo[rows, axis], seg_count)) / np.repeat(ext, seg_count), 0.0, 1.0)
-        done = np.repeat(~active, seg_count)
-        frac[done] = ((index - np.repeat(seg_start, seg_count)) / np.repeat(seg_count + 1.0, seg_count))[done]
-        sort = np.argsort(rank + 0.75 * frac)  # keys stay below rank + 1
-        data, spare = np.take(data, sort, axis=1, out=spare), data  # reused: no page faults
-        order = np.take(order, sort)
-        frac = np.take(frac, sort)
-        half = s_count // 2
-        big = s_count > _SAH_MIN_COUNT
-        sah_level = len(levels) <= _SAH_MAX_LEVEL and big.any()
-        if sah_level:
-            # fewer bins for small nodes: 32 bins pay off at the top (4% fewer node visits)
-            # but would double the cost of the many small nodes at the bottom
-            n_bins = _SAH_BINS if s_count[big].mean() > 8 * _SAH_BINS else _SAH_BINS // 2
-            bins = np.minimum((frac * n_bins).astype(np.int64), n_bins - 1)
-            seg_rows = np.full(seg_start.size, -1, dtype=np.int64)
-            big_ranks = np.flatnonzero(active)[big]
-            seg_rows[big_ranks] = np.arange(big_ranks.size)
-            counts, b_min, b_max = _sah_bins(bins, n_bins, rank, seg_rows, big_ranks.size, data, d)
-            sah = _sah_split_counts(counts, b_min[..., :d], b_max[..., d:], s_count[big])
-            half[big] = np.where(sah > 0, sah, half[big])
-        # left sides of whole leaves: leaf blocks of the kernels run with all lanes full
-        half = np.clip(leaf_size * np.round(half / leaf_size).astype(np.int64), leaf_size, s_count - 1)
-        ids_l = n_nodes + 2 * np.arange(ids.size)
-        ids_r = ids_l + 1
-        n_nodes += 2 * ids.size
-        left[ids], right[ids] = ids_l, ids_r
-        start[ids_l], count[ids_l] = s_start, half
-        start[ids_r], count[ids_r] = s_start + half, s_count - half
-        is_start[s_start + half] = True
-        node_at[s_start], node_at[s_start + half] = ids_l, ids_r
-        if sah_level:
-            # children's centroid bounds: the bins from the first to the one holding the last
-            # left primitive, and from the one holding the first right primitive on
-            split = (s_start + half)[big]
-            r = np.arange(big.sum())
-            bl, br = bins[split - 1], bins[split]
-            cent_min, cent_max = b_min[..., d:], b_max[..., :d]
-            c_lo[ids_l[big]] = _running(np.minimum, cent_min)[r, bl]
-            c_hi[ids_l[big]] = _running(np.maximum, cent_max)[r, bl]
-            c_lo[ids_r[big]] = _running(np.minimum, cent_min, True)[r, br]
-            c_hi[ids_r[big]] = _running(np.maximum, cent_max, True)[r, br]
-            c_known[ids_l[big]] = c_known[ids_r[big]] = True
-        levels.append(np.stack([ids_l, ids_r], 1).ravel())
+    work = _Splits(centroids, p_lo, p_hi)
+    while (work.count[work.levels[-1]] > leaf_size).any():
+        work.split_level(leaf_size)
         if bar is not None:
             if bar.total is not None and bar.n + 1 > bar.total:
                 bar.total = bar.n + 1  # deeper than estimated: keep the bar honest
             bar.update(1)
-    sl = slice(0, n_nodes)
-    return order, data[:d].T, data[2 * d :].T, start[sl], count[sl], left[sl], right[sl], levels
+    sl = slice(0, work.n_nodes)
+    d = work.d
+    return (work.order, work.data[:d].T, work.data[2 * d :].T, work.start[sl], work.count[sl],
+            work.left[sl], work.right[sl], work.levels)
+
+
+class _Level:
+    """The current level's segments (one per node, leaves included) and the nodes to split."""
+
+    def __init__(self, work: "_Splits", leaf_size: int) -> None:
+        self.seg_start = np.flatnonzero(work.is_start)
+        self.seg_node = work.node_at[self.seg_start]
+        self.seg_count = work.count[self.seg_node]
+        self.active = self.seg_count > leaf_size
+        self.ids = self.seg_node[self.active]
+        self.s_start, self.s_count = self.seg_start[self.active], self.seg_count[self.active]
+        self.rows = np.arange(self.seg_start.size)
+        self.rank = np.repeat(self.rows, self.seg_count)  # segment of every primitive
+
+
+class _Splits:
+    """The state of :func:`_split_levels`: primitive data in tree order and the node arrays."""
+
+    def __init__(self, centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray) -> None:
+        n, d = centroids.shape
+        self.n, self.d = n, d
+        # float32 working copy [lo | centroid | hi] (bounds rounded outwards), component-major:
+        # half the memory traffic of float64, and contiguous rows gather and reduce fastest
+        self.data = np.empty((3 * d, n), dtype=np.float32)
+        self.data[:d] = np.nextafter(p_lo.T.astype(np.float32), np.float32(-np.inf))
+        self.data[d : 2 * d] = centroids.T
+        self.data[2 * d :] = np.nextafter(p_hi.T.astype(np.float32), np.float32(np.inf))
+        self.spare = np.empty_like(self.data)
+        self.order = np.arange(n)
+        cap = 2 * n + 1  # a binary tree with non-empty leaves has fewer than 2n nodes
+        self.start = np.zeros(cap, dtype=np.int64)
+        self.count = np.zeros(cap, dtype=np.int64)
+        self.left = np.full(cap, -1, dtype=np.int64)
+        self.right = np.full(cap, -1, dtype=np.int64)
+        self.c_lo = np.zeros((cap, d), dtype=np.float32)  # centroid bounds of nodes still to split
+        self.c_hi = np.zeros((cap, d), dtype=np.float32)
+        self.c_known = np.zeros(cap, dtype=bool)
+        self.count[0] = n
+        self.is_start = np.zeros(n, dtype=bool)  # first primitive of a current node (leaf or not)
+        self.is_start[0] = True
+        self.node_at = np.zeros(n, dtype=np.int64)  # node id by its first primitive
+        self.levels = [np.array([0])]
+        self.n_nodes = 1
+        self.index = np.arange(n)
+
+    def split_level(self, leaf_size: int) -> None:
+        """Split every node of the current level that holds more than ``leaf_size`` primitives."""
+        level = _Level(self, leaf_size)
+        self._reduce_unknown_bounds(level)
+        frac = self._sort(level)
+        half = level.s_count // 2
+        big = level.s_count > _SAH_MIN_COUNT
+        sah = None
+        if len(self.levels) <= _SAH_MAX_LEVEL and big.any():
+            sah = self._sah_bins(level, frac, big)
+            chosen = _sah_split_counts(sah[1], sah[2][..., : self.d], sah[3][..., self.d :], level.s_count[big])
+            half[big] = np.where(chosen > 0, chosen, half[big])
+        # left sides of whole leaves: leaf blocks of the kernels run with all lanes full
+        half = np.clip(leaf_size * np.round(half / leaf_size).astype(np.int64), leaf_size, level.s_count - 1)
+        ids_l, ids_r = self._children(level, half)
+        if sah is not None:
+            self._child_bounds(level, half, big, sah, ids_l, ids_r)
+        self.levels.append(np.stack([ids_l, ids_r], 1).ravel())
+
+    def _reduce_unknown_bounds(self, level: _Level) -> None:
+        """Centroid bounds of the root and of median-split children, reduced over their ranges."""
+        d = self.d
+        unknown = ~self.c_known[level.ids]
+        if not unknown.any():
+            return
+        s_start, s_count = level.s_start[unknown], level.s_count[unknown]
+        edges = np.stack([s_start, s_start + s_count], 1).ravel()
+        cent = np.concatenate([self.data[d : 2 * d], self.data[d : 2 * d, -1:]], axis=1)  # edges may be n
+        self.c_lo[level.ids[unknown]] = np.minimum.reduceat(cent, edges, axis=1).T[::2]
+        self.c_hi[level.ids[unknown]] = np.maximum.reduceat(cent, edges, axis=1).T[::2]
+
+    def _sort(self, level: _Level) -> np.ndarray:
+        """Sort each segment by centroid along its node's longest axis (finished leaves and flat
+        nodes keep their order); returns every primitive's place in its node's range, [0, 1]."""
+        d, seg_count, rows = self.d, level.seg_count, level.rows
+        node_lo, node_hi = self.c_lo[level.seg_node], self.c_hi[level.seg_node]
+        axis = np.argmax(node_hi - node_lo, axis=1)
+        ext = (node_hi - node_lo)[rows, axis]
+        ext = np.where(level.active & (ext > 0), ext, np.inf)
+        # per-segment values spread to the primitives with repeat (contiguous writes: several
+        # times faster than gathers by segment rank)
+        value = np.choose(np.repeat(axis, seg_count), self.data[d : 2 * d])
+        frac = np.clip((value - np.repeat(node_lo[rows, axis], seg_count)) / np.repeat(ext, seg_count), 0.0, 1.0)
+        done = np.repeat(~level.active, seg_count)
+        place = (self.index - np.repeat(level.seg_start, seg_count)) / np.repeat(seg_count + 1.0, seg_count)
+        frac[done] = place[done]
+        sort = np.argsort(level.rank + 0.75 * frac)  # keys stay below rank + 1
+        self.data, self.spare = np.take(self.data, sort, axis=1, out=self.spare), self.data  # no page faults
+        self.order = np.take(self.order, sort)
+        return np.take(frac, sort)
+
+    def _sah_bins(self, level: _Level, frac: np.ndarray, big: np.ndarray):
+        """Bins of the nodes large enough for SAH: (bins, counts, bin minima, bin maxima)."""
+        # fewer bins for small nodes: 32 bins pay off at the top (4% fewer node visits)
+        # but would double the cost of the many small nodes at the bottom
+        n_bins = _SAH_BINS if level.s_count[big].mean() > 8 * _SAH_BINS else _SAH_BINS // 2
+        bins = np.minimum((frac * n_bins).astype(np.int64), n_bins - 1)
+        seg_rows = np.full(level.seg_start.size, -1, dtype=np.int64)
+        big_ranks = np.flatnonzero(level.active)[big]
+        seg_rows[big_ranks] = np.arange(big_ranks.size)
+        counts, b_min, b_max = _sah_bins(bins, n_bins, level.rank, seg_rows, big_ranks.size, self.data, self.d)
+        return bins, counts, b_min, b_max
+
+    def _children(self, level: _Level, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Two children per split node: the first ``half`` primitives and the rest."""
+        ids, s_start, s_count = level.ids, level.s_start, level.s_count
+        ids_l = self.n_nodes + 2 * np.arange(ids.size)
+        ids_r = ids_l + 1
+        self.n_nodes += 2 * ids.size
+        self.left[ids], self.right[ids] = ids_l, ids_r
+        self.start[ids_l], self.count[ids_l] = s_start, half
+        self.start[ids_r], self.count[ids_r] = s_start + half, s_count - half
+        self.is_start[s_start + half] = True
+        self.node_at[s_start], self.node_at[s_start + half] = ids_l, ids_r
+        return ids_l, ids_r
+
+    def _child_bounds(self, level: _Level, half, big, sah, ids_l, ids_r) -> None:
+        """Children's centroid bounds from the SAH bins: the bins from the first to the one
+        holding the last left primitive, and from the one holding the first right primitive on."""
+        d = self.d
+        bins, _, b_min, b_max = sah
+        split = (level.s_start + half)[big]
+        r = np.arange(big.sum())
+        bl, br = bins[split - 1], bins[split]
+        cent_min, cent_max = b_min[..., d:], b_max[..., :d]
+        self.c_lo[ids_l[big]] = _running(np.minimum, cent_min)[r, bl]
+        self.c_hi[ids_l[big]] = _running(np.maximum, cent_max)[r, bl]
+        self.c_lo[ids_r[big]] = _running(np.minimum, cent_min, True)[r, br]
+        self.c_hi[ids_r[big]] = _running(np.maximum, cent_max, True)[r, br]
+        self.c_known[ids_l[big]] = self.c_known[ids_r[big]] = True
 
 
 def _node_bounds(prim_lo, prim_hi, start, count, left, right, levels):
