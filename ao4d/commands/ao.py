@@ -78,7 +78,26 @@ def run(args: argparse.Namespace) -> int:
     mesh.save(out)
     print(
         f"AO at {ao.size} {args.at} x {args.samples} samples: {elapsed:.2f} s, BVH build included "
-        f"({traced / max(elapsed, 1e-9) / 1e6:.2f} M rays/s); "
-        f"mean {np.nanmean(ao):.3f}, range [{np.nanmin(ao):.3f}, {np.nanmax(ao):.3f}] -> {out}"
+        f"({traced / max(elapsed, 1e-9) / 1e6:.2f} M rays/s); {_summary(ao, args.at)} -> {out}"
     )
+    n_open = len(mesh.boundary_faces())
+    if n_open:
+        print(f"note: the mesh is open ({n_open:,} boundary faces): rays leak out through them, so "
+              "AO near them is too low (a mesh extracted from data that touch the grid's edge: "
+              "extract it again with --closed)")
     return 0
+
+
+def _summary(ao, at: str) -> str:
+    """Mean and range of the AO values; NaN values are counted and named, never hidden."""
+    import numpy as np
+
+    finite = np.isfinite(ao)
+    if finite.all():
+        return f"mean {ao.mean():.3f}, range [{ao.min():.3f}, {ao.max():.3f}]"
+    what = "unused vertices" if at == "vertices" else "zero-measure simplices"
+    head = (f"{int((~finite).sum()):,} of {ao.size:,} values are NaN (no normal: {what})")
+    if not finite.any():
+        return head
+    return (f"{head}; the other values: mean {ao[finite].mean():.3f}, range "
+            f"[{ao[finite].min():.3f}, {ao[finite].max():.3f}]")
