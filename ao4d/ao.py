@@ -23,6 +23,7 @@ from . import cl
 from ._validate import as_array, check_choice, check_int, check_memory, check_positive_int
 from .geometry import simplex_normals
 from .mesh import warn_if_inside_out
+from .topology import GRID_EDGE_KEY
 from .raycast import (ACCELS, check_distance, check_rays, count_occluded, get_bvh, mesh_arrays, progress_bar,
                       unit_rows)
 
@@ -30,9 +31,6 @@ __all__ = ["ambient_occlusion", "ORIGIN_OFFSET", "OpenMeshWarning"]
 
 ORIGIN_OFFSET = 1e-4  # times the bounding-box diagonal
 
-# mesh.cache key under which extraction records that the solid touches the grid's edge
-# (set by ao4d.march; the text says what to pass to close the mesh)
-GRID_EDGE_KEY = "ao4d.grid_edge"
 
 
 class OpenMeshWarning(UserWarning):
