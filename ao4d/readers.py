@@ -324,6 +324,7 @@ def _read_one(text: str, scale: dict | None = None) -> tuple[Any, np.ndarray, np
 
 def _as_dask(values: Any, chunks: Any, text: str) -> Any:
     import dask.array as da
+    import dask.base
 
     from .blockwise import _chunks, is_dask_array
 
@@ -332,15 +333,21 @@ def _as_dask(values: Any, chunks: Any, text: str) -> Any:
         return values.rechunk(sizes)
     if isinstance(values, np.memmap) and values.filename:
         # a file-backed source pickles as its name (a memmap would pickle its whole contents)
-        order = "F" if values.flags.f_contiguous and not values.flags.c_contiguous else "C"
-        base = values
-        while isinstance(base.base, np.memmap):
-            base = base.base
-        source = _RawSource(str(values.filename), values.shape, values.dtype.str, values.offset,
-                            order) if base is values else None
-        if source is not None:
-            return da.from_array(source, chunks=sizes, asarray=True, fancy=False)
+        return da.from_array(_view_source(values), chunks=sizes, asarray=True, fancy=False,
+                             name=f"file-{dask.base.tokenize(_view_source(values), os.path.getmtime(values.filename))}")
     return da.from_array(np.asarray(values), chunks=sizes)
+
+
+def _view_source(values: np.memmap) -> _ViewSource:
+    """The file-backed description of a memory map or of any view of one (reshaped, flipped):
+    its first element's byte position in the file and its strides."""
+    root = values
+    while isinstance(root.base, np.memmap):
+        root = root.base
+    # a view's `offset` is its root's; the data pointers give the view's own start
+    start = int(root.offset) + (values.__array_interface__["data"][0] - root.__array_interface__["data"][0])
+    return _ViewSource(str(values.filename), tuple(int(n) for n in values.shape), values.dtype.str,
+                       start, tuple(int(s) for s in values.strides))
 
 
 # --------------------------------------------------------------------------------------------
@@ -365,20 +372,24 @@ class _ArraySource:
 
 
 @dataclass(frozen=True)
-class _RawSource(_ArraySource):
-    """A raw array in a file (npy payload, MetaImage raw, uncompressed NIfTI), memory-mapped
-    on first use in each process."""
+class _ViewSource(_ArraySource):
+    """A strided view into a raw file (a memory map or a view of one: NIfTI reshaped to
+    Fortran order, flipped axes), memory-mapped on first use in each process."""
 
     path: str
     shape: tuple[int, ...]
     dtype_str: str
-    offset: int
-    order: str
+    start: int  # byte position of element (0, ..., 0) in the file
+    strides: tuple[int, ...]  # bytes, any sign
 
     def __getitem__(self, index: Any) -> np.ndarray:
-        mm = np.memmap(self.path, dtype=self.dtype, mode="r", offset=self.offset,
-                       shape=self.shape, order=self.order)
-        return np.array(mm[index])
+        first = self.start + sum(s * (n - 1) for s, n in zip(self.strides, self.shape) if s < 0)
+        last = self.start + sum(s * (n - 1) for s, n in zip(self.strides, self.shape) if s > 0)
+        mm = np.memmap(self.path, dtype=np.uint8, mode="r", offset=first,
+                       shape=(last + self.dtype.itemsize - first,))
+        view = np.ndarray(self.shape, self.dtype, buffer=mm, offset=self.start - first,
+                          strides=self.strides)
+        return np.array(view[index])
 
 
 @dataclass(frozen=True)
@@ -695,7 +706,10 @@ def _parse_metaimage_header(path: str) -> tuple[dict[str, str], int]:
         offset = 0
         for raw in fh:
             offset += len(raw)
-            line = raw.decode("latin-1").strip()
+            try:  # file names in headers written today are UTF-8; older tools wrote latin-1
+                line = raw.decode("utf-8").strip()
+            except UnicodeDecodeError:
+                line = raw.decode("latin-1").strip()
             if not line:
                 continue
             if "=" not in line:
@@ -723,6 +737,13 @@ def _floats(fields: dict, key: str, d: int, default: float, path: str) -> np.nda
     return values[:d]
 
 
+def _header_int(fields: dict, key: str, default: int, path: str) -> int:
+    try:
+        return int(fields.get(key, str(default)))
+    except ValueError:
+        raise ValueError(f"{path!r}: {key} = {fields[key]!r} is not an integer") from None
+
+
 def _read_metaimage(path: str, *, data: bool = True) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
     """Values (a memory map; decompressed when compressed, unless ``data`` is false: then a
     read-only stand-in of the right shape and dtype), spacing, origin, notes."""
@@ -734,24 +755,30 @@ def _read_metaimage(path: str, *, data: bool = True) -> tuple[Any, np.ndarray, n
         raise ValueError(f"{path!r}: NDims and DimSize are missing or not integers") from None
     if len(shape) != d:
         raise ValueError(f"{path!r}: DimSize has {len(shape)} entries, NDims is {d}")
+    if any(n < 1 for n in shape):
+        raise ValueError(f"{path!r}: DimSize = {fields['DimSize']} must be positive integers")
     met = fields.get("ElementType", "")
     if met not in _MET_TYPES:
         raise ValueError(f"{path!r}: ElementType {met!r} is not one of {', '.join(_MET_TYPES)}")
-    if int(fields.get("ElementNumberOfChannels", "1")) != 1:
+    if _header_int(fields, "ElementNumberOfChannels", 1, path) != 1:
         raise ValueError(f"{path!r}: only single-channel (scalar) images are read")
     msb = fields.get("BinaryDataByteOrderMSB", fields.get("ElementByteOrderMSB", "False"))
     dtype = np.dtype(_MET_TYPES[met]).newbyteorder(">" if msb.lower() == "true" else "<")
-    data = fields["ElementDataFile"]
-    if data.upper() == "LIST" or data.split()[0].lower().find("%") >= 0:
-        raise ValueError(f"{path!r}: ElementDataFile = {data} (file lists) is not supported; "
+    data_file = fields["ElementDataFile"]
+    if data_file.upper() == "LIST" or data_file.split()[0].lower().find("%") >= 0:
+        raise ValueError(f"{path!r}: ElementDataFile = {data_file} (file lists) is not supported; "
                          "give the frames as a glob instead")
-    if data.upper() == "LOCAL":
+    if data_file.upper() == "LOCAL":
         raw, offset = path, header_end
     else:
-        raw, offset = str(Path(path).parent / data), 0
+        raw, offset = str(Path(path).parent / data_file), 0
         if not Path(raw).exists():
-            raise FileNotFoundError(f"{path!r} names the data file {data!r}, which does not exist")
-    header_size = int(fields.get("HeaderSize", "0"))
+            raise FileNotFoundError(f"{path!r} names the data file {data_file!r}, which does not "
+                                    "exist")
+        if not Path(raw).is_file():
+            raise ValueError(f"{path!r} names the data file {data_file!r}, which is a folder, not "
+                             "a file")
+    header_size = _header_int(fields, "HeaderSize", 0, path)
     if header_size > 0:
         offset += header_size
     need = math.prod(shape) * dtype.itemsize
