@@ -174,6 +174,13 @@ def extract(
     from .blockwise import is_dask_array
 
     closed = check_bool(closed, "closed")
+    if isinstance(values, np.ma.MaskedArray):
+        masked = int(np.ma.count_masked(values))
+        if masked:
+            raise ValueError(f"`values` is a masked array with {masked} masked entries; extraction "
+                             "needs a value at every grid point: fill them with a value on the "
+                             "side they belong to (values.filled(...))")
+        values = values.data  # nothing masked: the plain array (NaN in it is still refused)
     if affine is not None:
         d = getattr(values, "ndim", None) if is_dask_array(values) or isinstance(values, np.ndarray) \
             else as_array(values, "values").ndim

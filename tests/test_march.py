@@ -735,3 +735,14 @@ def test_cli_extract_closed_and_refused_options(tmp_path, capsys):
                  "--closed", "--out", str(tmp_path / "s.npz")]) == 0
     quarter = ao4d.SimplexMesh.load(tmp_path / "s.npz")
     assert quarter.check().ok and quarter.bounds[0].tolist() == [0.0] * 4
+
+
+def test_masked_arrays_are_refused_or_read_plainly():
+    v = _noise(np.random.default_rng(2205), (7, 7, 7))
+    holey = v.copy()
+    holey[3, 3, 3] = np.nan
+    with pytest.raises(ValueError, match=r"`values` is a masked array with 1 masked entries"):
+        ao4d.extract(np.ma.masked_invalid(holey), 0.0)  # the NaN hidden under the mask
+    with pytest.raises(ValueError, match=r"`values` contains 1 non-finite"):
+        ao4d.extract(np.ma.array(holey), 0.0)  # nothing masked: the NaN itself
+    _assert_same_mesh(ao4d.extract(v, 0.0), ao4d.extract(np.ma.array(v), 0.0), tol=0.0 + 1e-15)
