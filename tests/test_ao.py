@@ -468,3 +468,15 @@ def test_cli_ao_counts_nan_values_instead_of_printing_their_range(tmp_path, caps
     assert "1 of 2 values are NaN (no normal: zero-measure simplices)" in text
     assert "the other values: mean" in text and "note: the mesh is open (4 boundary faces)" in text
     assert np.isnan(ao4d.SimplexMesh.load(tmp_path / "o.npz").cell_data["ao"]).sum() == 1
+
+
+def test_cli_ao_keeps_the_input_files_field_data(tmp_path):
+    from ao4d import cli, mesh_files
+
+    rng = np.random.default_rng(2105)
+    mesh = sphere_over_ground(rng, 3)
+    arrays = mesh_files.MeshArrays(mesh.vertices, mesh.simplices, {}, {})
+    mesh_files.write(tmp_path / "in.npz", arrays, field_data={"w_scale": np.float64(0.5)})
+    assert cli.main(["ao", str(tmp_path / "in.npz"), "--samples", "2", "--out",
+                     str(tmp_path / "out.npz"), "--backend", "numpy"]) == 0
+    assert float(mesh_files.read_field_data(tmp_path / "out.npz")["w_scale"]) == 0.5

@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     from .._atomic import check_output_file
     from ..ao import ambient_occlusion
     from ..mesh import SimplexMesh
-    from ..mesh_files import SUFFIXES
+    from ..mesh_files import SUFFIXES, MeshArrays, read_field_data, write
     from ..raycast import RAYS_PER_SECOND, duration
 
     out = check_output_file(args.out, "--out", SUFFIXES)  # before any work
@@ -75,7 +75,9 @@ def run(args: argparse.Namespace) -> int:
     traced = int(np.isfinite(ao).sum()) * args.samples
     target = mesh.point_data if args.at == "vertices" else mesh.cell_data
     target[args.name] = ao
-    mesh.save(out)
+    # the input's field data (how the mesh was made: grid spacing, w scale) stays with it
+    write(out, MeshArrays(mesh.vertices, mesh.simplices, dict(mesh.point_data), dict(mesh.cell_data)),
+          field_data=read_field_data(args.mesh))
     print(
         f"AO at {ao.size} {args.at} x {args.samples} samples: {elapsed:.2f} s, BVH build included "
         f"({traced / max(elapsed, 1e-9) / 1e6:.2f} M rays/s); {_summary(ao, args.at)} -> {out}"
