@@ -74,6 +74,7 @@ from .cells import (
     _layers_per_slab,
     _march_slabs,
     _Plan,
+    outside_value,
 )
 from ._validate import check_finite
 from .mesh import SimplexMesh
@@ -466,8 +467,6 @@ def extract_blocks(
     if any(c == 0 for sizes in values.chunks for c in sizes):  # empty chunks: nothing to march
         values = values.rechunk(tuple(tuple(c for c in sizes if c) for sizes in values.chunks))
     if closed:  # as ao4d.extract reads integers: float64, here before the infinite padding
-        from .march import outside_value
-
         if values.dtype.kind != "f":
             values = values.astype(np.float64)
         values = da.pad(values, 1, mode="constant", constant_values=outside_value(inside))

@@ -373,6 +373,17 @@ def _interpolate(
     return geom.origin + geom.spacing * idx
 
 
+def outside_value(inside: str) -> float:
+    """The value of the cells ``closed=True`` pads the grid with: positive, on the outside.
+
+    Infinite, so that a vertex on an edge that leaves the grid sits on the grid's boundary
+    face (the limit of ever larger outside values: ``t`` is 0 at the grid end, and the
+    undefined ``inf / inf`` at the far end is taken as that limit, 1; see
+    :func:`_interpolate`).
+    """
+    return math.inf if inside == "below" else -math.inf
+
+
 def _layers_per_slab(chunk: Any, geom: _Geometry, method: str) -> int:
     n_dirs = len(np.unique(_cell_table(len(geom.shape), method).mask))
     if chunk is None:

@@ -25,6 +25,7 @@ from .cells import (  # noqa: F401  (_kuhn_table: tests reach it through ao4d.ma
     _kuhn_table,
     _layers_per_slab,
     _march,
+    outside_value,
 )
 from .mesh import SimplexMesh
 from .topology import GRID_EDGE_KEY
@@ -238,17 +239,6 @@ def extract(
         _mark_grid_edge(mesh, geom)
     return _checked(mesh, level, inside, lambda: (float(np.min(arr)), float(np.max(arr))),
                     lambda: outside_value(inside) if closed else float(arr[(0,) * d]))
-
-
-def outside_value(inside: str) -> float:
-    """The value of the cells ``closed=True`` pads the grid with: positive, on the outside.
-
-    Infinite, so that a vertex on an edge that leaves the grid sits on the grid's boundary
-    face (the limit of ever larger outside values: ``t`` is 0 at the grid end, and the
-    undefined ``inf / inf`` at the far end is taken as that limit, 1; see
-    :func:`ao4d.cells._interpolate`).
-    """
-    return math.inf if inside == "below" else -math.inf
 
 
 def _padded_reader(read: Callable[[int, int], np.ndarray], shape: tuple[int, ...],
