@@ -23,12 +23,34 @@ from . import cl
 from ._validate import as_array, check_choice, check_int, check_memory, check_positive_int
 from .geometry import simplex_normals
 from .mesh import warn_if_inside_out
+from .topology import GRID_EDGE_KEY
 from .raycast import (ACCELS, check_distance, check_rays, count_occluded, get_bvh, mesh_arrays, progress_bar,
                       unit_rows)
 
-__all__ = ["ambient_occlusion", "ORIGIN_OFFSET"]
+__all__ = ["ambient_occlusion", "ORIGIN_OFFSET", "OpenMeshWarning"]
 
 ORIGIN_OFFSET = 1e-4  # times the bounding-box diagonal
+
+
+
+class OpenMeshWarning(UserWarning):
+    """AO of a mesh cut open at its grid's edge: rays leak out through the open faces."""
+
+
+def warn_if_open(mesh: Any, *, stacklevel: int = 3) -> None:
+    """Warn once per mesh (version) when an extracted mesh is open at its grid's edge."""
+    cache = getattr(mesh, "cache", None)
+    if cache is None or GRID_EDGE_KEY not in cache or cache.get("ao4d.open_warned"):
+        return
+    cache["ao4d.open_warned"] = True
+    n_open = len(mesh.boundary_faces())
+    if n_open:
+        import warnings
+
+        warnings.warn(
+            f"the mesh is open ({n_open:,} boundary faces): {cache[GRID_EDGE_KEY]}; rays leak out "
+            "through the open faces, so AO near them is too low", OpenMeshWarning,
+            stacklevel=stacklevel)
 
 
 def _query_points(mesh, at, points, normals, d):
@@ -129,7 +151,16 @@ def ambient_occlusion(
         where the normal is undefined: an unreferenced vertex, a degenerate simplex
         (``at="simplices"``). A vertex whose every simplex has zero measure (extraction makes
         such simplices where values equal the level exactly) has no normal of its own; it sits
-        where its neighbours in those simplices sit, so it takes their mean AO.
+        where its neighbours in those simplices sit, so it takes their mean AO; a cluster of
+        such simplices with no other neighbour (a grid point exactly at the level, surrounded by
+        the solid) takes the mean AO of the two hemispheres about the first axis. So every
+        vertex a simplex uses gets a finite AO at ``at="vertices"``.
+
+    Warns
+    -----
+    OpenMeshWarning
+        Once per mesh, when a mesh from :func:`ao4d.extract` is open because the solid touches
+        the grid's edge (``closed=True`` closes it).
 
     Notes
     -----
@@ -169,6 +200,7 @@ def ambient_occlusion(
                  hint="use fewer `samples`")
     if points is None:  # at the mesh's own points: inward normals look into the solid
         warn_if_inside_out(mesh, "every hemisphere looks into the solid (AO = 1 everywhere)")
+    warn_if_open(mesh)
     tree = get_bvh(mesh, runtime=runtime)  # built by the device that traces it
     occlusion = np.full(len(pts), np.nan)
     idx = np.flatnonzero(defined)
@@ -182,16 +214,47 @@ def ambient_occlusion(
                                 runtime=runtime, accel=accel, bar=bar)
     occlusion[idx] = counts / samples
     if points is None and at == "vertices":
-        _fill_flat_vertices(occlusion, np.asarray(mesh_arrays(mesh)[1]))
+        simplices = np.asarray(mesh_arrays(mesh)[1])
+        _fill_flat_vertices(occlusion, simplices)
+        alone = np.flatnonzero(_referenced(len(occlusion), simplices) & np.isnan(occlusion))
+        if alone.size:  # clusters of zero measure only: no neighbour has an AO to share
+            occlusion[alone] = _both_sides(mesh, pts=np.asarray(mesh_arrays(mesh)[0])[alone],
+                                           samples=samples, seed=seed,
+                                           offset=ORIGIN_OFFSET * tree.diagonal,
+                                           max_distance=max_distance, runtime=runtime, accel=accel)
     return occlusion
+
+
+def _referenced(n: int, simplices: np.ndarray) -> np.ndarray:
+    used = np.zeros(n, dtype=bool)
+    used[simplices.ravel()] = True
+    return used
+
+
+def _both_sides(mesh, *, pts: np.ndarray, samples: int, seed: int, offset: float,
+                max_distance: float, runtime: Any, accel: str) -> np.ndarray:
+    """AO of points without a normal: the mean over the two hemispheres about the first axis.
+
+    A cluster of zero-measure simplices that touches nothing else (a grid point exactly at the
+    level whose neighbours all lie on the solid side: a hole of no volume) has no normal and no
+    neighbour to take an AO from; rays in every direction see what surrounds the point (all of
+    them hit when it is enclosed by the solid).
+    """
+    d = pts.shape[1]
+    axis = np.zeros((len(pts), d))
+    axis[:, 0] = 1.0
+    total = np.zeros(len(pts))
+    for sign in (1.0, -1.0):
+        total += count_occluded(mesh, pts, sign * axis, samples=samples, seed=seed, offset=offset,
+                                max_distance=max_distance, runtime=runtime, accel=accel)
+    return total / (2 * samples)
 
 
 def _fill_flat_vertices(occlusion: np.ndarray, simplices: np.ndarray) -> None:
     """Give referenced vertices without AO (only zero-measure simplices around them) the mean
     AO of the vertices they share a simplex with, spreading until nothing more can be filled."""
-    referenced = np.zeros(len(occlusion), dtype=bool)
-    referenced[simplices.ravel()] = True
-    for _ in range(8):  # zero-measure clusters are a few vertices wide
+    referenced = _referenced(len(occlusion), simplices)
+    while True:  # each pass fills one more ring of the zero-measure clusters
         missing = referenced & np.isnan(occlusion)
         if not missing.any():
             return

@@ -74,7 +74,9 @@ from .cells import (
     _layers_per_slab,
     _march_slabs,
     _Plan,
+    outside_value,
 )
+from ._validate import check_finite
 from .mesh import SimplexMesh
 
 __all__ = ["extract_blocks", "extract_field_blocks", "field_array", "is_dask_array", "worker_environment",
@@ -180,6 +182,9 @@ class _Spec:
     origin: tuple[float, ...]
     spacing: tuple[float, ...]
     chunk: int | None  # cell layers per slab inside a block
+    # closed=True: ``shape`` is the grid padded by one outside cell per side, whose grid index
+    # is one more than the user's (block offsets are in the padded grid)
+    padded: bool = False
 
 
 @dataclass
@@ -213,8 +218,13 @@ def _block_mesh(values: np.ndarray, offset: tuple[int, ...], spec: _Spec) -> _Bl
     values = np.ascontiguousarray(values)
     if any(n < 2 for n in values.shape):
         return _empty_block(d)
+    if spec.padded:  # the data (not the infinite padding) must be finite
+        inner = tuple(slice(max(1, o) - o, min(n - 1, o + m) - o)
+                      for o, m, n in zip(offset, values.shape, spec.shape))
+        check_finite(values[inner], "values")
+    shift = 1 if spec.padded else 0
     geom = _Geometry(tuple(values.shape), spec.perm, np.asarray(spec.origin),
-                     np.asarray(spec.spacing), np.asarray(offset, dtype=np.int64))
+                     np.asarray(spec.spacing), np.asarray(offset, dtype=np.int64) - shift)
     table = _cell_table(d, spec.method)
 
     def read(a: int, b: int) -> np.ndarray:  # as ao4d.extract reads its slabs
@@ -223,7 +233,7 @@ def _block_mesh(values: np.ndarray, offset: tuple[int, ...], spec: _Spec) -> _Bl
 
     parts = list(_march_slabs(read, geom, spec.level, table=table, inside=spec.inside,
                               layers_per_slab=_layers_per_slab(spec.chunk, geom, spec.method),
-                              check_values=True, progress=None))
+                              check_values=not spec.padded, progress=None))
     if not parts:
         return _empty_block(d)
     n_dirs = _Plan.make(table, geom).n_dirs
@@ -411,6 +421,7 @@ def extract_blocks(
     inside: str,
     chunk: int | None,
     progress: bool | None,
+    closed: bool = False,
 ) -> SimplexMesh:
     """Extract a dask array block by block on the active scheduler (see the module docstring).
 
@@ -432,6 +443,9 @@ def extract_blocks(
         :func:`ao4d.extract`).
     progress : bool or None
         tqdm bar over finished blocks; by default from 2^21 cells on.
+    closed : bool
+        As in :func:`ao4d.extract`: the array is padded (lazily) by one infinite outside cell
+        per side.
 
     Returns
     -------
@@ -450,10 +464,14 @@ def extract_blocks(
     if values.dtype.kind not in "fiub":
         raise TypeError(f"`values` must hold real numbers, got dtype {values.dtype}")
     d = values.ndim
-    spec = _Spec(float(level), method, inside, tuple(range(d)), tuple(int(n) for n in values.shape),
-                 tuple(map(float, origin)), tuple(map(float, spacing)), chunk)
     if any(c == 0 for sizes in values.chunks for c in sizes):  # empty chunks: nothing to march
         values = values.rechunk(tuple(tuple(c for c in sizes if c) for sizes in values.chunks))
+    if closed:  # as ao4d.extract reads integers: float64, here before the infinite padding
+        if values.dtype.kind != "f":
+            values = values.astype(np.float64)
+        values = da.pad(values, 1, mode="constant", constant_values=outside_value(inside))
+    spec = _Spec(float(level), method, inside, tuple(range(d)), tuple(int(n) for n in values.shape),
+                 tuple(map(float, origin)), tuple(map(float, spacing)), chunk, closed)
     ranges = _block_ranges(values.chunks)
     _check_blocks(ranges, spec, values.dtype.itemsize, f"`values` in chunks of {values.chunksize}")
     # one more point along every axis from the next blocks (thin slices move, not whole chunks)

@@ -359,7 +359,11 @@ def _interpolate(
     f0 = flat[lin].astype(np.float64)
     f1 = flat[lin + plan.offs[masks]].astype(np.float64)
     # exactly one end is positive, so f1 != f0 and fl(level - f0) lies between 0 and fl(f1 - f0)
-    t = np.clip((level - f0) / (f1 - f0), 0.0, 1.0)
+    with np.errstate(invalid="ignore"):
+        t = np.clip((level - f0) / (f1 - f0), 0.0, 1.0)
+    # an infinite lower end (the outside padding of ``closed=True``) gives inf / inf: the limit
+    # of ever larger outside values is 1, the vertex at the grid's end of the edge
+    t[np.isnan(t)] = 1.0
     eidx = np.unravel_index(lin, slab.shape)
     idx = np.empty((len(lin), len(geom.shape)))
     start = [0] * len(geom.shape) if geom.offset is None else [int(k) for k in geom.offset]
@@ -367,6 +371,17 @@ def _interpolate(
         idx[:, axis] = eidx[e] + ((z0 if e == 0 else 0) + start[axis])
     idx += t[:, None] * plan.mask_bits[masks]
     return geom.origin + geom.spacing * idx
+
+
+def outside_value(inside: str) -> float:
+    """The value of the cells ``closed=True`` pads the grid with: positive, on the outside.
+
+    Infinite, so that a vertex on an edge that leaves the grid sits on the grid's boundary
+    face (the limit of ever larger outside values: ``t`` is 0 at the grid end, and the
+    undefined ``inf / inf`` at the far end is taken as that limit, 1; see
+    :func:`_interpolate`).
+    """
+    return math.inf if inside == "below" else -math.inf
 
 
 def _layers_per_slab(chunk: Any, geom: _Geometry, method: str) -> int:

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import as_array, as_real, as_vector, check_choice, check_finite, check_positive_int
+from ._validate import as_array, as_real, as_vector, check_bool, check_choice, check_finite, check_positive_int
 from .cells import (  # noqa: F401  (_kuhn_table: tests reach it through ao4d.march)
     _PROGRESS_CELLS,
     _cell_table,
@@ -25,8 +25,10 @@ from .cells import (  # noqa: F401  (_kuhn_table: tests reach it through ao4d.ma
     _kuhn_table,
     _layers_per_slab,
     _march,
+    outside_value,
 )
 from .mesh import SimplexMesh
+from .topology import GRID_EDGE_KEY
 
 __all__ = ["extract", "extract_field", "METHODS"]
 
@@ -94,6 +96,8 @@ def extract(
     inside: str = "below",
     chunk: int | None = None,
     progress: bool | None = None,
+    closed: bool = False,
+    affine: Any = None,
 ) -> SimplexMesh:
     """Extract the closed, outward-oriented level set of a 2D, 3D or 4D grid of values.
 
@@ -123,21 +127,34 @@ def extract(
         Cell layers per slab along the slab axis; by default sized to bound memory near 100 MB.
     progress : bool, optional
         Show a tqdm bar; by default only for grids of 2^21 cells or more.
+    closed : bool
+        Close the mesh where the solid touches the grid's edge: the grid is taken as padded by
+        one cell of an outside value on every side (nothing is copied), with the cap at the
+        grid's boundary faces, so the result is the boundary of the solid clipped to the grid's
+        box. Vertices inside the grid are those of ``closed=False``, bit for bit.
+    affine : (d + 1, d + 1) or (d, d + 1) array_like, optional
+        Place vertices at ``affine @ (i_0, ..., i_{d-1}, 1)`` (grid index to coordinates, e.g. a
+        NIfTI affine: :attr:`ao4d.readers.Grid.affine`) instead of ``origin + spacing * i``
+        (leave ``spacing`` and ``origin`` at their defaults). Its linear part must be invertible;
+        an affine map keeps the mesh closed, and a negative determinant reverses the simplices
+        so that the normals still point out of the solid.
 
     Returns
     -------
     SimplexMesh
         Vertices (V, d) float64 on the crossed grid edges, one per edge, and simplices (S, d)
         int64 whose normals point to the positive side (out of the solid). The mesh is closed
-        whenever the level set does not touch the grid border; a level outside the data range
-        gives an empty mesh (0 vertices, 0 simplices). Simplices of zero measure occur where
-        values equal the level exactly; they keep the mesh closed.
+        whenever the level set does not touch the grid border (always with ``closed=True``); a
+        level outside the data range gives an empty mesh (0 vertices, 0 simplices). Simplices of
+        zero measure occur where values equal the level exactly; they keep the mesh closed.
+        When the solid touches the grid's edge (``closed=False``), ``mesh.check()`` says so and
+        :func:`ao4d.ambient_occlusion` warns (:class:`ao4d.ao.OpenMeshWarning`).
 
     Raises
     ------
     ValueError
         ``values`` not 2D/3D/4D, an axis shorter than 2, NaN/inf values, bad ``level``,
-        ``spacing``, ``origin``, ``method`` or ``inside``.
+        ``spacing``, ``origin``, ``method``, ``inside`` or ``affine``.
     MemoryError
         When even one slab would not fit (absurd shapes).
 
@@ -157,8 +174,27 @@ def extract(
     """
     from .blockwise import is_dask_array
 
+    closed = check_bool(closed, "closed")
+    if isinstance(values, np.ma.MaskedArray):
+        masked = int(np.ma.count_masked(values))
+        if masked:
+            raise ValueError(f"`values` is a masked array with {masked} masked entries; extraction "
+                             "needs a value at every grid point: fill them with a value on the "
+                             "side they belong to (values.filled(...))")
+        values = values.data  # nothing masked: the plain array (NaN in it is still refused)
+    if affine is not None:
+        d = getattr(values, "ndim", None) if is_dask_array(values) or isinstance(values, np.ndarray) \
+            else as_array(values, "values").ndim
+        matrix, shift = _affine(affine, d, spacing, origin)
+        mesh = extract(values, level, method=method, inside=inside, chunk=chunk, progress=progress,
+                       closed=closed)
+        hint = mesh.cache.get(GRID_EDGE_KEY)
+        mesh = mesh.transformed(matrix, shift)
+        if hint is not None:
+            mesh.cache[GRID_EDGE_KEY] = hint
+        return mesh
     if is_dask_array(values):  # blocks as tasks on the active dask scheduler
-        return _extract_dask(values, level, spacing, origin, method, inside, chunk, progress)
+        return _extract_dask(values, level, spacing, origin, method, inside, chunk, progress, closed)
     arr = values if isinstance(values, np.ndarray) else as_array(values, "values")
     if arr.ndim not in (2, 3, 4):
         raise ValueError(f"`values` must be a 2D, 3D or 4D array, got shape {arr.shape}")
@@ -180,22 +216,88 @@ def extract(
     else:
         engine, perm = arr, tuple(range(d))
     geom = _Geometry(tuple(engine.shape), perm, origin, spacing)
+    if closed:
+        geom = _Geometry(tuple(n + 2 for n in engine.shape), perm, origin, spacing,
+                         np.full(d, -1, dtype=np.int64))
     layers = _layers_per_slab(chunk, geom, method)
-    _check_slab_memory(geom, min(layers, geom.shape[0] - 1), method, arr.dtype.itemsize)
+    _check_slab_memory(geom, min(layers, geom.shape[0] - 1), method, 8 if closed else arr.dtype.itemsize)
     on_disk = isinstance(arr, np.memmap)
     if not on_disk:
         check_finite(arr, "values")  # in memory: one cheap pass before any work
 
     def read(a: int, b: int) -> np.ndarray:
         slab = np.ascontiguousarray(engine[a:b])
+        if on_disk and closed:
+            check_finite(slab, "values")  # the padded slabs hold infinities: check before
         return slab if slab.dtype.kind == "f" else slab.astype(np.float64)
 
-    mesh = _run(read, geom, level, method, inside, chunk, progress, on_disk, arr.dtype.itemsize)
+    if closed:
+        read = _padded_reader(read, engine.shape, outside_value(inside))
+    mesh = _run(read, geom, level, method, inside, chunk, progress, on_disk and not closed,
+                arr.dtype.itemsize)
+    if not closed:
+        _mark_grid_edge(mesh, geom)
     return _checked(mesh, level, inside, lambda: (float(np.min(arr)), float(np.max(arr))),
-                    lambda: float(arr[(0,) * d]))
+                    lambda: outside_value(inside) if closed else float(arr[(0,) * d]))
 
 
-def _extract_dask(values, level, spacing, origin, method, inside, chunk, progress) -> SimplexMesh:
+def _padded_reader(read: Callable[[int, int], np.ndarray], shape: tuple[int, ...],
+                   fill: float) -> Callable[[int, int], np.ndarray]:
+    """Serve slabs of the grid padded by one layer of ``fill`` on every side (engine axes)."""
+    n0 = shape[0]
+
+    def padded(a: int, b: int) -> np.ndarray:
+        lo, hi = max(a - 1, 0), min(b - 1, n0)  # rows of the unpadded grid
+        core = read(lo, hi) if hi > lo else None
+        dtype = np.float64 if core is None else core.dtype
+        out = np.full((b - a, *(n + 2 for n in shape[1:])), fill, dtype=dtype)
+        if core is not None:
+            out[(slice(lo + 1 - a, hi + 1 - a),) + (slice(1, -1),) * (len(shape) - 1)] = core
+        return out
+
+    return padded
+
+
+def _mark_grid_edge(mesh: SimplexMesh, geom: _Geometry) -> None:
+    """Record on ``mesh`` (its cache: dropped when the mesh changes) that the level set reaches
+    the grid's boundary, where the mesh is cut open, and what closes it.
+
+    A vertex on an edge inside a boundary face of the grid has that coordinate exactly equal to
+    the face's (the integer index is formed before scaling), so comparing is exact and cheap.
+    """
+    if mesh.n_simplices == 0:
+        return
+    shape = np.empty(len(geom.shape), dtype=np.int64)
+    shape[list(geom.perm)] = geom.shape  # user axes
+    first = geom.origin + geom.spacing * np.zeros(len(shape))
+    last = geom.origin + geom.spacing * (shape - 1).astype(np.float64)
+    v = mesh.vertices
+    on_edge = ((v == first) | (v == last)).any(axis=1)
+    if on_edge.any():
+        mesh.cache[GRID_EDGE_KEY] = (
+            f"{int(on_edge.sum()):,} vertices lie on the grid's boundary, where the solid touches "
+            "the grid's edge and the mesh is cut open; extract with closed=True (command line: "
+            "--closed) to close it there")
+
+
+def _affine(affine: Any, d: int, spacing: Any, origin: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(linear part (d, d), translation (d,)) of a grid-index-to-coordinates affine."""
+    m = as_array(affine, "affine", ndim=2, dtype=np.float64, finite=True)
+    if m.shape not in ((d + 1, d + 1), (d, d + 1)):
+        raise ValueError(f"`affine` must have shape ({d + 1}, {d + 1}) or ({d}, {d + 1}) for "
+                         f"{d}D values, got {m.shape}")
+    if m.shape[0] == d + 1 and not np.array_equal(m[d], np.eye(d + 1)[d]):
+        raise ValueError(f"`affine`'s last row must be (0, ..., 0, 1), got {m[d].tolist()}")
+    if np.any(np.asarray(spacing, dtype=float) != 1.0) or np.any(np.asarray(origin, dtype=float) != 0.0):
+        raise ValueError("give either `affine` or `spacing`/`origin`, not both (the affine holds "
+                         "the spacing and origin)")
+    if abs(np.linalg.det(m[:d, :d])) <= 1e-12 * max(1.0, float(np.abs(m[:d, :d]).max())) ** d:
+        raise ValueError(f"`affine`'s linear part must be invertible, got {m[:d, :d].tolist()}")
+    return m[:d, :d], m[:d, d]
+
+
+def _extract_dask(values, level, spacing, origin, method, inside, chunk, progress,
+                  closed) -> SimplexMesh:
     """Validate the options as :func:`extract` does, then run the blocks (ao4d.blockwise)."""
     from .blockwise import extract_blocks
 
@@ -203,13 +305,18 @@ def _extract_dask(values, level, spacing, origin, method, inside, chunk, progres
     if progress is not None and not isinstance(progress, bool):
         raise TypeError(f"`progress` must be True, False or None, got {progress!r}")
     level = as_real(level, "level")
-    return _checked(extract_blocks(
-        values, level,
-        spacing=as_vector(spacing, "spacing", d, positive=True),
-        origin=as_vector(origin, "origin", d),
-        method=check_choice(method, "method", METHODS), inside=check_choice(inside, "inside", _INSIDE),
-        chunk=None if chunk is None else check_positive_int(chunk, "chunk"), progress=progress),
-        level, inside, None, None)
+    spacing = as_vector(spacing, "spacing", d, positive=True)
+    origin = as_vector(origin, "origin", d)
+    inside = check_choice(inside, "inside", _INSIDE)
+    mesh = extract_blocks(
+        values, level, spacing=spacing, origin=origin,
+        method=check_choice(method, "method", METHODS), inside=inside,
+        chunk=None if chunk is None else check_positive_int(chunk, "chunk"), progress=progress,
+        closed=closed)
+    if not closed:
+        _mark_grid_edge(mesh, _Geometry(tuple(int(n) for n in values.shape), tuple(range(d)),
+                                        origin, spacing))
+    return _checked(mesh, level, inside, None, (lambda: outside_value(inside)) if closed else None)
 
 
 def extract_field(

@@ -454,6 +454,7 @@ class SimplexMesh:
             n_components=n_components,
             n_unused_vertices=int(np.count_nonzero(~used)),
             volume=self.volume,
+            hint=self._cache.get(topology.GRID_EDGE_KEY, "") if np.any(counts == 1) else "",
         )
         self._derived[key] = report
         return report

@@ -8,7 +8,8 @@ new one):
 
 ``.npz`` (suffix ``.npz``)
     Lossless: ``vertices``, ``simplices`` and every point/cell data array (stored under
-    ``point_data/<name>`` and ``cell_data/<name>``), plus a format version.
+    ``point_data/<name>`` and ``cell_data/<name>``), plus a format version and, when the
+    writer gives it, ``field_data/<name>`` about the whole mesh (:func:`read_field_data`).
 ``.vtu`` (suffix ``.vtu``)
     For ParaView. Points need three coordinates: a 4D mesh writes x, y, z as the points, the
     fourth coordinate as point array ``"w"`` and its tetrahedra as ``VTK_TETRA``; a 3D mesh writes
@@ -39,7 +40,7 @@ import zipfile
 import zlib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -48,7 +49,7 @@ from ._npz import write_npz
 from ._validate import check_choice
 from .pictures import ao_colors, slice_scalars
 
-__all__ = ["MeshArrays", "write", "read", "to_pyvista", "save_slice_mesh", "SUFFIXES", "SLICE_SUFFIXES"]
+__all__ = ["MeshArrays", "write", "read", "read_field_data", "to_pyvista", "save_slice_mesh", "SUFFIXES", "SLICE_SUFFIXES"]
 
 SUFFIXES = (".npz", ".vtu", ".txt")  # the formats SimplexMesh.save writes (text: any other suffix)
 SLICE_SUFFIXES = (".ply", ".glb")  # 3D slice meshes (save_slice_mesh)
@@ -76,13 +77,33 @@ def _format(path: str | os.PathLike) -> str:
     return {".npz": "npz", ".vtu": "vtu"}.get(suffix, "text")
 
 
-def write(path: str | os.PathLike, mesh: MeshArrays) -> Path:
-    """Write ``mesh`` in the format its suffix names (``.npz``, ``.vtu``, else text), atomically."""
+def write(path: str | os.PathLike, mesh: MeshArrays, *,
+          field_data: Mapping[str, Any] | None = None) -> Path:
+    """Write ``mesh`` in the format its suffix names (``.npz``, ``.vtu``, else text), atomically.
+
+    ``field_data`` (``.npz`` only): small arrays or strings about the whole mesh (how it was
+    made: the grid's spacing, the w scale), stored as ``field_data/<name>`` and read back by
+    :func:`read_field_data`; other formats leave it out.
+    """
     if not isinstance(mesh, MeshArrays):
         raise TypeError(f"`mesh` must be a MeshArrays (see SimplexMesh.save), got {type(mesh).__name__}")
-    writer = {"npz": _save_npz, "vtu": _save_vtu, "text": _save_text}[_format(path)]
-    writer(mesh, path)
+    if _format(path) == "npz":
+        _save_npz(mesh, path, field_data or {})
+    else:
+        {"vtu": _save_vtu, "text": _save_text}[_format(path)](mesh, path)
     return Path(path)
+
+
+def read_field_data(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """The ``field_data`` a ``.npz`` mesh file holds (:func:`write`); empty for other formats."""
+    if _format(path) != "npz":
+        return {}
+    p = _existing(path)
+    try:
+        with np.load(p, allow_pickle=False) as data:
+            return {k.split("/", 1)[1]: data[k] for k in data.files if k.startswith("field_data/")}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        raise ValueError(f"`path` {str(p)!r} is not a readable .npz file (damaged: {exc})") from None
 
 
 def read(path: str | os.PathLike) -> MeshArrays:
@@ -99,7 +120,7 @@ def _existing(path: str | os.PathLike) -> Path:
 
 
 # ------------------------------------------------------------------------------------ npz
-def _save_npz(mesh: MeshArrays, path: str | os.PathLike) -> None:
+def _save_npz(mesh: MeshArrays, path: str | os.PathLike, field_data: Mapping[str, Any] | None = None) -> None:
     """Write a mesh with all its data to a compressed ``.npz`` file, atomically and reproducibly.
 
     Parameters
@@ -120,6 +141,11 @@ def _save_npz(mesh: MeshArrays, path: str | os.PathLike) -> None:
             if arr.dtype == object:
                 raise TypeError(f"`mesh.{kind}[{name!r}]` has dtype object, which .npz cannot store safely")
             arrays[f"{kind}/{name}"] = arr
+    for name, value in sorted((field_data or {}).items()):
+        arr = np.asarray(value)
+        if arr.dtype == object:
+            raise TypeError(f"`field_data[{name!r}]` has dtype object, which .npz cannot store safely")
+        arrays[f"field_data/{name}"] = arr
     write_npz(path, arrays)  # fixed zip dates: the same mesh always gives the same bytes
 
 
@@ -143,7 +169,11 @@ def _load_npz(path: str | os.PathLike) -> MeshArrays:
     missing = {"format", "vertices", "simplices"} - set(files)
     if missing:
         raise ValueError(f"`path` {str(p)!r} is not an ao4d mesh file (missing {sorted(missing)})")
-    version = int(files.pop("format"))
+    try:
+        version = int(files.pop("format"))
+    except (TypeError, ValueError):
+        raise ValueError(f"`path` {str(p)!r} is not an ao4d mesh file (its `format` entry is not "
+                         "a version number)") from None
     if version > NPZ_FORMAT:
         raise ValueError(f"`path` {str(p)!r} has mesh format {version}; this ao4d reads up to {NPZ_FORMAT}")
     point_data = {k.split("/", 1)[1]: v for k, v in files.items() if k.startswith("point_data/")}

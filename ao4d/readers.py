@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import as_vector, check_memory
+from ._validate import as_real, as_vector, check_bool, check_memory
 
 __all__ = ["Grid", "read_grid", "ObliqueAffineWarning", "natural_key", "FRAME_SUFFIXES"]
 
@@ -80,6 +80,17 @@ class Grid:
         The path (or glob) read.
     notes : tuple of str
         Where spacing and origin came from, and what the reader did (flips, overrides).
+    units : tuple of str
+        The file's unit per axis (NIfTI ``xyzt_units``: ``"mm"``, ``"ms"``, ...; ``"unknown"``),
+        empty where the format has none. A w axis in a time unit is scaled to a length (see
+        ``w_scale``).
+    w_scale : float or None
+        Length units per time unit used for a NIfTI time axis (w step = ``pixdim[4] * w_scale``),
+        or None where no time axis was scaled.
+    affine : (d + 1, d + 1) float64 ndarray or None
+        With ``read_grid(..., affine=True)``: grid index to coordinates (the file's affine, e.g.
+        oblique scanner axes); pass it to ``ao4d.extract(values, level, affine=grid.affine)``.
+        None otherwise (``spacing`` and ``origin`` place the grid).
     """
 
     values: Any
@@ -87,6 +98,9 @@ class Grid:
     origin: np.ndarray
     source: str
     notes: tuple[str, ...] = field(default=())
+    units: tuple[str, ...] = field(default=())
+    w_scale: float | None = None
+    affine: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -126,6 +140,8 @@ def read_grid(
     origin: Any = None,
     ndim: int | tuple[int, ...] | None = None,
     chunks: Any = None,
+    w_scale: float | None = None,
+    affine: bool = False,
 ) -> Grid:
     """Open a 2D/3D/4D grid of values from a file, lazily.
 
@@ -135,8 +151,9 @@ def read_grid(
         A ``.npy``, ``.nii``/``.nii.gz``, ``.zarr`` (optionally ``store.zarr:/array/path``),
         ``file.h5:/path/to/dataset``, ``.mhd``/``.mha`` file, or a glob of 3D frames
         (``"frames_*.vti"``, ``*.mhd``, ``*.npy``, ``*.nii.gz``) stacked along w.
-    spacing : float or (d,) array_like, optional
-        Overrides the file's grid step (> 0).
+    spacing : float or (d,) sequence, optional
+        Overrides the file's grid step (> 0); a ``None`` entry keeps the file's step on that
+        axis (``spacing=(None, None, None, 0.5)`` sets only w).
     origin : float or (d,) array_like, optional
         Overrides the file's first grid point.
     ndim : int or tuple of int, optional
@@ -144,6 +161,16 @@ def read_grid(
     chunks : int, tuple or "auto", optional
         Return the values as a dask array in these chunks (points per block) even for formats
         read as memory maps, e.g. to extract on a ``distributed`` cluster.
+    w_scale : float, optional
+        Length units per time unit for the w axis of a 4D NIfTI whose ``xyzt_units`` give it a
+        time (``pixdim[4] = 2000`` ms with ``w_scale=0.001`` gives a w step of 2). Without it a
+        time axis is not taken as a length: one frame is one mean x/y/z step (noted in
+        ``notes``). A w step in ``spacing`` wins over both.
+    affine : bool
+        Keep the file's full index-to-coordinates affine in :attr:`Grid.affine` (NIfTI: oblique
+        scanner axes and negative steps as they are, no flips, no warning) for
+        ``ao4d.extract(..., affine=grid.affine)``; formats without one get the diagonal affine
+        of their spacing and origin.
 
     Returns
     -------
@@ -171,14 +198,21 @@ def read_grid(
     text = os.fspath(path)
     if not isinstance(text, str) or not text:
         raise TypeError(f"`path` must be a non-empty file name, got {path!r}")
+    if ndim is not None and not (_is_int(ndim) or (isinstance(ndim, tuple) and ndim
+                                                   and all(_is_int(k) for k in ndim))):
+        raise TypeError(f"`ndim` must be an int or a tuple of ints (2, 3, 4), got {ndim!r}")
+    if w_scale is not None:
+        w_scale = as_real(w_scale, "w_scale", gt=0)
+    affine = check_bool(affine, "affine")
     if text.endswith(("/", os.sep)) and text.rstrip("/" + os.sep).lower().endswith(".zarr"):
         text = text.rstrip("/" + os.sep)
     inner = _split_inner(text, _H5_SUFFIXES + (".zarr",))
     pattern = text if inner is None else inner[0]
+    scale = {"w_scale": w_scale, "affine": affine, "w_step": _w_override(spacing)}
     if any(ch in pattern for ch in "*?[") and not Path(pattern).exists():
         values, step, start, notes = _read_frames(text)
     else:
-        values, step, start, notes = _read_one(text)
+        values, step, start, notes = _read_one(text, scale)
     d = len(values.shape)
     allowed = (2, 3, 4) if ndim is None else ((ndim,) if isinstance(ndim, int) else tuple(ndim))
     if d not in allowed:
@@ -192,16 +226,53 @@ def read_grid(
     if any(n < 2 for n in values.shape):
         raise ValueError(f"{text!r} has shape {tuple(values.shape)}: every axis needs >= 2 points")
     notes = list(notes)
+    if w_scale is not None and scale.get("w_scaled") is None:
+        raise ValueError(f"`w_scale` scales a time axis, and {text!r} has none (a 4D NIfTI with "
+                         "time units in xyzt_units); use `spacing` instead")
     if spacing is not None:
-        step = as_vector(spacing, "spacing", d, positive=True)
+        step = _merge_spacing(spacing, step, d)
         notes.append("spacing given")
     if origin is not None:
         start = as_vector(origin, "origin", d)
         notes.append("origin given")
     if chunks is not None:
         values = _as_dask(values, chunks, text)
-    return Grid(values, np.asarray(step, np.float64), np.asarray(start, np.float64), text,
-                  tuple(notes))
+    step, start = np.asarray(step, np.float64), np.asarray(start, np.float64)
+    matrix = None
+    if affine:
+        matrix = scale.get("affine_matrix")
+        if matrix is None or spacing is not None or origin is not None:
+            matrix = np.eye(d + 1)
+            matrix[:d, :d] = np.diag(step)
+            matrix[:d, d] = start
+        else:
+            matrix = np.array(matrix, dtype=np.float64)
+    return Grid(values, step, start, text, tuple(notes), tuple(scale.get("units", ())),
+                scale.get("w_scaled"), matrix)
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def _w_override(spacing: Any) -> float | None:
+    """The w step ``spacing`` sets (a 4-entry sequence with a number last), else None."""
+    if isinstance(spacing, (list, tuple, np.ndarray)) and len(spacing) == 4 and spacing[3] is not None:
+        return float(spacing[3])
+    return None
+
+
+def _merge_spacing(spacing: Any, step: np.ndarray, d: int) -> np.ndarray:
+    """``spacing`` over the file's ``step``: a scalar, or per axis with None keeping the file's."""
+    if isinstance(spacing, (list, tuple)) and any(s is None for s in spacing):
+        if len(spacing) != d:
+            raise ValueError(f"`spacing` must be a scalar or have {d} entries, got {len(spacing)}")
+        given = [k for k, s in enumerate(spacing) if s is not None]
+        out = np.array(step, dtype=np.float64)
+        if given:
+            out[given] = as_vector([spacing[k] for k in given], "spacing", len(given), positive=True)
+        return out
+    return as_vector(spacing, "spacing", d, positive=True)
 
 
 # --------------------------------------------------------------------------------------------
@@ -227,7 +298,7 @@ def _missing(path: str, what: str = "file") -> FileNotFoundError:
     return FileNotFoundError(f"{what} {path!r} does not exist")
 
 
-def _read_one(text: str) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
+def _read_one(text: str, scale: dict | None = None) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
     h5 = _split_inner(text, _H5_SUFFIXES)
     if h5 is not None:
         return _read_hdf5(*h5)
@@ -242,7 +313,7 @@ def _read_one(text: str) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
         d = values.ndim
         return values, np.ones(d), np.zeros(d), ["no spacing/origin in .npy: 1, 0"]
     if suffix in (".nii", ".nii.gz"):
-        return _read_nifti(text)
+        return _read_nifti(text, scale=scale)
     if suffix in (".mhd", ".mha"):
         return _read_metaimage(text)
     if suffix == ".vti":
@@ -253,6 +324,7 @@ def _read_one(text: str) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
 
 def _as_dask(values: Any, chunks: Any, text: str) -> Any:
     import dask.array as da
+    import dask.base
 
     from .blockwise import _chunks, is_dask_array
 
@@ -261,15 +333,21 @@ def _as_dask(values: Any, chunks: Any, text: str) -> Any:
         return values.rechunk(sizes)
     if isinstance(values, np.memmap) and values.filename:
         # a file-backed source pickles as its name (a memmap would pickle its whole contents)
-        order = "F" if values.flags.f_contiguous and not values.flags.c_contiguous else "C"
-        base = values
-        while isinstance(base.base, np.memmap):
-            base = base.base
-        source = _RawSource(str(values.filename), values.shape, values.dtype.str, values.offset,
-                            order) if base is values else None
-        if source is not None:
-            return da.from_array(source, chunks=sizes, asarray=True, fancy=False)
+        return da.from_array(_view_source(values), chunks=sizes, asarray=True, fancy=False,
+                             name=f"file-{dask.base.tokenize(_view_source(values), os.path.getmtime(values.filename))}")
     return da.from_array(np.asarray(values), chunks=sizes)
+
+
+def _view_source(values: np.memmap) -> _ViewSource:
+    """The file-backed description of a memory map or of any view of one (reshaped, flipped):
+    its first element's byte position in the file and its strides."""
+    root = values
+    while isinstance(root.base, np.memmap):
+        root = root.base
+    # a view's `offset` is its root's; the data pointers give the view's own start
+    start = int(root.offset) + (values.__array_interface__["data"][0] - root.__array_interface__["data"][0])
+    return _ViewSource(str(values.filename), tuple(int(n) for n in values.shape), values.dtype.str,
+                       start, tuple(int(s) for s in values.strides))
 
 
 # --------------------------------------------------------------------------------------------
@@ -294,20 +372,24 @@ class _ArraySource:
 
 
 @dataclass(frozen=True)
-class _RawSource(_ArraySource):
-    """A raw array in a file (npy payload, MetaImage raw, uncompressed NIfTI), memory-mapped
-    on first use in each process."""
+class _ViewSource(_ArraySource):
+    """A strided view into a raw file (a memory map or a view of one: NIfTI reshaped to
+    Fortran order, flipped axes), memory-mapped on first use in each process."""
 
     path: str
     shape: tuple[int, ...]
     dtype_str: str
-    offset: int
-    order: str
+    start: int  # byte position of element (0, ..., 0) in the file
+    strides: tuple[int, ...]  # bytes, any sign
 
     def __getitem__(self, index: Any) -> np.ndarray:
-        mm = np.memmap(self.path, dtype=self.dtype, mode="r", offset=self.offset,
-                       shape=self.shape, order=self.order)
-        return np.array(mm[index])
+        first = self.start + sum(s * (n - 1) for s, n in zip(self.strides, self.shape) if s < 0)
+        last = self.start + sum(s * (n - 1) for s, n in zip(self.strides, self.shape) if s > 0)
+        mm = np.memmap(self.path, dtype=np.uint8, mode="r", offset=first,
+                       shape=(last + self.dtype.itemsize - first,))
+        view = np.ndarray(self.shape, self.dtype, buffer=mm, offset=self.start - first,
+                          strides=self.strides)
+        return np.array(view[index])
 
 
 @dataclass(frozen=True)
@@ -492,7 +574,7 @@ def _nifti_open(path: str) -> tuple[Any, tuple[int, ...], np.dtype, bool]:
     return img, shape, dtype, scaled
 
 
-def _read_nifti(path: str, *, warn: bool = True, lazy: bool = True
+def _read_nifti(path: str, *, warn: bool = True, lazy: bool = True, scale: dict | None = None
                 ) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
     img, shape, dtype, scaled = _nifti_open(path)
     stored = np.dtype(img.header.get_data_dtype())
@@ -515,15 +597,28 @@ def _read_nifti(path: str, *, warn: bool = True, lazy: bool = True
         check_memory(math.prod(shape) * dtype.itemsize, f"decompressing {path!r}",
                      hint="gunzip it to .nii, which is memory-mapped")
         values = _NiftiSource(path, shape, dtype.str)[...]
-    step, start, flips, notes = _nifti_grid(img, shape, path, warn)
+    scale = {} if scale is None else scale
+    step, start, flips, notes = _nifti_grid(img, shape, path, warn and not scale.get("affine"),
+                                            scale)
+    if scale.get("affine"):
+        flips = [False] * len(shape)  # the affine keeps the file's axes as they are
     if any(flips):
         values = values[tuple(slice(None, None, -1) if f else slice(None) for f in flips)]
     return values, step, start, notes
 
 
-def _nifti_grid(img: Any, shape: tuple[int, ...], path: str, warn: bool
+# NIfTI xyzt_units names (nibabel) -> short unit names; time units scale a w axis
+_NIFTI_UNITS = {"mm": "mm", "micron": "um", "meter": "m", "sec": "s", "msec": "ms", "usec": "us",
+                "hz": "Hz", "ppm": "ppm", "rads": "rad/s", "unknown": "unknown"}
+_TIME_UNITS = ("s", "ms", "us")
+
+
+def _nifti_grid(img: Any, shape: tuple[int, ...], path: str, warn: bool, scale: dict | None = None
                 ) -> tuple[np.ndarray, np.ndarray, list[bool], list[str]]:
-    """(spacing, origin, flipped axes, notes) of a NIfTI image."""
+    """(spacing, origin, flipped axes, notes) of a NIfTI image. ``scale`` (optional) passes
+    ``w_scale``, ``w_step`` and ``affine`` in, and gets ``units``, ``w_scaled`` (the length per
+    time unit used) and ``affine_matrix`` (index to coordinates, (d+1, d+1)) back."""
+    scale = {} if scale is None else scale
     d = len(shape)
     k = min(d, 3)
     affine = np.asarray(img.affine, dtype=np.float64)
@@ -551,12 +646,47 @@ def _nifti_grid(img: Any, shape: tuple[int, ...], path: str, warn: bool
         if warn:
             warnings.warn(f"{path!r}: the affine is oblique (not axis-aligned):\n{affine[:3, :3]}\n"
                           "using the voxel axes with the header's zooms as spacing and the "
-                          "affine's translation as origin; the mesh is not in scanner coordinates",
+                          "affine's translation as origin; the mesh is not in scanner coordinates (read "
+                          "it with affine=True, command line --affine, to place it there)",
                           ObliqueAffineWarning, stacklevel=5)
+    try:
+        space_unit, time_unit = (_NIFTI_UNITS.get(u, "unknown") for u in img.header.get_xyzt_units())
+    except (AttributeError, KeyError, ValueError):
+        space_unit, time_unit = "unknown", "unknown"
+    scale["units"] = (space_unit,) * k + ((time_unit,) if d == 4 else ())
     if d == 4:
-        step[3] = zooms[3] if zooms[3] > 0 else 1.0
-        start[3] = float(img.header.get("toffset", 0.0) or 0.0)
-        notes.append("w spacing from pixdim[4], origin from toffset")
+        pixdim = float(zooms[3]) if zooms[3] > 0 else 1.0
+        toffset = float(img.header.get("toffset", 0.0) or 0.0)
+        if time_unit in _TIME_UNITS or time_unit in ("Hz", "ppm", "rad/s"):
+            w_scale = scale.get("w_scale")
+            length = space_unit if space_unit != "unknown" else "length units"
+            if scale.get("w_step") is not None:
+                per = scale["w_step"] / pixdim
+                how = f"scaled by the w step given: {per:.6g} {length} per {time_unit}"
+            elif w_scale is not None:
+                per = w_scale
+                how = f"scaled by w_scale: {per:.6g} {length} per {time_unit}"
+            else:
+                per = float(np.mean(step[:3])) / pixdim
+                how = (f"not taken as a length: one frame is one mean x/y/z step, "
+                       f"{per * pixdim:.6g} {length} (w_scale= or --w-scale sets {length} per "
+                       f"{time_unit})")
+            scale["w_scaled"] = per
+            step[3], start[3] = pixdim * per, toffset * per
+            notes.append(f"w is time: pixdim[4] = {pixdim:g} {time_unit}, toffset {toffset:g}; "
+                         f"{how}")
+        else:
+            step[3], start[3] = pixdim, toffset
+            notes.append("w spacing from pixdim[4], origin from toffset"
+                         + (f" ({time_unit})" if time_unit != "unknown" else ""))
+    matrix = np.eye(d + 1)
+    matrix[:k, :k] = rot
+    matrix[:k, d] = affine[:k, 3]
+    if d == 4:
+        matrix[3, 3], matrix[3, 4] = step[3], start[3]
+    scale["affine_matrix"] = matrix
+    if scale.get("affine"):
+        notes.append("vertices placed by the file's affine (scanner coordinates)")
     return step, start, flips, notes
 
 
@@ -576,7 +706,10 @@ def _parse_metaimage_header(path: str) -> tuple[dict[str, str], int]:
         offset = 0
         for raw in fh:
             offset += len(raw)
-            line = raw.decode("latin-1").strip()
+            try:  # file names in headers written today are UTF-8; older tools wrote latin-1
+                line = raw.decode("utf-8").strip()
+            except UnicodeDecodeError:
+                line = raw.decode("latin-1").strip()
             if not line:
                 continue
             if "=" not in line:
@@ -604,6 +737,13 @@ def _floats(fields: dict, key: str, d: int, default: float, path: str) -> np.nda
     return values[:d]
 
 
+def _header_int(fields: dict, key: str, default: int, path: str) -> int:
+    try:
+        return int(fields.get(key, str(default)))
+    except ValueError:
+        raise ValueError(f"{path!r}: {key} = {fields[key]!r} is not an integer") from None
+
+
 def _read_metaimage(path: str, *, data: bool = True) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
     """Values (a memory map; decompressed when compressed, unless ``data`` is false: then a
     read-only stand-in of the right shape and dtype), spacing, origin, notes."""
@@ -615,24 +755,30 @@ def _read_metaimage(path: str, *, data: bool = True) -> tuple[Any, np.ndarray, n
         raise ValueError(f"{path!r}: NDims and DimSize are missing or not integers") from None
     if len(shape) != d:
         raise ValueError(f"{path!r}: DimSize has {len(shape)} entries, NDims is {d}")
+    if any(n < 1 for n in shape):
+        raise ValueError(f"{path!r}: DimSize = {fields['DimSize']} must be positive integers")
     met = fields.get("ElementType", "")
     if met not in _MET_TYPES:
         raise ValueError(f"{path!r}: ElementType {met!r} is not one of {', '.join(_MET_TYPES)}")
-    if int(fields.get("ElementNumberOfChannels", "1")) != 1:
+    if _header_int(fields, "ElementNumberOfChannels", 1, path) != 1:
         raise ValueError(f"{path!r}: only single-channel (scalar) images are read")
     msb = fields.get("BinaryDataByteOrderMSB", fields.get("ElementByteOrderMSB", "False"))
     dtype = np.dtype(_MET_TYPES[met]).newbyteorder(">" if msb.lower() == "true" else "<")
-    data = fields["ElementDataFile"]
-    if data.upper() == "LIST" or data.split()[0].lower().find("%") >= 0:
-        raise ValueError(f"{path!r}: ElementDataFile = {data} (file lists) is not supported; "
+    data_file = fields["ElementDataFile"]
+    if data_file.upper() == "LIST" or data_file.split()[0].lower().find("%") >= 0:
+        raise ValueError(f"{path!r}: ElementDataFile = {data_file} (file lists) is not supported; "
                          "give the frames as a glob instead")
-    if data.upper() == "LOCAL":
+    if data_file.upper() == "LOCAL":
         raw, offset = path, header_end
     else:
-        raw, offset = str(Path(path).parent / data), 0
+        raw, offset = str(Path(path).parent / data_file), 0
         if not Path(raw).exists():
-            raise FileNotFoundError(f"{path!r} names the data file {data!r}, which does not exist")
-    header_size = int(fields.get("HeaderSize", "0"))
+            raise FileNotFoundError(f"{path!r} names the data file {data_file!r}, which does not "
+                                    "exist")
+        if not Path(raw).is_file():
+            raise ValueError(f"{path!r} names the data file {data_file!r}, which is a folder, not "
+                             "a file")
+    header_size = _header_int(fields, "HeaderSize", 0, path)
     if header_size > 0:
         offset += header_size
     need = math.prod(shape) * dtype.itemsize

@@ -133,6 +133,11 @@ def connected_labels(n_nodes: int, a: np.ndarray, b: np.ndarray) -> tuple[int, n
 # --------------------------------------------------------------------------------------------
 
 
+# SimplexMesh.cache key under which ao4d.extract records that the solid touches the grid's edge
+# (the text says where the mesh is cut open and what to pass to close it); the report prints it
+GRID_EDGE_KEY = "ao4d.grid_edge"
+
+
 @dataclass(frozen=True)
 class MeshReport:
     """Topological and geometric health of a :class:`SimplexMesh` (see :meth:`SimplexMesh.check`).
@@ -179,6 +184,7 @@ class MeshReport:
     n_components: int
     n_unused_vertices: int
     volume: float = 0.0
+    hint: str = ""  # why the mesh is open and what closes it, when known (printed when open)
 
     @property
     def closed(self) -> bool:
@@ -229,8 +235,10 @@ class MeshReport:
             f"  oriented: {flag(self.oriented)} ({self.n_misoriented_faces} misoriented faces)",
             f"  outward:  {outward}",
             f"  degenerate simplices: {self.n_degenerate}; unused vertices: {self.n_unused_vertices}",
-            f"  => {'OK' if self.ok else 'NOT OK'}",
         ]
+        if self.hint and not self.closed:
+            lines.append(f"  open at the grid's edge: {self.hint}")
+        lines.append(f"  => {'OK' if self.ok else 'NOT OK'}")
         return "\n".join(lines)
 
 

@@ -280,6 +280,14 @@ def _render(folder: Path, render: dict, mesh: Any, occlusion: Any, settings: dic
 
 def _check_out(out: Path, config: Config, seed: int) -> None:
     """Create ``out/run.json`` or refuse an output folder made by another config or seed."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"`out` {str(out)!r} is a file; it must be a folder (new, empty, or of "
+                         "an earlier run of this config)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"cannot create the output folder `out` {str(out)!r}: "
+                         f"{exc.strerror or exc}") from None
     run_path = out / "run.json"
     if run_path.is_file():
         try:
@@ -295,11 +303,15 @@ def _check_out(out: Path, config: Config, seed: int) -> None:
     if out.exists() and any(out.iterdir()):
         raise FileExistsError(f"`out` {str(out)!r} exists, is not empty and holds no run.json; "
                               "choose an empty or new folder")
-    write_json(run_path, {
-        "format": RUN_FORMAT, "config_name": config.name, "config_source": config.source,
-        "config_sha256": config.sha256, "config_text": config.text, "seed": seed,
-        "versions": _versions(), "n_items": len(config.items()),
-    })
+    try:
+        write_json(run_path, {
+            "format": RUN_FORMAT, "config_name": config.name, "config_source": config.source,
+            "config_sha256": config.sha256, "config_text": config.text, "seed": seed,
+            "versions": _versions(), "n_items": len(config.items()),
+        })
+    except OSError as exc:  # a read-only file system, a full disk, no permission
+        raise ValueError(f"cannot write into the output folder `out` {str(out)!r}: "
+                         f"{exc.strerror or exc}") from None
 
 
 def run(
@@ -352,6 +364,7 @@ def run(
         _check_scheduler(scheduler)
         if workers != 1:
             raise ValueError(f"give `workers` ({workers}) or `scheduler` ({scheduler!r}), not both")
+        _probe_scheduler(scheduler)  # before the output folder is touched
     seed = cfg.seed if seed is None else check_positive_int(seed, "seed", minimum=0)
     out = Path(out)
     _check_out(out, cfg, seed)
@@ -430,6 +443,68 @@ def _check_scheduler(scheduler: Any) -> int | None:
             raise ValueError(f"`scheduler` 'local:N' needs a worker count N >= 1, got {scheduler!r}")
         return int(count)
     return None
+
+
+# How long a scheduler address may take to accept a connection and greet it: a dask scheduler
+# sends its handshake at once, so silence means something else listens there
+SCHEDULER_PROBE_SECONDS = 10.0
+# A dask handshake is well under this; a first word beyond it is not dask's protocol (an HTTP
+# reply read as a frame length asks for exbibytes)
+_HANDSHAKE_MAX_BYTES = 1 << 20
+
+
+def _probe_scheduler(scheduler: str) -> None:
+    """Fail fast, with a clear message, when a ``tcp://`` address is not a dask scheduler.
+
+    dask's own connect timeout covers only the TCP connection: a listener that accepts and
+    never answers stalls the client for minutes, and an HTTP server's reply is read as a frame
+    length (``Unable to allocate 3.07 EiB``). A dask scheduler writes its handshake, an 8-byte
+    length and a small message, as soon as it accepts; this reads those 8 bytes and closes.
+    Other protocols (``tls://``, ``ucx://``, ``inproc://``) are left to dask.
+    """
+    import socket
+    from urllib.parse import urlsplit
+
+    if scheduler.startswith("local:"):
+        return
+    parts = urlsplit(scheduler if "://" in scheduler else f"tcp://{scheduler}")
+    if parts.scheme != "tcp":
+        return
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        host = port = None
+    if not host or port is None:
+        raise ValueError(f"`scheduler` {scheduler!r} is not an address of the form "
+                         "tcp://HOST:PORT (or 'local:N')")
+    where = f"the dask scheduler at `scheduler` {scheduler!r}"
+    wait = SCHEDULER_PROBE_SECONDS
+    try:
+        sock = socket.create_connection((host, port), timeout=wait)
+    except OSError as exc:
+        raise ValueError(f"cannot reach {where}: {exc}") from None
+    head = b""
+    with sock:
+        try:
+            while len(head) < 8:
+                chunk = sock.recv(8 - len(head))
+                if not chunk:
+                    break
+                head += chunk
+        except TimeoutError:
+            pass
+        except OSError as exc:
+            raise ValueError(f"cannot reach {where}: {exc}") from None
+    if not head:
+        raise ValueError(f"cannot reach {where}: it accepted the connection but sent nothing in "
+                         f"{wait:g} s (a dask scheduler greets every connection at once); is it a "
+                         "dask scheduler's address (usually port 8786)?")
+    if head[:5].upper() in (b"HTTP/", b"<HTML", b"<!DOC") or not (
+            len(head) == 8 and 0 < int.from_bytes(head, "little") <= _HANDSHAKE_MAX_BYTES):
+        kind = "an HTTP server" if head[:5].upper() == b"HTTP/" else "something else"
+        raise ValueError(f"cannot use {where}: it answers like {kind}, not a dask scheduler "
+                         f"(first bytes {head!r}); is it the dashboard's port (8787) instead of "
+                         "the scheduler's (8786)?")
 
 
 def make_item_files(job: _Job) -> dict[str, Any]:

@@ -420,3 +420,63 @@ def test_without_opencl_auto_falls_back_and_opencl_is_refused():
     )
     env = dict(__import__("os").environ, AO4D_DEVICE="none")
     subprocess.run([sys.executable, "-c", code], check=True, env=env)
+
+
+# -- integer data at an integer level: zero-measure simplices --------------------------------
+
+
+def _holes_in_a_block(d):
+    """Integer values: a solid block (0 < level 2) in an outside frame (5), with single grid
+    points exactly at the level inside it (holes of no volume: their simplices all have zero
+    measure and touch nothing else) and random level-valued points near its surface."""
+    rng = np.random.default_rng(2100 + d)
+    n = {2: 14, 3: 9, 4: 7}[d]
+    values = np.zeros((n,) * d, dtype=np.int16)
+    values[(slice(2, -2),) * d] = 0
+    values = np.pad(values, 1, constant_values=5)
+    values[(n // 2 + 1,) * d] = 2  # a hole in the middle of the block
+    rim = np.zeros(values.shape, dtype=bool)
+    rim[(slice(1, -1),) * d] = True
+    rim[(slice(2, -2),) * d] = False
+    values[rim & (rng.random(values.shape) < 0.3)] = 2  # level values on the surface
+    return values
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_every_vertex_of_integer_data_at_an_integer_level_gets_a_finite_ao(d, backend):
+    values = _holes_in_a_block(d)
+    mesh = ao4d.extract(values, 2)
+    hole = np.flatnonzero(np.all(mesh.vertices == (values.shape[0] // 2,) * d, axis=1))
+    assert hole.size and (np.linalg.norm(mesh.vertex_normals[hole], axis=1) == 0).all()
+    a = ao4d.ambient_occlusion(mesh, samples=32, backend=backend)
+    assert np.isfinite(a).all()
+    # the hole lies inside the closed solid: every ray from it hits the block's surface
+    np.testing.assert_array_equal(a[hole], 1.0)
+    assert ((a >= 0) & (a <= 1)).all()
+
+
+def test_cli_ao_counts_nan_values_instead_of_printing_their_range(tmp_path, capsys):
+    from ao4d import cli
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0]], dtype=float)
+    mesh = ao4d.SimplexMesh(v, [[0, 1, 2], [0, 1, 3]])  # (0, 1, 3) is degenerate (collinear)
+    mesh.save(tmp_path / "m.npz")
+    argv = ["ao", str(tmp_path / "m.npz"), "--at", "simplices", "--samples", "4",
+            "--out", str(tmp_path / "o.npz"), "--backend", "numpy"]
+    assert cli.main(argv) == 0
+    text = capsys.readouterr().out
+    assert "1 of 2 values are NaN (no normal: zero-measure simplices)" in text
+    assert "the other values: mean" in text and "note: the mesh is open (4 boundary faces)" in text
+    assert np.isnan(ao4d.SimplexMesh.load(tmp_path / "o.npz").cell_data["ao"]).sum() == 1
+
+
+def test_cli_ao_keeps_the_input_files_field_data(tmp_path):
+    from ao4d import cli, mesh_files
+
+    rng = np.random.default_rng(2105)
+    mesh = sphere_over_ground(rng, 3)
+    arrays = mesh_files.MeshArrays(mesh.vertices, mesh.simplices, {}, {})
+    mesh_files.write(tmp_path / "in.npz", arrays, field_data={"w_scale": np.float64(0.5)})
+    assert cli.main(["ao", str(tmp_path / "in.npz"), "--samples", "2", "--out",
+                     str(tmp_path / "out.npz"), "--backend", "numpy"]) == 0
+    assert float(mesh_files.read_field_data(tmp_path / "out.npz")["w_scale"]) == 0.5

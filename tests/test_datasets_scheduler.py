@@ -4,6 +4,7 @@ when a worker is killed mid-item or the client is killed and rerun."""
 from __future__ import annotations
 
 import json
+import re
 import os
 import signal
 import subprocess
@@ -157,3 +158,81 @@ def test_scheduler_errors(config, tmp_path, capsys):
         assert runner_mod.main([str(config), "--out", str(tmp_path / "d"), "--scheduler",
                                 "tcp://127.0.0.1:9", "--no-progress"]) == 2
     assert "cannot reach the dask scheduler" in capsys.readouterr().err
+
+
+# -- addresses where no dask scheduler listens: fail at once, with a clear message ------------
+
+
+def _serve(handler):
+    """A TCP server on localhost running ``handler(connection)`` per connection; its port."""
+    import socket
+
+    server = socket.create_server(("127.0.0.1", 0))
+    stop = threading.Event()
+
+    def loop():
+        server.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                continue
+            threading.Thread(target=handler, args=(conn, stop), daemon=True).start()
+        server.close()
+
+    threading.Thread(target=loop, daemon=True).start()
+    return server.getsockname()[1], stop
+
+
+def _silent(conn, stop):
+    with conn:
+        stop.wait(30)  # accepts, never answers
+
+
+def _http_reply(conn, stop):
+    with conn:  # answers at once, as a proxy in front of the port did
+        conn.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n")
+        stop.wait(30)
+
+
+@pytest.mark.parametrize("handler, match", [
+    (_silent, r"accepted the connection but sent nothing in 1 s"),
+    (_http_reply, r"answers like an HTTP server, not a dask scheduler"),
+])
+def test_a_scheduler_address_that_is_not_a_scheduler_fails_fast(config, tmp_path, capsys, monkeypatch,
+                                                                 handler, match):
+    monkeypatch.setattr(runner_mod, "SCHEDULER_PROBE_SECONDS", 1.0)
+    port, stop = _serve(handler)
+    try:
+        start = time.perf_counter()
+        assert runner_mod.main([str(config), "--out", str(tmp_path / "o"), "--scheduler",
+                                f"tcp://127.0.0.1:{port}", "--no-progress"]) == 2
+        waited = time.perf_counter() - start
+    finally:
+        stop.set()
+    err = capsys.readouterr().err
+    assert re.search(match, err) and "Traceback" not in err, err
+    assert waited < 20  # the probe's 1 s, not dask's minutes
+    assert not (tmp_path / "o").exists()  # refused before the output folder is made
+
+
+def test_an_http_server_is_not_taken_for_a_scheduler(config, tmp_path, capsys, monkeypatch):
+    from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+    monkeypatch.setattr(runner_mod, "SCHEDULER_PROBE_SECONDS", 1.0)
+    server = ThreadingHTTPServer(("127.0.0.1", 0), BaseHTTPRequestHandler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        assert runner_mod.main([str(config), "--out", str(tmp_path / "o"), "--scheduler",
+                                f"127.0.0.1:{server.server_address[1]}", "--no-progress"]) == 2
+    finally:
+        server.shutdown()
+        server.server_close()
+    err = capsys.readouterr().err
+    assert "is it a dask scheduler's address" in err and "Traceback" not in err
+    with pytest.raises(ValueError, match="not an address of the form tcp://HOST:PORT"):
+        run(config, tmp_path / "p", scheduler="tcp://no-port-here")
+
+
+def test_a_real_scheduler_passes_the_probe(cluster):
+    runner_mod._probe_scheduler(cluster.scheduler_address)  # no error: it greets at once

@@ -316,3 +316,50 @@ def test_slice_command_checks_outputs_before_loading(tmp_path, capsys, monkeypat
         code, text = _cli(capsys, "slice", tmp_path / "any.npz", "--w", "0", *extra)
         assert code == 2 and problem in text, text
     assert not loaded
+
+
+# -- datasets_gen: bad output folders, per-item seeds (issue 21) ------------------------------
+
+
+@pytest.fixture()
+def tiny_config_file(tmp_path) -> Path:
+    from test_datasets_gen import TINY
+
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY, encoding="utf-8")
+    return path
+
+
+def test_datasets_gen_out_that_is_a_file_or_read_only_is_a_clear_error(tiny_config_file, tmp_path,
+                                                                       capsys, monkeypatch):
+    from datasets_gen import runner
+
+    (tmp_path / "taken").write_text("not a folder")
+    assert runner.main([str(tiny_config_file), "--out", str(tmp_path / "taken"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "`out`" in err and "is a file; it must be a folder" in err and "Traceback" not in err
+    assert (tmp_path / "taken").read_text() == "not a folder"
+
+    import errno
+
+    def read_only(self, *args, **kwargs):
+        raise OSError(errno.EROFS, "Read-only file system", str(self))
+
+    monkeypatch.setattr(Path, "mkdir", read_only)
+    assert runner.main([str(tiny_config_file), "--out", str(tmp_path / "ro" / "run"),
+                        "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot create the output folder `out`" in err and "Read-only file system" in err
+    assert "Traceback" not in err
+
+
+def test_item_seeds_differ_between_items_and_repeat_for_the_same_item():
+    from datasets_gen import item_seed
+
+    def draws(seed, index):
+        return np.random.default_rng(item_seed(seed, index)).random(4)
+
+    np.testing.assert_array_equal(draws(7, 3), draws(7, 3))
+    rows = np.array([draws(7, index) for index in range(20)])
+    assert len(np.unique(rows[:, 0])) == 20  # every item draws its own numbers
+    assert not np.array_equal(draws(7, 0), draws(8, 0))  # and the run seed matters

@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 import ao4d
 from ao4d import fields as F
 from ao4d import march
+from ao4d.topology import GRID_EDGE_KEY
 
 METHODS = ("cubes", "simplices")
 
@@ -531,3 +532,217 @@ def test_slab_extraction_of_a_160_grid_stays_under_1_5_gb():
     subprocess.run([sys.executable, "-c", code], check=True, timeout=900)
     peak_gb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024 / 1e9  # kB on Linux
     assert peak_gb < 1.5, f"peak RSS {peak_gb:.2f} GB"
+
+
+# --------------------------------------------------------------------------------------------
+# closed=True: a solid touching the grid's edge
+# --------------------------------------------------------------------------------------------
+
+
+def _ramp(d: int, n: int = 9) -> np.ndarray:
+    """x0 - 0.5 on [0, 1]^d: the solid {x0 < 0.5} fills half the grid and touches its edge."""
+    x = np.linspace(0.0, 1.0, n)
+    return np.meshgrid(*[x] * d, indexing="ij")[0] - 0.5
+
+
+@pytest.mark.parametrize("d", (2, 3, 4))
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("inside", ("below", "above"))
+def test_closed_true_closes_a_solid_cut_by_the_grid_to_its_exact_volume(d, method, inside):
+    v = _ramp(d) if inside == "below" else -_ramp(d)
+    open_ = ao4d.extract(v, 0.0, spacing=1 / 8, method=method, inside=inside)
+    assert not open_.check().closed
+    mesh = ao4d.extract(v, 0.0, spacing=1 / 8, method=method, inside=inside, closed=True)
+    report = mesh.check()
+    assert report.ok, report
+    # the level set of linear data is the plane x0 = 0.5 exactly; the caps lie on the grid's faces
+    assert mesh.volume == pytest.approx(0.5, rel=1e-12)
+    lo, hi = mesh.bounds
+    np.testing.assert_array_equal(lo, 0.0)
+    np.testing.assert_array_equal(hi, [0.5] + [1.0] * (d - 1))
+    # vertices inside the grid are those of closed=False, bit for bit
+    inner = {tuple(p) for p in open_.vertices}
+    assert inner <= {tuple(p) for p in mesh.vertices}
+
+
+@pytest.mark.parametrize("d", (2, 3, 4))
+def test_closed_pieces_of_a_ball_add_up_to_the_ball(d):
+    # cut the grid of a ball into its 2^d orthants (sharing the planes x_k = 0) and close each:
+    # the caps of two neighbours lie on their shared grid face with opposite orientations, so
+    # the closed volumes add up to the whole ball's (to round-off) exactly when every cap is
+    # the solid's section by that face, and every piece is closed on its own
+    import itertools
+
+    n = {2: 21, 3: 13, 4: 9}[d]
+    x = np.linspace(-1.0, 1.0, 2 * n - 1)
+    r = np.sqrt(sum(g * g for g in np.meshgrid(*[x] * d, indexing="ij")))
+    whole = ao4d.extract(r, 0.8, spacing=x[1] - x[0], origin=-1.0)
+    total = 0.0
+    for upper in itertools.product((False, True), repeat=d):
+        box = tuple(slice(n - 1, None) if u else slice(0, n) for u in upper)
+        piece = ao4d.extract(r[box], 0.8, spacing=x[1] - x[0], closed=True,
+                             origin=[0.0 if u else -1.0 for u in upper])
+        assert piece.check().ok
+        total += piece.volume
+    assert total == pytest.approx(whole.volume, rel=1e-12)
+
+
+def _corner_rows(mesh: ao4d.SimplexMesh) -> np.ndarray:
+    """Each simplex as its corners' coordinates in lexicographic order, rows sorted."""
+    corners = mesh.vertices[mesh.simplices]  # (S, d, d)
+    d = corners.shape[1]
+    order = np.lexsort(np.moveaxis(corners, 2, 0)[::-1], axis=-1)  # per simplex, corner order
+    rows = np.take_along_axis(corners, order[:, :, None], axis=1).reshape(len(corners), d * d)
+    return rows[np.lexsort(rows.T[::-1])]
+
+
+def test_closed_gives_the_same_mesh_on_every_path(tmp_path):
+    da = pytest.importorskip("dask.array", reason="dask is a dependency of ao4d")
+    rng = np.random.default_rng(2201)
+    v = gaussian_filter(rng.standard_normal((9, 8, 7, 6)), 1.2)  # touches every face
+    ref = ao4d.extract(v, 0.0, closed=True, spacing=(0.5, 1, 1, 2), origin=(1, 0, 0, 3))
+    assert ref.check().ok
+    np.save(tmp_path / "v.npy", v)
+    np.save(tmp_path / "f.npy", np.asfortranarray(v))
+    others = [
+        ao4d.extract(np.load(tmp_path / "v.npy", mmap_mode="r"), 0.0, closed=True,
+                     spacing=(0.5, 1, 1, 2), origin=(1, 0, 0, 3)),
+        ao4d.extract(da.from_array(v, chunks=(4, 3, 7, 2)), 0.0, closed=True,
+                     spacing=(0.5, 1, 1, 2), origin=(1, 0, 0, 3)),
+    ]
+    for mesh in others:
+        np.testing.assert_array_equal(mesh.vertices, ref.vertices)
+        np.testing.assert_array_equal(mesh.simplices, ref.simplices)
+    for mesh in (ao4d.extract(np.load(tmp_path / "f.npy", mmap_mode="r"), 0.0, closed=True,
+                              spacing=(0.5, 1, 1, 2), origin=(1, 0, 0, 3)),
+                 ao4d.extract(np.load(tmp_path / "v.npy", mmap_mode="r"), 0.0, closed=True,
+                              chunk=2, spacing=(0.5, 1, 1, 2), origin=(1, 0, 0, 3))):
+        # other slabs: the same simplices in another order (compared by their corners' exact
+        # coordinates: the caps have coincident vertices, so vertex matching is ambiguous)
+        np.testing.assert_array_equal(_corner_rows(mesh), _corner_rows(ref))
+        assert mesh.volume == pytest.approx(ref.volume, rel=1e-12) and mesh.check().ok
+    # integer data: dask pads float64 as the slab reader converts
+    q = np.round(v * 10).astype(np.int16)
+    a = ao4d.extract(q, 1, closed=True)
+    b = ao4d.extract(da.from_array(q, chunks=5), 1, closed=True)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    np.testing.assert_array_equal(a.simplices, b.simplices)
+    assert a.check().ok
+
+
+def test_closed_still_refuses_non_finite_values(tmp_path):
+    da = pytest.importorskip("dask.array", reason="dask is a dependency of ao4d")
+    v = _ramp(3)
+    v[0, 0, 0] = np.inf
+    with pytest.raises(ValueError, match="`values` contains 1 non-finite"):
+        ao4d.extract(v, 0.0, closed=True)
+    np.save(tmp_path / "v.npy", v)
+    with pytest.raises(ValueError, match="`values` contains 1 non-finite"):
+        ao4d.extract(np.load(tmp_path / "v.npy", mmap_mode="r"), 0.0, closed=True, chunk=1)
+    with pytest.raises(ValueError, match="`values` contains 1 non-finite"):
+        ao4d.extract(da.from_array(v, chunks=4), 0.0, closed=True)
+    with pytest.raises(TypeError, match="`closed` must be True or False"):
+        ao4d.extract(v, 0.0, closed="yes")
+
+
+def test_an_open_mesh_cut_by_the_grid_says_what_closes_it():
+    from ao4d.ao import OpenMeshWarning
+
+    mesh = ao4d.extract(_ramp(3), 0.0)
+    text = str(mesh.check())
+    assert "NOT OK" in text and "lie on the grid's boundary" in text
+    assert "closed=True" in text and "--closed" in text
+    with pytest.warns(OpenMeshWarning, match=r"the mesh is open \(\d+ boundary faces\).*closed=True"):
+        ao4d.ambient_occlusion(mesh, samples=4, backend="numpy")
+    import warnings
+
+    with warnings.catch_warnings():  # once per mesh
+        warnings.simplefilter("error")
+        ao4d.ambient_occlusion(mesh, samples=4, backend="numpy")
+        closed = ao4d.extract(_ramp(3), 0.0, closed=True)
+        assert "grid's boundary" not in str(closed.check())
+        ao4d.ambient_occlusion(closed, samples=4, backend="numpy")
+        # a mesh whose level set stays inside the grid carries no hint
+        inside = ao4d.extract(_noise(np.random.default_rng(2202), (8, 8, 8)), 0.0)
+        assert GRID_EDGE_KEY not in inside.cache
+
+
+@pytest.mark.parametrize("d", (2, 3, 4))
+def test_affine_places_vertices_and_keeps_the_mesh_closed_and_outward(d):
+    rng = np.random.default_rng(2203 + d)
+    v = _noise(rng, (7,) * d)
+    ref = ao4d.extract(v, 0.0)
+    for sign in (1.0, -1.0):
+        q, _ = np.linalg.qr(rng.standard_normal((d, d)))
+        m = q * rng.uniform(0.5, 2.0, d)
+        if np.sign(np.linalg.det(m)) != sign:
+            m[:, 0] *= -1
+        a = np.eye(d + 1)
+        a[:d, :d], a[:d, d] = m, rng.normal(size=d) * 100
+        mesh = ao4d.extract(v, 0.0, affine=a)
+        report = mesh.check()
+        assert report.ok, report  # closed and outward: simplices reversed when det < 0
+        assert mesh.volume == pytest.approx(abs(np.linalg.det(m)) * ref.volume, rel=1e-9)
+        np.testing.assert_allclose(mesh.vertices, ref.vertices @ m.T + a[:d, d], rtol=0, atol=1e-9)
+    with pytest.raises(ValueError, match="either `affine` or `spacing`"):
+        ao4d.extract(v, 0.0, affine=np.eye(d + 1), spacing=2.0)
+    with pytest.raises(ValueError, match="`affine` must have shape"):
+        ao4d.extract(v, 0.0, affine=np.eye(d))
+    with pytest.raises(ValueError, match="invertible"):
+        ao4d.extract(v, 0.0, affine=np.zeros((d, d + 1)))
+
+
+def test_ties_take_the_positive_side_like_a_level_just_below():
+    # DESIGN.md: a vertex is positive when f >= level, so values equal to the level are outside;
+    # integer data at such a level give the mesh of the next float below the level, cell for cell
+    rng = np.random.default_rng(2204)
+    for d in (2, 3, 4):
+        v = np.pad(rng.integers(0, 4, size=(6,) * d), 1, constant_values=5)
+        for method in METHODS:
+            at = ao4d.extract(v, 2, method=method)
+            below = ao4d.extract(v, np.nextafter(2.0, -np.inf), method=method)
+            assert (v == 2).any() and at.check().ok
+            np.testing.assert_array_equal(at.simplices, below.simplices)
+            np.testing.assert_allclose(at.vertices, below.vertices, rtol=0, atol=1e-12)
+
+
+def test_cli_extract_closed_and_refused_options(tmp_path, capsys):
+    from ao4d.cli import main
+
+    np.save(tmp_path / "v.npy", _ramp(3))
+    out = tmp_path / "m.npz"
+    assert main(["extract", "--input", str(tmp_path / "v.npy"), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "NOT OK" in text and "--closed" in text
+    assert main(["extract", "--input", str(tmp_path / "v.npy"), "--closed", "--out", str(out)]) == 0
+    assert "=> OK" in capsys.readouterr().out
+    assert ao4d.SimplexMesh.load(out).check().ok
+    from ao4d.mesh_files import read_field_data
+
+    info = read_field_data(out)
+    assert bool(info["closed"]) and str(info["source"]) == str(tmp_path / "v.npy")
+    np.testing.assert_array_equal(info["spacing"], 1.0)
+    for extra in (["--spacing", "0.1"], ["--dim", "3"], ["--origin", "1"], ["--w-scale", "2"],
+                  ["--affine"]):
+        assert main(["extract", "--shape", "hypersphere", "--grid", "8", *extra,
+                     "--out", str(tmp_path / "s.npz")]) == 2
+        assert "to --input only, not to --shape" in capsys.readouterr().err
+    assert main(["extract", "--input", str(tmp_path / "v.npy"), "--grid", "20",
+                 "--out", str(tmp_path / "s.npz")]) == 2
+    assert "--grid applies to --shape only" in capsys.readouterr().err
+    assert not (tmp_path / "s.npz").exists()
+    assert main(["extract", "--shape", "hypersphere", "--grid", "10", "--bounds", "0", "1.5",
+                 "--closed", "--out", str(tmp_path / "s.npz")]) == 0
+    quarter = ao4d.SimplexMesh.load(tmp_path / "s.npz")
+    assert quarter.check().ok and quarter.bounds[0].tolist() == [0.0] * 4
+
+
+def test_masked_arrays_are_refused_or_read_plainly():
+    v = _noise(np.random.default_rng(2205), (7, 7, 7))
+    holey = v.copy()
+    holey[3, 3, 3] = np.nan
+    with pytest.raises(ValueError, match=r"`values` is a masked array with 1 masked entries"):
+        ao4d.extract(np.ma.masked_invalid(holey), 0.0)  # the NaN hidden under the mask
+    with pytest.raises(ValueError, match=r"`values` contains 1 non-finite"):
+        ao4d.extract(np.ma.array(holey), 0.0)  # nothing masked: the NaN itself
+    _assert_same_mesh(ao4d.extract(v, 0.0), ao4d.extract(np.ma.array(v), 0.0), tol=0.0 + 1e-15)

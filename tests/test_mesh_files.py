@@ -164,3 +164,35 @@ def test_slice_ply_has_no_64_bit_properties(ball4, tmp_path):
     assert "simplex" in header and "int64" not in header and "uint64" not in header
     back = trimesh.load(path, process=False)
     np.testing.assert_array_equal(back.metadata["_ply_raw"]["face"]["data"]["simplex"], tri.face_attributes["simplex"])
+
+
+def test_npz_field_data_round_trips_and_old_readers_ignore_it(tmp_path):
+    mesh = _decorated(4)
+    info = {"spacing": np.array([2.0, 2.0, 2.2, 2.0]), "units": np.array(["mm", "mm", "mm", "ms"]),
+            "w_scale": np.float64(0.001), "source": np.asarray("scan.nii")}
+    arrays = mesh_files.MeshArrays(mesh.vertices, mesh.simplices, mesh.point_data, mesh.cell_data)
+    a, b = tmp_path / "a.npz", tmp_path / "b.npz"
+    mesh_files.write(a, arrays, field_data=info)
+    mesh_files.write(b, arrays, field_data=dict(reversed(list(info.items()))))
+    assert a.read_bytes() == b.read_bytes()  # reproducible whatever the dict order
+    back = mesh_files.read_field_data(a)
+    assert sorted(back) == sorted(info)
+    for name, value in info.items():
+        np.testing.assert_array_equal(back[name], value)
+    _assert_same(mesh, SimplexMesh.load(a))  # the mesh itself is unchanged
+    assert mesh_files.read_field_data(tmp_path / "a.txt") == {}
+    mesh.save(tmp_path / "plain.npz")
+    assert mesh_files.read_field_data(tmp_path / "plain.npz") == {}
+    with pytest.raises(TypeError, match=r"`field_data\['bad'\]` has dtype object"):
+        mesh_files.write(tmp_path / "c.npz", arrays, field_data={"bad": np.array([None])})
+
+
+def test_npz_whose_format_is_not_a_number_is_named(tmp_path):
+    from ao4d._npz import write_npz
+
+    mesh = _decorated(3)
+    for bad in (np.array("one"), np.array([1, 2])):
+        write_npz(tmp_path / "f.npz", {"format": bad, "vertices": mesh.vertices,
+                                        "simplices": mesh.simplices})
+        with pytest.raises(ValueError, match="its `format` entry is not a version number"):
+            SimplexMesh.load(tmp_path / "f.npz")

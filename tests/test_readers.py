@@ -441,3 +441,161 @@ def test_cli_extract_input_formats(tmp_path, capsys):
     assert main(["extract", "--input", str(tmp_path / "t0.npy"), "--dim", "4",
                  "--out", str(tmp_path / "x.npz")]) == 2
     assert "4D grid is needed" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------- units, affine
+
+
+def _nifti_4d(path, values, *, zooms=(2.0, 2.0, 2.2, 2000.0), units=("mm", "msec"), affine=None,
+              toffset=0.0):
+    img = nib.Nifti1Image(values, np.diag([*zooms[:3], 1.0]) if affine is None else affine)
+    img.header.set_zooms(zooms)
+    img.header.set_xyzt_units(*units)
+    img.header["toffset"] = toffset
+    nib.save(img, path)
+    return path
+
+
+def test_nifti_time_axis_is_not_taken_as_a_length(tmp_path, grid4):
+    path = _nifti_4d(tmp_path / "t.nii", grid4, toffset=500.0)
+    vol = read_grid(path)
+    assert vol.units == ("mm", "mm", "mm", "ms")
+    mean_step = np.mean([2.0, 2.0, np.float32(2.2)])
+    assert vol.spacing[3] == pytest.approx(mean_step)  # one frame = one mean x/y/z step
+    assert vol.origin[3] == pytest.approx(500.0 / 2000.0 * mean_step)
+    assert vol.w_scale == pytest.approx(mean_step / 2000.0)
+    assert any("not taken as a length" in n and "2000 ms" in n for n in vol.notes)
+    vol = read_grid(path, w_scale=0.001)  # 1 µm per ms
+    assert vol.spacing.tolist() == pytest.approx([2.0, 2.0, 2.2, 2.0])
+    assert vol.origin[3] == pytest.approx(0.5) and vol.w_scale == 0.001
+    vol = read_grid(path, spacing=(None, None, None, 0.5))  # per axis: w only
+    assert vol.spacing.tolist() == pytest.approx([2.0, 2.0, 2.2, 0.5])
+    assert vol.w_scale == pytest.approx(0.5 / 2000.0)
+    vol = read_grid(path, spacing=(1, 1, 1, 1))
+    assert vol.spacing.tolist() == [1.0] * 4
+    # no time unit in the header: pixdim[4] as before
+    vol = read_grid(_nifti_4d(tmp_path / "u.nii", grid4, units=("unknown", "unknown")))
+    assert vol.spacing[3] == 2000.0 and vol.w_scale is None
+    with pytest.raises(ValueError, match="`w_scale` must be > 0"):
+        read_grid(path, w_scale=0.0)
+    nib.save(nib.Nifti1Image(grid4[..., 0], np.eye(4)), tmp_path / "3d.nii")
+    with pytest.raises(ValueError, match="`w_scale` scales a time axis"):
+        read_grid(tmp_path / "3d.nii", w_scale=1.0)
+
+
+def test_cli_records_and_prints_the_w_scale(tmp_path, capsys):
+    from ao4d.cli import main
+    from ao4d.mesh_files import read_field_data
+
+    x = np.linspace(-1, 1, 7)
+    r = np.sqrt(sum(g * g for g in np.meshgrid(x, x, x, x, indexing="ij")))
+    path = _nifti_4d(tmp_path / "t.nii", (r * 100).astype(np.int16))
+    out = tmp_path / "m.npz"
+    assert main(["extract", "--input", str(path), "--level", "70", "--w-scale", "0.001",
+                 "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "w scale: 0.001 length units per ms" in text and "=> OK" in text
+    info = read_field_data(out)
+    assert float(info["w_scale"]) == 0.001 and info["units"].tolist() == ["mm", "mm", "mm", "ms"]
+    assert info["spacing"].tolist() == pytest.approx([2.0, 2.0, 2.2, 2.0])
+    mesh = ao4d.SimplexMesh.load(out)
+    assert mesh.bounds[1][3] - mesh.bounds[0][3] < 6 * 2.0 + 1e-9  # w spans at most 6 frames of 2
+    assert main(["extract", "--input", str(path), "--level", "70", "--spacing", "file", "file",
+                 "file", "0.25", "--out", str(out)]) == 0
+    assert read_field_data(out)["spacing"].tolist() == pytest.approx([2.0, 2.0, 2.2, 0.25])
+
+
+@pytest.mark.parametrize("flip", (False, True))
+def test_nifti_affine_true_places_vertices_in_scanner_coordinates(tmp_path, flip):
+    rng = np.random.default_rng(2301)
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    if (np.linalg.det(q) < 0) != flip:
+        q[:, 0] *= -1
+    affine = np.eye(4)
+    affine[:3, :3], affine[:3, 3] = q @ np.diag([2.0, 1.5, 1.0]), [-90.0, 120.0, 30.0]
+    x = np.linspace(-1, 1, 9)
+    r = np.sqrt(sum(g * g for g in np.meshgrid(x, x, x, indexing="ij")))
+    nib.save(nib.Nifti1Image(r.astype(np.float32), affine), tmp_path / "o.nii")
+    with pytest.warns(ObliqueAffineWarning, match="affine=True"):
+        read_grid(tmp_path / "o.nii")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # affine=True: no oblique warning
+        vol = read_grid(tmp_path / "o.nii", affine=True)
+    np.testing.assert_allclose(vol.affine, affine, rtol=0, atol=1e-6)  # float32 in the header
+    mesh = ao4d.extract(vol.values, 0.8, affine=vol.affine)
+    index = ao4d.extract(np.asarray(vol.values), 0.8)
+    report = mesh.check()
+    assert report.ok, report  # closed and outward even when det < 0
+    assert mesh.volume == pytest.approx(abs(np.linalg.det(vol.affine[:3, :3])) * index.volume, rel=1e-9)
+    np.testing.assert_allclose(mesh.vertices, index.vertices @ vol.affine[:3, :3].T + vol.affine[:3, 3],
+                               rtol=0, atol=1e-9)
+    # a vertex sits where nibabel's own affine puts its voxel coordinates
+    np.testing.assert_allclose(mesh.vertices[:5], nib.affines.apply_affine(vol.affine, index.vertices[:5]),
+                               atol=1e-9)
+
+
+def test_other_formats_give_a_diagonal_affine_with_affine_true(tmp_path, grid4):
+    np.save(tmp_path / "v.npy", grid4)
+    vol = read_grid(tmp_path / "v.npy", spacing=(0.5, 1, 2, 3), origin=(1, 2, 3, 4), affine=True)
+    expect = np.eye(5)
+    expect[:4, :4], expect[:4, 4] = np.diag([0.5, 1, 2, 3]), [1, 2, 3, 4]
+    np.testing.assert_array_equal(vol.affine, expect)
+    assert read_grid(tmp_path / "v.npy").affine is None
+
+
+def test_read_grid_ndim_must_be_ints(tmp_path, grid4):
+    np.save(tmp_path / "v.npy", grid4)
+    for bad in ("4", 4.0, (3, "4"), (), True):
+        with pytest.raises(TypeError, match="`ndim` must be an int or a tuple of ints"):
+            read_grid(tmp_path / "v.npy", ndim=bad)
+    assert read_grid(tmp_path / "v.npy", ndim=(3, 4)).ndim == 4
+
+
+# ---------------------------------------------------------------------------- review, sweep
+
+
+def test_nifti_chunks_keep_array_data_out_of_the_graph(tmp_path):
+    values = np.random.default_rng(2302).standard_normal((24, 20, 16, 4)).astype(np.float32)
+    for name, affine in (("a.nii", np.eye(4)), ("flipped.nii", np.diag([-1.0, 1.0, -2.0, 1.0]))):
+        nib.save(nib.Nifti1Image(values, affine), tmp_path / name)
+        vol = read_grid(tmp_path / name, chunks=12)
+        graph = pickle.dumps(dict(vol.values.__dask_graph__()))
+        assert len(graph) < 0.05 * values.nbytes  # names and offsets only, never the volume
+        np.testing.assert_array_equal(vol.values.compute(), np.asarray(read_grid(tmp_path / name).values))
+
+
+def test_a_glob_of_compressed_mhd_frames_is_not_decompressed_to_scan_headers(tmp_path, grid4, monkeypatch):
+    import zlib
+
+    from ao4d import readers
+
+    for k in range(grid4.shape[3]):
+        _write_mhd(tmp_path / f"f{k}.mhd", grid4[..., k], spacing=(1, 1, 1), offset=(0, 0, 0),
+                   compressed=True)
+    calls = []
+    real = zlib.decompress
+    monkeypatch.setattr(readers.zlib, "decompress", lambda *a: calls.append(1) or real(*a))
+    vol = read_grid(tmp_path / "f*.mhd")
+    assert calls == []  # the header scan reads no data
+    np.testing.assert_array_equal(vol.values.compute(), grid4)
+    assert len(calls) == grid4.shape[3]  # each frame once, in its task
+
+
+def test_mhd_bad_headers_name_the_problem(tmp_path, grid4):
+    frame = grid4[..., 0]
+    good = _write_mhd(tmp_path / "g.mhd", frame, spacing=(1, 1, 1), offset=(0, 0, 0))
+    text = good.read_text()
+    (tmp_path / "neg.mhd").write_text(text.replace("DimSize = 5 6 7", "DimSize = 5 -6 7"))
+    with pytest.raises(ValueError, match=r"DimSize = 5 -6 7 must be positive integers"):
+        read_grid(tmp_path / "neg.mhd")
+    (tmp_path / "hs.mhd").write_text(text.replace("ObjectType = Image", "ObjectType = Image\nHeaderSize = abc"))
+    with pytest.raises(ValueError, match=r"HeaderSize = 'abc' is not an integer"):
+        read_grid(tmp_path / "hs.mhd")
+    (tmp_path / "folder.raw").mkdir()
+    (tmp_path / "folder.mhd").write_text(text.replace("ElementDataFile = g.raw", "ElementDataFile = folder.raw"))
+    with pytest.raises(ValueError, match="names the data file 'folder.raw', which is a folder"):
+        read_grid(tmp_path / "folder.mhd")
+    shutil.copy(tmp_path / "g.raw", tmp_path / "données_é.raw")
+    (tmp_path / "utf8.mhd").write_bytes(
+        text.replace("ElementDataFile = g.raw", "ElementDataFile = données_é.raw").encode("utf-8"))
+    np.testing.assert_array_equal(np.asarray(read_grid(tmp_path / "utf8.mhd").values), frame)

@@ -123,3 +123,23 @@ def test_single_slice_title_describes_the_hyperplane_cut(scene, tmp_path, monkey
     assert "x = 0" in titles[0] and "w = 0.3" not in titles[0]
     assert "w = 0.3" in titles[1]
     assert "0.707 x + 0.707 w = 0.354" in titles[2]
+
+
+def test_a_rerun_with_fewer_slices_leaves_no_old_slice_files(scene, tmp_path):
+    path, _ = scene
+    out = tmp_path / "series"
+    assert main(["slice", str(path), "--w-range", "-0.3", "0.3", "--count", "6", "--out", str(out)]) == 0
+    (out / "notes.txt").write_text("mine")  # not a slice file: kept
+    assert main(["slice", str(path), "--w-range", "-0.3", "0.3", "--count", "3", "--out", str(out)]) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["notes.txt", "series.pvd"] + [f"slice_{k:04d}.{s}" for k in range(3) for s in ("ply", "vtp")]
+    assert len(pv.get_reader(str(out / "series.pvd")).time_values) == 3
+
+
+def test_a_w_range_of_one_point_is_refused_for_several_slices(scene, tmp_path, capsys):
+    path, _ = scene
+    assert main(["slice", str(path), "--w-range", "0.2", "0.2", "--count", "3",
+                 "--out", str(tmp_path / "s")]) == 2
+    assert "is one point: 3 slices would all be the same" in capsys.readouterr().err
+    assert main(["slice", str(path), "--w-range", "0.2", "0.2", "--count", "1",
+                 "--out", str(tmp_path / "s")]) == 0  # one slice of one point is fine

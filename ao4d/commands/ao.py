@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     from .._atomic import check_output_file
     from ..ao import ambient_occlusion
     from ..mesh import SimplexMesh
-    from ..mesh_files import SUFFIXES
+    from ..mesh_files import SUFFIXES, MeshArrays, read_field_data, write
     from ..raycast import RAYS_PER_SECOND, duration
 
     out = check_output_file(args.out, "--out", SUFFIXES)  # before any work
@@ -75,10 +75,31 @@ def run(args: argparse.Namespace) -> int:
     traced = int(np.isfinite(ao).sum()) * args.samples
     target = mesh.point_data if args.at == "vertices" else mesh.cell_data
     target[args.name] = ao
-    mesh.save(out)
+    # the input's field data (how the mesh was made: grid spacing, w scale) stays with it
+    write(out, MeshArrays(mesh.vertices, mesh.simplices, dict(mesh.point_data), dict(mesh.cell_data)),
+          field_data=read_field_data(args.mesh))
     print(
         f"AO at {ao.size} {args.at} x {args.samples} samples: {elapsed:.2f} s, BVH build included "
-        f"({traced / max(elapsed, 1e-9) / 1e6:.2f} M rays/s); "
-        f"mean {np.nanmean(ao):.3f}, range [{np.nanmin(ao):.3f}, {np.nanmax(ao):.3f}] -> {out}"
+        f"({traced / max(elapsed, 1e-9) / 1e6:.2f} M rays/s); {_summary(ao, args.at)} -> {out}"
     )
+    n_open = len(mesh.boundary_faces())
+    if n_open:
+        print(f"note: the mesh is open ({n_open:,} boundary faces): rays leak out through them, so "
+              "AO near them is too low (a mesh extracted from data that touch the grid's edge: "
+              "extract it again with --closed)")
     return 0
+
+
+def _summary(ao, at: str) -> str:
+    """Mean and range of the AO values; NaN values are counted and named, never hidden."""
+    import numpy as np
+
+    finite = np.isfinite(ao)
+    if finite.all():
+        return f"mean {ao.mean():.3f}, range [{ao.min():.3f}, {ao.max():.3f}]"
+    what = "unused vertices" if at == "vertices" else "zero-measure simplices"
+    head = (f"{int((~finite).sum()):,} of {ao.size:,} values are NaN (no normal: {what})")
+    if not finite.any():
+        return head
+    return (f"{head}; the other values: mean {ao[finite].mean():.3f}, range "
+            f"[{ao[finite].min():.3f}, {ao[finite].max():.3f}]")

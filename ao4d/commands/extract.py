@@ -42,10 +42,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--inside", choices=("below", "above"), default="below",
         help="solid is f < level (below, signed distances) or f > level (above, CT data)",
     )
-    parser.add_argument("--spacing", type=float, nargs="+",
-                        help="grid step(s) for --input (default: from the file, else 1)")
+    parser.add_argument("--spacing", type=_step, nargs="+", metavar="STEP",
+                        help="grid step(s) for --input, one or one per axis; 'file' keeps the "
+                        "file's step on that axis (default: from the file, else 1)")
     parser.add_argument("--origin", type=float, nargs="+",
                         help="grid origin for --input (default: from the file, else 0)")
+    parser.add_argument("--w-scale", type=float, metavar="LENGTH_PER_TIME",
+                        help="length units per time unit for the time axis of a 4D NIfTI (e.g. "
+                        "0.001 mm per ms); by default one frame is one mean x/y/z step")
+    parser.add_argument("--affine", action="store_true",
+                        help="place the vertices by the file's affine (NIfTI scanner coordinates, "
+                        "oblique axes included)")
+    parser.add_argument("--closed", action="store_true",
+                        help="close the mesh where the solid touches the grid's edge (the grid "
+                        "padded by one outside cell)")
     parser.add_argument("--dim", type=int, choices=(2, 3, 4),
                         help="refuse --input files of another dimension")
     parser.add_argument("--chunk", type=int, help="cell layers per slab (default: ~100 MB slabs)")
@@ -54,10 +64,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="extract even when the estimate is above the ten-minute limit")
 
 
+def _step(text: str) -> float | None:
+    """One --spacing entry: a number, or 'file' (keep the file's step on that axis)."""
+    if text.lower() == "file":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid step {text!r}: a number or 'file'") from None
+
+
 def _one_or_many(values: list[float] | None):
     if values is None:
         return None
     return values[0] if len(values) == 1 else values
+
+
+_INPUT_ONLY = ("spacing", "origin", "w_scale", "affine", "dim")
+_SHAPE_ONLY = ("grid", "bounds")
 
 
 # Typical rate here (cells/s: sampling a field and marching, 2 cores), for the estimate printed
@@ -86,8 +110,9 @@ def run(args: argparse.Namespace) -> int:
     from .._atomic import all_or_nothing, check_output_file
     from ..fields import preset
     from ..march import EmptyMeshWarning, extract, extract_field
-    from ..mesh_files import SUFFIXES
+    from ..mesh_files import SUFFIXES, MeshArrays, write
 
+    _check_options(args)
     outputs = [check_output_file(args.out, "--out", SUFFIXES)]  # before any work
     if args.vtu:
         outputs.append(check_output_file(args.vtu, "--vtu", (".vtu",)))
@@ -105,30 +130,37 @@ def run(args: argparse.Namespace) -> int:
             lo, hi = field.extent
             pad = 0.1 * (hi - lo)
             bounds = (lo - pad, hi + pad)
-        mesh = extract_field(
-            field, args.grid, bounds, args.level, method=args.method, inside=args.inside, chunk=args.chunk
-        )
+        if args.closed:  # the padding works on values: sample the field, then extract
+            from ..fields import sample
+
+            mesh = extract(sample(field, args.grid, bounds), args.level, method=args.method,
+                           inside=args.inside, chunk=args.chunk, closed=True,
+                           spacing=(bounds[1] - bounds[0]) / (args.grid - 1), origin=bounds[0])
+        else:
+            mesh = extract_field(field, args.grid, bounds, args.level, method=args.method,
+                                 inside=args.inside, chunk=args.chunk)
         what = f"{field.name} on a {args.grid}^{field.dim} grid"
+        info = {"source": f"--shape {args.shape}"}
     else:
         from ..readers import read_grid
 
         grid = read_grid(args.input, spacing=_one_or_many(args.spacing),
-                         origin=_one_or_many(args.origin), ndim=args.dim)
+                         origin=_one_or_many(args.origin), ndim=args.dim, w_scale=args.w_scale,
+                         affine=args.affine)
         print(f"read {grid.source}: shape {grid.shape}, {grid.values.dtype}"
               f"{' (lazy, block by block)' if grid.lazy else ''}; spacing "
               f"{np.round(grid.spacing, 6).tolist()}, origin {np.round(grid.origin, 6).tolist()}"
               + (f" ({'; '.join(grid.notes)})" if grid.notes else ""))
         _estimate(float(math.prod(n - 1 for n in grid.shape)), args.force)
-        mesh = extract(
-            grid.values,
-            args.level,
-            spacing=grid.spacing,
-            origin=grid.origin,
-            method=args.method,
-            inside=args.inside,
-            chunk=args.chunk,
-        )
+        if grid.w_scale is not None:
+            print(f"w scale: {grid.w_scale:.6g} length units per {grid.units[3]} "
+                  f"(w step {grid.spacing[3]:.6g}; recorded in the mesh file)")
+        place = ({"affine": grid.affine} if grid.affine is not None
+                 else {"spacing": grid.spacing, "origin": grid.origin})
+        mesh = extract(grid.values, args.level, method=args.method, inside=args.inside,
+                       chunk=args.chunk, closed=args.closed, **place)
         what = f"{args.input} {grid.shape} at level {args.level:g}"
+        info = _grid_info(grid)
     caught.__exit__(None, None, None)
     for w in seen:
         if issubclass(w.category, EmptyMeshWarning):  # nothing to write: say why, exit 2
@@ -141,12 +173,45 @@ def run(args: argparse.Namespace) -> int:
     print(f"enclosed {mesh.dim}-volume:  {mesh.volume:.6g}" + _error(mesh.volume, field, "volume"))
     area_error = _error(mesh.measure, field, "boundary_measure")
     print(f"boundary {mesh.dim - 1}-volume:  {mesh.measure:.6g}" + area_error)
+    info["level"] = float(args.level)
+    info["closed"] = bool(args.closed)
     with all_or_nothing(outputs):
-        mesh.save(args.out)
+        write(args.out, MeshArrays(mesh.vertices, mesh.simplices, dict(mesh.point_data),
+                                   dict(mesh.cell_data)), field_data=info)
         if args.vtu:
             mesh.to_vtu(args.vtu)
     print("wrote " + ", ".join(map(str, outputs)))
     return 0
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """Refuse options that the chosen source would ignore."""
+    defaults = {"grid": 48, "bounds": None, "spacing": None, "origin": None, "w_scale": None,
+                "affine": False, "dim": None}
+    unused = _INPUT_ONLY if args.shape is not None else _SHAPE_ONLY
+    given = [name for name in unused if getattr(args, name) != defaults[name]]
+    if given:
+        flags = ", ".join("--" + name.replace("_", "-") for name in given)
+        source, other = ("--shape", "--input") if args.shape is not None else ("--input", "--shape")
+        raise ValueError(f"{flags} {'applies' if len(given) == 1 else 'apply'} to {other} only, "
+                         f"not to {source}")
+    if args.w_scale is not None and not args.w_scale > 0:
+        raise ValueError(f"`--w-scale` must be > 0, got {args.w_scale}")
+
+
+def _grid_info(grid) -> dict:
+    """What the mesh file records about the grid: where it came from and how it was scaled."""
+    import numpy as np
+
+    info = {"source": grid.source, "spacing": np.asarray(grid.spacing),
+            "origin": np.asarray(grid.origin), "notes": np.array(list(grid.notes) or [""])}
+    if grid.units:
+        info["units"] = np.array(list(grid.units))
+    if grid.w_scale is not None:
+        info["w_scale"] = np.float64(grid.w_scale)
+    if grid.affine is not None:
+        info["affine"] = np.asarray(grid.affine)
+    return info
 
 
 def _error(value: float, field, attr: str) -> str:

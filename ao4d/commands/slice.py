@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -123,6 +124,9 @@ def _series(mesh, args: argparse.Namespace) -> int:
     count = check_positive_int(10 if args.count is None else args.count, "--count")
     if count > 100_000:
         raise ValueError(f"`--count` must be at most 100000, got {count}")
+    if start == stop and count > 1:
+        raise ValueError(f"`--w-range` {start:g} {stop:g} is one point: {count} slices would all "
+                         "be the same; give START != STOP, or --w for one slice")
     lo, hi = mesh.bounds
     if max(start, stop) < lo[3] or min(start, stop) > hi[3]:
         raise ValueError(f"the w range [{start:g}, {stop:g}] misses the mesh (its w runs from "
@@ -150,6 +154,7 @@ def write_series(mesh, ws, out: Path, *, progress=None) -> list[dict]:
 
     digits = max(4, len(str(len(ws) - 1)))
     steps = []
+    keep = {f"slice_{k:0{digits}d}{suffix}" for k in range(len(ws)) for suffix in (".ply", ".vtp")}
     try:
         for k, w in enumerate(ws):
             tri = mesh.slice([0.0, 0.0, 0.0, float(w)], [0.0, 0.0, 0.0, 1.0])
@@ -176,7 +181,14 @@ def write_series(mesh, ws, out: Path, *, progress=None) -> list[dict]:
     lines += ["  </Collection>", "</VTKFile>", ""]
     with atomic_open(out / SERIES_NAME, "w", encoding="utf-8") as fh:
         fh.write("\n".join(lines))
+    # slices of an earlier, longer series in this folder would be read as part of this one
+    for stale in out.glob("slice_*"):
+        if stale.is_file() and _SLICE_NAME.fullmatch(stale.name) and stale.name not in keep:
+            stale.unlink()
     return steps
+
+
+_SLICE_NAME = re.compile(r"slice_\d{4,}\.(ply|vtp)")
 
 
 def _timestep(w: float) -> str:
