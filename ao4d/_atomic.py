@@ -153,7 +153,10 @@ def all_or_nothing(paths: Iterable[str | os.PathLike] = (), *, folder: str | os.
             with contextlib.suppress(FileNotFoundError, IsADirectoryError):
                 p.unlink()
         for p, backup in kept.items():
-            os.replace(backup, p)
+            if p.exists() and os.path.samefile(p, backup):  # untouched: rename would do nothing
+                backup.unlink()
+            else:
+                os.replace(backup, p)
         raise
     else:
         for backup in kept.values():

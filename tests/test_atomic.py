@@ -68,10 +68,11 @@ def test_unwritable_folder_error_names_the_target_not_the_temporary(tmp_path, mo
 
 @pytest.mark.parametrize("mode", ["paths", "folder"])
 def test_all_or_nothing_restores_replaced_files_and_removes_new_ones(tmp_path, mode):
-    old, new = tmp_path / "old.txt", tmp_path / "new.txt"
+    old, new, same = tmp_path / "old.txt", tmp_path / "new.txt", tmp_path / "same.txt"
     old.write_text("old content")
     old.chmod(0o640)
-    scope = {"paths": [old, new]} if mode == "paths" else {"folder": tmp_path}
+    same.write_text("left alone")
+    scope = {"paths": [old, new, same]} if mode == "paths" else {"folder": tmp_path}
     with pytest.raises(RuntimeError, match="boom"), all_or_nothing(**scope):
         with atomic_open(old, "w") as fh:
             fh.write("new content")
@@ -81,7 +82,8 @@ def test_all_or_nothing_restores_replaced_files_and_removes_new_ones(tmp_path, m
         raise RuntimeError("boom")
     assert old.read_text() == "old content"
     assert stat.S_IMODE(old.stat().st_mode) == 0o640
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.txt"], "backup or new file left"
+    assert same.read_text() == "left alone"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.txt", "same.txt"], "backup or new file left"
 
 
 def test_all_or_nothing_keeps_the_new_set_on_success(tmp_path):
