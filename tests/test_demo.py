@@ -122,3 +122,28 @@ def test_demo_default_quality(tmp_path):
     assert np.unique(ao).size > 20
     vol = io.read_vti(tmp_path / "image.vti", array="occlusion").data
     assert np.nanmax(vol) > 0.3 and np.nanmin(vol) < 0.05
+
+
+def test_demo_times_every_file_step_and_the_times_add_up(tmp_path, monkeypatch):
+    # the "files" stage is split per step, each measured once: the steps sum to the stage, and a
+    # step made slow shows up under its own name
+    import io as stdio
+    import time
+
+    from ao4d import pictures
+    from ao4d.commands.demo import run_demo
+
+    real = pictures.save_montage
+
+    def slow_montage(*args, **kwargs):
+        time.sleep(0.3)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(pictures, "save_montage", slow_montage)
+    stream = stdio.StringIO()
+    report = run_demo(tmp_path / "d", quality="tiny", progress=False, stream=stream)
+    steps = report.file_seconds
+    assert {"image.vti", "montage", "volume picture", "slice picture", "view.html"} <= set(steps)
+    assert sum(steps.values()) == pytest.approx(report.stage_seconds["files"], abs=0.05)
+    assert steps["montage"] >= 0.3 and max(steps, key=steps.get) == "montage"
+    assert "files stage: " in stream.getvalue() and "montage " in stream.getvalue()
