@@ -6,6 +6,10 @@ ray-cast volume mapper with nearest sampling and opaque voxels does; no render w
 pyvista off-screen on request, or as a flat front-to-back composite (:func:`composite`). 3D
 slices of 4D meshes are drawn by a numpy z-buffer (:func:`triangle_view`) or pyvista, coloured
 by openness ``1 - AO`` (:func:`ao_colors`). Every write is atomic.
+
+Why this stays one module: every picture shares one view (:data:`VIEW_DIRECTION`), one frame
+(title, labelled box, colour bar, PNG settings) and one montage layout, so they look alike and
+change together.
 """
 
 from __future__ import annotations

@@ -26,6 +26,10 @@ direction (one white light), ``specular=0``, ``shadows=False`` and no depth cue,
 
 Background voxels have shade 0, depth inf, object id -1 and RGBA (0, 0, 0, 0).
 
+Why this stays one module: the shading model above, the layers behind transparent hits, the
+shadow rays and the ray budget all work on the same hits and materials, and one function
+(:func:`render`) drives them in order; split, each part would need the others' private state.
+
 References
 ----------
 S. R. Hollasch, "Four-Space Visualization of 4D Objects", MSc thesis, Arizona State University,
@@ -371,7 +375,9 @@ def render(
     backend = cl.backend_name(runtime)  # what runs: every stage on the same device
     _check_budget(scene, n_rays, ao=ao, samples=samples, lights=lights, shadows=shadows,
                   layers=1 if material.opaque else layers, backend=backend, max_rays=max_rays)
-    if ao != "none":
+    if ao == "hits" or (ao == "vertices" and "ao" not in scene.point_data):
+        # only AO computed here: stored AO was computed (and warned about) where it was made,
+        # and the check costs a pass over every simplex
         warn_if_inside_out(scene, "AO is 1 on its surface and the image dark")
     info: dict[str, Any] = {"primary_rays": n_rays, "layer_rays": 0, "shadow_rays": 0,
                             "ao_rays": 0, "primary_seconds": 0.0, "layer_seconds": 0.0,

@@ -913,3 +913,17 @@ def test_render_command_refuses_a_non_ascii_mhd_before_rendering(tmp_path, capsy
     assert code == 2 and "ASCII" in capsys.readouterr().err and not rendered
     assert (tmp_path / "keep_é.raw").read_bytes() == b"old"
     assert not (tmp_path / "keep_é.mhd").exists()
+
+
+def test_stored_ao_skips_the_inside_out_check(monkeypatch):
+    # the check measures the enclosed volume (a pass over every simplex, 0.4 s at 600k
+    # tetrahedra): render pays it only when it computes AO itself
+    mesh, cam = _small_scene()
+    flipped = mesh.flipped()
+    flipped.point_data["ao"] = np.zeros(flipped.n_vertices)  # AO from elsewhere, checked there
+    calls = []
+    monkeypatch.setattr(ao4d.rendering, "warn_if_inside_out", lambda *a, **k: calls.append(1))
+    img = render(flipped, cam, (6, 6, 6), ao="vertices", backend="numpy")
+    assert img.hit.any() and not calls
+    render(mesh, cam, (6, 6, 6), ao="hits", samples=4, backend="numpy")
+    assert calls == [1]
