@@ -26,6 +26,10 @@ direction (one white light), ``specular=0``, ``shadows=False`` and no depth cue,
 
 Background voxels have shade 0, depth inf, object id -1 and RGBA (0, 0, 0, 0).
 
+Why this stays one module: the shading model above, the layers behind transparent hits, the
+shadow rays and the ray budget all work on the same hits and materials, and one function
+(:func:`render`) drives them in order; split, each part would need the others' private state.
+
 References
 ----------
 S. R. Hollasch, "Four-Space Visualization of 4D Objects", MSc thesis, Arizona State University,
@@ -45,17 +49,22 @@ from typing import Any, Literal
 
 import numpy as np
 
-from . import cl
+from . import _progress, cl
 from ._validate import (as_array, as_real, check_bool, check_choice, check_int, check_memory,
                         check_positive_int)
 from .ao import ORIGIN_OFFSET, ambient_occlusion
 from .camera import Camera4D, ImageGeometry, _image_shape
 from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, lambert
 from .mesh import SimplexMesh, _mesh_list, concatenate, warn_if_inside_out
-from .raycast import cast_rays, check_distance
+from .raycast import cast_rays, check_distance, check_rays
 from .volumes import write_mhd, write_vti
 
-__all__ = ["render", "RenderResult", "prepare_scene", "ShadeRangeWarning", "composite_layer", "MAX_LAYERS"]
+__all__ = ["render", "RenderResult", "prepare_scene", "ShadeRangeWarning", "composite_layer", "MAX_LAYERS",
+           "default_weights"]
+
+# Default shading weights (the command line uses the same): 1 - AO alone without a light; with
+# lights 0.7 (1 - AO) + 0.3 Lambert, so one light of intensity 1 keeps shade in [0, 1].
+AMBIENT, AMBIENT_LIT, DIFFUSE = 1.0, 0.7, 0.3
 
 # Primary rays per cast_rays call: bounds host memory and lets tqdm show progress.
 _CHUNK = 1 << 16
@@ -149,8 +158,15 @@ class RenderResult:
         return write_vti(path, arrays, spacing=spacing, origin=origin)
 
 
-def _check_inputs(scene, ao: str, ambient: float, diffuse: float, specular: np.ndarray, lights,
-                  explicit: bool) -> None:
+def default_weights(ambient: float | None, diffuse: float | None, lit: bool) -> tuple[float, float]:
+    """``(ambient, diffuse)`` with the defaults filled in: ``ambient`` 1 without a light and 0.7
+    with one, ``diffuse`` 0.3 (their sum stays at most 1 for one light of intensity 1)."""
+    ambient = (AMBIENT_LIT if lit else AMBIENT) if ambient is None else as_real(ambient, "ambient", ge=0)
+    diffuse = DIFFUSE if diffuse is None else as_real(diffuse, "diffuse", ge=0)
+    return ambient, diffuse
+
+
+def _check_inputs(scene, ao: str, ambient: float, diffuse: float, specular: np.ndarray, lights) -> None:
     """Refuse stored AO that would shade wrongly, and say when the weights can exceed 1."""
     if ao == "vertices" and "ao" in scene.point_data:
         values = np.asarray(scene.point_data["ao"], dtype=np.float64)
@@ -166,7 +182,7 @@ def _check_inputs(scene, ao: str, ambient: float, diffuse: float, specular: np.n
                              f"[{values[used].min():.4g}, {values[used].max():.4g}]")
     lit = sum(light.intensity for light in lights)
     brightest = ambient + lit * (diffuse + float(np.max(specular, initial=0.0)))
-    if explicit and brightest > 1 + 1e-9:
+    if brightest > 1 + 1e-9:
         import warnings
 
         warnings.warn(
@@ -234,6 +250,7 @@ def render(
     normals: Literal["smooth", "flat"] = "smooth",
     backend: Literal["auto", "opencl", "numpy"] = "auto",
     progress: bool | None = None,
+    max_rays: float | None = None,
 ) -> RenderResult:
     """Render 4D meshes into a 3D image volume (one primary ray per voxel).
 
@@ -257,15 +274,15 @@ def render(
     seed : int
         AO random seed (results are deterministic).
     ambient : float, optional
-        Weight of the ambient term ``1 - A`` (default 1). Shade stays in [0, 1] when ``ambient +
-        (sum of light intensities) * (diffuse + specular)`` is at most 1; explicit weights above
-        that give a warning.
+        Weight of the ambient term ``1 - A`` (default 1 without a light, 0.7 with lights). Shade
+        stays in [0, 1] when ``ambient + (sum of light intensities) * (diffuse + specular)`` is
+        at most 1; weights above that give a :class:`ShadeRangeWarning`.
     light : (4,) array_like, Light, or sequence of Light, optional
         A 4-vector is the direction *towards* one white directional light of intensity 1 (as
         always); :class:`ao4d.Light` gives directional or point lights with colour and
         intensity, several in a list.
     diffuse : float, optional
-        Weight of the Lambert term (default 0.5; no effect without a light).
+        Weight of the Lambert term (default 0.3; no effect without a light).
     specular : float or (n_objects,) array_like
         Weight of the 4D Blinn-Phong term, for all objects or one per object id (>= 0).
     shininess : float or (n_objects,) array_like
@@ -295,7 +312,12 @@ def render(
         Resolved once (:func:`ao4d.cl.resolve_backend`); primary, layer and shadow rays
         (:func:`ao4d.raycast.cast_rays`) and AO (:func:`ao4d.ambient_occlusion`) all run on it.
     progress : bool, optional
-        tqdm progress bars; default on for images of 2^18 voxels or more.
+        Progress bars (:mod:`ao4d._progress`: silenced by ``--no-progress``); default on for
+        images of 2^18 voxels or more.
+    max_rays : float, optional
+        Refuse, before any work, a render whose rays (primary, AO, shadow and layer rays, an
+        upper bound) exceed this; default :data:`ao4d.raycast.MAX_RAYS` of the backend
+        (about half an hour of work), ``math.inf`` for no limit (CLI: ``--force``).
 
     Returns
     -------
@@ -329,10 +351,8 @@ def render(
     check_choice(backend, "backend", cl.BACKENDS)
     samples = check_positive_int(samples, "samples")
     seed = check_int(seed, "seed")
-    explicit = ambient is not None or diffuse is not None  # the defaults predate the [0, 1] promise
-    ambient = 1.0 if ambient is None else as_real(ambient, "ambient", ge=0)
     lights = as_lights(light, "light")
-    diffuse = 0.5 if diffuse is None else as_real(diffuse, "diffuse", ge=0)
+    ambient, diffuse = default_weights(ambient, diffuse, bool(lights))
     shadows = check_bool(shadows, "shadows")
     cue = check_depth_cue(depth_cue)
     layers = check_positive_int(layers, "layers")
@@ -349,11 +369,15 @@ def render(
         specular=_per_object(specular, "specular", n_objects, 0.0, unit=False),
         shininess=_per_object(shininess, "shininess", n_objects, 32.0, unit=False, positive=True),
     )
-    _check_inputs(scene, ao, ambient, diffuse, material.specular, lights, explicit)
+    _check_inputs(scene, ao, ambient, diffuse, material.specular, lights)
     show = n_rays >= _PROGRESS_VOXELS if progress is None else bool(progress)
     runtime = cl.resolve_backend(backend)
     backend = cl.backend_name(runtime)  # what runs: every stage on the same device
-    if ao != "none":
+    _check_budget(scene, n_rays, ao=ao, samples=samples, lights=lights, shadows=shadows,
+                  layers=1 if material.opaque else layers, backend=backend, max_rays=max_rays)
+    if ao == "hits" or (ao == "vertices" and "ao" not in scene.point_data):
+        # only AO computed here: stored AO was computed (and warned about) where it was made,
+        # and the check costs a pass over every simplex
         warn_if_inside_out(scene, "AO is 1 on its surface and the image dark")
     info: dict[str, Any] = {"primary_rays": n_rays, "layer_rays": 0, "shadow_rays": 0,
                             "ao_rays": 0, "primary_seconds": 0.0, "layer_seconds": 0.0,
@@ -440,6 +464,8 @@ def _per_object(value, name: str, n_objects: int, default, *, unit: bool,
     width = np.size(default)
     if value is None:
         value = default
+    if np.asarray(value).dtype == bool:  # True would silently be 1
+        raise TypeError(f"`{name}` must be a number (or one per object), got {value!r}")
     arr = as_array(value, name, ndim=(0, 1) if width == 1 else (1, 2), dtype=np.float64,
                    finite=True)
     if arr.ndim == (0 if width == 1 else 1):
@@ -562,7 +588,8 @@ class _Shading:
                 start = time.perf_counter()
                 values = ambient_occlusion(scene, samples=self.samples,
                                            max_distance=self.max_distance, at="vertices",
-                                           seed=self.seed, backend=self.backend)
+                                           seed=self.seed, backend=self.backend,
+                                           max_rays=math.inf)  # render checked its budget
                 self.info["ao_seconds"] += time.perf_counter() - start
                 self.info["ao_rays"] += scene.n_vertices * self.samples
             else:
@@ -674,16 +701,30 @@ def _composite_rays(shading: _Shading, origins, directions, rows, t, simplex, fi
     return out
 
 
+def _check_budget(scene, n_voxels: int, *, ao: str, samples: int, lights, shadows: bool,
+                  layers: int, backend: str, max_rays) -> None:
+    """Refuse a render whose rays would exceed ``max_rays``, before any of them is cast.
+
+    An upper bound: every voxel's ray hits ``layers`` surfaces, each with AO at the hit
+    (``ao="hits"``) and a shadow ray per light (transparent scenes: ``layers`` per light).
+    """
+    per_hit = (samples if ao == "hits" else 0) + (len(lights) * layers if shadows else 0)
+    ao_vertices = scene.n_vertices * samples if ao == "vertices" and "ao" not in scene.point_data else 0
+    total = n_voxels * layers * (1 + per_hit) + ao_vertices
+    check_rays(total, backend, max_rays,
+               what=f"rendering {n_voxels:,} voxels with ao={ao!r}, `samples`={samples}",
+               hint="use fewer `samples` or a smaller `shape`, or pass max_rays=math.inf "
+                    "(CLI: --force)")
+
+
 def _cast_chunked(scene, origins, directions, backend, show, desc, *, closest=True,
                   max_distance=math.inf):
     """Hits of many rays, in chunks (progress bar over rays)."""
-    from tqdm.auto import tqdm
-
     n = len(origins)
     t = np.full(n, np.inf)
     simplex = np.full(n, -1, dtype=np.int64)
     bary = np.zeros((n, 4))
-    with tqdm(total=n, desc=desc, unit="ray", disable=not show, leave=False) as bar:
+    with _progress.bar(n, desc, unit="ray", show=show, unit_scale=True) as bar:
         for start in range(0, n, _CHUNK):
             stop = min(start + _CHUNK, n)
             hits = cast_rays(scene, origins[start:stop], directions[start:stop],
@@ -704,7 +745,8 @@ def _hit_occlusion(scene, points, normals, *, samples, seed, max_distance, backe
     """AO at every hit point, hemisphere around the normal that faces the viewer."""
     start = time.perf_counter()
     values = ambient_occlusion(scene, samples=samples, max_distance=max_distance, points=points,
-                               normals=normals, seed=seed, backend=backend, progress=show)
+                               normals=normals, seed=seed, backend=backend, progress=show,
+                               max_rays=math.inf)  # render checked its budget before any ray
     info["ao_seconds"] += time.perf_counter() - start
     info["ao_rays"] += len(points) * samples
     return np.asarray(values, dtype=np.float64)

@@ -26,6 +26,12 @@ Scene frame
     ``R = R_zw(zw) R_yw(yw) R_yz(yz) R_xw(xw) R_xz(xz) R_xy(xy)`` (``xy`` applied first).
     ``R_ab(t)`` turns axis a towards axis b by t degrees: ``e_a -> cos t e_a + sin t e_b``,
     ``e_b -> -sin t e_a + cos t e_b`` (:func:`rotation`). 3D meshes are only moved by ``offset``.
+Page coordinates
+    The page works relative to ``c``: it receives float32 of ``x + offset - c``, formed in
+    float64 here (:func:`_centred`), turns them by ``R``, and cuts at ``w - c_w`` (formed in
+    JavaScript's doubles); its camera targets the origin. A scene far from the origin (scanner
+    millimetres, a time axis with an offset) therefore keeps float32's precision relative to
+    its radius, as one at the origin does.
 Hyperplane
     ``x'_w = w`` (w in scene units); a slice point's 3D position is ``(x'_x, x'_y, x'_z)``
     (:func:`slice_for_state` reproduces the page's slice with :meth:`SimplexMesh.slice`).
@@ -77,7 +83,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ._atomic import atomic_open
+from ._atomic import atomic_open, check_output_file
 from ._validate import as_array, as_real, check_bool, check_choice
 from .slicing import SLICE_CASES
 
@@ -197,6 +203,10 @@ def full_state(state: Mapping[str, Any] | None = None, *, frame: Frame | None = 
         Angles wrapped into (-180, 180], ``el`` clamped to [-90, 90], ``light`` an int,
         ``hide`` a sorted tuple of ints.
     """
+    if state is not None and not isinstance(state, Mapping):
+        example = " (a URL fragment such as 'w=0.3' goes after the page's #)" if isinstance(state, str) else ""
+        raise TypeError(f"`state` must be a mapping such as {{'w': 0.3, 'xw': 90}}, got "
+                        f"{type(state).__name__} {state!r}{example}")
     given = {} if state is None else dict(state)
     unknown = sorted(set(given) - set(DEFAULT_STATE))
     if unknown:
@@ -461,54 +471,73 @@ def _page_triangles(mesh: Any, state: Mapping[str, Any] | None, *, frame: Frame,
 
 def _chunk_order(vertices: np.ndarray, simplices: np.ndarray, size: int = CHUNK
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Tetrahedra in k-d tree order of their centroids, and a bounding ball per chunk.
+    """Tetrahedra in Morton (Z-curve) order of their centroids, and a bounding ball per chunk.
 
-    Median splits along the widest axis, each left part a whole number of chunks, so chunk
-    ``k`` = ``order[k*size:(k+1)*size]`` is a compact leaf. Returns ``order`` (S,) (the page
-    stores ``simplices[order]``) and ``balls`` (C, 5) float64: centre (4,) and radius of the
-    vertices of each chunk. A chunk the hyperplane misses (``|R[3] . centre + T_w - w| >
-    radius``, see :func:`_active_chunks`) holds no cut tetrahedron, so the page skips it.
+    One sort of 64-bit Morton codes (16 bits per axis of R^4) puts tetrahedra that lie
+    close together next to each other, so chunk ``k`` = ``order[k*size:(k+1)*size]`` is compact.
+    Returns ``order`` (S,) (the page stores ``simplices[order]``) and ``balls`` (C, 5) float64:
+    centre (4,) and radius of the vertices of each chunk. A chunk the hyperplane misses
+    (``|R[3] . centre - (w - c_w)| > radius``, see :func:`_active_chunks`) holds no cut
+    tetrahedron, so the page skips it.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     simplices = np.asarray(simplices)
-    n = len(simplices)
-    centroids = vertices[simplices].mean(axis=1)
-    order = np.arange(n)
-    stack = [(0, n)]
-    while stack:
-        a, b = stack.pop()
-        if b - a <= size:
-            continue
-        idx = order[a:b]
-        sample = centroids[idx[::max(1, (b - a) // 2048)]]  # the widest axis, from a sample
-        axis = int(np.argmax(sample.max(axis=0) - sample.min(axis=0)))
-        k = (-(-(b - a) // size) // 2) * size
-        order[a:b] = idx[np.argpartition(centroids[idx, axis], k)]
-        stack += [(a, a + k), (a + k, b)]
+    n = simplices.shape[0]
+    centroids = sum(vertices[simplices[:, k]] for k in range(4)) / 4.0
+    order = np.argsort(_morton(centroids), kind="stable")
     n_chunks = -(-n // size)
+    starts = np.arange(0, n, size)
+    ordered = simplices[order]
+    corners = [vertices[ordered[:, k]] for k in range(4)]  # (S, 4) each, in chunk order
+    lo = np.minimum(np.minimum(corners[0], corners[1]), np.minimum(corners[2], corners[3]))
+    hi = np.maximum(np.maximum(corners[0], corners[1]), np.maximum(corners[2], corners[3]))
+    lo, hi = np.minimum.reduceat(lo, starts), np.maximum.reduceat(hi, starts)
+    centre = 0.5 * (lo + hi)
+    at_centre = np.repeat(centre, size, axis=0)[:n]
+    far = np.zeros(n)
+    for c in corners:
+        far = np.maximum(far, np.einsum("ij,ij->i", c - at_centre, c - at_centre))
     balls = np.empty((n_chunks, 5))
-    block = size * max(1, 262144 // size)  # tetrahedra per vectorised block, whole chunks
-    for a in range(0, n, block):
-        pts = vertices[simplices[order[a:a + block]]]  # (B, 4, d)
-        starts = np.arange(0, len(pts), size)
-        lo = np.minimum.reduceat(pts.min(axis=1), starts)
-        hi = np.maximum.reduceat(pts.max(axis=1), starts)
-        centre = 0.5 * (lo + hi)
-        chunk = np.arange(len(pts)) // size
-        far = np.linalg.norm(pts - centre[chunk][:, None], axis=2).max(axis=1)
-        k = a // size
-        balls[k:k + len(starts), :4] = centre
-        balls[k:k + len(starts), 4] = np.maximum.reduceat(far, starts)
+    balls[:, :4] = centre
+    balls[:, 4] = np.sqrt(np.maximum.reduceat(far, starts)) * (1.0 + 1e-12)  # rounded up
     return order, balls
 
 
-def _active_chunks(balls: np.ndarray, state: Mapping[str, Any] | None, *, frame: Frame,
-                   offset: Any = None) -> np.ndarray:
-    """numpy mirror of the page's culling: which chunks the hyperplane may cut (C,) bool."""
+# spread 16 bits to every 4th bit of 64 ("part 1 by 3"): (shift, mask) per step
+_SPREAD4 = ((24, 0x000000FF000000FF), (12, 0x000F000F000F000F), (6, 0x0303030303030303),
+            (3, 0x1111111111111111))
+
+
+def _morton(points: np.ndarray) -> np.ndarray:
+    """(N,) uint64 Morton codes of (N, 4) points quantised to 16 bits over their bounding box."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    scale = 65535.0 / np.where(hi > lo, hi - lo, 1.0)
+    code = np.zeros(len(points), dtype=np.uint64)
+    for k in range(4):
+        x = ((points[:, k] - lo[k]) * scale[k]).astype(np.uint64)
+        for shift, mask in _SPREAD4:
+            x = (x | (x << np.uint64(shift))) & np.uint64(mask)
+        code |= x << np.uint64(k)
+    return code
+
+
+def _centred(vertices: Any, frame: Frame, offset: Any = None) -> np.ndarray:
+    """Page coordinates ``x + offset - c`` of an object's vertices, in float64 (the page gets
+    them as float32: small numbers, whatever the scene's distance from the origin)."""
+    x = np.asarray(vertices, dtype=np.float64)
+    o = np.zeros(x.shape[1]) if offset is None else np.asarray(offset, dtype=np.float64)
+    return x + (o - frame.center)
+
+
+def _active_chunks(balls: np.ndarray, state: Mapping[str, Any] | None, *, frame: Frame) -> np.ndarray:
+    """numpy mirror of the page's culling: which chunks the hyperplane may cut (C,) bool.
+
+    ``balls`` are in page coordinates (:func:`_chunk_order` of :func:`_centred` vertices).
+    """
     st = full_state(state, frame=frame)
-    centre_w = transform(balls[:, :4], st, frame=frame, offset=offset)[:, 3]
-    slack = 1e-6 * (frame.radius + float(np.abs(frame.center).max()))  # the page's float32 slack
-    return np.abs(centre_w - st["w"]) <= balls[:, 4] + slack
+    centre_w = balls[:, :4] @ rotation(st)[3]
+    slack = 1e-6 * frame.radius  # the page's float32 round-off, relative to the scene's size
+    return np.abs(centre_w - (st["w"] - frame.center[3])) <= balls[:, 4] + slack
 
 
 def split_objects(mesh: Any, *, key: str = "object_id") -> list[SimplexMesh]:
@@ -605,38 +634,36 @@ def _facing(vertices: np.ndarray, simplices: np.ndarray) -> str:
     (then every slice is closed and consistently oriented too) and the mesh faces outward
     (the DESIGN.md normal): then the visible side of each triangle is its front (counter-
     clockwise on screen). A closed mesh facing inward culls front faces; anything else culls
-    nothing. About 2 s per million tetrahedra on two cores.
+    nothing. One sort of packed face keys that carry the induced orientation in their lowest
+    bit: a closed, consistently oriented mesh sorts into pairs ``(2 f, 2 f + 1)``, one pair per
+    face ``f``.
     """
+    from .geometry import simplex_normals
+
     d = simplices.shape[1]
-    faces, signs = [], []
-    for i in range(d):
-        face = np.delete(simplices, i, axis=1)
-        order = np.argsort(face, axis=1, kind="stable")
-        inversions = sum((order[:, a] > order[:, b]).astype(np.int8)
-                         for a in range(d - 1) for b in range(a + 1, d - 1))
-        faces.append(np.take_along_axis(face, order, axis=1))
-        signs.append(np.where((inversions + i) % 2 == 0, 1, -1).astype(np.int8))
-    faces, signs = np.concatenate(faces).astype(np.int64), np.concatenate(signs)
     n = int(simplices.max()) + 1
-    if float(n) ** (d - 1) < 2.0**62:
-        key = np.zeros(len(faces), dtype=np.int64)
-        for k in range(d - 1):
-            key = key * n + faces[:, k]
-        idx = np.argsort(key, kind="stable")
-        key = key[idx]
-        same_next = key[1:] == key[:-1]
-    else:  # pragma: no cover - more than 2 million vertices in 4D
-        idx = np.lexsort(faces.T[::-1])
-        sorted_faces = faces[idx]
-        same_next = (sorted_faces[1:] == sorted_faces[:-1]).all(axis=1)
-    if len(idx) % 2 or not same_next[0::2].all() or same_next[1::2].any():
-        return "none"  # a face not shared by exactly two simplices: open or non-manifold
-    s = signs[idx]
-    if (s[0::2] + s[1::2]).any():
-        return "none"  # inconsistent orientation
-    p = vertices[simplices]
-    rows = np.concatenate([p[:, 1:] - p[:, :1], (p[:, 0] - vertices.mean(axis=0))[:, None]], axis=1)
-    volume = float(np.linalg.det(rows).sum())
+    if 2.0 * float(n) ** (d - 1) >= 2.0**63:  # pragma: no cover - over 1.3 million vertices in 4D
+        return "none"
+    keys = []
+    for i in range(d):
+        cols = [simplices[:, k].astype(np.int64) for k in range(d) if k != i]
+        odd = np.full(len(simplices), i % 2 == 1)  # dropping vertex i: sign (-1)^i ...
+        for a, b in ((0, 1), (1, 2), (0, 1))[:3 if d == 4 else 1]:  # ... times the sort's parity
+            swap = cols[a] > cols[b]
+            cols[a], cols[b] = np.minimum(cols[a], cols[b]), np.maximum(cols[a], cols[b])
+            odd ^= swap
+        key = cols[0]
+        for c in cols[1:]:
+            key = key * n + c
+        keys.append(2 * key + odd)
+    key = np.sort(np.concatenate(keys))
+    first, second = key[0::2], key[1::2]
+    if len(key) % 2 or not ((first & 1) == 0).all() or not (second == first + 1).all():
+        return "none"  # a face not in one pair of opposite orientations: open, or inconsistent
+    if (first[1:] == first[:-1]).any():
+        return "none"  # a face shared by four or more simplices: not a manifold
+    normals = simplex_normals(vertices, simplices)
+    volume = float(np.einsum("ij,ij->", normals, vertices[simplices[:, 0]] - vertices.mean(axis=0)))
     return "back" if volume > 0 else "front" if volume < 0 else "none"
 
 
@@ -738,8 +765,8 @@ def _build(meshes: Any, *, names, state, center, offsets, colors, cmap, title, c
     objects = []
     pb = bar(3 * len(items), "ao4d view: preparing the page", unit="step", show=show)
     for i, ((mesh, label), ao) in enumerate(zip(items, aos)):
-        vertices, simplices = np.asarray(mesh.vertices), np.asarray(mesh.simplices)
-        facing = _facing(np.asarray(vertices, dtype=np.float64), simplices) if cull == "auto" else cull
+        vertices, simplices = _centred(mesh.vertices, frame, offs[i]), np.asarray(mesh.simplices)
+        facing = _facing(vertices, simplices) if cull == "auto" else cull
         pb.update(1)
         chunks = None
         if d == 4:
@@ -821,7 +848,7 @@ def view(
         All 4D (sliced by the hyperplane) or all 3D (plain orbit view). ``point_data["ao"]``
         (V,) in [0, 1], if present, colours them.
     path : path-like
-        The HTML file (written atomically).
+        The HTML file, ending in .html or .htm (written atomically; checked before any work).
     names : sequence of str, optional
         One label per mesh (default: file stems, or "mesh i").
     state : mapping, optional
@@ -860,6 +887,7 @@ def view(
     """
     if isinstance(max_bytes, bool) or not isinstance(max_bytes, (int, np.integer)) or max_bytes < 1:
         raise ValueError(f"`max_bytes` must be a positive integer, got {max_bytes!r}")
+    target = check_output_file(path, "path", (".html", ".htm"))  # before any work, as the CLI
     items = _as_meshes(meshes, names)
     raw = sum(m.n_vertices * m.dim * 4 + m.n_simplices * m.dim * 4 + m.n_vertices * 4
               for m, _ in items)
@@ -878,7 +906,6 @@ def view(
     size += sum(_b64_size(len(b.data)) + 80 for b in blobs)
     if size > max_bytes:
         raise ValueError(f"the page would be {size / 1e6:.0f} MB, {limit_text}")
-    target = Path(path)
     with atomic_open(target, "w", encoding="utf-8", newline="\n") as fh:
         fh.write(head)
         fh.write(scene_text)
@@ -917,7 +944,12 @@ class ViewServer:
             def log_message(self, format: str, *args: Any) -> None:
                 pass
 
-        self._httpd = http.server.ThreadingHTTPServer((host, port), Handler)
+        try:
+            self._httpd = http.server.ThreadingHTTPServer((host, port), Handler)
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot serve on {host} port {port}: {exc.strerror}"
+                          + ("; pick another `port` (--port) or 0 for any free one" if port else "")
+                          ) from None
         self._httpd.daemon_threads = True
         self.host, self.port = host, int(self._httpd.server_address[1])
         self.url = f"http://{host}:{self.port}/"

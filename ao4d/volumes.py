@@ -8,31 +8,38 @@ Volumes follow the grid convention of DESIGN.md: ``data[i, j, k]`` is the voxel 
   x-fastest (Fortran) order, little-endian. ITK, VTK, ParaView, 3D Slicer and Fiji therefore see
   voxel ``(i, j, k)`` at the same place as numpy does; the tests read our files back with VTK's
   own ``vtkMetaImageReader`` to prove it.
-* VTK ImageData (``.vti``, written by pyvista/VTK), which can hold several named arrays
-  (shade, depth, object id, AO) in one file.
+* VTK ImageData (``.vti``, VTK's XML format written by hand: one appended binary block, each
+  array zlib-compressed once at level 1 in VTK's blocked layout), which can hold several
+  named arrays (shade, depth, object id, AO) in one file; VTK's ``vtkXMLImageDataReader``
+  reads it back in the tests.
 
-Every write goes through :func:`ao4d._atomic.atomic_path`.
+Every write goes through :mod:`ao4d._atomic`; the ``.mhd`` header and its ``.raw`` are
+written as one set (:func:`ao4d._atomic.all_or_nothing`).
 
 References
 ----------
 MetaIO file format: https://itk.org/Wiki/ITK/MetaIO/Documentation
+VTK file formats (XML ImageData, appended data, compressed blocks):
+https://docs.vtk.org/en/latest/design_documents/VTKFileFormats.html
 """
 
 from __future__ import annotations
 
 import math
 import os
+import zlib
 from collections.abc import Mapping
+from xml.sax.saxutils import quoteattr
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ._atomic import atomic_open, atomic_path
+from ._atomic import all_or_nothing, atomic_open, atomic_path
 from ._validate import as_array, as_vector, check_choice
 
 __all__ = ["Volume", "write_mhd", "read_mhd", "write_vti", "read_vti", "write_volume", "read_volume",
-           "volume_array", "pyvista_offscreen"]
+           "volume_array", "pyvista_offscreen", "check_mhd_path"]
 
 # numpy dtype -> MetaImage ElementType (the types both ITK and VTK's reader understand)
 _MET_TYPES = {
@@ -109,9 +116,7 @@ def write_mhd(path: str | os.PathLike, data, *, spacing=1.0, origin=0.0) -> Path
     >>> float(read_mhd(p).data[1, 2, 3])
     23.0
     """
-    path = Path(path)
-    if path.suffix.lower() != ".mhd":
-        raise ValueError(f"`path` must end in .mhd, got {path.name!r}")
+    path = check_mhd_path(path)
     arr = volume_array(data)
     if arr.dtype not in _MET_TYPES:
         kinds = ", ".join(str(d) for d in _MET_TYPES)
@@ -138,11 +143,30 @@ def write_mhd(path: str | os.PathLike, data, *, spacing=1.0, origin=0.0) -> Path
             "",
         ]
     )
-    # data first: a reader never finds a new header pointing at an old or missing .raw
-    with atomic_open(raw, "wb") as fh:
-        fh.write(np.asfortranarray(little).tobytes(order="F"))  # x varies fastest
-    with atomic_open(path, "w", encoding="ascii") as fh:
-        fh.write(header)
+    # data first: a reader never finds a new header pointing at an old or missing .raw; as one
+    # set, so a failing header puts the old .raw back
+    with all_or_nothing([raw, path]):
+        with atomic_open(raw, "wb") as fh:
+            fh.write(np.asfortranarray(little).tobytes(order="F"))  # x varies fastest
+        with atomic_open(path, "w", encoding="ascii") as fh:
+            fh.write(header)
+    return path
+
+
+def check_mhd_path(path: str | os.PathLike, name: str = "path") -> Path:
+    """``path`` as a Path if it can name a MetaImage header, else a ``ValueError`` naming ``name``.
+
+    The header must end in ``.mhd``, and the data file it names (the same name with ``.raw``)
+    must be ASCII: MetaIO headers are ASCII text, and ITK and VTK read the name as bytes. Checked
+    before any work, so no file is written for a name the header cannot hold.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".mhd":
+        raise ValueError(f"`{name}` must end in .mhd, got {path.name!r}")
+    raw = path.with_suffix(".raw").name
+    if not raw.isascii() or any(c in raw for c in "\r\n"):
+        raise ValueError(f"`{name}` {path.name!r}: a MetaImage header names its data file in ASCII, "
+                         f"and {raw!r} is not; use an ASCII file name (or .vti)")
     return path
 
 
@@ -208,7 +232,10 @@ def pyvista_offscreen():
 
 
 def write_vti(path: str | os.PathLike, arrays, *, spacing=1.0, origin=0.0) -> Path:
-    """Write one or more 3D arrays on the same grid as VTK ImageData (``.vti``, via pyvista).
+    """Write one or more 3D arrays on the same grid as VTK ImageData (``.vti``).
+
+    VTK's XML format with the arrays appended in binary, each compressed once with zlib at
+    level 1 (VTK's blocked layout, so VTK, ParaView and pyvista read it); no VTK import.
 
     Parameters
     ----------
@@ -223,6 +250,13 @@ def write_vti(path: str | os.PathLike, arrays, *, spacing=1.0, origin=0.0) -> Pa
     Returns
     -------
     Path
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> p = write_vti(pathlib.Path(tempfile.mkdtemp()) / "v.vti", {"a": np.ones((2, 3, 4))})
+    >>> read_vti(p).data.shape
+    (2, 3, 4)
     """
     path = Path(path)
     if path.suffix.lower() != ".vti":
@@ -236,15 +270,67 @@ def write_vti(path: str | os.PathLike, arrays, *, spacing=1.0, origin=0.0) -> Pa
         raise ValueError(f"`arrays` must all have the same shape, got {sorted(shapes)}")
     spacing3 = tuple(as_vector(spacing, "spacing", 3, positive=True))
     origin3 = tuple(as_vector(origin, "origin", 3))
-    pv = pyvista_offscreen()
-    grid = pv.ImageData(dimensions=shapes.pop(), spacing=spacing3, origin=origin3)
+    shape = shapes.pop()
+    extent = " ".join(f"0 {n - 1}" for n in shape)
+    fmt = lambda xs: " ".join(repr(float(x)) for x in xs)  # noqa: E731 - full precision
+    entries, blocks, offset = [], [], 0
     for name, arr in checked.items():
-        # VTK point ids run x-fastest; components stay together per point
-        grid.point_data[name] = arr.reshape((-1,) + arr.shape[3:], order="F")
-    grid.set_active_scalars(next(iter(checked)))
-    with atomic_path(path) as tmp:
-        grid.save(tmp, binary=True)
+        vtk_type = _VTK_TYPES.get(arr.dtype)
+        if vtk_type is None:
+            raise TypeError(f"`arrays[{name!r}]` dtype {arr.dtype} has no VTK type")
+        components = arr.shape[3] if arr.ndim == 4 else 1
+        block = _vtk_compressed(_vtk_point_bytes(arr))
+        entries.append(f'        <DataArray type="{vtk_type}" Name={quoteattr(name)} '
+                       f'NumberOfComponents="{components}" format="appended" offset="{offset}"/>')
+        blocks.append(block)
+        offset += len(block)
+    head = "\n".join([
+        '<?xml version="1.0"?>',
+        '<VTKFile type="ImageData" version="1.0" byte_order="LittleEndian" header_type="UInt64" '
+        'compressor="vtkZLibDataCompressor">',
+        f'  <ImageData WholeExtent="{extent}" Origin="{fmt(origin3)}" Spacing="{fmt(spacing3)}" '
+        'Direction="1 0 0 0 1 0 0 0 1">',
+        f'    <Piece Extent="{extent}">',
+        f'      <PointData Scalars={quoteattr(next(iter(checked)))}>',
+        *entries,
+        "      </PointData>",
+        "      <CellData>",
+        "      </CellData>",
+        "    </Piece>",
+        "  </ImageData>",
+        '  <AppendedData encoding="raw">',
+        "   _",
+    ]).encode("utf-8")
+    with atomic_open(path, "wb") as fh:
+        fh.write(head)
+        for block in blocks:
+            fh.write(block)
+        fh.write(b"\n  </AppendedData>\n</VTKFile>\n")
     return path
+
+
+# numpy dtype -> VTK XML type name
+_VTK_TYPES = {np.dtype(t): n for t, n in [
+    (np.int8, "Int8"), (np.uint8, "UInt8"), (np.int16, "Int16"), (np.uint16, "UInt16"),
+    (np.int32, "Int32"), (np.uint32, "UInt32"), (np.int64, "Int64"), (np.uint64, "UInt64"),
+    (np.float32, "Float32"), (np.float64, "Float64")]}
+_VTK_BLOCK = 1 << 20  # uncompressed bytes per compressed block
+
+
+def _vtk_point_bytes(arr: np.ndarray) -> bytes:
+    """Little-endian bytes in VTK's point order: x fastest, a point's components together."""
+    little = arr.astype(arr.dtype.newbyteorder("<"), copy=False)
+    return np.ascontiguousarray(little.transpose(2, 1, 0, *range(3, arr.ndim))).tobytes()
+
+
+def _vtk_compressed(raw: bytes) -> bytes:
+    """VTK's compressed-array layout: a UInt64 header (blocks, block size, size of a partial
+    last block or 0, each block's compressed size), then the zlib blocks (level 1)."""
+    view = memoryview(raw)
+    chunks = [zlib.compress(view[i:i + _VTK_BLOCK], 1) for i in range(0, len(raw), _VTK_BLOCK)]
+    header = np.array([len(chunks), _VTK_BLOCK, len(raw) % _VTK_BLOCK]
+                      + [len(c) for c in chunks], dtype="<u8")
+    return header.tobytes() + b"".join(chunks)
 
 
 def _components(data, name: str) -> np.ndarray:

@@ -35,3 +35,70 @@ def test_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("ao4d ao: error: ") and "does not exist" in err
     assert err.count("\n") == 1 and "Traceback" not in err
+
+
+# -- progress -----------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def ball_file(tmp_path_factory):
+    import ao4d
+
+    path = tmp_path_factory.mktemp("cli") / "ball.npz"
+    ao4d.extract_field(ao4d.fields.hypersphere(1.0), (10,) * 4, (-1.3, 1.3)).save(path)
+    return path
+
+
+def _argv(name, ball, out):
+    """A quick run of every command, each doing the kind of work that shows progress."""
+    return {
+        "demo": ["demo", "--tiny", "--out", str(out / "demo")],
+        "info": ["info"],
+        "lut": ["lut", "stats", "--dim", "3"],
+        "extract": ["extract", "--shape", "hypersphere", "--grid", "8", "--out", str(out / "e.npz")],
+        "ao": ["ao", str(ball), "--out", str(out / "a.npz"), "--samples", "4", "--backend", "numpy"],
+        "render": ["render", str(ball), "--out", str(out / "r.vti"), "--size", "8", "--ao", "hits",
+                   "--samples", "4", "--light", "0", "0", "0", "-1", "--shadows", "--backend", "numpy"],
+        "slice": ["slice", str(ball), "--w", "0", "--out", str(out / "s.ply")],
+        "view": ["view", str(ball), "--out", str(out / "v.html")],
+    }[name]
+
+
+@pytest.fixture
+def eager_progress(monkeypatch):
+    """Every piece of work shows progress, and log lines come at once; direct tqdm bars are caught."""
+    import tqdm
+    import tqdm.auto
+
+    from ao4d import _progress, rendering
+
+    monkeypatch.setattr(_progress, "LOG_INTERVAL", 0.0)
+    monkeypatch.setattr(rendering, "_PROGRESS_VOXELS", 1)
+    direct = []
+
+    class Caught(tqdm.tqdm):
+        def __init__(self, *args, **kwargs):
+            if not kwargs.get("disable") and kwargs.get("file") is None:
+                direct.append(kwargs.get("desc"))  # a bar not made by _progress
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(tqdm.auto, "tqdm", Caught)
+    monkeypatch.setattr(tqdm, "tqdm", Caught)
+    yield direct
+    _progress.set_enabled(True)
+
+
+@pytest.mark.parametrize("name", cli.COMMANDS)
+def test_every_command_is_silent_with_no_progress_and_logs_plain_lines(name, ball_file, tmp_path,
+                                                                      capsys, eager_progress):
+    # before: render (and the demo's render) wrote tqdm bars ("primary rays", "shadow rays")
+    # with carriage returns through --no-progress, because rendering called tqdm directly
+    argv = _argv(name, ball_file, tmp_path / "quiet")
+    assert cli.main(argv[:1] + ["--no-progress"] + argv[1:]) == 0
+    err = capsys.readouterr().err
+    assert err == "" and not eager_progress, (err, eager_progress)
+    assert cli.main(_argv(name, ball_file, tmp_path / "log")) == 0
+    err = capsys.readouterr().err
+    assert "\r" not in err and "\x1b[" not in err and not eager_progress, (err, eager_progress)
+    if name == "render":  # the log gets the ray counts as plain lines
+        assert "primary rays: " in err and "shadow rays: " in err, err

@@ -122,3 +122,28 @@ def test_demo_default_quality(tmp_path):
     assert np.unique(ao).size > 20
     vol = io.read_vti(tmp_path / "image.vti", array="occlusion").data
     assert np.nanmax(vol) > 0.3 and np.nanmin(vol) < 0.05
+
+
+def test_demo_times_every_file_step_and_the_times_add_up(tmp_path, monkeypatch):
+    # the "files" stage is split per step, each measured once: the steps sum to the stage, and a
+    # step made slow shows up under its own name
+    import io as stdio
+    import time
+
+    from ao4d import rendering
+    from ao4d.commands.demo import run_demo
+
+    real = rendering.write_mhd
+
+    def slow_mhd(*args, **kwargs):  # a step that takes ~10 ms, made to take 0.5 s
+        time.sleep(0.5)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(rendering, "write_mhd", slow_mhd)
+    stream = stdio.StringIO()
+    report = run_demo(tmp_path / "d", quality="tiny", progress=False, stream=stream)
+    steps = report.file_seconds
+    assert {"image.vti", "montage", "volume picture", "slice picture", "view.html"} <= set(steps)
+    assert sum(steps.values()) == pytest.approx(report.stage_seconds["files"], abs=0.05)
+    assert steps["image.mhd"] >= 0.5 and steps["image.vti"] < steps["image.mhd"]
+    assert "files stage: " in stream.getvalue() and "image.mhd " in stream.getvalue()

@@ -822,3 +822,108 @@ def test_inside_out_scene_warns():
     mesh, cam = _small_scene()
     with pytest.warns(ao4d.mesh.InsideOutWarning, match="inside out"):
         render(mesh.flipped(), cam, (6, 6, 6), samples=4, backend="numpy")
+
+
+def test_default_weights_with_a_light_stay_in_0_1_and_match_the_cli(tmp_path):
+    import warnings
+
+    from ao4d import cli
+
+    mesh, cam = _small_scene()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # before: defaults 1 + 0.5 gave shade up to 1.5, silently
+        img = render(mesh, cam, (8, 8, 8), ao="none", light=[0, 0, 0, -1], backend="numpy")
+    assert 0.95 < img.shade.max() <= 1.0 + 1e-6  # facing the light: 0.7 + 0.3 cos(angle)
+    # the command line's defaults are the function's: the same .mhd, to the bit
+    mesh.save(tmp_path / "ball.npz")
+    assert cli.main(["render", str(tmp_path / "ball.npz"), "--out", str(tmp_path / "a.mhd"),
+                     "--size", "8", "--ao", "none", "--light", "0", "0", "0", "-1",
+                     "--projection", "orthographic", "--backend", "numpy", "--no-progress"]) == 0
+    ao4d._progress.set_enabled(True)
+    from ao4d.volumes import read_mhd
+
+    seen = read_mhd(tmp_path / "a.mhd").data
+    framed = Camera4D.framing(mesh.bounds, up=[0, 1, 0, 0], over=[0, 0, 1, 0], fov=40.0,
+                              projection="orthographic")  # as the command frames the scene
+    again = render(mesh, framed, (8, 8, 8), ao="none", light=[0, 0, 0, -1], backend="numpy")
+    assert again.hit.any()
+    np.testing.assert_array_equal(seen, again.shade)
+
+
+@pytest.mark.parametrize("option", ["shininess", "specular", "opacity"])
+def test_booleans_are_not_numbers(option):
+    mesh, cam = _small_scene()
+    with pytest.raises(TypeError, match=f"`{option}` must be a number"):  # before: True was 1
+        render(mesh, cam, (4, 4, 4), ao="none", light=[0, 0, 0, -1], backend="numpy",
+               **{option: True})
+
+
+def test_ray_budget_is_checked_before_any_ray_and_can_be_lifted(monkeypatch):
+    from ao4d import raycast
+
+    mesh, cam = _small_scene()
+    cast = []
+    monkeypatch.setattr(ao4d.rendering, "cast_rays",
+                        lambda *a, **k: cast.append(1) or raycast.cast_rays(*a, **k))
+    with pytest.raises(ValueError, match=r"pass max_rays=math.inf \(CLI: --force\)"):
+        render(mesh, cam, (16, 16, 16), ao="hits", samples=200000, backend="numpy")
+    assert not cast  # before: the primary rays ran first, and render had no max_rays
+    monkeypatch.setitem(raycast.MAX_RAYS, "numpy", 100)
+    with pytest.raises(ValueError, match="above the limit"):
+        render(mesh, cam, (8, 8, 8), ao="none", backend="numpy")
+    img = render(mesh, cam, (8, 8, 8), ao="none", backend="numpy", max_rays=math.inf)
+    assert img.hit.any() and cast
+
+
+def test_render_command_force_lifts_the_ray_budget(tmp_path, capsys, monkeypatch):
+    from ao4d import cli, raycast
+
+    mesh, _ = _small_scene()
+    mesh.save(tmp_path / "ball.npz")
+    monkeypatch.setitem(raycast.MAX_RAYS, "numpy", 100)
+    argv = ["render", str(tmp_path / "ball.npz"), "--out", str(tmp_path / "a.vti"), "--size", "6",
+            "--ao", "none", "--backend", "numpy"]
+    assert cli.main(argv) == 2
+    assert "--force" in capsys.readouterr().err and not (tmp_path / "a.vti").exists()
+    assert cli.main(argv + ["--force"]) == 0 and (tmp_path / "a.vti").exists()
+
+
+def test_a_3d_mesh_is_named_as_the_problem(tmp_path, capsys):
+    from ao4d import cli
+
+    values = np.linalg.norm(np.indices((10,) * 3) - 4.5, axis=0) - 3.0
+    mesh3 = ao4d.extract(values)
+    mesh3.save(tmp_path / "m3.npz")
+    code = cli.main(["render", str(tmp_path / "m3.npz"), "--out", str(tmp_path / "a.vti"),
+                     "--size", "4", "--backend", "numpy"])
+    err = capsys.readouterr().err
+    assert code == 2 and "`meshes`: m3.npz is a 3D mesh" in err and "bounds" not in err
+
+
+def test_render_command_refuses_a_non_ascii_mhd_before_rendering(tmp_path, capsys, monkeypatch):
+    from ao4d import cli
+
+    mesh, _ = _small_scene()
+    mesh.save(tmp_path / "ball.npz")
+    (tmp_path / "keep_é.raw").write_bytes(b"old")
+    rendered = []
+    monkeypatch.setattr("ao4d.rendering.render", lambda *a, **k: rendered.append(1))
+    code = cli.main(["render", str(tmp_path / "ball.npz"), "--out", str(tmp_path / "keep_é.mhd"),
+                     "--size", "4", "--backend", "numpy"])
+    assert code == 2 and "ASCII" in capsys.readouterr().err and not rendered
+    assert (tmp_path / "keep_é.raw").read_bytes() == b"old"
+    assert not (tmp_path / "keep_é.mhd").exists()
+
+
+def test_stored_ao_skips_the_inside_out_check(monkeypatch):
+    # the check measures the enclosed volume (a pass over every simplex, 0.4 s at 600k
+    # tetrahedra): render pays it only when it computes AO itself
+    mesh, cam = _small_scene()
+    flipped = mesh.flipped()
+    flipped.point_data["ao"] = np.zeros(flipped.n_vertices)  # AO from elsewhere, checked there
+    calls = []
+    monkeypatch.setattr(ao4d.rendering, "warn_if_inside_out", lambda *a, **k: calls.append(1))
+    img = render(flipped, cam, (6, 6, 6), ao="vertices", backend="numpy")
+    assert img.hit.any() and not calls
+    render(mesh, cam, (6, 6, 6), ao="hits", samples=4, backend="numpy")
+    assert calls == [1]

@@ -184,9 +184,10 @@ def test_cut_table_orientation_and_ao_match_slice(sphere):
 def test_chunk_culling_never_drops_a_cut_tetrahedron(sphere, angles, w):
     state = dict(zip(viewer.ANGLES, angles), w=w)
     frame = viewer.scene_frame(sphere)
-    order, balls = viewer._chunk_order(sphere.vertices, sphere.simplices)
+    centred = viewer._centred(sphere.vertices, frame)  # the page's coordinates
+    order, balls = viewer._chunk_order(centred, sphere.simplices)
     # every chunk's ball holds its vertices
-    v = np.asarray(sphere.vertices)[np.asarray(sphere.simplices)[order]]
+    v = centred[np.asarray(sphere.simplices)[order]]
     k = np.arange(len(order)) // viewer.CHUNK
     assert (np.linalg.norm(v - balls[k, None, :4], axis=2) <= balls[k, 4:5]).all()
     active = viewer._active_chunks(balls, state, frame=frame)
@@ -197,8 +198,9 @@ def test_chunk_culling_never_drops_a_cut_tetrahedron(sphere, angles, w):
 
 
 def test_culling_skips_most_chunks_off_centre(sphere):
-    _, balls = viewer._chunk_order(sphere.vertices, sphere.simplices)
-    active = viewer._active_chunks(balls, {"w": 0.9}, frame=viewer.scene_frame(sphere))
+    frame = viewer.scene_frame(sphere)
+    _, balls = viewer._chunk_order(viewer._centred(sphere.vertices, frame), sphere.simplices)
+    active = viewer._active_chunks(balls, {"w": 0.9}, frame=frame)
     assert active.mean() < 0.5
 
 
@@ -279,12 +281,63 @@ def test_page_is_self_contained_and_holds_the_mesh(tmp_path, sphere, compress):
     assert scene["center"] == frame.center.tolist() and scene["radius"] == frame.radius
     (obj,) = scene["objects"]
     assert obj["has_ao"] and obj["vertices"]["encoding"] == ("deflate" if compress else "raw")
-    assert np.array_equal(blob(obj["vertices"]), np.asarray(sphere.vertices, dtype=np.float32))
+    centred = viewer._centred(sphere.vertices, frame)
+    assert np.array_equal(blob(obj["vertices"]), centred.astype(np.float32))
     assert np.array_equal(blob(obj["ao"]), np.asarray(sphere.point_data["ao"], dtype=np.float32))
-    order, balls = viewer._chunk_order(sphere.vertices, sphere.simplices)
+    order, balls = viewer._chunk_order(centred, sphere.simplices)
     assert np.array_equal(blob(obj["simplices"]), np.asarray(sphere.simplices)[order])
     assert np.array_equal(blob(obj["chunks"]), balls)
     assert list(tmp_path.iterdir()) == [path]  # the atomic write left no temporary file
+
+
+def _shader_cut_float32(scene, blob, state):
+    """numpy mirror of the page's float32 work for one 4D object: each tetrahedron's cut case and
+    its first cut point in scene coordinates (page coordinates + centre, in float64)."""
+    (obj,) = scene["objects"]
+    v32 = blob(obj["vertices"]).astype(np.float32)
+    tets = blob(obj["simplices"]).astype(np.int64)
+    st = viewer.full_state({**scene["state"], **state})
+    rot32 = viewer.rotation(st).astype(np.float32)
+    p = v32 @ rot32.T  # float32, as uRot * vertex in the vertex shader
+    w32 = np.float32(st["w"] - scene["center"][3])  # JavaScript doubles, then the uniform
+    s = p[tets, 3] - w32
+    case = ((s >= 0) * (1 << np.arange(4))).sum(axis=1)
+    cut = (case != 0) & (case != 15)
+    rows = np.arange(len(s))
+    other = np.argmax((s >= 0) != (s[:, :1] >= 0), axis=1)  # an edge from vertex 0 across the cut
+    sa, sb = s[:, 0], s[rows, other]
+    t = sa / np.where(sa != sb, sa - sb, 1)
+    pa, pb = p[tets[:, 0], :3], p[tets[rows, other], :3]
+    point = (pa + t[:, None] * (pb - pa)).astype(np.float64) + np.asarray(scene["center"][:3])
+    return case, point, cut
+
+
+@pytest.mark.parametrize("shift", [1e3, 1e6])
+def test_page_far_from_the_origin_looks_like_the_page_at_it(tmp_path, sphere, shift):
+    # before: the page got absolute float32 vertices (0.06 apart at 1e6) and a float32
+    # translation, so a scene far from the origin cut into noise
+    moved = ao4d.SimplexMesh(np.asarray(sphere.vertices) + shift, sphere.simplices,
+                             point_data={"ao": sphere.point_data["ao"]})
+    state = {"w": 0.3, "xw": 30.0, "yz": 20.0}
+    here = viewer.view(sphere, tmp_path / "here.html", state=state)
+    there = viewer.view(moved, tmp_path / "there.html", state={**state, "w": 0.3 + shift})
+    _, scene_a, blob_a = _scene_of(here)
+    _, scene_b, blob_b = _scene_of(there)
+    np.testing.assert_allclose(scene_b["center"], np.asarray(scene_a["center"]) + shift, rtol=0, atol=1e-9)
+    case_a, point_a, cut_a = _shader_cut_float32(scene_a, blob_a, {})
+    case_b, point_b, cut_b = _shader_cut_float32(scene_b, blob_b, {})
+    assert cut_a.sum() > 1000
+    # float32 of x + shift - c differs from float32 of x - c by float64 round-off at most: the
+    # same cases except for vertices within that of the hyperplane
+    assert (case_a != case_b).mean() < 1e-3
+    both = cut_a & cut_b & (case_a == case_b)
+    err = np.abs(point_b[both] - shift - point_a[both]).max()
+    assert err < 1e-5, err  # float32 at the scene's size (radius 1), not at its distance
+    # the culling mirror, on the page's own chunk balls
+    active = viewer._active_chunks(blob_b(scene_b["objects"][0]["chunks"]), {**state, "w": 0.3 + shift},
+                                   frame=viewer.scene_frame(moved))
+    chunk_of_cut = np.flatnonzero(cut_b) // viewer.CHUNK
+    assert active[chunk_of_cut].all() and active.mean() < 0.9
 
 
 def test_page_size_limit_points_to_serve(tmp_path, sphere):
@@ -372,8 +425,9 @@ def test_serve_gives_page_and_buffers(small_sphere):
         scene = json.loads(re.search(r'id="ao4d-scene">(.*?)</script>', page, re.DOTALL).group(1))
         meta = scene["objects"][0]["vertices"]
         data = urllib.request.urlopen(server.url + meta["url"], timeout=10).read()
+        centred = viewer._centred(small_sphere.vertices, viewer.scene_frame(small_sphere))
         assert np.array_equal(np.frombuffer(zlib.decompress(data), "<f4").reshape(meta["shape"]),
-                              np.asarray(small_sphere.vertices, dtype=np.float32))
+                              centred.astype(np.float32))
         with pytest.raises(urllib.error.HTTPError, match="404"):
             urllib.request.urlopen(server.url + "etc/passwd", timeout=10)
     with pytest.raises(ValueError, match="host"):
@@ -757,3 +811,85 @@ def test_browser_served_page_equals_file_page(browser, small_sphere, tmp_path):
     assert stats["triangles"] == file_stats["triangles"] > 0
     assert np.array_equal(img, file_img)
     assert browser.errors == []
+
+
+# -- far from the origin, fragments ----------------------------------------------------------
+
+
+def test_browser_scene_far_from_the_origin_looks_like_the_one_at_it(browser, sphere, tmp_path):
+    # before: absolute float32 vertices and translation: at 1e6 the cut was noise
+    shift = 1e6
+    moved = ao4d.SimplexMesh(np.asarray(sphere.vertices) + shift, sphere.simplices,
+                             point_data={"ao": sphere.point_data["ao"]})
+    state = {"xw": 30, "yz": 20, "az": 30, "el": 20, "zoom": 1}
+    here = viewer.view(sphere, tmp_path / "here.html").as_uri()
+    there = viewer.view(moved, tmp_path / "there.html").as_uri()
+    stats_a = _open(browser, here, _fragment({"w": 0.3, **state}))
+    img_a = _capture(browser).astype(int)
+    stats_b = _open(browser, there, _fragment({"w": 0.3 + shift, **state}))
+    img_b = _capture(browser).astype(int)
+    assert stats_a["triangles"] > 1000
+    assert abs(stats_b["triangles"] - stats_a["triangles"]) <= 0.001 * stats_a["triangles"]
+    differ = np.abs(img_a - img_b).max(axis=2) > 8
+    assert differ.mean() < 0.002, differ.mean()
+    assert browser.errors == []
+
+
+@pytest.mark.parametrize("fragment", ["#w=%", "#zoom=%E0%A4%A", "#light=banana", "#zoom=abc&xw=",
+                                      "#hide=x"])
+def test_browser_bad_fragment_values_are_ignored_with_a_warning(browser, sphere_page, fragment):
+    # before: "URI malformed" left a blank page, and light=banana turned the light off
+    browser.console.clear()
+    _open(browser, sphere_page, fragment)
+    s = browser.evaluate("window.ao4d.state()")
+    default = viewer.full_state(None, frame=viewer.scene_frame(_ball(1.0)))
+    assert s["light"] == 1 and s["zoom"] == default["zoom"] and s["hide"] == []
+    assert s["w"] == pytest.approx(default["w"], abs=1e-9)
+    assert any(kind == "warning" and "ao4d view: ignoring" in text for kind, text in browser.console)
+    assert browser.errors == []
+
+
+def test_browser_url_holds_the_whole_view(browser, small_sphere, tmp_path):
+    # before: hide was left out when empty and light when 1, and a reload merged the fragment
+    # into the page's initial state: the objects the user showed came back hidden, unlit
+    path = viewer.view([small_sphere, small_sphere], tmp_path / "two.html",
+                       offsets=[[0, 0, 0, 0], [3, 0, 0, 0]], state={"hide": [1], "light": 0})
+    _open(browser, path.as_uri())
+    assert browser.evaluate("window.ao4d.state()")["hide"] == [1]
+    browser.evaluate("window.ao4d.setState({hide: [], light: 1, az: 40})")
+    fragment = browser.wait_for("location.hash.includes('az=40') && location.hash", timeout=5)
+    assert "light=1" in fragment and re.search(r"(^#|&)hide=(&|$)", fragment), fragment
+    _open(browser, path.as_uri(), fragment)
+    s = browser.evaluate("window.ao4d.state()")
+    assert s["hide"] == [] and s["light"] == 1 and s["az"] == 40
+    # a hand-written fragment with view keys is the view: every object shown and lit
+    _open(browser, path.as_uri(), "#az=10")
+    s = browser.evaluate("window.ao4d.state()")
+    assert s["hide"] == [] and s["light"] == 1 and s["az"] == 10
+    assert browser.errors == []
+
+
+def test_view_refuses_what_the_command_line_refuses(tmp_path, small_sphere):
+    with pytest.raises(ValueError, match=r"`path` must end in \.html or \.htm"):
+        viewer.view(small_sphere, tmp_path / "p.png")  # before: HTML written into a .png
+    assert not (tmp_path / "p.png").exists()
+    with pytest.raises(TypeError, match=r"`state` must be a mapping.*'w=0.3'.*#"):
+        viewer.view(small_sphere, tmp_path / "p.html", state="w=0.3")
+
+
+def test_view_into_a_folder_it_cannot_write_names_the_page(tmp_path, small_sphere, monkeypatch):
+    import tempfile
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)  # the folder check's probe
+    with pytest.raises(ValueError, match=r"`path` .*p\.html.*cannot write") as err:
+        viewer.view(small_sphere, tmp_path / "p.html")
+    assert ".tmp" not in str(err.value)
+
+
+def test_a_busy_port_is_named(small_sphere):
+    with viewer.serve(small_sphere) as first:
+        with pytest.raises(OSError, match=f"port {first.port}.*--port"):
+            viewer.serve(small_sphere, port=first.port)

@@ -127,3 +127,77 @@ def test_read_mhd_errors(tmp_path):
         io.read_vti(io.write_vti(tmp_path / "a.vti", _ramp()), array="nope")
 
 
+
+
+def _vtk_read_arrays(path):
+    """Every point array of a .vti as VTK's own XML reader sees it, in (nx, ny, nz[, c]) order."""
+    reader = vtk.vtkXMLImageDataReader()
+    reader.SetFileName(str(path))
+    reader.Update()
+    image = reader.GetOutput()
+    dims = image.GetDimensions()
+    out = {}
+    for n in range(image.GetPointData().GetNumberOfArrays()):
+        flat = vtk_to_numpy(image.GetPointData().GetArray(n))
+        out[image.GetPointData().GetArrayName(n)] = flat.reshape(dims + flat.shape[1:], order="F")
+    return image, out
+
+
+@pytest.mark.parametrize("shape", [(7, 5, 3), (128, 64, 32), (256, 128, 24)])
+def test_vti_every_dtype_and_block_count_as_vtk_reads_it(tmp_path, shape):
+    # (128, 64, 32) float32 is exactly 1 MiB (one full block), (256, 128, 24) several with a
+    # partial last one: every branch of the compressed layout against VTK's reader
+    rng = np.random.default_rng(7)
+    arrays = {
+        "shade": rng.random(shape).astype(np.float32),
+        'odd "name" <&>': _ramp(shape, np.float64),
+        "object_id": rng.integers(-1, 4, size=shape).astype(np.int32),
+        "small": rng.integers(-300, 300, size=shape).astype(np.int16),
+        "rgba": rng.integers(0, 256, size=shape + (4,)).astype(np.uint8),
+    }
+    path = io.write_vti(tmp_path / "v.vti", arrays, spacing=(0.5, 0.25, 2.0), origin=(-1, 0, 3.5))
+    image, seen = _vtk_read_arrays(path)
+    assert image.GetDimensions() == shape
+    np.testing.assert_allclose(image.GetSpacing(), (0.5, 0.25, 2.0))
+    np.testing.assert_allclose(image.GetOrigin(), (-1, 0, 3.5))
+    assert image.GetPointData().GetScalars().GetName() == "shade"  # the first array is active
+    assert list(seen) == list(arrays)
+    for name, arr in arrays.items():
+        assert seen[name].dtype == arr.dtype, name
+        np.testing.assert_array_equal(seen[name], arr, err_msg=name)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.vti"]
+
+
+def test_vti_is_compressed_in_one_fast_pass(tmp_path):
+    # a render's background is mostly constant: the file must be far smaller than the arrays
+    data = np.zeros((64, 64, 64), np.float32)
+    data[20:40, 20:40, 20:40] = 1.0
+    path = io.write_vti(tmp_path / "v.vti", data)
+    assert path.stat().st_size < data.nbytes / 20
+
+
+def test_mhd_non_ascii_name_is_refused_before_any_file_is_written(tmp_path):
+    old_raw = tmp_path / "keep_é.raw"
+    old_raw.write_bytes(b"old data")
+    with pytest.raises(ValueError, match="ASCII"):
+        io.write_mhd(tmp_path / "keep_é.mhd", _ramp())
+    assert old_raw.read_bytes() == b"old data"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep_é.raw"]
+    with pytest.raises(ValueError, match="`--out`.*ASCII"):
+        io.check_mhd_path(tmp_path / "keep_é.mhd", "--out")
+
+
+def test_mhd_header_failure_puts_the_old_raw_back(tmp_path, monkeypatch):
+    old = io.write_mhd(tmp_path / "v.mhd", _ramp())
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    real = io.atomic_open
+
+    def failing_header(path, mode="wb", **kwargs):
+        if str(path).endswith(".mhd"):
+            raise OSError(28, "No space left on device")
+        return real(path, mode, **kwargs)
+
+    monkeypatch.setattr(io, "atomic_open", failing_header)
+    with pytest.raises(OSError, match="No space"):
+        io.write_mhd(old, _ramp() + 1)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before

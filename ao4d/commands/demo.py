@@ -38,6 +38,7 @@ class DemoReport:
     image_shape: tuple[int, int, int]
     files: list[Path]
     stage_seconds: dict[str, float] = field(default_factory=dict)
+    file_seconds: dict[str, float] = field(default_factory=dict)  # the "files" stage, per step
     wall_seconds: float = 0.0
 
     @property
@@ -55,7 +56,9 @@ class DemoReport:
         lines.append("")
         lines.append(f"AO: {self.ao_rays:,} rays in {self.ao_seconds:.1f} s = "
                      f"{self.rays_per_second / 1e6:.2f} M rays/s on {self.device}")
-        lines.append("stages: " + ", ".join(f"{k} {v:.1f} s" for k, v in self.stage_seconds.items()))
+        lines.append("stages: " + ", ".join(f"{k} {v:.2f} s" for k, v in self.stage_seconds.items()))
+        if self.file_seconds:
+            lines.append("files stage: " + ", ".join(f"{k} {v:.2f} s" for k, v in self.file_seconds.items()))
         lines.append(f"image: {'x'.join(map(str, self.image_shape))} voxels")
         lines.append("files:")
         for path in self.files:
@@ -168,12 +171,10 @@ def run_demo(
     say(f"rendered {n}^3 voxels in {stages['render']:.1f} s")
 
     t = time.perf_counter()
-    from ..viewer import split_objects, view  # the same scene, sliced in the browser
-
+    file_seconds: dict[str, float] = {}
     with all_or_nothing(folder=out):  # a failing picture takes the files of this run with it
-        files = _write_files(out, scene, image, settings)
-        files.append(view(split_objects(scene), out / "view.html", title="ao4d demo",
-                          names=[o.name for o in scene_def.objects]))
+        files = _write_files(out, scene, image, settings, file_seconds,
+                             names=[o.name for o in scene_def.objects])
     stages["files"] = time.perf_counter() - t
 
     report = DemoReport(
@@ -184,50 +185,65 @@ def run_demo(
         image_shape=(n, n, n),
         files=files,
         stage_seconds=stages,
+        file_seconds=file_seconds,
         wall_seconds=time.perf_counter() - started,
     )
     say(report.table())
     return report
 
 
-def _write_files(out: Path, scene, image, settings) -> list[Path]:
-    """Every file of the demo; returns their paths in the order written."""
-    from ..mesh_files import save_slice_mesh
-    from ..pictures import (save_montage, save_rgba_montage, save_rgba_volume_png, save_slice_png,
-                            save_volume_png)
-
+def _write_files(out: Path, scene, image, settings, seconds: dict[str, float], *,
+                 names: list[str]) -> list[Path]:
+    """Every file of the demo; returns their paths in the order written and adds the seconds
+    of each step to ``seconds`` (imports included: they are part of what the step costs)."""
     geo = image.geometry
     samples = settings["samples"]
     params = f"{geo.shape[0]}^3 voxels, {samples} AO samples"
     model = f"{_AMBIENT:g} (1 - AO) + {_DIFFUSE:g} Lambert + specular, 4D shadows"
-    files = []
+    files: list[Path] = []
+    clock = [time.perf_counter()]
+
+    def done(step: str, *paths: Path) -> None:
+        now = time.perf_counter()
+        seconds[step] = seconds.get(step, 0.0) + now - clock[0]
+        clock[0] = now
+        files.extend(paths)
+
     scene.save(out / "scene.npz")
-    files.append(out / "scene.npz")
-    files.append(image.save(out / "image.mhd"))
-    files.append(out / "image.raw")
-    files.append(image.save(out / "image.vti"))
-    files.append(save_montage(
+    done("scene.npz", out / "scene.npz")
+    done("image.mhd", image.save(out / "image.mhd"), out / "image.raw")
+    done("image.vti", image.save(out / "image.vti"))
+    from ..pictures import (save_montage, save_rgba_montage, save_rgba_volume_png, save_slice_png,
+                            save_volume_png)
+
+    done("montage", save_montage(
         out / "image_slices.png", image.shade, background=~image.hit, cmap="magma",
         title=f"ao4d demo: z-slices of the 3D image, shade = {model} ({params})",
         label="shade", spacing=geo.spacing, origin=geo.origin))
-    files.append(save_volume_png(
+    done("volume picture", save_volume_png(
         out / "image_volume.png", image.shade, background=~image.hit, cmap="magma",
         title=f"ao4d demo: 3D image of a 4D scene ({params})",
         label="shade", spacing=geo.spacing, origin=geo.origin))
-    files.append(save_rgba_montage(
+    done("colour montage", save_rgba_montage(
         out / "image_color_slices.png", image.rgba,
         title=f"ao4d demo: z-slices of the colour 3D image: 4D AO, highlights and shadows ({params})",
         n_slices=8, spacing=geo.spacing, origin=geo.origin))
-    files.append(save_rgba_volume_png(
+    done("colour volume picture", save_rgba_volume_png(
         out / "image_color_volume.png", image.rgba,
         title=f"ao4d demo: colour 3D image of a 4D scene ({params})",
         spacing=geo.spacing, origin=geo.origin))
+    from ..mesh_files import save_slice_mesh
+
     tri = scene.slice([0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0], attributes=["ao"])
+    done("slice")
     for suffix in (".ply", ".glb"):
-        files.append(save_slice_mesh(out / f"slice_w0{suffix}", tri, occlusion="ao"))
-    files.append(save_slice_png(
+        done("slice meshes", save_slice_mesh(out / f"slice_w0{suffix}", tri, occlusion="ao"))
+    done("slice picture", save_slice_png(
         out / "slice_w0.png", tri, occlusion="ao",
         title=f"ao4d demo: slice w = 0 coloured by 4D AO ({samples} samples)"))
+    from ..viewer import split_objects, view  # the same scene, sliced in the browser
+
+    done("view.html", view(split_objects(scene), out / "view.html", title="ao4d demo", names=names))
     return files
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 from ..cl import BACKENDS
 
@@ -39,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--light", action="append", nargs="+", metavar="ARG", help=LIGHT_HELP)
     parser.add_argument("--ambient", type=float,
                         help="weight of 1 - AO (default 1 without a light, else 0.7)")
-    parser.add_argument("--diffuse", type=float, default=0.3, help="Lambert weight (default 0.3)")
+    parser.add_argument("--diffuse", type=float, help="Lambert weight (default 0.3)")
     parser.add_argument("--specular", type=float, default=0.0,
                         help="4D Blinn-Phong weight (default 0: no highlights)")
     parser.add_argument("--shininess", type=float, default=32.0,
@@ -56,6 +57,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--layers", type=int, default=4,
                         help="surfaces composited along a ray behind transparent hits (default 4)")
     parser.add_argument("--backend", choices=BACKENDS, default="auto")
+    parser.add_argument("--force", action="store_true",
+                        help="render even when the rays would take more than about half an hour")
     parser.add_argument("--png", type=Path, metavar="FILE.png",
                         help="also write a z-slice montage (FILE.png), a volume rendering "
                              "(FILE_volume.png) and both in colour (FILE_color.png, "
@@ -106,10 +109,12 @@ def run(args: argparse.Namespace) -> int:
     from ..mesh import SimplexMesh, concatenate
     from .._atomic import all_or_nothing, check_output_file
     from ..rendering import render
+    from ..volumes import check_mhd_path
 
     # every output checked before the work; .mhd also writes its .raw
     outputs = [check_output_file(args.out, "--out", (".vti", ".mhd"))]
     if Path(args.out).suffix.lower() == ".mhd":
+        check_mhd_path(args.out, "--out")  # the header names its .raw in ASCII
         outputs.append(check_output_file(Path(args.out).with_suffix(".raw"), "--out"))
     if args.png is not None:
         stem = check_output_file(args.png, "--png", (".png",)).with_suffix("")
@@ -121,6 +126,10 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("`--eye` and `--target` go together (or leave both out to frame all)")
     lights = [parse_light(tokens) for tokens in args.light or []]
     meshes = [SimplexMesh.load(p) for p in args.meshes]
+    for path, mesh in zip(args.meshes, meshes):
+        if mesh.dim != 4:
+            raise ValueError(f"`meshes`: {path.name} is a {mesh.dim}D mesh; render takes 4D meshes "
+                             "(tetrahedra in R^4)")
     scene = meshes[0] if len(meshes) == 1 else concatenate(meshes)
     ids = scene.cell_data.get("object_id") if len(meshes) == 1 else None
     n_objects = len(meshes) if ids is None else int(np.max(ids)) + 1
@@ -137,12 +146,11 @@ def run(args: argparse.Namespace) -> int:
         camera = Camera4D(args.eye, args.target, args.up, args.over, fov=args.fov,
                           projection=args.projection)
     print(camera)
-    ambient = args.ambient if args.ambient is not None else (0.7 if lights else 1.0)
     image = render(scene, camera, tuple(size), ao=args.ao, samples=args.samples,
-                   light=lights or None, ambient=ambient, diffuse=args.diffuse,
+                   light=lights or None, ambient=args.ambient, diffuse=args.diffuse,
                    specular=args.specular, shininess=args.shininess, shadows=args.shadows,
                    depth_cue=args.depth_cue, color=color, opacity=opacity, layers=args.layers,
-                   backend=args.backend)
+                   backend=args.backend, max_rays=math.inf if args.force else None)
     print(image)
     with all_or_nothing(outputs):  # a failing picture leaves no new .vti behind
         written = _write(args, image, size)
