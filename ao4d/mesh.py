@@ -351,10 +351,15 @@ class SimplexMesh:
         return topology.face_adjacency(self._faces, self.dim)
 
     @_cached
+    def _singular_vertices(self) -> int:
+        return topology.singular_vertices(self._simplices, self.n_vertices, self._faces)
+
+    @_cached
     def _component_labels(self) -> np.ndarray:
-        adj = self.face_adjacency
-        _, labels = topology.connected_labels(self.n_simplices, adj[:, 0], adj[:, 1])
-        return labels.astype(np.int64)
+        # once the check has found every star connected, the vertex graph gives the components
+        stars = "_singular_vertices" in self._derived and self._derived["_singular_vertices"] == 0
+        return topology.component_labels(self._faces, self.n_simplices, self.dim, self.n_vertices,
+                                         stars_connected=stars)
 
     def components(self) -> np.ndarray:
         """Label of the connected component of each simplex (joined through shared faces).
@@ -440,6 +445,7 @@ class SimplexMesh:
         threshold = rtol * self.scale ** (self.dim - 1)
         used = np.zeros(self.n_vertices, dtype=bool)
         used[self._simplices.ravel()] = True
+        n_singular = self._singular_vertices  # first: connected stars make components cheaper
         n_components = int(self._component_labels.max(initial=-1)) + 1
         report = MeshReport(
             dim=self.dim,
@@ -449,7 +455,7 @@ class SimplexMesh:
             n_boundary_faces=int(np.count_nonzero(counts == 1)),
             n_nonmanifold_faces=int(np.count_nonzero(counts > 2)),
             n_misoriented_faces=topology.misoriented_faces(faces),
-            n_singular_vertices=topology.singular_vertices(self._simplices, self.n_vertices, faces),
+            n_singular_vertices=n_singular,
             n_degenerate=int(np.count_nonzero(self.simplex_measures <= threshold)),
             n_components=n_components,
             n_unused_vertices=int(np.count_nonzero(~used)),
