@@ -16,8 +16,8 @@ import numpy as np
 
 from ._validate import check_memory
 
-__all__ = ["Faces", "MeshReport", "InsideOutWarning", "warn_if_inside_out", "face_structure", "face_adjacency", "boundary_faces",
-           "singular_vertices", "connected_labels", "component_labels", "misoriented_faces"]
+__all__ = ["Faces", "MeshReport", "MARCHING_PROVED", "InsideOutWarning", "warn_if_inside_out", "face_structure", "face_adjacency", "boundary_faces",
+           "singular_vertices", "connected_labels", "component_labels", "misoriented_faces", "face_counts"]
 
 # --------------------------------------------------------------------------------------------
 # face structure: (d-2)-faces keyed and grouped, vectorised with one sort
@@ -169,6 +169,37 @@ def _resort_collisions(prefix: np.ndarray, sorted_keys: np.ndarray, order: np.nd
     sorted_keys[where] = sorted_keys[where][idx]
 
 
+def face_counts(simplices: np.ndarray, n_vertices: int, faces: Faces | None = None) -> tuple[int, int, int, int]:
+    """Distinct faces, boundary faces (one simplex), non-manifold faces (three or more) and
+    misoriented faces (two simplices inducing the same orientation).
+
+    Without ``faces`` one ``np.sort`` of words holding the face key and the induced sign's bit
+    settles all four (no permutation is needed); with ``faces`` (or keys too wide for that
+    word) they come from the grouping.
+    """
+    s, d = simplices.shape
+    if faces is None and s:
+        columns, _, odd = _sort_simplices(simplices)
+        keys = _face_keys(columns, n_vertices)
+        if keys is not None and _bits(n_vertices) * (d - 1) + 1 <= _WORD_BITS:
+            negative = odd[:, None] ^ (np.arange(d) % 2 == 1)[None, :]
+            keys <<= np.uint64(1)
+            keys |= negative.ravel().astype(np.uint64)
+            keys.sort()
+            face = keys >> np.uint64(1)
+            starts = np.concatenate([[0], np.flatnonzero(face[1:] != face[:-1]) + 1, [len(keys)]])
+            counts = np.diff(starts)
+            two = starts[:-1][counts == 2]
+            same_sign = (keys[two] & np.uint64(1)) == (keys[two + 1] & np.uint64(1))
+            return (len(counts), int(np.count_nonzero(counts == 1)), int(np.count_nonzero(counts > 2)),
+                    int(np.count_nonzero(same_sign)))
+    if faces is None:
+        faces = face_structure(simplices, n_vertices)
+    counts = faces.counts
+    return (len(counts), int(np.count_nonzero(counts == 1)), int(np.count_nonzero(counts > 2)),
+            misoriented_faces(faces))
+
+
 def _unique_ints(values: np.ndarray) -> np.ndarray:
     """Sorted distinct values (a sort is several times faster than numpy 2's hash-based unique
     on tens of millions of int64 keys)."""
@@ -205,6 +236,14 @@ def connected_labels(n_nodes: int, a: np.ndarray, b: np.ndarray) -> tuple[int, n
 # report
 # --------------------------------------------------------------------------------------------
 
+# What marching extraction guarantees by construction (ao4d.march marks its meshes; the marks
+# go when the arrays change): every vertex link is a sphere, or a disk where the mesh is open.
+# Each cell's patch is a ball bounded on the cell's facets, neighbours agree on shared facets,
+# and vertices are welded per grid edge, so a vertex's star is the patches of the cells around
+# its edge glued into a ball. tests/test_topology.py checks it against the full star and link
+# tests on random fields (both methods, exact level values, open and closed).
+MARCHING_PROVED = ("n_singular_vertices",)
+
 
 @dataclass(frozen=True)
 class MeshReport:
@@ -233,6 +272,12 @@ class MeshReport:
         Vertices no simplex refers to (allowed; they do not affect ``ok``).
     volume : float
         Enclosed d-volume (positive for outward orientation, DESIGN.md).
+    proved : tuple of str
+        The fields taken from the mesh's construction rather than computed (empty: all
+        computed). A mesh straight from marching extraction has :data:`MARCHING_PROVED`: when
+        its computed faces show no face shared by more than two simplices and no misoriented
+        face, its vertex links are spheres (disks on an open border) by the table's
+        construction, so ``n_singular_vertices`` is 0 without the star and link tests.
     closed, manifold, oriented : bool
         ``closed``: every face shared by exactly two simplices. ``manifold``: no face shared by
         more than two simplices and no singular vertex. ``oriented``: every face shared by two
@@ -252,6 +297,7 @@ class MeshReport:
     n_components: int
     n_unused_vertices: int
     volume: float = 0.0
+    proved: tuple[str, ...] = ()
 
     @property
     def closed(self) -> bool:
@@ -298,7 +344,8 @@ class MeshReport:
             f"{self.n_faces} faces, {self.n_components} component(s)",
             f"  closed:   {flag(self.closed)} ({self.n_boundary_faces} boundary faces)",
             f"  manifold: {flag(self.manifold)} ({self.n_nonmanifold_faces} faces shared by >2 "
-            f"simplices, {self.n_singular_vertices} singular vertices)",
+            f"simplices, {self.n_singular_vertices} singular vertices"
+            f"{' by construction' if 'n_singular_vertices' in self.proved else ''})",
             f"  oriented: {flag(self.oriented)} ({self.n_misoriented_faces} misoriented faces)",
             f"  outward:  {outward}",
             f"  degenerate simplices: {self.n_degenerate}; unused vertices: {self.n_unused_vertices}",
@@ -373,26 +420,24 @@ def _first_order_labels(labels: np.ndarray) -> np.ndarray:
     return rank[inverse]
 
 
-def component_labels(faces: Faces, n_simplices: int, d: int, n_vertices: int,
-                     stars_connected: bool = False) -> np.ndarray:
+def component_labels(simplices: np.ndarray, n_vertices: int, faces: Faces | None) -> np.ndarray:
     """(S,) int64 connected components of simplices joined through shared (d-2)-faces,
     numbered in order of each component's first simplex.
 
-    With ``stars_connected`` (every vertex's star is connected through faces: no singular
-    vertex by the star test) two simplices sharing a vertex are joined through faces, so the
-    components are those of the much smaller vertex graph.
+    ``faces=None`` says that every vertex's star is connected through faces (no singular
+    vertex): then two simplices sharing a vertex are joined through faces, and the components
+    are those of the much smaller vertex graph.
     """
-    if n_simplices == 0:
+    s, d = simplices.shape
+    if s == 0:
         return np.zeros(0, dtype=np.int64)
-    if stars_connected:
-        cols = faces.columns
-        a = np.concatenate([cols[0]] * (d - 1))
-        b = np.concatenate(list(cols[1:]))
-        _, vlabels = connected_labels(n_vertices, a, b)
-        labels = vlabels[cols[0]]
+    if faces is None:
+        a = np.repeat(simplices[:, :1], d - 1, axis=1).ravel()
+        _, vlabels = connected_labels(n_vertices, a, simplices[:, 1:].ravel())
+        labels = vlabels[simplices[:, 0]]
     else:
         adj = face_adjacency(faces, d)
-        _, labels = connected_labels(n_simplices, adj[:, 0], adj[:, 1])
+        _, labels = connected_labels(s, adj[:, 0], adj[:, 1])
     return _first_order_labels(labels)
 
 
