@@ -187,6 +187,7 @@ class _Job:
     seed: int
     out: str
     backend: str
+    run_sha256: str = ""  # of out/run.json: a worker that reads the same sees the same folder
 
 
 @contextlib.contextmanager
@@ -424,6 +425,7 @@ def run(
     seed = cfg.seed if seed is None else check_positive_int(seed, "seed", minimum=0)
     out = Path(out)
     _check_out(out, cfg, seed)
+    run_sha256 = sha256_file(out / "run.json")
     items = cfg.items()
     summary = RunSummary(out, len(items))
     start = time.perf_counter()
@@ -432,7 +434,7 @@ def run(
         if item_complete(item_dir(out, spec.index)):
             summary.skipped += 1
         else:
-            todo.append(_Job(spec, seed, str(out), cfg.backend))
+            todo.append(_Job(spec, seed, str(out), cfg.backend, run_sha256))
 
     from ao4d import _progress
 
@@ -520,6 +522,30 @@ def make_item_files(job: _Job) -> dict[str, Any]:
     return {"index": job.spec.index, "files": files, "timing": timing}
 
 
+# Workers write their items into the output folder themselves whenever they see it (set to
+# False to have every item's bytes sent back to the client, as for workers without the folder)
+_WORKERS_WRITE = True
+
+
+def make_item_on_worker(job: _Job) -> dict[str, Any]:
+    """Make an item on a dask worker, in the output folder itself when the worker sees it.
+
+    The worker sees the folder when its ``run.json`` has the client's hash (a shared
+    filesystem, or a LocalCluster on the client's machine): it makes the item there as
+    :func:`make_item` does in one process (each file atomic, ``record.json`` last) and returns
+    only its timing. Otherwise it makes the item in a scratch folder and returns the files'
+    bytes (:func:`make_item_files`) for the client to write.
+    """
+    out = Path(job.out)
+    try:
+        sees = bool(job.run_sha256) and sha256_file(out / "run.json") == job.run_sha256
+    except OSError:
+        sees = False
+    if not sees:
+        return make_item_files(job)
+    return {**make_item(job), "written": True}
+
+
 def write_item_files(out: Path, index: int, files: dict[str, bytes]) -> None:
     """Write an item's files into its folder, each atomically, ``record.json`` last (it marks
     the item complete), after deleting leftovers of an interrupted attempt."""
@@ -535,7 +561,9 @@ def write_item_files(out: Path, index: int, files: dict[str, bytes]) -> None:
 
 
 def _run_distributed(todo: list[_Job], scheduler: str, out: Path, summary: RunSummary, bar) -> None:
-    """Items as tasks on a dask.distributed scheduler; results written here as they arrive."""
+    """Items as tasks on a dask.distributed scheduler; workers that see the folder write their
+    items themselves, the others send them back to be written here as they arrive."""
+    import dataclasses
     import uuid
 
     from distributed import Client, LocalCluster, as_completed
@@ -562,12 +590,16 @@ def _run_distributed(todo: list[_Job], scheduler: str, out: Path, summary: RunSu
     try:
         for job in todo:
             key = f"datasets_gen-item-{job.spec.index:05d}-{run_id}"
-            futures[client.submit(make_item_files, job, key=key, pure=False)] = job
+            task = dataclasses.replace(job, out=str(Path(job.out).resolve()),
+                                       run_sha256=job.run_sha256 if _WORKERS_WRITE else "")
+            futures[client.submit(make_item_on_worker, task, key=key, pure=False)] = job
         for future in as_completed(list(futures)):
             job = futures[future]
 
             def write(future=future, job=job) -> dict:
                 result = future.result()
+                if result.get("written"):  # the worker wrote the item into the folder
+                    return result
                 write_item_files(out, job.spec.index, result["files"])
                 summary.received += sum(len(b) for b in result["files"].values())
                 return result["timing"]
@@ -610,19 +642,25 @@ def _write_index(out: Path, items: list[ItemSpec], summary: RunSummary) -> int:
         fh.write(text.getvalue())
 
     # top-level files, and each complete item's record and the files it lists (never the
-    # leftovers of a failed or interrupted item)
+    # leftovers of a failed or interrupted item). Item files carry the hashes their record
+    # holds (made when they were written, checked when a rerun found the item complete), so
+    # no item's bytes are read here again: only the records'.
+    known: dict[Path, str] = {}
     paths = [p for p in out.iterdir() if p.is_file()]
     for spec in items:
         folder = item_dir(out, spec.index)
         if spec.index in summary.failed or not (folder / "record.json").is_file():
             continue
         listed = json.loads((folder / "record.json").read_text(encoding="utf-8"))["files"]
-        paths += [folder / "record.json", *(folder / name for name in listed)]
+        paths.append(folder / "record.json")
+        for name, digest in listed.items():
+            known[folder / name] = digest
+    paths += list(known)
     files = {}
     for path in sorted(paths):
         if path.name not in UNHASHED and not path.name.startswith("."):
-            files[path.relative_to(out).as_posix()] = {"sha256": sha256_file(path),
-                                                       "bytes": path.stat().st_size}
+            digest = known.get(path) or sha256_file(path)
+            files[path.relative_to(out).as_posix()] = {"sha256": digest, "bytes": path.stat().st_size}
     run_info = json.loads((out / "run.json").read_text(encoding="utf-8"))
     write_json(out / "manifest.json", {
         "format": RUN_FORMAT,
