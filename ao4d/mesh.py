@@ -467,7 +467,11 @@ class SimplexMesh:
         proved = self._proved_if(n_nonmanifold=n_nonmanifold, n_misoriented=n_misoriented)
         # first: connected stars make the components cheaper
         n_singular = 0 if proved else self._singular_vertices
-        n_components = int(self._component_labels.max(initial=-1)) + 1
+        n_unused = int(np.count_nonzero(~used))
+        if n_singular == 0 and "_component_labels" not in self._derived:
+            n_components = topology.component_count(self._simplices, self.n_vertices, n_unused)
+        else:
+            n_components = int(self._component_labels.max(initial=-1)) + 1
         report = MeshReport(
             dim=self.dim,
             n_vertices=self.n_vertices,
@@ -479,7 +483,7 @@ class SimplexMesh:
             n_singular_vertices=n_singular,
             n_degenerate=int(np.count_nonzero(self.simplex_measures <= threshold)),
             n_components=n_components,
-            n_unused_vertices=int(np.count_nonzero(~used)),
+            n_unused_vertices=n_unused,
             volume=self.volume,
             proved=proved,
         )

@@ -17,7 +17,7 @@ import numpy as np
 from ._validate import check_memory
 
 __all__ = ["Faces", "MeshReport", "MARCHING_PROVED", "InsideOutWarning", "warn_if_inside_out", "face_structure", "face_adjacency", "boundary_faces",
-           "singular_vertices", "connected_labels", "component_labels", "misoriented_faces", "face_counts"]
+           "singular_vertices", "connected_labels", "component_labels", "component_count", "misoriented_faces", "face_counts"]
 
 # --------------------------------------------------------------------------------------------
 # face structure: (d-2)-faces keyed and grouped, vectorised with one sort
@@ -178,26 +178,58 @@ def face_counts(simplices: np.ndarray, n_vertices: int, faces: Faces | None = No
     word) they come from the grouping.
     """
     s, d = simplices.shape
-    if faces is None and s:
-        columns, _, odd = _sort_simplices(simplices)
-        keys = _face_keys(columns, n_vertices)
-        if keys is not None and _bits(n_vertices) * (d - 1) + 1 <= _WORD_BITS:
-            negative = odd[:, None] ^ (np.arange(d) % 2 == 1)[None, :]
-            keys <<= np.uint64(1)
-            keys |= negative.ravel().astype(np.uint64)
-            keys.sort()
-            face = keys >> np.uint64(1)
-            starts = np.concatenate([[0], np.flatnonzero(face[1:] != face[:-1]) + 1, [len(keys)]])
-            counts = np.diff(starts)
-            two = starts[:-1][counts == 2]
-            same_sign = (keys[two] & np.uint64(1)) == (keys[two + 1] & np.uint64(1))
-            return (len(counts), int(np.count_nonzero(counts == 1)), int(np.count_nonzero(counts > 2)),
-                    int(np.count_nonzero(same_sign)))
+    if faces is None and s and _bits(n_vertices) * (d - 1) + 1 <= _WORD_BITS:
+        words = _face_sign_words(simplices, n_vertices)
+        words.sort()
+        # closed, manifold and oriented: the sorted words pair up as (face, +) (face, -), and
+        # each pair's face differs from the next pair's
+        first, second = words[0::2], words[1::2]
+        if len(words) % 2 == 0 and np.array_equal(second - first, np.ones_like(first)) and \
+                np.all((words[2::2] ^ words[1:-1:2]) > 1):
+            return len(first), 0, 0, 0
+        face = words >> np.uint64(1)
+        starts = np.concatenate([[0], np.flatnonzero(face[1:] != face[:-1]) + 1, [len(words)]])
+        counts = np.diff(starts)
+        two = starts[:-1][counts == 2]
+        same_sign = (words[two] & np.uint64(1)) == (words[two + 1] & np.uint64(1))
+        return (len(counts), int(np.count_nonzero(counts == 1)), int(np.count_nonzero(counts > 2)),
+                int(np.count_nonzero(same_sign)))
     if faces is None:
         faces = face_structure(simplices, n_vertices)
     counts = faces.counts
     return (len(counts), int(np.count_nonzero(counts == 1)), int(np.count_nonzero(counts > 2)),
             misoriented_faces(faces))
+
+
+def _face_sign_words(simplices: np.ndarray, n_vertices: int) -> np.ndarray:
+    """(S*d,) uint64, rank-major: each face's packed sorted vertices, shifted left by one and
+    holding 1 in the lowest bit where the simplex induces the negative orientation on it."""
+    s, d = simplices.shape
+    b = np.uint64(_bits(n_vertices))
+    cols, odd = _sorted_columns(simplices)
+    words = np.empty(s * d, dtype=np.uint64)
+    for k, kept in enumerate(_opposite(d)):
+        view = words[k * s:(k + 1) * s]
+        np.copyto(view, cols[kept[0]].view(np.uint64))
+        for j in kept[1:]:
+            view <<= b
+            view |= cols[j].view(np.uint64)
+        view <<= np.uint64(1)
+        view |= (odd ^ bool(k % 2)).view(np.uint8)  # sign (-1)^k * parity negative
+    return words
+
+
+def _sorted_columns(simplices: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """The rows of ``simplices`` sorted by a compare-exchange network, as d contiguous int64
+    columns, and the odd parity (S,) bool of each row's sorting permutation."""
+    s, d = simplices.shape
+    cols = [np.ascontiguousarray(simplices[:, i], dtype=np.int64) for i in range(d)]
+    odd = np.zeros(s, dtype=bool)
+    for i, j in _NETWORKS[d]:
+        swap = cols[i] > cols[j]
+        cols[i], cols[j] = np.minimum(cols[i], cols[j]), np.maximum(cols[i], cols[j])
+        odd ^= swap
+    return cols, odd
 
 
 def _unique_ints(values: np.ndarray) -> np.ndarray:
@@ -420,21 +452,38 @@ def _first_order_labels(labels: np.ndarray) -> np.ndarray:
     return rank[inverse]
 
 
+def _vertex_components(simplices: np.ndarray, n_vertices: int) -> tuple[int, np.ndarray]:
+    """Components of the graph joining each simplex's vertices in a chain (every vertex of the
+    mesh is a node: unused ones are components of their own)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    a, b = simplices[:, :-1].ravel(), simplices[:, 1:].ravel()
+    graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n_vertices, n_vertices))
+    return connected_components(graph, directed=True, connection="weak")
+
+
+def component_count(simplices: np.ndarray, n_vertices: int, n_unused: int) -> int:
+    """Connected components of a mesh whose vertex stars are all connected through faces (no
+    singular vertex): then simplices sharing a vertex are joined through faces, and the
+    components are those of the vertex graph (less the ``n_unused`` lone vertices)."""
+    if len(simplices) == 0:
+        return 0
+    return int(_vertex_components(simplices, n_vertices)[0]) - n_unused
+
+
 def component_labels(simplices: np.ndarray, n_vertices: int, faces: Faces | None) -> np.ndarray:
     """(S,) int64 connected components of simplices joined through shared (d-2)-faces,
     numbered in order of each component's first simplex.
 
     ``faces=None`` says that every vertex's star is connected through faces (no singular
-    vertex): then two simplices sharing a vertex are joined through faces, and the components
-    are those of the much smaller vertex graph.
+    vertex): then the components are those of the much smaller vertex graph.
     """
     s, d = simplices.shape
     if s == 0:
         return np.zeros(0, dtype=np.int64)
     if faces is None:
-        a = np.repeat(simplices[:, :1], d - 1, axis=1).ravel()
-        _, vlabels = connected_labels(n_vertices, a, simplices[:, 1:].ravel())
-        labels = vlabels[simplices[:, 0]]
+        labels = _vertex_components(simplices, n_vertices)[1][simplices[:, 0]]
     else:
         adj = face_adjacency(faces, d)
         _, labels = connected_labels(s, adj[:, 0], adj[:, 1])
