@@ -15,7 +15,9 @@ every derived value (normals, measures, volume, face adjacency, components, the 
 whatever other modules put in :attr:`SimplexMesh.cache`, such as the BVH) is computed once and
 dropped as soon as a source array is replaced (``mesh.vertices = new``). In-place edits of the
 source arrays are refused (numpy raises "assignment destination is read-only"), so a cached value
-can never be stale.
+can never be stale. The file is long because it stays one module: the class and the cache that
+ties every derived value to its arrays are one idea (the computations live in geometry,
+topology, slicing and mesh_files).
 """
 
 from __future__ import annotations
@@ -356,8 +358,7 @@ class SimplexMesh:
 
     @_cached
     def _component_labels(self) -> np.ndarray:
-        # once the check has found every star connected, the vertex graph gives the components
-        stars = self._derived.get("_singular_vertices") == 0
+        stars = self._derived.get("_singular_vertices") == 0  # connected: the vertex graph will do
         return topology.component_labels(self._simplices, self.n_vertices, None if stars else self._faces)
 
     @_cached
@@ -423,27 +424,15 @@ class SimplexMesh:
         return topology.boundary_faces(self._simplices, self._faces)
 
     def _mark_constructed(self, proved: tuple[str, ...]) -> None:
-        """Record report fields that this mesh's construction guarantees (see
-        ``MeshReport.proved``); the record goes with every other cached value when the arrays
-        change."""
+        """Record the report fields its construction guarantees (dropped when the arrays change)."""
         self._derived["_proved"] = tuple(proved)
-
-    def _proved_if(self, *, n_nonmanifold: int, n_misoriented: int) -> tuple[str, ...]:
-        """The construction's guarantees, used only when the computed faces agree with them."""
-        proved = self._derived.get("_proved", ())
-        if "n_singular_vertices" not in proved or n_nonmanifold or n_misoriented:
-            return ()
-        self._derived.setdefault("_singular_vertices", 0)  # the components use it
-        return ("n_singular_vertices",)
 
     def check(self, *, rtol: float = 1e-12) -> MeshReport:
         """Topology and orientation report: closed, manifold, oriented, degenerate simplices.
 
-        Everything is vectorised over the S*d (d-2)-faces: one sort of packed 64-bit words
-        groups them (closed, manifold faces, orientation), vertex stars and links are tested by
-        label propagation and an edge sort, components come from a sparse-graph search. A mesh
-        straight from marching extraction skips the star and link tests, which its construction
-        settles (``report.proved`` names what was not computed; see ``MeshReport``).
+        Vectorised: one sort of packed 64-bit face words, label propagation and an edge sort
+        for vertex stars and links (skipped on a mesh straight from marching extraction, whose
+        construction settles them: ``report.proved``), a sparse-graph search for components.
 
         Parameters
         ----------
@@ -462,30 +451,23 @@ class SimplexMesh:
             return self._derived[key]
         n_faces, n_boundary, n_nonmanifold, n_misoriented = self._face_counts
         threshold = rtol * self.scale ** (self.dim - 1)
-        used = np.zeros(self.n_vertices, dtype=bool)
-        used[self._simplices.ravel()] = True
-        proved = self._proved_if(n_nonmanifold=n_nonmanifold, n_misoriented=n_misoriented)
-        # first: connected stars make the components cheaper
-        n_singular = 0 if proved else self._singular_vertices
-        n_unused = int(np.count_nonzero(~used))
-        if n_singular == 0 and "_component_labels" not in self._derived:
-            n_components = topology.component_count(self._simplices, self.n_vertices, n_unused)
-        else:
-            n_components = int(self._component_labels.max(initial=-1)) + 1
+        uses = np.bincount(self._simplices.ravel(), minlength=self.n_vertices)
+        n_unused = int(np.count_nonzero(uses == 0))
+        # the construction's guarantees count only where the computed faces agree with them
+        marked = "n_singular_vertices" in self._derived.get("_proved", ())
+        proved = ("n_singular_vertices",) if marked and not (n_nonmanifold or n_misoriented) else ()
+        if proved:
+            self._derived.setdefault("_singular_vertices", 0)
+        n_singular = self._singular_vertices  # first: connected stars make the components cheaper
+        n_components = (topology.component_count(self._simplices, self.n_vertices, n_unused)
+                        if n_singular == 0 and "_component_labels" not in self._derived
+                        else int(self._component_labels.max(initial=-1)) + 1)
         report = MeshReport(
-            dim=self.dim,
-            n_vertices=self.n_vertices,
-            n_simplices=self.n_simplices,
-            n_faces=n_faces,
-            n_boundary_faces=n_boundary,
-            n_nonmanifold_faces=n_nonmanifold,
-            n_misoriented_faces=n_misoriented,
-            n_singular_vertices=n_singular,
+            dim=self.dim, n_vertices=self.n_vertices, n_simplices=self.n_simplices, n_faces=n_faces,
+            n_boundary_faces=n_boundary, n_nonmanifold_faces=n_nonmanifold,
+            n_misoriented_faces=n_misoriented, n_singular_vertices=n_singular,
             n_degenerate=int(np.count_nonzero(self.simplex_measures <= threshold)),
-            n_components=n_components,
-            n_unused_vertices=n_unused,
-            volume=self.volume,
-            proved=proved,
+            n_components=n_components, n_unused_vertices=n_unused, volume=self.volume, proved=proved,
         )
         self._derived[key] = report
         return report
