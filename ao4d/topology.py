@@ -16,8 +16,8 @@ import numpy as np
 
 from ._validate import check_memory
 
-__all__ = ["Faces", "MeshReport", "InsideOutWarning", "warn_if_inside_out", "face_structure", "face_adjacency", "boundary_faces",
-           "singular_vertices", "connected_labels"]
+__all__ = ["Faces", "MeshReport", "MARCHING_PROVED", "InsideOutWarning", "warn_if_inside_out", "face_structure", "face_adjacency", "boundary_faces",
+           "singular_vertices", "connected_labels", "component_labels", "component_count", "misoriented_faces", "face_counts"]
 
 # --------------------------------------------------------------------------------------------
 # face structure: (d-2)-faces keyed and grouped, vectorised with one sort
@@ -27,73 +27,209 @@ __all__ = ["Faces", "MeshReport", "InsideOutWarning", "warn_if_inside_out", "fac
 @dataclass(frozen=True)
 class Faces:
     """The S*d (d-2)-faces of a mesh, grouped: entry r is the face of simplex r // d omitting
-    local vertex r % d.
+    its (r % d)-th smallest vertex index.
 
     ``order`` sorts the entries by face; ``starts`` (F+1,) delimits the groups of equal faces in
-    that order; ``sign`` (S*d,) is the orientation the simplex induces on its face (+1/-1) relative
-    to the face's sorted vertex order; ``local`` (S*d, d-1) the local indices (in the simplex) of
-    the face's vertices in sorted vertex order.
+    that order; ``sign`` (S*d,) is the orientation the simplex induces on its face (+1/-1)
+    relative to the face's sorted vertex order; ``columns`` (d, S) each simplex's vertex indices
+    in increasing order, one row per rank (the face of entry r is simplex r // d's vertices
+    without rank r % d); ``perm`` (S, d) int8 the local index (in the simplex) of each rank.
     """
 
     order: np.ndarray
     starts: np.ndarray
     sign: np.ndarray
-    local: np.ndarray
+    columns: np.ndarray
+    perm: np.ndarray
 
     @property
     def counts(self) -> np.ndarray:
         return np.diff(self.starts)
 
+    @property
+    def local(self) -> np.ndarray:
+        """(S*d, d-1) int8: local indices of each entry's face vertices, in sorted vertex order."""
+        d = self.perm.shape[1]
+        return self.perm[:, _opposite(d)].reshape(-1, d - 1)
+
+
+# the compare-exchange networks that sort d = 1..4 values (Knuth, TAOCP 5.3.4)
+_NETWORKS = {1: [], 2: [(0, 1)], 3: [(0, 1), (1, 2), (0, 1)], 4: [(0, 1), (2, 3), (0, 2), (1, 3), (1, 2)]}
+# odd 64-bit constant (2^64 / golden ratio): multiplying by it permutes the uint64 keys and
+# spreads them over the top bits, which then key the sort when a face key and its entry index
+# do not fit together into 64 bits
+_MIX = np.uint64(0x9E3779B97F4A7C15)
+_WORD_BITS = 64  # bits of a sort word (tests lower it to exercise the mixed and row paths)
+
+
+def _opposite(d: int) -> np.ndarray:
+    """(d, d-1): the ranks a face keeps, for the face omitting each rank k."""
+    return np.array([[j for j in range(d) if j != k] for k in range(d)], dtype=np.intp)
+
 
 def face_structure(simplices: np.ndarray, n_vertices: int) -> Faces:
     s, d = simplices.shape
-    itype = np.int32 if n_vertices < 2**31 else np.int64
-    check_memory(s * d * (d - 1) * 8 * 3.0, "the face table of this mesh")
-    # local vertex indices of the face opposite vertex i: all j != i, in increasing order
-    opposite = np.array([[j for j in range(d) if j != i] for i in range(d)], dtype=np.int8)
-    faces = simplices.astype(itype, copy=False)[:, opposite].reshape(s * d, d - 1)
-    local = np.tile(opposite, (s, 1))
-    # Face opposite local vertex i carries the induced orientation (-1)^i times the parity of
-    # the permutation that sorts its vertices (boundary operator of simplicial homology).
-    sign = np.tile((-1) ** np.arange(d), s).astype(np.int8)
-    _sort_rows_tracking(faces, local, sign)
-
-    order = _lexsort_rows(faces, n_vertices)
-    sorted_faces = faces[order]
-    if len(order):
-        new_group = np.any(sorted_faces[1:] != sorted_faces[:-1], axis=1)
-        starts = np.concatenate([[0], np.flatnonzero(new_group) + 1, [len(order)]])
-    else:
-        starts = np.zeros(1, dtype=np.int64)
-    return Faces(order=order, starts=starts.astype(np.int64), sign=sign, local=local)
+    check_memory(s * d * 8 * 6.0, "the face table of this mesh")
+    columns, perm, odd = _sort_simplices(simplices)
+    # Boundary operator: [q0..q_{d-1}] = parity * [p0..p_{d-1}], and the face omitting q_k
+    # carries (-1)^k in its sorted vertex order.
+    alternating = ((-1) ** np.arange(d)).astype(np.int8)
+    sign = np.where(odd[:, None], -alternating, alternating).astype(np.int8).ravel()
+    order, starts = _group_faces(columns, n_vertices)
+    return Faces(order=order, starts=starts, sign=sign, columns=columns, perm=perm)
 
 
-def _sort_rows_tracking(rows: np.ndarray, local: np.ndarray, sign: np.ndarray) -> None:
-    """Sort each row of ``rows`` (N, m <= 3) in place with a sorting network, applying the same
-    swaps to ``local`` and flipping ``sign`` once per swap (a swap is a transposition).
+def _sort_simplices(simplices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each row sorted by a compare-exchange network: (d, S) int64 sorted vertex indices (one
+    row per rank), (S, d) int8 their local indices, (S,) bool the odd parity of the sort."""
+    s, d = simplices.shape
+    cols = [np.ascontiguousarray(simplices[:, i], dtype=np.int64) for i in range(d)]
+    locs = [np.full(s, i, dtype=np.int8) for i in range(d)]
+    odd = np.zeros(s, dtype=bool)
+    for i, j in _NETWORKS[d]:
+        swap = cols[i] > cols[j]
+        cols[i], cols[j] = np.minimum(cols[i], cols[j]), np.maximum(cols[i], cols[j])
+        locs[i], locs[j] = np.where(swap, locs[j], locs[i]), np.where(swap, locs[i], locs[j])
+        odd ^= swap
+    return np.stack(cols), np.stack(locs, axis=1), odd
 
-    Three vectorised compare-exchanges beat ``argsort(axis=1)`` several times on tall arrays.
+
+def _bits(n: int) -> int:
+    """Bits that hold the integers 0 .. n - 1 (at least one)."""
+    return max(1, (int(n) - 1).bit_length())
+
+
+def _face_keys(columns: np.ndarray, n_vertices: int) -> np.ndarray | None:
+    """(S*d,) uint64 packed sorted face vertices (entry order), or None when they need more
+    than 64 bits."""
+    d, s = columns.shape
+    b = _bits(n_vertices)
+    if b * (d - 1) > _WORD_BITS:
+        return None
+    packed = columns.astype(np.uint64)
+    keys = np.empty((s, d), dtype=np.uint64)
+    for k, kept in enumerate(_opposite(d)):
+        key = packed[kept[0]].copy()
+        for j in kept[1:]:
+            key <<= np.uint64(b)
+            key |= packed[j]
+        keys[:, k] = key
+    return keys.ravel()
+
+
+def _group_faces(columns: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """``order`` and ``starts`` of the face groups, from one sort of 64-bit words.
+
+    Each word holds a face key in its high bits and the entry index in its low bits, so
+    ``np.sort`` (SIMD, several times faster than ``argsort``) yields the permutation. When key
+    and index do not fit, the high bits hold the top of the mixed (bijectively permuted) key:
+    equal faces still sort together, and the rare runs where two faces share those bits are
+    sorted again by their full keys.
     """
-    m = rows.shape[1]
-    network = {1: [], 2: [(0, 1)], 3: [(0, 1), (1, 2), (0, 1)]}[m]
-    for i, j in network:
-        swap = rows[:, i] > rows[:, j]
-        for arr in (rows, local):
-            first = arr[swap, i]
-            arr[swap, i] = arr[swap, j]
-            arr[swap, j] = first
-        np.negative(sign, out=sign, where=swap)
+    d, s = columns.shape
+    n = s * d
+    if n == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64)
+    keys = _face_keys(columns, n_vertices)
+    if keys is None:  # more than 2^21 vertices in 4D: lexicographic sort of the rows
+        rows = columns.T[:, _opposite(d)].reshape(n, d - 1)
+        order = np.lexsort(rows.T[::-1]).astype(np.int64)
+        srt = rows[order]
+        new = np.any(srt[1:] != srt[:-1], axis=1)
+    else:
+        e = _bits(n)
+        exact = _bits(n_vertices) * (d - 1) + e <= _WORD_BITS
+        words = keys.copy() if exact else keys * _MIX
+        if not exact:
+            words >>= np.uint64(e)
+        words <<= np.uint64(e)
+        words |= np.arange(n, dtype=np.uint64)
+        words.sort()
+        order = (words & np.uint64((1 << e) - 1)).astype(np.int64)
+        if exact:
+            words >>= np.uint64(e)
+            new = words[1:] != words[:-1]
+        else:
+            sorted_keys = keys[order]
+            _resort_collisions(words >> np.uint64(e), sorted_keys, order)
+            new = sorted_keys[1:] != sorted_keys[:-1]
+    starts = np.concatenate([[0], np.flatnonzero(new) + 1, [n]]).astype(np.int64)
+    return order, starts
 
 
-def _lexsort_rows(rows: np.ndarray, base: int) -> np.ndarray:
-    """Indices that sort the small-integer rows (N, m) lexicographically."""
-    m = rows.shape[1]
-    if base ** m < 2**63:
-        key = np.zeros(len(rows), dtype=np.int64)
-        for k in range(m):
-            key = key * base + rows[:, k]
-        return np.argsort(key)
-    return np.lexsort(rows.T[::-1])
+def _resort_collisions(prefix: np.ndarray, sorted_keys: np.ndarray, order: np.ndarray) -> None:
+    """Make equal keys contiguous inside runs of equal ``prefix`` that hold several keys (in place)."""
+    clash = (prefix[1:] == prefix[:-1]) & (sorted_keys[1:] != sorted_keys[:-1])
+    if not clash.any():
+        return
+    bad = np.isin(prefix, np.unique(prefix[1:][clash]))
+    where = np.flatnonzero(bad)  # whole runs, each contiguous: sorting them by key keeps runs in place
+    idx = np.lexsort((order[where], sorted_keys[where], prefix[where]))
+    order[where] = order[where][idx]
+    sorted_keys[where] = sorted_keys[where][idx]
+
+
+def face_counts(simplices: np.ndarray, n_vertices: int, faces: Faces | None = None) -> tuple[int, int, int, int]:
+    """Distinct faces, boundary faces (one simplex), non-manifold faces (three or more) and
+    misoriented faces (two simplices inducing the same orientation).
+
+    Without ``faces`` one ``np.sort`` of words holding the face key and the induced sign's bit
+    settles all four (no permutation is needed); with ``faces`` (or keys too wide for that
+    word) they come from the grouping.
+    """
+    s, d = simplices.shape
+    if faces is None and s and _bits(n_vertices) * (d - 1) + 1 <= _WORD_BITS:
+        words = _face_sign_words(simplices, n_vertices)
+        words.sort()
+        # closed, manifold and oriented: the sorted words pair up as (face, +) (face, -), and
+        # each pair's face differs from the next pair's
+        first, second = words[0::2], words[1::2]
+        if len(words) % 2 == 0 and np.array_equal(second - first, np.ones_like(first)) and \
+                np.all((words[2::2] ^ words[1:-1:2]) > 1):
+            return len(first), 0, 0, 0
+        face = words >> np.uint64(1)
+        starts = np.concatenate([[0], np.flatnonzero(face[1:] != face[:-1]) + 1, [len(words)]])
+        counts = np.diff(starts)
+        two = starts[:-1][counts == 2]
+        same_sign = (words[two] & np.uint64(1)) == (words[two + 1] & np.uint64(1))
+        return (len(counts), int(np.count_nonzero(counts == 1)), int(np.count_nonzero(counts > 2)),
+                int(np.count_nonzero(same_sign)))
+    if faces is None:
+        faces = face_structure(simplices, n_vertices)
+    counts = faces.counts
+    return (len(counts), int(np.count_nonzero(counts == 1)), int(np.count_nonzero(counts > 2)),
+            misoriented_faces(faces))
+
+
+def _face_sign_words(simplices: np.ndarray, n_vertices: int) -> np.ndarray:
+    """(S*d,) uint64, rank-major: each face's packed sorted vertices, shifted left by one and
+    holding 1 in the lowest bit where the simplex induces the negative orientation on it."""
+    s, d = simplices.shape
+    b = np.uint64(_bits(n_vertices))
+    cols, odd = _sorted_columns(simplices)
+    words = np.empty(s * d, dtype=np.uint64)
+    for k, kept in enumerate(_opposite(d)):
+        view = words[k * s:(k + 1) * s]
+        np.copyto(view, cols[kept[0]].view(np.uint64))
+        for j in kept[1:]:
+            view <<= b
+            view |= cols[j].view(np.uint64)
+        view <<= np.uint64(1)
+        view |= (odd ^ bool(k % 2)).view(np.uint8)  # sign (-1)^k * parity negative
+    return words
+
+
+def _sorted_columns(simplices: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """The rows of ``simplices`` sorted by a compare-exchange network, as d contiguous int64
+    columns, and the odd parity (S,) bool of each row's sorting permutation."""
+    s, d = simplices.shape
+    cols = [np.ascontiguousarray(simplices[:, i], dtype=np.int64) for i in range(d)]
+    odd = np.zeros(s, dtype=bool)
+    for i, j in _NETWORKS[d]:
+        swap = cols[i] > cols[j]
+        cols[i], cols[j] = np.minimum(cols[i], cols[j]), np.maximum(cols[i], cols[j])
+        odd ^= swap
+    return cols, odd
 
 
 def _unique_ints(values: np.ndarray) -> np.ndarray:
@@ -132,6 +268,14 @@ def connected_labels(n_nodes: int, a: np.ndarray, b: np.ndarray) -> tuple[int, n
 # report
 # --------------------------------------------------------------------------------------------
 
+# What marching extraction guarantees by construction (ao4d.march marks its meshes; the marks
+# go when the arrays change): every vertex link is a sphere, or a disk where the mesh is open.
+# Each cell's patch is a ball bounded on the cell's facets, neighbours agree on shared facets,
+# and vertices are welded per grid edge, so a vertex's star is the patches of the cells around
+# its edge glued into a ball. tests/test_topology.py checks it against the full star and link
+# tests on random fields (both methods, exact level values, open and closed).
+MARCHING_PROVED = ("n_singular_vertices",)
+
 
 # SimplexMesh.cache key under which ao4d.extract records that the solid touches the grid's edge
 # (the text says where the mesh is cut open and what to pass to close it); the report prints it
@@ -165,6 +309,12 @@ class MeshReport:
         Vertices no simplex refers to (allowed; they do not affect ``ok``).
     volume : float
         Enclosed d-volume (positive for outward orientation, DESIGN.md).
+    proved : tuple of str
+        The fields taken from the mesh's construction rather than computed (empty: all
+        computed). A mesh straight from marching extraction has :data:`MARCHING_PROVED`: when
+        its computed faces show no face shared by more than two simplices and no misoriented
+        face, its vertex links are spheres (disks on an open border) by the table's
+        construction, so ``n_singular_vertices`` is 0 without the star and link tests.
     closed, manifold, oriented : bool
         ``closed``: every face shared by exactly two simplices. ``manifold``: no face shared by
         more than two simplices and no singular vertex. ``oriented``: every face shared by two
@@ -184,6 +334,7 @@ class MeshReport:
     n_components: int
     n_unused_vertices: int
     volume: float = 0.0
+    proved: tuple[str, ...] = ()
     hint: str = ""  # why the mesh is open and what closes it, when known (printed when open)
 
     @property
@@ -231,7 +382,8 @@ class MeshReport:
             f"{self.n_faces} faces, {self.n_components} component(s)",
             f"  closed:   {flag(self.closed)} ({self.n_boundary_faces} boundary faces)",
             f"  manifold: {flag(self.manifold)} ({self.n_nonmanifold_faces} faces shared by >2 "
-            f"simplices, {self.n_singular_vertices} singular vertices)",
+            f"simplices, {self.n_singular_vertices} singular vertices"
+            f"{' by construction' if 'n_singular_vertices' in self.proved else ''})",
             f"  oriented: {flag(self.oriented)} ({self.n_misoriented_faces} misoriented faces)",
             f"  outward:  {outward}",
             f"  degenerate simplices: {self.n_degenerate}; unused vertices: {self.n_unused_vertices}",
@@ -279,7 +431,8 @@ def boundary_faces(simplices: np.ndarray, faces: Faces) -> np.ndarray:
     """(B, d-1) int64: the faces used by one simplex, in the orientation it induces on them."""
     d = simplices.shape[1]
     entries = faces.order[faces.starts[:-1][faces.counts == 1]]
-    opposite = entries % d
+    # the local index the face omits: the one missing from its d - 1 local indices
+    opposite = d * (d - 1) // 2 - faces.local[entries].sum(axis=1, dtype=np.int64)
     rows = simplices[entries // d]
     keep = np.arange(d)[None, :] != opposite[:, None]
     out = rows[keep].reshape(-1, d - 1)
@@ -297,48 +450,133 @@ def misoriented_faces(faces: Faces) -> int:
     return int(np.count_nonzero((faces.counts == 2) & (group_sign != 0)))
 
 
+def _first_order_labels(labels: np.ndarray) -> np.ndarray:
+    """Labels renumbered 0..C-1 in order of each label's first occurrence."""
+    if len(labels) == 0:
+        return labels.astype(np.int64)
+    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[np.argsort(first)] = np.arange(len(first))
+    return rank[inverse]
+
+
+def _vertex_components(simplices: np.ndarray, n_vertices: int) -> tuple[int, np.ndarray]:
+    """Components of the graph joining each simplex's vertices in a chain (every vertex of the
+    mesh is a node: unused ones are components of their own)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    a, b = simplices[:, :-1].ravel(), simplices[:, 1:].ravel()
+    graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n_vertices, n_vertices))
+    return connected_components(graph, directed=True, connection="weak")
+
+
+def component_count(simplices: np.ndarray, n_vertices: int, n_unused: int) -> int:
+    """Connected components of a mesh whose vertex stars are all connected through faces (no
+    singular vertex): then simplices sharing a vertex are joined through faces, and the
+    components are those of the vertex graph (less the ``n_unused`` lone vertices)."""
+    if len(simplices) == 0:
+        return 0
+    return int(_vertex_components(simplices, n_vertices)[0]) - n_unused
+
+
+def component_labels(simplices: np.ndarray, n_vertices: int, faces: Faces | None) -> np.ndarray:
+    """(S,) int64 connected components of simplices joined through shared (d-2)-faces,
+    numbered in order of each component's first simplex.
+
+    ``faces=None`` says that every vertex's star is connected through faces (no singular
+    vertex): then the components are those of the much smaller vertex graph.
+    """
+    s, d = simplices.shape
+    if s == 0:
+        return np.zeros(0, dtype=np.int64)
+    if faces is None:
+        labels = _vertex_components(simplices, n_vertices)[1][simplices[:, 0]]
+    else:
+        adj = face_adjacency(faces, d)
+        _, labels = connected_labels(s, adj[:, 0], adj[:, 1])
+    return _first_order_labels(labels)
+
+
 def singular_vertices(simplices: np.ndarray, n_vertices: int, faces: Faces) -> int:
     """Vertices whose link is not a sphere (or, on the boundary, a disk), as far as we test.
 
     Two tests. (1) The star must be connected through (d-2)-faces containing the vertex:
-    nodes are (simplex, local vertex) incidences, joined when their simplices share a face
-    through that vertex; more than one group is a pinch point (or, in 4D, a pinched edge).
-    With manifold faces this settles 3D, where a connected 2-regular link is a circle. (2) In
-    4D the link is a closed surface (boundary vertices: a surface with boundary), so we also
-    require its Euler characteristic #edges - #triangles + #tetrahedra through the vertex to
-    be 2 (1 on the boundary): a connected closed surface with chi = 2 is a sphere.
+    nodes are (simplex, vertex) incidences, joined when their simplices share a face used by
+    exactly two simplices through that vertex; more than one group is a pinch point (or, in 4D,
+    a pinched edge). With manifold faces this settles 3D, where a connected 2-regular link is a
+    circle. (2) In 4D the link is a closed surface (boundary vertices: a surface with boundary),
+    so we also require its Euler characteristic #edges - #triangles + #tetrahedra through the
+    vertex to be 2 (1 on the boundary): a connected closed surface with chi = 2 is a sphere.
     """
     s, d = simplices.shape
     if s == 0 or d == 2:
         return 0  # in 2D the faces are the vertices: face counts already say everything
-    counts = faces.counts
-    # only manifold pairs: a face used by >2 simplices is already reported as non-manifold
-    manifold_groups = np.flatnonzero(counts == 2)
-    first = faces.order[faces.starts[manifold_groups]]
-    second = faces.order[faces.starts[manifold_groups] + 1]
-    a = (first // d)[:, None] * d + faces.local[first]
-    b = (second // d)[:, None] * d + faces.local[second]
-    _, labels = connected_labels(s * d, a.ravel(), b.ravel())
-    vertex = simplices.ravel()
-    n_labels = int(labels.max()) + 1
-    pairs = _unique_ints(vertex * n_labels + labels)
-    singular = np.bincount(pairs // n_labels, minlength=n_vertices) > 1
+    labels = _star_labels(faces)
+    vertex = faces.columns.T.ravel()  # the vertex of each incidence node
+    any_node = np.empty(n_vertices, dtype=np.int64)
+    any_node[vertex] = np.arange(len(vertex))  # one node of each used vertex (whichever)
+    singular = np.zeros(n_vertices, dtype=bool)
+    singular[vertex[labels != labels[any_node[vertex]]]] = True
     if d == 4:
         singular |= _link_euler_defect(simplices, n_vertices, faces)
     return int(np.count_nonzero(singular))
 
 
+def _star_labels(faces: Faces) -> np.ndarray:
+    """(S*d,) a label per incidence node s*d + m (simplex s, its m-th smallest vertex): the
+    smallest node joined to it through faces shared by exactly two simplices.
+
+    Minimum-label propagation with pointer jumping: stars are small (tens of simplices), so it
+    settles in a few vectorised rounds.
+    """
+    d, s = faces.columns.shape
+    n = s * d
+    itype = np.int32 if n < 2**31 else np.int64
+    partner = np.full(n, -1, dtype=np.int64)
+    pairs = faces.starts[:-1][faces.counts == 2]
+    first, second = faces.order[pairs], faces.order[pairs + 1]
+    partner[first], partner[second] = second, first
+    partner = partner.reshape(s, d)
+    base = np.arange(s, dtype=np.int64) * d
+    # node (s, m) meets its simplex's d - 1 faces omitting k != m; in face k it is vertex
+    # t = m - (m > k), which in the partner face (omitting k2) is vertex t + (t >= k2)
+    neighbours = np.empty((d - 1, s, d), dtype=itype)
+    for m in range(d):
+        for slot, k in enumerate(kk for kk in range(d) if kk != m):
+            p = partner[:, k]
+            t = m - (m > k)
+            k2 = p % d
+            neighbours[slot, :, m] = np.where(p >= 0, p - k2 + t + (t >= k2), base + m)
+    neighbours = neighbours.reshape(d - 1, n)
+    labels = np.arange(n, dtype=itype)
+    while True:
+        new = labels.copy()
+        for nb in neighbours:
+            np.minimum(new, labels[nb], out=new)
+        new = new[new]  # jump: each label to its own label
+        if np.array_equal(new, labels):
+            return labels
+        labels = new
+
+
 def _link_euler_defect(simplices: np.ndarray, n: int, faces: Faces) -> np.ndarray:
     """(V,) bool: used 4D vertices whose link's Euler characteristic is not 2 (1 on the boundary)."""
+    cols = faces.columns
     # one representative entry per distinct triangle: its three vertices
     reps = faces.order[faces.starts[:-1]]
-    tri_vertices = np.take_along_axis(simplices[reps // 4], faces.local[reps].astype(np.int64), axis=1)
-    pairs = [(i, j) for i in range(4) for j in range(i + 1, 4)]
-    lo = np.concatenate([np.minimum(simplices[:, i], simplices[:, j]) for i, j in pairs])
-    hi = np.concatenate([np.maximum(simplices[:, i], simplices[:, j]) for i, j in pairs])
-    edges = _unique_ints(lo * n + hi)
+    rs, rk = reps // 4, reps % 4
+    tri_vertices = np.stack([cols[t + (t >= rk), rs] for t in range(3)], axis=1)
+    b = _bits(n)
+    if 2 * b <= 63:
+        keys = np.concatenate([(cols[i] << b) | cols[j] for i in range(4) for j in range(i + 1, 4)])
+        edges = _unique_ints(keys)
+        lo, hi = edges >> b, edges & ((1 << b) - 1)
+    else:
+        rows = np.concatenate([cols[[i, j]].T for i in range(4) for j in range(i + 1, 4)])
+        lo, hi = np.unique(rows, axis=0).T
     chi = (
-        np.bincount(edges // n, minlength=n) + np.bincount(edges % n, minlength=n)
+        np.bincount(lo, minlength=n) + np.bincount(hi, minlength=n)
         - np.bincount(tri_vertices.ravel(), minlength=n)
         + np.bincount(simplices.ravel(), minlength=n)
     )

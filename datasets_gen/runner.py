@@ -34,6 +34,7 @@ files in the unfinished ones, which a rerun deletes before redoing them.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import io
@@ -76,6 +77,11 @@ class RunSummary:
         Wall-clock time of the run.
     bytes : int
         Size of every hashed file in the folder.
+    stages : dict of str to float
+        Seconds per stage (``timing.json``'s names), summed over the items made.
+    received : int
+        Bytes of item files that came back to this process from dask workers (0 when the
+        workers write their items themselves).
     """
 
     out: Path
@@ -85,6 +91,33 @@ class RunSummary:
     failed: dict[int, str] = field(default_factory=dict)
     seconds: float = 0.0
     bytes: int = 0
+    stages: dict[str, float] = field(default_factory=dict)
+    received: int = 0
+
+    def add_timing(self, seconds: dict[str, float]) -> None:
+        """Add one made item's stage seconds."""
+        for name, value in seconds.items():
+            self.stages[name] = self.stages.get(name, 0.0) + float(value)
+
+    def stage_table(self) -> str:
+        """Per-stage seconds summed over the items made, per item and as a share of the
+        items' total (renders and pictures grouped: ``render_*``, ``picture_*``)."""
+        grouped: dict[str, float] = {}
+        for name, value in self.stages.items():
+            key = name.split("_")[0] + "_*" if name.startswith(("render_", "picture_")) else name
+            grouped[key] = grouped.get(key, 0.0) + value
+        total = grouped.pop("total", sum(grouped.values()))
+        if not self.made or total <= 0:
+            return ""
+        order = ["build", "check", "bvh", "ao", "render_*", "picture_*", "write"]
+        names = [n for n in order if n in grouped] + sorted(set(grouped) - set(order))
+        other = total - sum(grouped.values())
+        rows = [(n, grouped[n]) for n in names] + ([("other", other)] if other > 0.005 * total else [])
+        lines = [f"  {'stage':<10} {'seconds':>9} {'per item':>9} {'share':>7}"]
+        lines += [f"  {n:<10} {v:9.2f} {v / self.made:9.3f} {100 * v / total:6.1f}%" for n, v in rows]
+        lines.append(f"  {'items':<10} {total:9.2f} {total / self.made:9.3f} {100.0:6.1f}%  "
+                     f"(summed over {self.made} items; {self.items_per_minute:.1f} items/min wall)")
+        return "\n".join(lines)
 
     @property
     def items_per_minute(self) -> float:
@@ -97,7 +130,8 @@ class RunSummary:
                  f"{len(self.failed)} failed of {self.n_items}; {self.seconds:.1f} s, {rate}, "
                  f"{self.bytes / 2**20:.2f} MiB"]
         lines += [f"  item {i}: {msg}" for i, msg in sorted(self.failed.items())]
-        return "\n".join(lines)
+        table = self.stage_table()
+        return "\n".join(lines + ([table] if table else []))
 
 
 def item_seed(seed: int, index: int) -> np.random.SeedSequence:
@@ -153,12 +187,31 @@ class _Job:
     seed: int
     out: str
     backend: str
+    run_sha256: str = ""  # of out/run.json: a worker that reads the same sees the same folder
+
+
+@contextlib.contextmanager
+def _stage(timing: dict[str, float], name: str):
+    """Add the wall-clock seconds of the ``with`` block to ``timing[name]``."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        timing[name] = timing.get(name, 0.0) + time.perf_counter() - t0
 
 
 def make_item(job: _Job) -> dict[str, Any]:
-    """Make item ``job.spec.index`` in its folder; returns its timing. Top-level: spawn-safe."""
+    """Make item ``job.spec.index`` in its folder; returns its timing. Top-level: spawn-safe.
+
+    ``timing.json`` holds the wall-clock seconds of each stage: ``build`` (field, grid and
+    extraction, or the lifted solid), ``check`` (mesh check, volume, measure), ``bvh`` (the
+    tree the AO rays and the renders trace), ``ao``, ``render_<name>`` (primary rays, AO at
+    hits, shading) and ``picture_<name>`` (the PNG) per render, ``write`` (every file and hash),
+    and ``total``.
+    """
     from .families import build_shape, random_rotation
 
+    start = time.perf_counter()
     spec, folder = job.spec, item_dir(Path(job.out), job.spec.index)
     folder.mkdir(parents=True, exist_ok=True)
     for stale in folder.iterdir():  # leftovers of an interrupted attempt (no valid record)
@@ -173,74 +226,84 @@ def make_item(job: _Job) -> dict[str, Any]:
     ao_seed = int(ao_ss.generate_state(1)[0])
     timing: dict[str, float] = {}
 
-    t0 = time.perf_counter()
-    shape = build_shape(spec.family.kind, params, settings, rng, rotation)
+    with _stage(timing, "build"):
+        shape = build_shape(spec.family.kind, params, settings, rng, rotation)
     mesh = shape.mesh
-    timing["build"] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    report = mesh.check()
-    volume, measure = float(mesh.volume), float(mesh.measure)
-    timing["check"] = time.perf_counter() - t0
-    files = [save_mesh_npz(folder / "mesh.npz", mesh).name]
+    with _stage(timing, "check"):
+        report = mesh.check()
+        volume, measure = float(mesh.volume), float(mesh.measure)
+    with _stage(timing, "write"):
+        files = [save_mesh_npz(folder / "mesh.npz", mesh).name]
 
     occlusion = None
+    if settings["ao"] or settings["renders"]:
+        with _stage(timing, "bvh"):
+            _build_bvh(mesh, job.backend)
     if settings["ao"]:
         import ao4d
 
         ao = settings["ao"]
-        t0 = time.perf_counter()
-        occlusion = ao4d.ambient_occlusion(mesh, samples=ao["samples"], max_distance=ao["max_distance"],
-                                           at=ao["at"], seed=ao_seed, backend=job.backend,
-                                           progress=False)
-        timing["ao"] = time.perf_counter() - t0
-        files.append(write_npz(folder / "ao.npz", {"occlusion": np.asarray(occlusion, np.float64)}).name)
+        with _stage(timing, "ao"):
+            occlusion = ao4d.ambient_occlusion(mesh, samples=ao["samples"], max_distance=ao["max_distance"],
+                                               at=ao["at"], seed=ao_seed, backend=job.backend,
+                                               progress=False)
+        with _stage(timing, "write"):
+            files.append(write_npz(folder / "ao.npz", {"occlusion": np.asarray(occlusion, np.float64)}).name)
 
     for render in settings["renders"]:
-        t0 = time.perf_counter()
         title = f"item {spec.index}: {spec.family.name} ({spec.family.kind}), looking along +w"
         files.append(_render(folder, render, mesh, occlusion, settings, ao_seed, job.backend,
-                             title).name)
-        timing[f"render_{render['name']}"] = time.perf_counter() - t0
+                             title, timing).name)
 
-    expected = shape.volume_expected
-    record = {
-        "format": RUN_FORMAT,
-        "index": spec.index,
-        "family": spec.family.name,
-        "kind": spec.family.kind,
-        "number": spec.number,
-        "seed": {"run": job.seed, "entropy": [job.seed, spec.index], "ao": ao_seed},
-        "params": params,
-        "derived": shape.derived,
-        "rotation": rotation,
-        "settings": {k: v for k, v in settings.items() if k != "renders"},
-        "renders": settings["renders"],
-        "grid": shape.grid,
-        "versions": _versions(),
-        "mesh": {
-            "vertices": mesh.n_vertices,
-            "simplices": mesh.n_simplices,
-            "check": {**asdict(report), "ok": report.ok},
-            "volume": volume,
-            "measure": measure,
-            "volume_expected": expected,
-            "volume_rel_error": None if not expected else volume / expected - 1.0,
-            "bounds": mesh.bounds,
-        },
-        "ao": None if occlusion is None else {
-            "mean": float(np.mean(occlusion)), "min": float(np.min(occlusion)),
-            "max": float(np.max(occlusion)), "values": len(occlusion),
-            "backend": _backend_ran(job.backend)},
-        "files": {name: sha256_file(folder / name) for name in files},
-    }
+    with _stage(timing, "write"):
+        expected = shape.volume_expected
+        record = {
+            "format": RUN_FORMAT,
+            "index": spec.index,
+            "family": spec.family.name,
+            "kind": spec.family.kind,
+            "number": spec.number,
+            "seed": {"run": job.seed, "entropy": [job.seed, spec.index], "ao": ao_seed},
+            "params": params,
+            "derived": shape.derived,
+            "rotation": rotation,
+            "settings": {k: v for k, v in settings.items() if k != "renders"},
+            "renders": settings["renders"],
+            "grid": shape.grid,
+            "versions": _versions(),
+            "mesh": {
+                "vertices": mesh.n_vertices,
+                "simplices": mesh.n_simplices,
+                "check": {**asdict(report), "ok": report.ok},
+                "volume": volume,
+                "measure": measure,
+                "volume_expected": expected,
+                "volume_rel_error": None if not expected else volume / expected - 1.0,
+                "bounds": mesh.bounds,
+            },
+            "ao": None if occlusion is None else {
+                "mean": float(np.mean(occlusion)), "min": float(np.min(occlusion)),
+                "max": float(np.max(occlusion)), "values": len(occlusion),
+                "backend": _backend_ran(job.backend)},
+            "files": {name: sha256_file(folder / name) for name in files},
+        }
+    timing["total"] = time.perf_counter() - start
     write_json(folder / "timing.json", {"seconds": timing, "pid": os.getpid()})
     write_json(folder / "record.json", record)  # last: marks the item complete
     return {"index": spec.index, "seconds": timing}
 
 
+def _build_bvh(mesh: Any, backend: str) -> None:
+    """Build (and cache on ``mesh``) the BVH that the AO rays and the renders will trace, on
+    the device they run on, so that its time is a stage of its own."""
+    from ao4d import cl
+    from ao4d.raycast import get_bvh
+
+    get_bvh(mesh, runtime=cl.resolve_backend(backend, warn=False))
+
+
 def _render(folder: Path, render: dict, mesh: Any, occlusion: Any, settings: dict, seed: int,
-            backend: str, title: str) -> Path:
+            backend: str, title: str, timing: dict[str, float]) -> Path:
     """Render the item looking along +w at its centre; save a z-slice montage PNG.
 
     Orthographic by default, framed tightly on the mesh's x, y, z extent (a perspective
@@ -258,20 +321,27 @@ def _render(folder: Path, render: dict, mesh: Any, occlusion: Any, settings: dic
                                half_width=1.05 * float(np.max(hi[:3] - lo[:3])) / 2)
     else:
         camera = ao4d.Camera4D.framing(mesh.bounds, fov=float(render.get("fov", 40.0)), margin=1.0)
-    scene = mesh.copy()
     vertex_ao = occlusion is not None and settings["ao"]["at"] == "vertices"
+    # the item's own mesh (not a copy), so the render traces the BVH already built for it; the
+    # mesh file is written, and the occlusion is attached only for the render
     if vertex_ao:
-        scene.point_data["ao"] = occlusion
-    result = ao4d.render(scene, camera, tuple(render.get("shape", (32, 32, 32))),
-                         ao="vertices" if vertex_ao else "hits",
-                         samples=int(render.get("samples", 32)), seed=seed, backend=backend,
-                         progress=False)
+        mesh.point_data["ao"] = occlusion
+    try:
+        with _stage(timing, f"render_{render['name']}"):
+            result = ao4d.render(mesh, camera, tuple(render.get("shape", (32, 32, 32))),
+                                 ao="vertices" if vertex_ao else "hits",
+                                 samples=int(render.get("samples", 32)), seed=seed, backend=backend,
+                                 progress=False)
+    finally:
+        if vertex_ao:
+            del mesh.point_data["ao"]
     path = folder / f"{render['name']}.png"
     # a fixed colour scale (shade = 1 - A in [0, 1]) makes items comparable, and a flat,
     # unoccluded view shows white rather than an arbitrary stretch of a constant image
-    save_montage(path, result.shade, background=~result.hit, label="shade (1 - A)",
-                 title=title, vmin=0.0, vmax=1.0,
-                 spacing=result.geometry.spacing, origin=result.geometry.origin)
+    with _stage(timing, f"picture_{render['name']}"):
+        save_montage(path, result.shade, background=~result.hit, label="shade (1 - A)",
+                     title=title, vmin=0.0, vmax=1.0,
+                     spacing=result.geometry.spacing, origin=result.geometry.origin)
     return path
 
 
@@ -368,6 +438,7 @@ def run(
     seed = cfg.seed if seed is None else check_positive_int(seed, "seed", minimum=0)
     out = Path(out)
     _check_out(out, cfg, seed)
+    run_sha256 = sha256_file(out / "run.json")
     items = cfg.items()
     summary = RunSummary(out, len(items))
     start = time.perf_counter()
@@ -376,7 +447,7 @@ def run(
         if item_complete(item_dir(out, spec.index)):
             summary.skipped += 1
         else:
-            todo.append(_Job(spec, seed, str(out), cfg.backend))
+            todo.append(_Job(spec, seed, str(out), cfg.backend, run_sha256))
 
     from ao4d import _progress
 
@@ -405,8 +476,9 @@ def run(
 
 def _collect(summary: RunSummary, job: _Job, call) -> None:
     try:
-        call()
+        result = call()
         summary.made += 1
+        summary.add_timing((result or {}).get("seconds", {}))
     except (KeyboardInterrupt, SystemExit):
         raise
     except Exception as exc:  # one bad item must not stop the dataset; reported at the end
@@ -525,6 +597,30 @@ def make_item_files(job: _Job) -> dict[str, Any]:
     return {"index": job.spec.index, "files": files, "timing": timing}
 
 
+# Workers write their items into the output folder themselves whenever they see it (set to
+# False to have every item's bytes sent back to the client, as for workers without the folder)
+_WORKERS_WRITE = True
+
+
+def make_item_on_worker(job: _Job) -> dict[str, Any]:
+    """Make an item on a dask worker, in the output folder itself when the worker sees it.
+
+    The worker sees the folder when its ``run.json`` has the client's hash (a shared
+    filesystem, or a LocalCluster on the client's machine): it makes the item there as
+    :func:`make_item` does in one process (each file atomic, ``record.json`` last) and returns
+    only its timing. Otherwise it makes the item in a scratch folder and returns the files'
+    bytes (:func:`make_item_files`) for the client to write.
+    """
+    out = Path(job.out)
+    try:
+        sees = bool(job.run_sha256) and sha256_file(out / "run.json") == job.run_sha256
+    except OSError:
+        sees = False
+    if not sees:
+        return make_item_files(job)
+    return {**make_item(job), "written": True}
+
+
 def write_item_files(out: Path, index: int, files: dict[str, bytes]) -> None:
     """Write an item's files into its folder, each atomically, ``record.json`` last (it marks
     the item complete), after deleting leftovers of an interrupted attempt."""
@@ -540,7 +636,9 @@ def write_item_files(out: Path, index: int, files: dict[str, bytes]) -> None:
 
 
 def _run_distributed(todo: list[_Job], scheduler: str, out: Path, summary: RunSummary, bar) -> None:
-    """Items as tasks on a dask.distributed scheduler; results written here as they arrive."""
+    """Items as tasks on a dask.distributed scheduler; workers that see the folder write their
+    items themselves, the others send them back to be written here as they arrive."""
+    import dataclasses
     import uuid
 
     from distributed import Client, LocalCluster, as_completed
@@ -567,13 +665,19 @@ def _run_distributed(todo: list[_Job], scheduler: str, out: Path, summary: RunSu
     try:
         for job in todo:
             key = f"datasets_gen-item-{job.spec.index:05d}-{run_id}"
-            futures[client.submit(make_item_files, job, key=key, pure=False)] = job
+            task = dataclasses.replace(job, out=str(Path(job.out).resolve()),
+                                       run_sha256=job.run_sha256 if _WORKERS_WRITE else "")
+            futures[client.submit(make_item_on_worker, task, key=key, pure=False)] = job
         for future in as_completed(list(futures)):
             job = futures[future]
 
-            def write(future=future, job=job) -> None:
+            def write(future=future, job=job) -> dict:
                 result = future.result()
+                if result.get("written"):  # the worker wrote the item into the folder
+                    return result
                 write_item_files(out, job.spec.index, result["files"])
+                summary.received += sum(len(b) for b in result["files"].values())
+                return result["timing"]
 
             _collect(summary, job, write)
             future.release()
@@ -613,19 +717,25 @@ def _write_index(out: Path, items: list[ItemSpec], summary: RunSummary) -> int:
         fh.write(text.getvalue())
 
     # top-level files, and each complete item's record and the files it lists (never the
-    # leftovers of a failed or interrupted item)
+    # leftovers of a failed or interrupted item). Item files carry the hashes their record
+    # holds (made when they were written, checked when a rerun found the item complete), so
+    # no item's bytes are read here again: only the records'.
+    known: dict[Path, str] = {}
     paths = [p for p in out.iterdir() if p.is_file()]
     for spec in items:
         folder = item_dir(out, spec.index)
         if spec.index in summary.failed or not (folder / "record.json").is_file():
             continue
         listed = json.loads((folder / "record.json").read_text(encoding="utf-8"))["files"]
-        paths += [folder / "record.json", *(folder / name for name in listed)]
+        paths.append(folder / "record.json")
+        for name, digest in listed.items():
+            known[folder / name] = digest
+    paths += list(known)
     files = {}
     for path in sorted(paths):
         if path.name not in UNHASHED and not path.name.startswith("."):
-            files[path.relative_to(out).as_posix()] = {"sha256": sha256_file(path),
-                                                       "bytes": path.stat().st_size}
+            digest = known.get(path) or sha256_file(path)
+            files[path.relative_to(out).as_posix()] = {"sha256": digest, "bytes": path.stat().st_size}
     run_info = json.loads((out / "run.json").read_text(encoding="utf-8"))
     write_json(out / "manifest.json", {
         "format": RUN_FORMAT,
@@ -641,7 +751,7 @@ def _write_index(out: Path, items: list[ItemSpec], summary: RunSummary) -> int:
         "device": _device_name(),
         "made": summary.made, "skipped": summary.skipped, "failed": summary.failed,
         "seconds": summary.seconds, "items_per_minute": summary.items_per_minute,
-        "bytes": size,
+        "bytes": size, "stages": summary.stages,
     })
     return size
 

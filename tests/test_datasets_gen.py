@@ -226,6 +226,35 @@ def test_item_does_not_depend_on_order_or_neighbours(reference, tiny_config, tmp
         assert a.read_bytes() == (reference / "items" / "00003" / name).read_bytes(), name
 
 
+def test_timing_has_every_stage_and_the_run_prints_them(tiny_config, tmp_path, capsys):
+    """timing.json times every stage of an item (their sum within the item's total), and the
+    command line ends with the per-stage table of the items it made and items/min."""
+    out = tmp_path / "run"
+    assert runner_mod.main([str(tiny_config), "--out", str(out), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    summed: dict[str, float] = {}
+    for index in range(5):
+        folder = out / "items" / f"{index:05d}"
+        seconds = json.loads((folder / "timing.json").read_text())["seconds"]
+        record = json.loads((folder / "record.json").read_text())
+        stages = {"build", "check", "bvh", "ao", "write", "total"}
+        stages |= {f"{kind}_{r['name']}" for r in record["renders"] for kind in ("render", "picture")}
+        assert set(seconds) == stages
+        parts = sum(v for k, v in seconds.items() if k != "total")
+        assert 0 < parts <= seconds["total"] and all(v >= 0 for v in seconds.values())
+        for k, v in seconds.items():
+            summed[k] = summed.get(k, 0.0) + v
+    table = {line.split()[0]: line.split() for line in printed.splitlines()[1:] if line.startswith("  ")}
+    for stage in ("build", "check", "bvh", "ao", "write"):
+        assert float(table[stage][1]) == pytest.approx(summed[stage], abs=0.006)
+        assert float(table[stage][2]) == pytest.approx(summed[stage] / 5, abs=0.0006)
+    assert float(table["render_*"][1]) == pytest.approx(summed["render_view"], abs=0.006)
+    assert float(table["items"][1]) == pytest.approx(summed["total"], abs=0.006)
+    assert "items/min" in printed
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stages"] == pytest.approx(summed)
+
+
 def test_two_workers_give_identical_manifest(reference, tiny_config, tmp_path):
     summary = run(tiny_config, tmp_path / "par", workers=2, progress=False)
     assert summary.made == 5 and not summary.failed

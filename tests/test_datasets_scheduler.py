@@ -1,5 +1,8 @@
 """datasets_gen on dask.distributed (``--scheduler``): the same bytes as a one-process run, also
-when a worker is killed mid-item or the client is killed and rerun."""
+when a worker is killed mid-item or the client is killed and rerun. The workers of these
+clusters see the output folder, so they write the items themselves (the client only the index
+and the manifest); one test makes them send the bytes back instead, as workers without the
+folder do."""
 
 from __future__ import annotations
 
@@ -72,6 +75,37 @@ def test_local_cluster_manifest_equals_one_process(config, reference, tmp_path, 
     assert not [p for p in (tmp_path / "run").rglob(".*")]
 
 
+def _writers(out: Path) -> set[int]:
+    """The process ids that made the items (timing.json records them)."""
+    return {json.loads(p.read_text())["pid"] for p in (out / "items").glob("*/timing.json")}
+
+
+def test_workers_write_their_items_when_they_see_the_folder(config, reference, cluster, tmp_path):
+    from distributed import Client
+
+    out = tmp_path / "run"
+    summary = run(config, out, scheduler=cluster.scheduler_address, progress=False)
+    assert (summary.made, summary.failed) == (5, {}) and summary.received == 0
+    assert _manifest(out) == _manifest(reference)
+    with Client(cluster) as client:
+        worker_pids = set(client.run(os.getpid).values())
+    assert _writers(out) <= worker_pids and os.getpid() not in _writers(out)
+    assert set(summary.stages) >= {"build", "check", "bvh", "ao", "write", "total"}
+
+
+def test_workers_without_the_folder_send_the_items_back(config, reference, cluster, tmp_path,
+                                                        monkeypatch):
+    out = tmp_path / "run"
+    monkeypatch.setattr(runner_mod, "_WORKERS_WRITE", False)  # as if they could not see it
+    summary = run(config, out, scheduler=cluster.scheduler_address, progress=False)
+    assert (summary.made, summary.failed) == (5, {})
+    hashed = json.loads(_manifest(out))["files"]
+    item_bytes = sum(f["bytes"] for name, f in hashed.items() if name.startswith("items/"))
+    timing_bytes = sum(p.stat().st_size for p in (out / "items").glob("*/timing.json"))
+    assert summary.received == item_bytes + timing_bytes
+    assert _manifest(out) == _manifest(reference)
+
+
 def test_scheduler_address_and_resume(config, reference, cluster, tmp_path, capsys):
     out = tmp_path / "run"
     summary = run(config, out, scheduler=cluster.scheduler_address, progress=False)
@@ -124,6 +158,9 @@ def test_worker_killed_mid_item_loses_nothing(config, reference, cluster, tmp_pa
     index = int(key.split("-")[2])
     record = json.loads((out / "items" / f"{index:05d}" / "record.json").read_text())
     assert record["index"] == index
+    # made again, in the folder, by a worker other than the killed one (and not the client)
+    remade = json.loads((out / "items" / f"{index:05d}" / "timing.json").read_text())["pid"]
+    assert remade != pids[victim] and remade != os.getpid() and summary.received == 0
 
 
 def test_killed_client_resumes(config, reference, cluster, tmp_path):

@@ -1,0 +1,88 @@
+"""Benchmark: where a dataset's time and bytes go.
+
+Part 1, the check against the extraction on the same mesh (1.2 M-tet spheritorus, 48^4 grid),
+taken in turn and repeated: extraction, the normals and volume (shared with AO), ``check()``
+of the extracted mesh (its vertex links from the construction) and of the same arrays as a
+plain mesh (everything computed).
+
+Part 2, a dataset on a 2-worker LocalCluster, once with the workers writing their items into
+the folder and once with the items sent back to the client: the item bytes the client
+received and the client's peak traced memory (tracemalloc) per item, and whether the two
+manifests are identical.
+
+    python bench/datasets.py                       # both parts, the smoke config
+    python bench/datasets.py --config tori --skip-check
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+
+def bench_check(repeats: int) -> None:
+    import ao4d
+    from ao4d import SimplexMesh
+
+    f = ao4d.fields.spheritorus(1.0, 0.4)
+    ao4d.extract_field(f, 48, (-1.5, 1.5)).check()  # warm: kernels, imports
+    print(f"{'extract':>8} {'normals':>8} {'check':>8} {'computed':>9}  (seconds; check after normals)")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        mesh = ao4d.extract_field(f, 48, (-1.5, 1.5))
+        te = time.perf_counter() - t
+        t = time.perf_counter()
+        _ = mesh.volume, mesh.simplex_measures
+        tn = time.perf_counter() - t
+        t = time.perf_counter()
+        report = mesh.check()
+        tc = time.perf_counter() - t
+        plain = SimplexMesh(mesh.vertices, mesh.simplices)
+        _ = plain.volume, plain.simplex_measures
+        t = time.perf_counter()
+        assert plain.check().ok and report.ok
+        tf = time.perf_counter() - t
+        print(f"{te:8.2f} {tn:8.2f} {tc:8.2f} {tf:9.2f}   ratio check/extract {tc / te:.2f}")
+
+
+def bench_writes(config: str, workers: int) -> None:
+    from datasets_gen import run
+    from datasets_gen import runner
+
+    manifests = {}
+    for shared in (False, True):
+        runner._WORKERS_WRITE = shared
+        with tempfile.TemporaryDirectory() as tmp:
+            out = Path(tmp) / "run"
+            tracemalloc.start()
+            summary = run(config, out, scheduler=f"local:{workers}", progress=False)
+            _, peak = tracemalloc.get_traced_memory()
+            tracemalloc.stop()
+            manifests[shared] = (out / "manifest.json").read_bytes()
+            n = max(summary.made, 1)
+            print(f"workers write: {str(shared):5}  {summary.made} items, {summary.seconds:.1f} s; "
+                  f"client received {summary.received / 2**20:.2f} MiB ({summary.received / n / 2**20:.2f} "
+                  f"MiB per item), client peak traced memory {peak / 2**20:.1f} MiB "
+                  f"({peak / n / 2**20:.2f} MiB per item); dataset {summary.bytes / 2**20:.1f} MiB")
+    print("manifests identical:", manifests[False] == manifests[True])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", default="smoke")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--skip-check", action="store_true")
+    parser.add_argument("--skip-writes", action="store_true")
+    args = parser.parse_args()
+    if not args.skip_check:
+        bench_check(args.repeats)
+    if not args.skip_writes:
+        bench_writes(args.config, args.workers)
+
+
+if __name__ == "__main__":
+    main()
