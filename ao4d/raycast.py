@@ -34,6 +34,8 @@ from .sampling import cosine_hemisphere, sobol_table
 __all__ = ["cast_rays", "count_occluded", "sample_directions", "traversal_counts", "get_bvh", "RayHits",
            "mesh_arrays", "unit_rows", "progress_bar", "RAYS_PER_LAUNCH", "ACCELS", "BUILDERS"]
 
+AO_PACKET = 32  # rays of a point traced together by the AO kernel (kernels/bvh.h trace_packet)
+AO_TRAVERSALS = ("packet", "rays")
 RAYS_PER_LAUNCH = 1 << 21  # ~0.5-2 s per launch on a 2-core CPU: responsive bar and Ctrl-C
 ACCELS = ("bvh", "brute")
 BUILDERS = ("auto", "host", "device")
@@ -272,7 +274,7 @@ def _device_tree(mesh: Any, tree: _bvh.BVH, runtime) -> dict[str, Any]:
 
 def _kernels(runtime, dim: int, lanes: int, count_visits: bool = False) -> dict[str, Any]:
     defines = {"DIM": dim, "BARY_EPS": f"{_bvh.BARY_EPS:.9g}f", "WIDTH": _bvh.WIDTH, "LANES": lanes,
-               "STACK_SIZE": _bvh.STACK_SIZE}
+               "STACK_SIZE": _bvh.STACK_SIZE, "PACKET": AO_PACKET}
     if count_visits:  # the debug variant of traversal_counts
         defines["COUNT_VISITS"] = 1
     return cl.build_kernels(runtime, "ao.cl", defines)
@@ -315,18 +317,21 @@ def _trace_opencl(mesh, tree, runtime, origins, directions, max_distance, any_hi
     return t, prim
 
 
-def _traversal_kernel(runtime, dim: int, dev: dict, name: str, accel: str, count_visits: bool = False):
-    """The ``{name}_bvh`` or ``{name}_brute`` kernel and its leading scene arguments."""
+def _traversal_kernel(runtime, dim: int, dev: dict, name: str, accel: str, count_visits: bool = False,
+                      suffix: str = ""):
+    """The ``{name}_bvh{suffix}`` or ``{name}_brute`` kernel and its leading scene arguments."""
     kernels = _kernels(runtime, dim, dev["lanes"], count_visits)
     if accel == "bvh":
-        return kernels[f"{name}_bvh"], [dev["boxes"], dev["children"], dev["blocks"]]
+        return kernels[f"{name}_bvh{suffix}"], [dev["boxes"], dev["children"], dev["blocks"]]
     return kernels[f"{name}_brute"], [dev["blocks"], dev["n_blocks"]]
 
 
 def _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_distance, accel, bar,
-               visits=None):
+               visits=None, traversal="packet"):
     """Occluded-ray counts per point on the device (points Morton-sorted for coherence); with
-    ``visits`` ((N, 2) int64), the counting kernels fill it (see :func:`traversal_counts`)."""
+    ``visits`` ((N, 4) int64), the counting kernels fill it (see :func:`traversal_counts`).
+    ``traversal``: ``"packet"`` (``ao_bvh``, the rays of a point together) or ``"rays"``
+    (``ao_bvh_rays``, one ray at a time: the reference); same counts."""
     import pyopencl as pcl
 
     n = len(points)
@@ -345,13 +350,15 @@ def _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_
     counts = np.empty(n, dtype=np.int32)
     buf_counts = pcl.Buffer(ctx, mf.WRITE_ONLY, counts.nbytes)
     dev = _device_tree(mesh, tree, runtime)
-    kernel, head = _traversal_kernel(runtime, tree.dim, dev, "ao", accel, visits is not None)
+    check_choice(traversal, "traversal", AO_TRAVERSALS)
+    suffix = "_rays" if traversal == "rays" else ""
+    kernel, head = _traversal_kernel(runtime, tree.dim, dev, "ao", accel, visits is not None, suffix)
     args = head + buffers + [
         np.int32(samples), np.uint32(seed & 0xFFFFFFFF), np.float32(offset),
         np.float32(max_distance), buf_counts,
     ]
     if visits is not None:
-        counted = np.empty((n, 2), dtype=np.int32)
+        counted = np.empty((n, 4), dtype=np.int32)
         buf_visits = pcl.Buffer(ctx, mf.WRITE_ONLY, counted.nbytes)
         args.append(buf_visits)
     per_launch = max(1, RAYS_PER_LAUNCH // samples)
@@ -653,17 +660,30 @@ def traversal_counts(
     runtime: Any,
     seed: int = 0,
     max_distance: float = math.inf,
-) -> tuple[float, float]:
+    traversal: str = "rays",
+    detail: bool = False,
+) -> tuple[float, ...]:
     """Wide nodes visited and leaf blocks tested per AO ray, on average (tree quality).
 
     Traces the rays of :func:`count_occluded` with a debug build of the kernels
     (``-D COUNT_VISITS``), which also counts, and returns ``(nodes per ray, blocks per ray)``.
+
+    Parameters
+    ----------
+    traversal : {"rays", "packet"}
+        ``"rays"``: one ray at a time (every visit is one ray's); ``"packet"``: the rays of a
+        point together, where a node fetched once serves every ray of the packet.
+    detail : bool
+        Also return the box tests (ray, wide node) and block tests (ray, block) per ray:
+        ``(nodes, blocks, node tests, block tests)``; for ``"rays"`` these equal the first two.
     """
+    check_choice(traversal, "traversal", AO_TRAVERSALS)
+    detail = check_bool(detail, "detail")
     tree = get_bvh(mesh, runtime=runtime)
     if len(points) == 0:
-        return math.nan, math.nan
-    visits = np.zeros((len(points), 2), dtype=np.int64)
+        return (math.nan,) * (4 if detail else 2)
+    visits = np.zeros((len(points), 4), dtype=np.int64)
     _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_distance, "bvh",
-               _NullBar(), visits=visits)
-    rays = len(points) * samples
-    return float(visits[:, 0].sum()) / rays, float(visits[:, 1].sum()) / rays
+               _NullBar(), visits=visits, traversal=traversal)
+    per_ray = visits.sum(0) / (len(points) * samples)
+    return tuple(float(x) for x in per_ray[: 4 if detail else 2])
