@@ -208,11 +208,13 @@ inline pmask trace_packet(__global const floatW *boxes, __global const int *chil
                 if (!left) break;
                 COUNT_VISIT(1);
                 __global const floatL *blk = blocks + (size_t)b * BLOCK_ROWS;
+                floatL rel[DIM];
+                const floatL q = block_origin(blk, o, rel);  // shared by the packet's rays
                 for (; left; left &= left - 1) {
                     const int r = lowest_ray(left);
                     float t;
                     COUNT_VISIT(3);
-                    if (hit_block(blk, o, rays[r].w, t_max, &t) >= 0) alive &= ~((pmask)1 << r);
+                    if (hit_block_at(blk, rel, q, rays[r].w, t_max, &t) >= 0) alive &= ~((pmask)1 << r);
                 }
             }
             if (!alive) return active;
