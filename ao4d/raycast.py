@@ -376,10 +376,13 @@ def _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_
     return out
 
 
-def sample_directions(runtime, normals: np.ndarray, samples: int, seed: int) -> np.ndarray:
+def sample_directions(runtime, normals: np.ndarray, samples: int, seed: int, *,
+                      eight: bool = False) -> np.ndarray:
     """The directions the AO kernel traces, computed on the device: (N, samples, d) float64.
 
-    For tests: they must equal :func:`ao4d.sampling.cosine_hemisphere` on the host.
+    For tests: they must equal :func:`ao4d.sampling.cosine_hemisphere` on the host. With
+    ``eight``, generated eight at a time on vector lanes as the packet AO kernel does
+    (``cosine_directions8``); they must be the same bits as one at a time.
     """
     import pyopencl as pcl
 
@@ -388,7 +391,7 @@ def sample_directions(runtime, normals: np.ndarray, samples: int, seed: int) -> 
     ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
     out = np.empty((n * samples, 4), dtype=np.float32)
     buf = pcl.Buffer(ctx, pcl.mem_flags.WRITE_ONLY, out.nbytes)
-    _kernels(runtime, d, _block_lanes(runtime))["sample_directions"](
+    _kernels(runtime, d, _block_lanes(runtime))["sample_directions8" if eight else "sample_directions"](
         queue, (n,), None,
         pcl.Buffer(ctx, ro, hostbuf=_pad4(normals)),
         pcl.Buffer(ctx, ro, hostbuf=np.arange(n, dtype=np.uint32)),

@@ -358,3 +358,17 @@ def test_packet_traversal_shares_node_visits(cl_runtime):
     assert per_ray[0] == per_ray[2] and per_ray[1] == per_ray[3]
     assert packet[2] == per_ray[2] and packet[3] == per_ray[3]
     assert packet[0] < 0.3 * per_ray[0] and packet[1] < 0.5 * per_ray[1]
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_directions_eight_at_a_time_are_the_same_bits(d, cl_runtime):
+    # the packet kernel generates its directions on vector lanes (vector cbrt / sincos / sqrt),
+    # the per-ray kernel one at a time: the AO counts can only agree if these are the same bits
+    rng = np.random.default_rng(1700 + d)
+    normals = rng.normal(size=(3000, d))
+    normals[:40] = np.eye(d)[rng.integers(0, d, 40)] * rng.choice([-1.0, 1.0], size=(40, 1))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    one = raycast.sample_directions(cl_runtime, normals, 77, 5)  # 77: a last group of five
+    eight = raycast.sample_directions(cl_runtime, normals, 77, 5, eight=True)
+    np.testing.assert_array_equal(eight, one)
+    assert np.all(np.einsum("nsd,nd->ns", one, normals) >= -1e-6)  # in the normals' hemispheres
