@@ -372,3 +372,38 @@ def test_directions_eight_at_a_time_are_the_same_bits(d, cl_runtime):
     eight = raycast.sample_directions(cl_runtime, normals, 77, 5, eight=True)
     np.testing.assert_array_equal(eight, one)
     assert np.all(np.einsum("nsd,nd->ns", one, normals) >= -1e-6)  # in the normals' hemispheres
+
+
+def test_packet_kernel_private_memory_is_bounded(cl_runtime):
+    # GPU readiness: the packet's rays (32 x 20 words in 4D) and its stack of (node, ray mask)
+    # entries are fixed-size private arrays; no local memory
+    import pyopencl as pcl
+
+    for d in (2, 3, 4):
+        kernel = raycast._kernels(cl_runtime, d, raycast._block_lanes(cl_runtime))["ao_bvh"]
+        assert kernel.get_work_group_info(pcl.kernel_work_group_info.LOCAL_MEM_SIZE, cl_runtime.device) == 0
+        private = _private_bytes(cl_runtime, kernel)
+        needed = raycast.AO_PACKET * 5 * d * 4 + 2 * bvh.STACK_SIZE * 4
+        if private > 0:  # runtimes that report it: the packet and the stack, little more
+            assert needed <= private <= needed + 4096
+
+
+def test_ao_uses_the_packet_kernel_on_cpus(cl_runtime, monkeypatch):
+    import pyopencl as pcl
+
+    used = []
+    real = raycast._traversal_kernel
+
+    def spy(runtime, dim, dev, name, accel, count_visits=False, suffix=""):
+        used.append(suffix)
+        return real(runtime, dim, dev, name, accel, count_visits, suffix)
+
+    monkeypatch.setattr(raycast, "_traversal_kernel", spy)
+    rng = np.random.default_rng(1800)
+    mesh = soup_scene(rng, 3, n=50)
+    ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
+    cpu = bool(cl_runtime.device.type & pcl.device_type.CPU)
+    assert used == ["" if cpu else "_rays"]  # ao_bvh (packets) on CPUs, ao_bvh_rays elsewhere
+    with pytest.raises(ValueError, match="`traversal` must be one of"):
+        raycast.traversal_counts(mesh, mesh.vertices[:3], np.eye(3)[[0, 1, 2]], samples=4, offset=0.0,
+                                 runtime=cl_runtime, traversal="wide")
