@@ -332,7 +332,7 @@ def _traversal_kernel(runtime, dim: int, dev: dict, name: str, accel: str, count
 
 def _ao_traversal(runtime) -> str:
     """The AO kernel for this device: packets on CPUs, where one work-item runs on one core and
-    a packet shares its node fetches and child loops among 32 rays (measured 1.1-1.4x faster);
+    a packet shares its node fetches and child loops among 32 rays (1.1-1.45x faster, measured);
     one ray per work-item elsewhere: GPUs run neighbouring rays on SIMT lanes already and the
     packet's 5.5 KiB of private memory per work-item would spill (not measured: no GPU lent)."""
     import pyopencl as pcl
