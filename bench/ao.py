@@ -1,24 +1,27 @@
 """Benchmark: ambient occlusion rays per second, BVH build included, against Embree.
 
-Run ``python bench/ao.py`` (``--help`` for sizes). Each ``--repeat`` round takes every
-measurement once, in turn, so that all see the same machine load; the table shows medians.
+Run ``python bench/ao.py`` (``--quick`` for small meshes, ``--help`` for sizes). Each
+``--repeat`` round takes every measurement once, in turn, so that all see the same machine load;
+the tables show medians.
 
 * ao4d OpenCL, every vertex of a 4D mesh of about ``--tets`` tetrahedra, ``--samples`` rays per
-  vertex (cosine-weighted, any hit, unlimited distance), on the spheritorus and on a second 4D
-  shape (``--shapes``), once with each BVH builder: ``host`` (numpy, :func:`ao4d.bvh.build`) and
-  ``device`` (OpenCL kernels, :mod:`ao4d.bvh.device`, the default where OpenCL runs). End to end
-  is a first ``ambient_occlusion(mesh, samples=64)`` on a fresh mesh (the device builder runs
-  inside it; the host tree is built by ``get_bvh(mesh, builder="host")`` just before); trace is
-  the second call on the same mesh, build the difference.
-* The peers, on a 3D torus with as many triangles, as many AO rays of the same kind (64 per
-  point, ao4d's directions, from as many points spread evenly over the torus): Open3D's
-  ``RaycastingScene.test_occlusions`` (Embree 4, all threads; in a process of its own, because
-  its bundled TBB must not meet Intel's OpenCL runtime) and trimesh's ``intersects_any``
-  (embreex: Embree from one Python thread). Build is the scene construction and the first query.
-  ao4d traces exactly these rays on the same torus too (row "ao4d ... 3D torus").
-* Tree quality: SAH cost of each builder's binary tree, its 8-wide form (nodes, share of slots
-  used, depth) and wide nodes visited / leaf blocks tested per AO ray
-  (``ao4d.raycast.traversal_counts``, on ``--quality-points`` vertices).
+  vertex (cosine-weighted, any hit), on four 4D shapes (``--shapes``): the spheritorus, the
+  tiger, the ditorus and a CSG of tesseracts (a tesseract with four tesseract-shaped pockets,
+  deep concavities). "first call" is a first ``ambient_occlusion(mesh, samples=64)`` on a fresh
+  mesh (the device builder runs inside it: build + trace); "trace" is the second call on the
+  same mesh, "build" the difference; "reach d/4" a call with ``max_distance`` a quarter of the
+  bounding box's diagonal. Traced by the packet kernel (``ao_bvh``: a point's rays together) and,
+  as "per-ray kernel", by the kernel it replaces (``ao_bvh_rays``, one ray at a time).
+* Open3D's ``RaycastingScene.test_occlusions`` (Embree 4, all threads; in a process of its own,
+  because its bundled TBB must not meet Intel's OpenCL runtime), per shape on a 3D torus with as
+  many triangles as the shape has tetrahedra and as many AO rays of the same kind (64 per point,
+  ao4d's directions, from as many points spread evenly over the torus), once with unlimited
+  reach and once with ``tfar`` a quarter of the torus's bounding-box diagonal. Build is the scene
+  construction and the first query. ``--embreex`` adds trimesh's ``intersects_any`` (embreex:
+  Embree from one Python thread) and ``--host-tree`` ao4d with the numpy-built tree.
+* Traversal work per AO ray on ``--quality-points`` vertices (``ao4d.raycast.traversal_counts``,
+  deterministic, unlike the timings): wide nodes fetched and leaf blocks fetched, per-ray kernel
+  (before) and packet kernel (after); SAH cost and the 8-wide tree's nodes, slot use and depth.
 * The numpy backend on a smaller 4D mesh, and the BVH kernel against the brute-force kernel.
 
 Rates count rays per wall-clock second; the machine's load average is printed before and after.
@@ -27,7 +30,9 @@ Rates count rays per wall-clock second; the machine's load average is printed be
 from __future__ import annotations
 
 import argparse
+import functools
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -36,7 +41,23 @@ import time
 
 import numpy as np
 
-SHAPES = ("spheritorus", "tiger", "ditorus")
+SHAPES = ("spheritorus", "tiger", "ditorus", "csg")
+
+
+def csg_field():
+    """A tesseract of half side 1 with four pockets: tesseracts of half side 0.5 turned by 30
+    degrees in four planes and sunk halfway into the facets +x, +y, +z and -w (deep concavities
+    whose walls occlude each other)."""
+    import ao4d
+
+    fields = ao4d.fields
+    pockets = []
+    for axis, sign, plane in ((0, 1, (1, 2)), (1, 1, (2, 3)), (2, 1, (0, 3)), (3, -1, (0, 1))):
+        centre = np.zeros(4)
+        centre[axis] = sign * 1.0
+        cube = fields.rotate(fields.tesseract(0.5, 0.05), plane, math.radians(30))
+        pockets.append(fields.translate(cube, centre))
+    return fields.difference(fields.tesseract(1.0, 0.05), fields.union(*pockets))
 
 
 def shape_mesh(name: str, tets: float):
@@ -49,8 +70,11 @@ def shape_mesh(name: str, tets: float):
         n = max(8, round(48 * (tets / 1.1e6) ** (1 / 3)))
         shape = (n, n, n, max(6, n // 3))
         return ao4d.extract_field(field, shape, ((-1.5, -1.5, -1.5, -0.5), (1.5, 1.5, 1.5, 0.5)))
-    field = {"tiger": ao4d.fields.tiger(), "ditorus": ao4d.fields.ditorus()}[name]
-    lo, hi = np.asarray(field.extent[0], float), np.asarray(field.extent[1], float)
+    if name == "csg":
+        field, lo, hi = csg_field(), np.full(4, -1.0), np.full(4, 1.0)
+    else:
+        field = {"tiger": ao4d.fields.tiger, "ditorus": ao4d.fields.ditorus}[name]()
+        lo, hi = np.asarray(field.extent[0], float), np.asarray(field.extent[1], float)
     pad = 0.1 * float((hi - lo).max())
     lo, hi = lo - pad, hi + pad
     spacing = 0.1
@@ -109,41 +133,52 @@ def load() -> str:
 # -- peers --------------------------------------------------------------------------------------
 
 
-def open3d_worker(triangles: int, n_points: int, samples: int) -> int:
-    """Serve Open3D measurements over stdin/stdout: a line ``run`` -> one JSON line."""
+def open3d_worker() -> int:
+    """Serve Open3D measurements over stdin/stdout: a JSON line ``{"triangles", "points",
+    "samples", "reach"}`` (reach: tfar as a fraction of the torus's diagonal, 0 for unlimited)
+    -> one JSON line. The torus and its rays are made once per size (not timed)."""
     import open3d as o3d  # first: its bundled TBB before anything else
 
-    tm, _, _, o, w = torus_rays(triangles, n_points, samples)
-    rays = o3d.core.Tensor(np.ascontiguousarray(np.concatenate([o, w], axis=1)))
-    vertices = o3d.core.Tensor(np.asarray(tm.vertices, dtype=np.float32))
-    faces = o3d.core.Tensor(np.asarray(tm.faces, dtype=np.uint32))
-    print(json.dumps({"ready": True, "triangles": len(tm.faces), "rays": len(o)}), flush=True)
+    workloads = {}
+    print(json.dumps({"ready": True}), flush=True)
     for line in sys.stdin:
-        if line.strip() != "run":
-            break
+        job = json.loads(line)
+        size = (job["triangles"], job["points"], job["samples"])
+        if size not in workloads:
+            tm, _, _, o, w = torus_rays(*size)
+            workloads[size] = (
+                o3d.core.Tensor(np.ascontiguousarray(np.concatenate([o, w], axis=1))),
+                o3d.core.Tensor(np.asarray(tm.vertices, dtype=np.float32)),
+                o3d.core.Tensor(np.asarray(tm.faces, dtype=np.uint32)),
+                float(np.linalg.norm(np.ptp(tm.vertices, axis=0))),
+            )
+        rays, vertices, faces, diagonal = workloads[size]
+        tfar = job["reach"] * diagonal if job["reach"] else math.inf
         clock = Clock()
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(vertices, faces)
         scene.test_occlusions(rays[:1])  # Embree builds its BVH at the first query
         build = clock.lap()
-        hit = scene.test_occlusions(rays).numpy()
-        print(json.dumps(dict(build=build, trace=clock.lap(), hit=float(hit.mean()))), flush=True)
+        hit = scene.test_occlusions(rays, tfar=tfar).numpy()
+        trace = clock.lap()
+        first = [b + t for b, t in zip(build, trace)]
+        print(json.dumps(dict(build=build, trace=trace, first=first, hit=float(hit.mean()),
+                              rays=int(len(hit)))), flush=True)
     return 0
 
 
 class Open3D:
     """The worker process, started once (its setup is not timed)."""
 
-    def __init__(self, triangles: int, n_points: int, samples: int):
+    def __init__(self):
         env = dict(os.environ, AO4D_PRELOAD_TBB="0")  # the worker never uses OpenCL
-        self.proc = subprocess.Popen(
-            [sys.executable, __file__, "--open3d-worker", str(triangles), str(n_points), str(samples)],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
-        )
+        self.proc = subprocess.Popen([sys.executable, __file__, "--open3d-worker"],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
         self.info = json.loads(self.proc.stdout.readline())
 
-    def run(self) -> dict:
-        self.proc.stdin.write("run\n")
+    def run(self, triangles: int, points: int, samples: int, reach: float = 0.0) -> dict:
+        job = dict(triangles=triangles, points=points, samples=samples, reach=reach)
+        self.proc.stdin.write(json.dumps(job) + "\n")
         self.proc.stdin.flush()
         return json.loads(self.proc.stdout.readline())
 
@@ -167,52 +202,77 @@ def embree_run(tm, o, w) -> dict:
     intersector.intersects_any(o[:1], w[:1])  # builds Embree's BVH
     build = clock.lap()
     hit = intersector.intersects_any(o, w)
-    return {"build": build, "trace": clock.lap(), "hit": float(hit.mean())}
+    trace = clock.lap()
+    return {"build": build, "trace": trace, "first": [b + t for b, t in zip(build, trace)],
+            "hit": float(hit.mean()), "rays": len(o)}
 
 
 # -- ao4d ---------------------------------------------------------------------------------------
 
 
-def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, points=None, normals=None) -> dict:
-    """A fresh mesh: build = its tree and the tree's device copy (what the first AO call adds),
-    trace = the AO call."""
+def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, reach: float = 0.0) -> dict:
+    """A fresh mesh: first call (build + trace), then a second call on it (trace); with
+    reach > 0 both with ``max_distance`` = reach times the bounding box's diagonal."""
     import ao4d
     from ao4d import bvh, raycast
 
     mesh = ao4d.SimplexMesh(vertices, simplices)
-    if points is None:
-        mesh.vertex_normals  # noqa: B018 - computed (and cached) before the clock starts
+    mesh.vertex_normals  # noqa: B018 - computed (and cached) before the clock starts
     kwargs = {"samples": samples, "backend": "opencl", "progress": False}
-    if points is not None:
-        kwargs.update(points=points, normals=normals)
+    if reach:
+        kwargs["max_distance"] = reach * float(np.linalg.norm(np.ptp(vertices, axis=0)))
     clock = Clock()
-    tree = raycast.get_bvh(mesh, builder=builder, runtime=runtime)
-    bvh.device_tree(mesh, tree, runtime)  # the host tree's upload; the device tree has it
-    build = clock.lap()
+    if builder == "host":  # the numpy tree, built and uploaded before the first call
+        bvh.device_tree(mesh, raycast.get_bvh(mesh, builder="host"), runtime)
+    occlusion = ao4d.ambient_occlusion(mesh, **kwargs)
+    first = clock.lap()
+    tree = raycast.get_bvh(mesh)
+    assert (builder == "device") == (type(tree).__name__ == "DeviceBVH")
     occlusion = ao4d.ambient_occlusion(mesh, **kwargs)
     trace = clock.lap()
-    assert (builder == "device") == (type(tree).__name__ == "DeviceBVH")
-    return {"build": build, "trace": trace, "hit": float(np.nanmean(occlusion)),
-            "rays": int(np.isfinite(occlusion).sum()) * samples}
+    return {"first": first, "trace": trace, "build": tuple(f - t for f, t in zip(first, trace)),
+            "hit": float(np.nanmean(occlusion)), "rays": int(np.isfinite(occlusion).sum()) * samples}
 
 
-def quality(vertices, simplices, builder, runtime, samples, n_points, rng) -> dict:
+@functools.lru_cache(maxsize=None)
+def _reference_traversal():
+    from ao4d import raycast
+
+    return functools.partial(raycast._ao_opencl, traversal="rays")
+
+
+def per_ray_run(vertices, simplices, runtime, samples: int, reach: float = 0.0) -> dict:
+    """The trace of ao4d_run with the per-ray kernel (``ao_bvh_rays``), the one before packets."""
+    from ao4d import raycast
+
+    packet = raycast._ao_opencl
+    raycast._ao_opencl = _reference_traversal()
+    try:
+        return ao4d_run(vertices, simplices, "device", runtime, samples, reach)
+    finally:
+        raycast._ao_opencl = packet
+
+
+def quality(vertices, simplices, runtime, samples, n_points, rng) -> dict:
     import ao4d
     from ao4d import ao, bvh, raycast
 
     mesh = ao4d.SimplexMesh(vertices, simplices)
-    tree = raycast.get_bvh(mesh, builder=builder, runtime=runtime)
+    tree = raycast.get_bvh(mesh, builder="device", runtime=runtime)
     normals = mesh.vertex_normals
     ok = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)
     idx = np.sort(rng.choice(ok, size=min(n_points, ok.size), replace=False))
-    nodes, blocks = raycast.traversal_counts(
-        mesh, mesh.vertices[idx], normals[idx], samples=samples, offset=ao.ORIGIN_OFFSET * tree.world_diagonal,
-        runtime=runtime,
-    )
+    out = {}
+    for reach in (0.0, 0.25):
+        for traversal in ("rays", "packet"):
+            out[traversal, reach] = raycast.traversal_counts(
+                mesh, mesh.vertices[idx], normals[idx], samples=samples, runtime=runtime,
+                offset=ao.ORIGIN_OFFSET * tree.world_diagonal, traversal=traversal, detail=True,
+                max_distance=reach * tree.world_diagonal if reach else math.inf,
+            )
     _, children, _, _, wide_depth = bvh.widen_topology(tree)
-    return {"sah": bvh.sah_cost(tree), "nodes": nodes, "blocks": blocks, "depth": tree.depth,
-            "n_nodes": tree.n_nodes, "wide": len(children), "used": float((children != 0).mean()),
-            "wide_depth": wide_depth}
+    return {"counts": out, "sah": bvh.sah_cost(tree), "wide": len(children),
+            "used": float((children != 0).mean()), "wide_depth": wide_depth}
 
 
 def timed(fn, repeat):
@@ -224,19 +284,33 @@ def timed(fn, repeat):
     return statistics.median(walls), result
 
 
+def med(runs, key, k=0):
+    """Median over rounds of ``key`` (k = 0: wall seconds, 1: CPU seconds of all threads)."""
+    return statistics.median(r[key][k] for r in runs)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tets", type=float, default=1.05e6, help="4D mesh size (1.05e6)")
+    parser.add_argument("--quick", action="store_true",
+                        help="small sizes: --tets 1.5e5 --quality-points 3000 --numpy-tets 3e4")
+    parser.add_argument("--tets", type=float, default=None, help="4D mesh size (1.05e6)")
     parser.add_argument("--samples", type=int, default=64, help="rays per point (64)")
     parser.add_argument("--repeat", type=int, default=3, help="rounds of measurements (3)")
-    parser.add_argument("--shapes", default="spheritorus,tiger", help=f"4D shapes, of {', '.join(SHAPES)}")
-    parser.add_argument("--quality-points", type=int, default=20000, help="points for node-visit counts")
-    parser.add_argument("--numpy-tets", type=float, default=1.5e5, help="mesh for the numpy rate")
+    parser.add_argument("--shapes", default=",".join(SHAPES), help=f"4D shapes, of {', '.join(SHAPES)}")
+    parser.add_argument("--quality-points", type=int, default=None, help="points for node-visit counts (20000)")
+    parser.add_argument("--numpy-tets", type=float, default=None, help="mesh for the numpy rate (1.5e5)")
     parser.add_argument("--numpy-points", type=int, default=500)
-    parser.add_argument("--open3d-worker", nargs=3, type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--host-tree", action="store_true", help="also ao4d with the numpy-built tree")
+    parser.add_argument("--embreex", action="store_true", help="also trimesh + embreex (one thread)")
+    parser.add_argument("--open3d-worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.open3d_worker:
-        return open3d_worker(*args.open3d_worker)
+        return open3d_worker()
+    quick = {"tets": 1.5e5, "quality_points": 3000, "numpy_tets": 3e4}
+    full = {"tets": 1.05e6, "quality_points": 20000, "numpy_tets": 1.5e5}
+    for key, value in (quick if args.quick else full).items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
     shapes = [s.strip() for s in args.shapes.split(",") if s.strip()]
     unknown = sorted(set(shapes) - set(SHAPES))
     if unknown:
@@ -252,106 +326,106 @@ def main(argv=None) -> int:
         print("no OpenCL device: nothing to benchmark", file=sys.stderr)
         return 1
     print(f"device: {cl.describe(runtime)}; load average before: {load()}")
-    meshes = {}
+    meshes, points = {}, {}
     for name in shapes:
         mesh = shape_mesh(name, args.tets)
         meshes[name] = (np.asarray(mesh.vertices), np.asarray(mesh.simplices))
+        points[name] = int((np.linalg.norm(mesh.vertex_normals, axis=1) > 0.5).sum())
         print(f"{name}: {mesh.n_simplices:,} tetrahedra, {mesh.n_vertices:,} vertices")
-    # warm up: kernels loaded (4D and 3D), sampling tables ready
+    # warm up: kernels loaded (4D and 3D, both traversals), sampling tables ready
     v0, s0 = meshes[shapes[0]]
     small = ao4d.SimplexMesh(v0, s0[:1000])
-    ao4d.ambient_occlusion(small, points=v0[:10], normals=np.eye(4)[[0] * 10], samples=4, backend="opencl")
+    for run in (ao4d_run, per_ray_run):
+        run(small.vertices, small.simplices, *(("device",) if run is ao4d_run else ()), runtime, 4)
     tiny = torus_trimesh(2000)
     ao4d.ambient_occlusion(ao4d.SimplexMesh(tiny.vertices, tiny.faces), samples=4, backend="opencl")
-    primary = ao4d.SimplexMesh(v0, s0)
-    n_points = int((np.linalg.norm(primary.vertex_normals, axis=1) > 0.5).sum())
 
-    peers: dict[str, list] = {}
-    worker = None
     reason = have_open3d()
-    if reason is None:
-        worker = Open3D(len(s0), n_points, args.samples)
-        peers["Open3D RaycastingScene (Embree 4, all threads)"] = []
-    else:
+    worker = Open3D() if reason is None else None
+    if worker is None:
         print(f"Open3D comparison skipped: {reason} (pip install 'ao4d[bench]')")
-    try:
-        import embreex  # noqa: F401
+    embree = None
+    if args.embreex:
+        try:
+            import embreex  # noqa: F401
 
-        tm, q, m, o, w = torus_rays(len(s0), n_points, args.samples)
-        peers["trimesh + embreex (Embree, one thread)"] = []
-    except ImportError as exc:
-        tm = None
-        print(f"trimesh+Embree comparison skipped: {exc}")
-        if worker is not None:
-            tm, q, m, o, w = torus_rays(len(s0), n_points, args.samples)
-    ours: dict[tuple[str, str], list] = {(name, b): [] for name in shapes for b in ("host", "device")}
-    torus_key = ("3D torus, the peers' rays", "device")
-    if tm is not None:
-        ours[torus_key] = []
-
+            embree = {name: torus_rays(len(meshes[name][1]), points[name], args.samples) for name in shapes}
+        except ImportError as exc:
+            print(f"trimesh+Embree comparison skipped: {exc}")
+    runs: dict[tuple[str, str], list] = {}
     for _ in range(args.repeat):
-        for (name, builder) in ours:
-            if (name, builder) == torus_key:
-                ours[torus_key].append(ao4d_run(np.asarray(tm.vertices), np.asarray(tm.faces), "device",
-                                                runtime, args.samples, q, m))
-            else:
-                ours[(name, builder)].append(ao4d_run(*meshes[name], builder, runtime, args.samples))
-        for label in peers:
-            peers[label].append(worker.run() if label.startswith("Open3D") else embree_run(tm, o, w))
+        for name in shapes:
+            v, s = meshes[name]
+            todo = {
+                "ao4d": lambda: ao4d_run(v, s, "device", runtime, args.samples),
+                "ao4d d/4": lambda: ao4d_run(v, s, "device", runtime, args.samples, 0.25),
+                "per-ray": lambda: per_ray_run(v, s, runtime, args.samples),
+                "per-ray d/4": lambda: per_ray_run(v, s, runtime, args.samples, 0.25),
+            }
+            if args.host_tree:
+                todo["ao4d host tree"] = lambda: ao4d_run(v, s, "host", runtime, args.samples)
+            if worker is not None:
+                todo["Open3D"] = lambda: worker.run(len(s), points[name], args.samples)
+                todo["Open3D d/4"] = lambda: worker.run(len(s), points[name], args.samples, 0.25)
+            if embree is not None:
+                todo["embreex"] = lambda: embree_run(embree[name][0], *embree[name][3:])
+            for label, fn in todo.items():
+                runs.setdefault((name, label), []).append(fn())
     if worker is not None:
         worker.close()
+    report(runs, shapes, args.repeat)
 
-    def med(runs, key, k=0):  # k = 0: wall seconds, 1: CPU seconds
-        return statistics.median(r[key][k] for r in runs)
-
-    rows = {f"ao4d OpenCL, {name}, {builder}-built tree": (runs, runs[0]["rays"])
-            for (name, builder), runs in ours.items()}
-    rows.update({f"{label}, 3D torus": (runs, len(o)) for label, runs in peers.items()})
-    rates = {}
-    for k, title in ((0, "wall clock"), (1, "CPU time (all threads; rays per CPU-second)")):
-        print(f"\n{title}, medians of {args.repeat} rounds; load average after: {load()}")
-        print(f"{'':<58} {'rays':>11} {'build s':>8} {'trace Mrays/s':>14} {'end-to-end Mrays/s':>19} {'hit/AO':>7}")
-        for label, (runs, rays) in rows.items():
-            build, trace = med(runs, "build", k), med(runs, "trace", k)
-            e2e = statistics.median(r["build"][k] + r["trace"][k] for r in runs)
-            rates[label, k] = (rays / trace, rays / e2e, build)
-            hit = statistics.median(r["hit"] for r in runs)
-            print(f"{label:<58} {rays:>11,} {build:>8.2f} {rays / trace / 1e6:>14.2f} {rays / e2e / 1e6:>19.2f} {hit:>7.3f}")
-
-    ours_labels = [label for label in rows if label.startswith("ao4d")]
-    peer_labels = [label for label in rows if not label.startswith("ao4d")]
-    for k, title in ((0, "wall clock"), (1, "CPU time")):
-        print(f"\nratios, {title} (trace, end to end, build; > 1: ao4d faster):")
-        for peer in peer_labels:
-            for label in ours_labels:
-                if "device" not in label:
-                    continue
-                (trace, e2e, build), (p_trace, p_e2e, p_build) = rates[label, k], rates[peer, k]
-                print(f"  {label[13:].split(', device')[0]} / {peer.split(' (')[0]}: trace {trace / p_trace:.2f}x, "
-                      f"end to end {e2e / p_e2e:.2f}x, build {p_build / build:.2f}x")
-        for name in shapes:
-            (ht, he, hb) = rates[f"ao4d OpenCL, {name}, host-built tree", k]
-            (dt, de, db) = rates[f"ao4d OpenCL, {name}, device-built tree", k]
-            print(f"  {name}: device tree / host tree: trace {dt / ht:.2f}x, build {hb / db:.1f}x faster, "
-                  f"end to end {de / he:.2f}x")
-    o3d_label = next((label for label in peer_labels if label.startswith("Open3D")), None)
-    if o3d_label:
-        trace, e2e, _ = rates[f"ao4d OpenCL, {shapes[0]}, device-built tree", 0]
-        p_trace, p_e2e, _ = rates[o3d_label, 0]
-        for what, ratio in (("end to end", e2e / p_e2e), ("trace", trace / p_trace)):
-            print(f"target: {shapes[0]} {what} >= 1.0x Open3D (wall clock): {ratio:.2f}x, "
-                  f"{'met' if ratio >= 1.0 else 'missed'}")
-
-    print(f"\ntree quality (AO rays from {args.quality_points:,} random vertices):")
-    print(f"{'':<30} {'SAH cost':>9} {'nodes/ray':>10} {'blocks/ray':>11} {'depth':>6} {'nodes':>9}"
-          f" {'wide nodes':>11} {'slots used':>11} {'wide depth':>11}")
+    print(f"\ntraversal work per AO ray ({args.quality_points:,} random vertices, deterministic): "
+          "wide nodes fetched, leaf blocks fetched; before = per-ray kernel, after = packet kernel")
+    print(f"{'':<22} {'nodes before':>12} {'after':>7} {'ratio':>6} {'blocks before':>14} {'after':>7} {'ratio':>6}"
+          f" {'SAH':>6} {'wide nodes':>11} {'slots used':>11} {'wide depth':>11}")
     for name in shapes:
-        for builder in ("host", "device"):
-            qd = quality(*meshes[name], builder, runtime, args.samples, args.quality_points, rng)
-            print(f"{name + ', ' + builder:<30} {qd['sah']:>9.1f} {qd['nodes']:>10.2f} {qd['blocks']:>11.2f} "
-                  f"{qd['depth']:>6} {qd['n_nodes']:>9,} {qd['wide']:>11,} {qd['used']:>11.0%} {qd['wide_depth']:>11}")
+        qd = quality(*meshes[name], runtime, args.samples, args.quality_points, rng)
+        for reach in (0.0, 0.25):
+            before, after = qd["counts"]["rays", reach], qd["counts"]["packet", reach]
+            label = name + (", reach d/4" if reach else "")
+            tail = (f" {qd['sah']:>6.1f} {qd['wide']:>11,} {qd['used']:>11.0%} {qd['wide_depth']:>11}"
+                    if not reach else "")
+            print(f"{label:<22} {before[0]:>12.2f} {after[0]:>7.2f} {before[0] / after[0]:>5.1f}x"
+                  f" {before[1]:>14.2f} {after[1]:>7.2f} {before[1] / after[1]:>5.1f}x{tail}")
+        assert qd["counts"]["packet", 0.0][2:] == qd["counts"]["rays", 0.0][2:]  # same tests per ray
+    numpy_and_brute(args, runtime, rng)
+    return 0
 
-    # the numpy backend, and the BVH kernel against brute force, on a smaller 4D mesh
+
+def report(runs, shapes, repeat) -> None:
+    """The speed table and the ratios against Open3D."""
+    print(f"\nmedians of {repeat} rounds taken in turn (wall clock; CPU time of all threads in brackets); "
+          f"load average after: {load()}")
+    print(f"{'':<34} {'rays':>11} {'build s':>8} {'trace Mrays/s':>14} {'first call Mrays/s':>19} {'hit/AO':>7}")
+    rate = {}
+    for (name, label), rs in runs.items():
+        rays = rs[0]["rays"]
+        row = [rays / med(rs, "trace", k) for k in (0, 1)]
+        first = [rays / med(rs, "first", k) for k in (0, 1)]
+        rate[name, label] = row, first
+        build = med(rs, "build")
+        hit = statistics.median(r["hit"] for r in rs)
+        print(f"{name + ', ' + label:<34} {rays:>11,} {build:>8.2f} {row[0] / 1e6:>6.2f} ({row[1] / 1e6:>5.2f})"
+              f" {first[0] / 1e6:>10.2f} ({first[1] / 1e6:>5.2f}) {hit:>7.3f}")
+    if not any(label == "Open3D" for _, label in runs):
+        return
+    print("\nratios (> 1: ao4d faster; wall clock, CPU time in brackets); targets: trace and first call >= 1.0x Open3D")
+    for name in shapes:
+        for reach in ("", " d/4"):
+            (t, f), (pt, pf) = rate[name, "ao4d" + reach], rate[name, "Open3D" + reach]
+            (bt, _) = rate[name, "per-ray" + reach]
+            verdict = "met" if min(t[0] / pt[0], f[0] / pf[0]) >= 1.0 else "missed"
+            print(f"  {name + reach + ':':<18} trace {t[0] / pt[0]:.2f}x ({t[1] / pt[1]:.2f}x), first call "
+                  f"{f[0] / pf[0]:.2f}x ({f[1] / pf[1]:.2f}x); packets / per-ray kernel {t[0] / bt[0]:.2f}x "
+                  f"({t[1] / bt[1]:.2f}x): {verdict}")
+
+
+def numpy_and_brute(args, runtime, rng) -> None:
+    """The numpy backend, and the BVH kernel against brute force, on a smaller 4D mesh."""
+    import ao4d
+    from ao4d import raycast
+
     small = shape_mesh("spheritorus", args.numpy_tets)
     small_tree = raycast.get_bvh(small, runtime=runtime)
     ok = np.flatnonzero(np.linalg.norm(small.vertex_normals, axis=1) > 0.5)
@@ -373,7 +447,6 @@ def main(argv=None) -> int:
     print(f"\nao4d numpy backend, 4D, {small_tree.n_prims:,} tets: {len(p2) * samples2 / t_np / 1e6:.3f} M rays/s")
     print(f"BVH speed-up over brute force ({small_tree.n_prims:,} tets, per ray): "
           f"{(t_brute / (len(p3) * samples2)) / per_ray_bvh:.0f}x")
-    return 0
 
 
 if __name__ == "__main__":

@@ -118,13 +118,13 @@ def main(argv=None) -> int:
     raycast.get_bvh(mesh4, runtime=runtime)
     raycast.cast_rays(mesh4, o4[:1], w4[:1], backend="opencl")
     why_not = ao_bench.have_open3d()
-    peer = None if why_not else ao_bench.Open3D(int(args.triangles), args.points, args.samples)
+    peer = None if why_not else ao_bench.Open3D()
     print(f"3D torus: {len(tm.faces):,} triangles, {len(o3):,} rays; 4D spheritorus: "
           f"{len(mesh4.simplices):,} tets, {len(o4):,} rays")
     runs: dict[str, list[dict]] = {}
     for _ in range(args.repeat):
         if peer is not None:
-            runs.setdefault("Open3D test_occlusions (3D)", []).append(peer.run())
+            runs.setdefault("Open3D test_occlusions (3D)", []).append(peer.run(int(args.triangles), args.points, args.samples))
         runs.setdefault("ao4d cast_rays any hit (3D)", []).append(ao4d_cast(torus, o3, w3, False))
         runs.setdefault("ao4d cast_rays closest (3D)", []).append(ao4d_cast(torus, o3, w3, True))
         runs.setdefault("ao4d cast_rays any hit (4D)", []).append(ao4d_cast(mesh4, o4, w4, False))

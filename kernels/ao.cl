@@ -36,13 +36,64 @@ inline int occlusion_count(const int use_bvh, __global const floatW *boxes,
     return hits;
 }
 
+// the same count, the rays traced PACKET at a time from their shared origin (trace_packet)
+inline int occlusion_count_packet(__global const floatW *boxes, __global const int *children,
+                                  __global const floatL *blocks, const float4 p, const float4 n,
+                                  const uint index, __global const uint *table, const int samples,
+                                  const uint seed, const float offset,
+                                  const float max_distance VISITS_PARAM)
+{
+    uint shift[DIM - 1];
+    for (int k = 0; k < DIM - 1; ++k) shift[k] = point_shift(index, seed, (uint)k);
+    const float4 o = p + offset * n;
+    float origin[4];
+    vstore4(o, 0, origin);
+    float4 frame[DIM - 1];
+    tangent_frame(n, frame);
+    PacketRay rays[PACKET];
+    int hits = 0;
+    for (int s0 = 0; s0 < samples; s0 += PACKET) {
+        const int count = min(PACKET, samples - s0);
+        for (int k = 0; k < count; k += 8) {
+            float8 w[DIM];
+            cosine_directions8(n, frame, table, s0 + k, samples, shift, w);
+            load_packet_rays8(origin, w, min(8, count - k), rays + k);
+        }
+        const pmask active = count == PACKET ? ~(pmask)0 : (((pmask)1 << count) - 1);
+        hits += (int)popcount(trace_packet(boxes, children, blocks, origin, rays, active,
+                                           max_distance VISITS_ARG));
+    }
+    return hits;
+}
+
+// occlusion counts, PACKET rays of a point at a time (the default AO kernel)
 __kernel __attribute__((vec_type_hint(float4))) void ao_bvh(__global const floatW *boxes, __global const int *children,
                      __global const floatL *blocks, __global const float4 *points, __global const float4 *normals,
                      __global const uint *index, __global const uint *table, const int samples,
                      const uint seed, const float offset, const float max_distance,
                      __global int *counts
 #ifdef COUNT_VISITS
-                     , __global int *visits_out  // per point: wide nodes visited, blocks tested
+                     , __global int *visits_out  // per point: the four counters of bvh.h
+#endif
+                     )
+{
+    const size_t i = get_global_id(0);
+    VISITS_DECL
+    counts[i] = occlusion_count_packet(boxes, children, blocks, points[i], normals[i], index[i],
+                                       table, samples, seed, offset, max_distance VISITS_ARG);
+#ifdef COUNT_VISITS
+    for (int k = 0; k < 4; ++k) visits_out[4 * i + k] = visits[k];
+#endif
+}
+
+// the same counts, one ray at a time (trace_any): the reference the packet kernel must equal
+__kernel __attribute__((vec_type_hint(float4))) void ao_bvh_rays(__global const floatW *boxes, __global const int *children,
+                     __global const floatL *blocks, __global const float4 *points, __global const float4 *normals,
+                     __global const uint *index, __global const uint *table, const int samples,
+                     const uint seed, const float offset, const float max_distance,
+                     __global int *counts
+#ifdef COUNT_VISITS
+                     , __global int *visits_out  // per point: the four counters of bvh.h
 #endif
                      )
 {
@@ -51,8 +102,7 @@ __kernel __attribute__((vec_type_hint(float4))) void ao_bvh(__global const float
     counts[i] = occlusion_count(1, boxes, children, blocks, 0, points[i], normals[i], index[i],
                                 table, samples, seed, offset, max_distance VISITS_ARG);
 #ifdef COUNT_VISITS
-    visits_out[2 * i] = visits[0];
-    visits_out[2 * i + 1] = visits[1];
+    for (int k = 0; k < 4; ++k) visits_out[4 * i + k] = visits[k];
 #endif
 }
 
@@ -93,6 +143,27 @@ __kernel __attribute__((vec_type_hint(float4))) void cast_brute(__global const f
     hit_out[i] = trace_brute(blocks, n_blocks, origins[i], directions[i], max_distance, any_hit,
                              &t);
     t_out[i] = t;
+}
+
+// the directions of sample_directions, generated eight at a time (cosine_directions8) as the
+// packet kernel does: for tests, which check that they are the same bits
+__kernel void sample_directions8(__global const float4 *normals, __global const uint *index,
+                                 __global const uint *table, const int samples, const uint seed,
+                                 __global float4 *out)
+{
+    const size_t i = get_global_id(0);
+    uint shift[DIM - 1];
+    for (int k = 0; k < DIM - 1; ++k) shift[k] = point_shift(index[i], seed, (uint)k);
+    float4 frame[DIM - 1];
+    tangent_frame(normals[i], frame);
+    for (int s0 = 0; s0 < samples; s0 += 8) {
+        float8 w[DIM];
+        cosine_directions8(normals[i], frame, table, s0, samples, shift, w);
+        float c[4][8] = {{0.0f}};
+        for (int j = 0; j < DIM; ++j) vstore8(w[j], 0, c[j]);
+        for (int k = 0; k < min(8, samples - s0); ++k)
+            out[i * samples + s0 + k] = (float4)(c[0][k], c[1][k], c[2][k], c[3][k]);
+    }
 }
 
 // the directions ao_* trace for each point (for tests: must equal ao4d.sampling.cosine_hemisphere)

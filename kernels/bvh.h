@@ -17,10 +17,12 @@
 // -D COUNT_VISITS builds a debug variant whose any-hit traversal also counts the wide nodes it
 // visits (visits[0]) and the leaf blocks it tests (visits[1]); callers pass `visits` along
 // (ao4d.raycast.traversal_counts). Without it the macros vanish.
+// The packet traversal (trace_packet) also counts the ray-node box tests (visits[2]) and the
+// ray-block tests (visits[3]); for the one-ray traversal these equal visits[0] and visits[1].
 #ifdef COUNT_VISITS
 #define VISITS_PARAM , int *visits
 #define VISITS_ARG , visits
-#define VISITS_DECL int visits[2] = {0, 0};
+#define VISITS_DECL int visits[4] = {0, 0, 0, 0};
 #define COUNT_VISIT(k) (visits[k] += 1)
 #else
 #define VISITS_PARAM
@@ -72,6 +74,7 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
     int node = 0;
     for (;;) {
         COUNT_VISIT(0);
+        COUNT_VISIT(2);
         floatW tnw;
         const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, ray.near, ray.far, ray.inv_w,
                                     ray.o_inv, t_max, &tnw);
@@ -91,6 +94,7 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
                 for (int b = first; b < end; ++b) {
                     float t;
                     COUNT_VISIT(1);
+                    COUNT_VISIT(3);
                     const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, ray.o, ray.w, t_max, &t);
                     if (lane >= 0) {
                         *t_out = t;
@@ -104,6 +108,137 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
     }
     *t_out = t_max;
     return -1;
+}
+
+// -- shared-origin packets (ambient occlusion) ------------------------------------------------
+// trace_packet traces up to PACKET rays from one origin together: a node is fetched once per
+// packet and its child boxes tested for every ray still in its mask; a child is pushed with the
+// mask of the rays that hit its box; a ray that hits a leaf simplex retires from every mask. Each
+// ray meets exactly the boxes and blocks trace_any would test for it, with the same arithmetic,
+// so its hit / miss answer is the same (only the order of the tests differs). The nodes around the
+// origin, which every ray of a point visits, are fetched and walked once, not once per ray.
+#ifndef PACKET
+#define PACKET 32
+#endif
+#if PACKET == 32
+#define pmask uint
+#if WIDTH == 8
+#define pmaskW uint8
+#define MASKW(h) as_uint8(h)
+#else
+#define pmaskW uint16
+#define MASKW(h) as_uint16(h)
+#endif
+#elif PACKET == 64
+#define pmask ulong
+#if WIDTH == 8
+#define pmaskW ulong8
+#define MASKW(h) as_ulong8(convert_long8(h))
+#else
+#define pmaskW ulong16
+#define MASKW(h) as_ulong16(convert_long16(h))
+#endif
+#else
+#error "PACKET must be 32 or 64"
+#endif
+
+// a packet ray: its direction and box-test constants (the shared origin is kept once)
+typedef struct {
+    float w[DIM], inv_w[DIM], o_inv[DIM];
+    int near[DIM], far[DIM];
+} PacketRay;
+
+// rays[k0 .. k0 + count) of a packet from origin o and the coordinates w[j] of eight directions
+// (cosine_directions8): load_ray's arithmetic on eight rays at once, the same bits
+inline void load_packet_rays8(const float *o, const float8 *w, const int count, PacketRay *rays)
+{
+    float wj[8], inv[8], o_inv[8];
+    int negative[8];
+    for (int j = 0; j < DIM; ++j) {
+        const float tiny = fmax(1e-30f, fabs(o[j]) * 0x1p-100f);  // see load_ray
+        const float8 inv_w = 1.0f / select(copysign((float8)(tiny), w[j]), w[j],
+                                           isgreater(fabs(w[j]), (float8)(tiny)));
+        vstore8(w[j], 0, wj);
+        vstore8(inv_w, 0, inv);
+        vstore8(o[j] * inv_w, 0, o_inv);
+        vstore8(signbit(inv_w), 0, negative);
+        for (int k = 0; k < count; ++k) {
+            rays[k].w[j] = wj[k];
+            rays[k].inv_w[j] = inv[k];
+            rays[k].o_inv[j] = o_inv[k];
+            rays[k].near[j] = negative[k] ? DIM + j : j;
+            rays[k].far[j] = negative[k] ? j : DIM + j;
+        }
+    }
+}
+
+// index of the lowest set bit of m != 0 (OpenCL C 1.2 has clz, not ctz)
+inline int lowest_ray(const pmask m)
+{
+    return (int)(8 * sizeof(pmask) - 1) - (int)clz(m & (~m + 1));
+}
+
+// the rays of `active` (bit r: rays[r]) that hit something with 0 < t <= t_max from origin o
+inline pmask trace_packet(__global const floatW *boxes, __global const int *children,
+                          __global const floatL *blocks, const float *o, const PacketRay *rays,
+                          const pmask active, const float t_max VISITS_PARAM)
+{
+    pmask alive = active;  // rays without a hit so far
+    int stack[STACK_SIZE];
+    pmask stack_mask[STACK_SIZE];
+    int sp = 0;
+    int node = 0;
+    pmask mask = active;
+    for (;;) {
+        COUNT_VISIT(0);
+        __global const floatW *box = boxes + (size_t)node * 2 * DIM;
+        pmaskW child_mask = (pmaskW)(0);
+        for (pmask left = mask; left; left &= left - 1) {
+            const int r = lowest_ray(left);
+            floatW tnw;
+            COUNT_VISIT(2);
+            const intW h = hit_boxes(box, rays[r].near, rays[r].far, rays[r].inv_w, rays[r].o_inv,
+                                     t_max, &tnw);
+            child_mask |= MASKW(h) & (pmaskW)((pmask)1 << r);
+        }
+        pmask masks[WIDTH];
+        vstoreW(child_mask, 0, masks);
+        __global const int *child = children + (size_t)node * WIDTH;
+        for (int s = 0; s < WIDTH; ++s) {
+            const int c = child[s];
+            if (!masks[s] || c == 0) continue;
+            if (c > 0) {
+                stack[sp] = c;
+                stack_mask[sp++] = masks[s];
+                continue;
+            }
+            const int first = (-c - 1) >> 2;
+            const int end = first + ((-c - 1) & 3) + 1;
+            for (int b = first; b < end; ++b) {
+                pmask left = masks[s] & alive;
+                if (!left) break;
+                COUNT_VISIT(1);
+                __global const floatL *blk = blocks + (size_t)b * BLOCK_ROWS;
+                floatL rel[DIM];
+                const floatL q = block_origin(blk, o, rel);  // shared by the packet's rays
+                for (; left; left &= left - 1) {
+                    const int r = lowest_ray(left);
+                    float t;
+                    COUNT_VISIT(3);
+                    if (hit_block_at(blk, rel, q, rays[r].w, t_max, &t) >= 0) alive &= ~((pmask)1 << r);
+                }
+            }
+            if (!alive) return active;
+        }
+        // the next node some ray without a hit still has to visit
+        for (;;) {
+            if (sp == 0) return active & ~alive;
+            --sp;
+            mask = stack_mask[sp] & alive;
+            if (mask) break;
+        }
+        node = stack[sp];
+    }
 }
 
 // the closest hit with 0 < t <= t_max: LANES * block + lane, or -1 (t_out: its t, else t_max)

@@ -35,21 +35,30 @@
 #endif
 
 
-// hits of one leaf block: returns the lane of the nearest hit with 0 < t <= t_max, or -1
-inline int hit_block(__global const floatL *blk, const float *o, const float *w,
-                     const float t_max, float *t_hit)
+// a leaf block's ray-independent part for origin o: rel[j] = o_j - vertex 0's coordinate j and
+// the height q of o over each simplex's hyperplane (the rays of a packet share them)
+inline floatL block_origin(__global const floatL *blk, const float *o, floatL *rel)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    floatL q = (floatL)(0.0f);
+    for (int j = 0; j < DIM; ++j) {
+        rel[j] = (floatL)(o[j]) - blk[DIM * DIM + j];
+        q = fma(blk[(DIM - 1) * DIM + j], rel[j], q);
+    }
+    return q;
+}
+
+// hits of one leaf block by the ray with direction w from the origin of block_origin's rel and q:
+// the lane of the nearest hit with 0 < t <= t_max, or -1
+inline int hit_block_at(__global const floatL *blk, const floatL *rel, const floatL q,
+                        const float *w, const float t_max, float *t_hit)
 {
     // explicit fma() only, never contraction chosen per call site: the BVH and brute-force
     // kernels must round alike (fma is exact in every implementation; box tests may contract:
     // their boxes carry a margin)
 #pragma OPENCL FP_CONTRACT OFF
-    floatL rel[DIM];
-    floatL q = (floatL)(0.0f), r = (floatL)(0.0f);
-    for (int j = 0; j < DIM; ++j) {
-        rel[j] = (floatL)(o[j]) - blk[DIM * DIM + j];
-        q = fma(blk[(DIM - 1) * DIM + j], rel[j], q);
-        r = fma(blk[(DIM - 1) * DIM + j], (floatL)(w[j]), r);
-    }
+    floatL r = (floatL)(0.0f);
+    for (int j = 0; j < DIM; ++j) r = fma(blk[(DIM - 1) * DIM + j], (floatL)(w[j]), r);
     const floatL t = -q / r;
     // t <= min(t_max, FLT_MAX) also rejects t = inf (r = 0) and NaN (q = r = 0: unused lanes)
     intL ok = isgreater(t, (floatL)(0.0f)) & islessequal(t, (floatL)(fmin(t_max, FLT_MAX)));
@@ -79,6 +88,15 @@ inline int hit_block(__global const floatL *blk, const float *o, const float *w,
     }
     *t_hit = best;
     return lane;
+}
+
+// hits of one leaf block: returns the lane of the nearest hit with 0 < t <= t_max, or -1
+inline int hit_block(__global const floatL *blk, const float *o, const float *w,
+                     const float t_max, float *t_hit)
+{
+    floatL rel[DIM];
+    const floatL q = block_origin(blk, o, rel);
+    return hit_block_at(blk, rel, q, w, t_max, t_hit);
 }
 
 #ifndef WIDTH

@@ -99,4 +99,52 @@ inline float4 cosine_direction(const float4 n, const float4 *frame, __global con
 #endif
 }
 
+// cosine_direction for the eight samples s0 .. s0 + 7 at once, one sample per vector lane (the
+// same operations on float8: vector math functions, not one scalar call per sample); lanes past
+// the last sample repeat it. w[j] receives coordinate j of the eight directions.
+inline void cosine_directions8(const float4 n, const float4 *frame, __global const uint *table,
+                               const int s0, const int samples, const uint *shift, float8 *w)
+{
+    uint u[DIM - 1][8];
+    for (int k = 0; k < 8; ++k) {
+        const int s = min(s0 + k, samples - 1);
+        for (int c = 0; c < DIM - 1; ++c) u[c][k] = table[(DIM - 1) * s + c];
+    }
+#define UNIT8(c) ((convert_float8(((vload8(0, u[c]) + (uint8)(shift[c])) & (uint8)(SAMPLE_MASK))) \
+                   + 0.5f) * SAMPLE_SCALE)
+#if DIM == 2
+    const float8 b0 = 2.0f * UNIT8(0) - 1.0f;
+    const float8 up = sqrt(fmax(0.0f, 1.0f - b0 * b0));
+#elif DIM == 3
+    const float8 u0 = UNIT8(0), u1 = UNIT8(1);
+    const float8 r = sqrt(u0);
+    float8 cos_phi;
+    const float8 sin_phi = sincos(6.283185307179586f * u1, &cos_phi);
+    const float8 b0 = r * cos_phi, b1 = r * sin_phi;
+    const float8 up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1)));
+#else
+    const float8 u0 = UNIT8(0), u1 = UNIT8(1), u2 = UNIT8(2);
+    const float8 r = cbrt(u0);
+    const float8 z = 1.0f - 2.0f * u1;
+    const float8 sz = sqrt(fmax(0.0f, 1.0f - z * z));
+    float8 cos_phi;
+    const float8 sin_phi = sincos(6.283185307179586f * u2, &cos_phi);
+    const float8 b0 = r * sz * cos_phi, b1 = r * sz * sin_phi, b2 = r * z;
+    const float8 up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1 + b2 * b2)));
+#endif
+#undef UNIT8
+    float f[DIM][4];
+    for (int k = 0; k < DIM - 1; ++k) vstore4(frame[k], 0, f[k]);
+    vstore4(n, 0, f[DIM - 1]);
+    for (int j = 0; j < DIM; ++j) {
+#if DIM == 2
+        w[j] = b0 * f[0][j] + up * f[1][j];
+#elif DIM == 3
+        w[j] = b0 * f[0][j] + b1 * f[1][j] + up * f[2][j];
+#else
+        w[j] = b0 * f[0][j] + b1 * f[1][j] + b2 * f[2][j] + up * f[3][j];
+#endif
+    }
+}
+
 #endif

@@ -85,10 +85,18 @@ def main() -> int:
         a = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=8, backend="opencl")
         b = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=8, backend="opencl", accel="brute")
         check(f"{d}D AO: BVH equals brute force", np.array_equal(a, b))
-        nodes, blocks = raycast.traversal_counts(mesh, p, n, samples=8, offset=0.0, runtime=runtime)
-        check(f"{d}D traversal counts", nodes >= 1.0 and 0.0 <= blocks)
+        # both AO kernels (packets of a point's rays, one ray at a time), 37 samples: a cut packet
+        counts = {t: raycast._ao_opencl(mesh, tree, runtime, p, n, 37, 0, 0.0, np.inf, "bvh", raycast._NullBar(),
+                                        traversal=t) for t in raycast.AO_TRAVERSALS}
+        check(f"{d}D AO: packet kernel equals per-ray kernel", np.array_equal(*counts.values()))
+        for traversal in raycast.AO_TRAVERSALS:
+            nodes, blocks = raycast.traversal_counts(mesh, p, n, samples=8, offset=0.0, runtime=runtime,
+                                                     traversal=traversal)
+            check(f"{d}D traversal counts ({traversal})", nodes > 0.0 and 0.0 <= blocks)
         dirs = raycast.sample_directions(runtime, n, 8, 0)
         check(f"{d}D sample directions are unit", np.allclose(np.linalg.norm(dirs, axis=2), 1, atol=1e-5))
+        eight = raycast.sample_directions(runtime, n, 11, 0, eight=True)
+        check(f"{d}D directions eight at a time", np.array_equal(eight, raycast.sample_directions(runtime, n, 11, 0)))
     print("kernels run: " + " ".join(sorted(ran)), flush=True)
     return 0
 

@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 import ao4d
-from _scenes import embree_scene, flat_patch, random_rays, random_soup, soup_scene, sphere_over_ground
+from _scenes import embree_scene, flat_patch, random_rays, random_soup, soup_scene, sphere_over_ground, up_points
 from ao4d import bvh, cl, raycast
 
 DIMS = (2, 3, 4)
@@ -365,3 +365,134 @@ def test_rays_at_the_barycentric_tolerance_equal_brute_force(d, backend):
     slow = raycast.cast_rays(mesh, o, w, backend=backend, closest=False, accel="brute")
     assert slow.hit.mean() > 0.9  # the primitive test accepts them
     np.testing.assert_array_equal(fast.hit, slow.hit)
+
+
+# -- the AO kernel's shared-origin packets (kernels/bvh.h trace_packet) -------------------------
+
+
+def _ao_counts(mesh, runtime, points, normals, samples, offset, max_distance, *, traversal="packet",
+               accel="bvh"):
+    # _ao_opencl takes points in the tree's frame; offset and reach below are tree lengths
+    tree = raycast.get_bvh(mesh, runtime=runtime)
+    return raycast._ao_opencl(mesh, tree, runtime, tree.frame.points(points), normals, samples, 7, offset,
+                              max_distance, accel, raycast._NullBar(), traversal=traversal)
+
+
+def _surface_scene(rng, d, shift):
+    """sphere_over_ground moved by ``shift``; AO points on its surface (vertex normals, the
+    usual AO case: origins next to their own simplices) and above the ground."""
+    base = sphere_over_ground(rng, d)
+    mesh = ao4d.SimplexMesh(base.vertices + shift, base.simplices)
+    normals = mesh.vertex_normals
+    keep = np.linalg.norm(normals, axis=1) > 0.5
+    p, n = up_points(rng, d, 60, 1.0)
+    return mesh, np.concatenate([mesh.vertices[keep], p + shift]), np.concatenate([normals[keep], n])
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("lanes", [16, 4])
+@pytest.mark.parametrize("shift", [0.0, 1000.0])  # far from the coordinate origin: float32 slabs
+def test_packet_traversal_gives_the_per_ray_and_brute_force_counts(d, lanes, shift, cl_runtime,
+                                                                   monkeypatch):
+    # the packet kernel tests, per ray, exactly the boxes and blocks of the per-ray kernel with
+    # the same arithmetic: bit-identical counts, also for packets cut short (40 and 70 samples
+    # are not multiples of raycast.AO_PACKET) and with a finite reach
+    monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime: lanes)
+    rng = np.random.default_rng(1600 + d)
+    mesh, p, n = _surface_scene(rng, d, shift)
+    tree = raycast.get_bvh(mesh, runtime=cl_runtime)
+    offset = ao4d.ao.ORIGIN_OFFSET * tree.diagonal
+    for max_distance in (np.inf, 0.25 * tree.diagonal):
+        for samples in (40, 70):
+            packet = _ao_counts(mesh, cl_runtime, p, n, samples, offset, max_distance)
+            rays = _ao_counts(mesh, cl_runtime, p, n, samples, offset, max_distance, traversal="rays")
+            brute = _ao_counts(mesh, cl_runtime, p, n, samples, offset, max_distance, accel="brute")
+            np.testing.assert_array_equal(packet, rays)
+            np.testing.assert_array_equal(rays, brute)
+            share = packet.sum() / (len(p) * samples)
+            assert 0.02 < share < 0.9  # occlusion is neither absent nor total
+            assert 0.05 < np.mean((packet > 0) & (packet < samples))  # partly occluded points
+
+
+def test_packet_traversal_on_an_extracted_4d_surface(cl_runtime):
+    # a marched 4D surface: every vertex's rays start next to its own tetrahedra, deep in the tree
+    field = ao4d.fields.spheritorus(1.0, 0.4)
+    mesh = ao4d.extract_field(field, (15, 15, 15, 7), ((-1.5, -1.5, -1.5, -0.5), (1.5, 1.5, 1.5, 0.5)))
+    normals = mesh.vertex_normals
+    keep = np.linalg.norm(normals, axis=1) > 0.5
+    p, n = mesh.vertices[keep], normals[keep]
+    tree = raycast.get_bvh(mesh, runtime=cl_runtime)
+    offset = ao4d.ao.ORIGIN_OFFSET * tree.diagonal
+    for max_distance in (np.inf, 0.25 * tree.diagonal):
+        packet = _ao_counts(mesh, cl_runtime, p, n, 64, offset, max_distance)
+        rays = _ao_counts(mesh, cl_runtime, p, n, 64, offset, max_distance, traversal="rays")
+        np.testing.assert_array_equal(packet, rays)
+        assert 0.01 < packet.mean() / 64 < 0.5
+    sub = slice(0, None, 25)
+    brute = _ao_counts(mesh, cl_runtime, p[sub], n[sub], 64, offset, np.inf, accel="brute")
+    np.testing.assert_array_equal(_ao_counts(mesh, cl_runtime, p[sub], n[sub], 64, offset, np.inf), brute)
+
+
+def test_packet_traversal_shares_node_visits(cl_runtime):
+    # the packet fetches a node once for all its rays: far fewer node fetches per ray than
+    # box tests per ray, which stay those of the per-ray traversal
+    field = ao4d.fields.spheritorus(1.0, 0.4)
+    mesh = ao4d.extract_field(field, (15, 15, 15, 7), ((-1.5, -1.5, -1.5, -0.5), (1.5, 1.5, 1.5, 0.5)))
+    normals = mesh.vertex_normals
+    keep = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)[::5]
+    tree = raycast.get_bvh(mesh, runtime=cl_runtime)
+    kw = dict(samples=64, offset=ao4d.ao.ORIGIN_OFFSET * tree.world_diagonal, runtime=cl_runtime, detail=True)
+    per_ray = raycast.traversal_counts(mesh, mesh.vertices[keep], normals[keep], traversal="rays", **kw)
+    packet = raycast.traversal_counts(mesh, mesh.vertices[keep], normals[keep], traversal="packet", **kw)
+    assert per_ray[0] == per_ray[2] and per_ray[1] == per_ray[3]
+    assert packet[2] == per_ray[2] and packet[3] == per_ray[3]
+    assert packet[0] < 0.3 * per_ray[0] and packet[1] < 0.5 * per_ray[1]
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_directions_eight_at_a_time_are_the_same_bits(d, cl_runtime):
+    # the packet kernel generates its directions on vector lanes (vector cbrt / sincos / sqrt),
+    # the per-ray kernel one at a time: the AO counts can only agree if these are the same bits
+    rng = np.random.default_rng(1700 + d)
+    normals = rng.normal(size=(3000, d))
+    normals[:40] = np.eye(d)[rng.integers(0, d, 40)] * rng.choice([-1.0, 1.0], size=(40, 1))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    one = raycast.sample_directions(cl_runtime, normals, 77, 5)  # 77: a last group of five
+    eight = raycast.sample_directions(cl_runtime, normals, 77, 5, eight=True)
+    np.testing.assert_array_equal(eight, one)
+    assert np.all(np.einsum("nsd,nd->ns", one, normals) >= -1e-6)  # in the normals' hemispheres
+
+
+def test_packet_kernel_private_memory_is_bounded(cl_runtime):
+    # GPU readiness: the packet's rays (32 x 20 words in 4D) and its stack of (node, ray mask)
+    # entries are fixed-size private arrays; no local memory
+    import pyopencl as pcl
+
+    for d in (2, 3, 4):
+        kernel = raycast._kernels(cl_runtime, d, bvh.block_lanes(cl_runtime))["ao_bvh"]
+        assert kernel.get_work_group_info(pcl.kernel_work_group_info.LOCAL_MEM_SIZE, cl_runtime.device) == 0
+        private = _private_bytes(cl_runtime, kernel)
+        needed = raycast.AO_PACKET * 5 * d * 4 + 2 * bvh.STACK_SIZE * 4
+        if private > 0:  # runtimes that report it: the packet and the stack, little more
+            assert needed <= private <= needed + 4096
+
+
+def test_ao_uses_the_packet_kernel_on_cpus(cl_runtime, monkeypatch):
+    import pyopencl as pcl
+
+    used = []
+    real = raycast._traversal_kernel
+
+    def spy(runtime, dim, dev, name, accel, count_visits=False, suffix=""):
+        used.append(suffix)
+        return real(runtime, dim, dev, name, accel, count_visits, suffix)
+
+    monkeypatch.setattr(raycast, "_traversal_kernel", spy)
+    rng = np.random.default_rng(1800)
+    mesh = soup_scene(rng, 3, n=50)
+    ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
+    cpu = bool(cl_runtime.device.type & pcl.device_type.CPU)
+    assert used == ["" if cpu else "_rays"]  # ao_bvh (packets) on CPUs, ao_bvh_rays elsewhere
+    with pytest.raises(ValueError, match="`traversal` must be one of"):
+        raycast.traversal_counts(mesh, mesh.vertices[:3], np.eye(3)[[0, 1, 2]], samples=4, offset=0.0,
+                                 runtime=cl_runtime, traversal="wide")
