@@ -496,3 +496,21 @@ def test_ao_uses_the_packet_kernel_on_cpus(cl_runtime, monkeypatch):
     with pytest.raises(ValueError, match="`traversal` must be one of"):
         raycast.traversal_counts(mesh, mesh.vertices[:3], np.eye(3)[[0, 1, 2]], samples=4, offset=0.0,
                                  runtime=cl_runtime, traversal="wide")
+
+
+def test_any_hit_traversal_stops_at_its_first_hit(cl_runtime):
+    # rays up through eight stacked patches hit all of them; an any-hit traversal that went on
+    # after its first hit (same answers) would test leaf blocks of every patch
+    d = 3
+    parts = [flat_patch(d, -30.0, 30.0, 1.0 + k, n=24) for k in range(8)]
+    vertices = np.concatenate([v for v, _ in parts])
+    offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
+    simplices = np.concatenate([s + o for (_, s), o in zip(parts, offsets)])
+    mesh = ao4d.SimplexMesh(vertices, simplices)
+    rng = np.random.default_rng(1900)
+    p, n = up_points(rng, d, 200, 1.0)
+    nodes, blocks = raycast.traversal_counts(mesh, p, n, samples=16, offset=0.0, runtime=cl_runtime,
+                                             max_distance=100.0, traversal="rays")
+    occ = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=16, backend="opencl")
+    assert occ.min() > 0.9  # nearly every ray hits the lowest patch
+    assert blocks < 2.5, blocks  # a traversal that continues tests at least one block per patch
