@@ -177,11 +177,12 @@ def device_wide_tree(tree: BVH, runtime, lanes: int) -> dict[str, Any] | None:
     """
     import pyopencl as cl_
 
+    done = tree.device_wide.get(lanes) if hasattr(tree, "device_wide") else None
+    if done is not None and done["context"] is runtime.context:
+        return done  # filled at the build, whose device copies of the mesh may be freed since
     source = getattr(tree, "device_source", None)
     if source is None or source["context"] is not runtime.context:
         return None
-    if lanes in tree.device_wide:
-        return tree.device_wide[lanes]
     first, count = block_ranges(tree, lanes)
     d = tree.dim
     n_blocks = len(first)
@@ -202,6 +203,7 @@ def device_wide_tree(tree: BVH, runtime, lanes: int) -> dict[str, Any] | None:
         "n_blocks": np.int32(n_blocks),
         "lanes": lanes,
         "block_first": first,
+        "context": ctx,
     }
     queue.finish()
     tree.device_wide[lanes] = out
