@@ -19,7 +19,7 @@ import numpy as np
 from ao4d._atomic import atomic_open
 from ao4d._npz import write_npz
 
-__all__ = ["write_npz", "write_json", "sha256_file", "to_jsonable", "save_mesh_npz"]
+__all__ = ["write_npz", "write_json", "json_bytes", "sha256_file", "to_jsonable", "save_mesh_npz"]
 
 
 def save_mesh_npz(path: str | os.PathLike, mesh: Any) -> Path:
@@ -50,11 +50,15 @@ def to_jsonable(value: Any) -> Any:
     return value
 
 
+def json_bytes(data: Any) -> bytes:
+    """``data`` as canonical JSON (sorted keys, 2-space indent, trailing newline), UTF-8."""
+    return (json.dumps(to_jsonable(data), indent=2, sort_keys=True, allow_nan=False) + "\n").encode("utf-8")
+
+
 def write_json(path: str | os.PathLike, data: Any) -> Path:
-    """Write ``data`` as canonical JSON (sorted keys, 2-space indent, trailing newline), atomically."""
-    text = json.dumps(to_jsonable(data), indent=2, sort_keys=True, allow_nan=False) + "\n"
-    with atomic_open(path, "w", encoding="utf-8") as fh:
-        fh.write(text)
+    """Write ``data`` as canonical JSON (:func:`json_bytes`), atomically."""
+    with atomic_open(path, "wb") as fh:
+        fh.write(json_bytes(data))
     return Path(path)
 
 

@@ -22,9 +22,11 @@ its version and the sha256 of its lookup tables and kernel sources) and the same
 have byte-identical manifests.
 
 Where: in this process (``workers=1``), in spawned processes (``workers=N``), or as tasks on a
-dask.distributed scheduler (``scheduler="tcp://..."`` or ``"local:N"``): there each worker makes
-its item in a scratch folder and returns the files' bytes, which this process writes, so the
-folder is the same byte for byte whichever way it was made.
+dask.distributed scheduler (``scheduler="tcp://..."`` or ``"local:N"``): a worker that sees the
+output (a shared folder, or an fsspec URL such as ``s3://bucket/run``: ``datasets_gen._store``)
+writes its items there itself; any other makes its item in a scratch folder and returns the
+files' bytes, which this process writes. The folder is the same byte for byte whichever way it
+was made.
 
 Resumability: ``record.json`` is written last, holding the sha256 of the item's other files; an
 item counts as finished only when its record exists and every hash matches. Every file is
@@ -52,9 +54,9 @@ from typing import Any
 
 import numpy as np
 
-from ao4d._atomic import atomic_open
 
-from ._files import save_mesh_npz, sha256_file, write_json, write_npz
+from ._files import json_bytes, save_mesh_npz, sha256_file, write_json, write_npz
+from ._store import LocalStore, Store, is_url, open_store
 from .config import Config, ItemSpec, load_config, sample_params
 
 __all__ = ["run", "RunSummary", "item_seed", "item_complete", "RUN_FORMAT", "UNHASHED"]
@@ -145,15 +147,25 @@ def item_dir(out: Path, index: int) -> Path:
 
 def item_complete(folder: Path) -> bool:
     """True when ``folder/record.json`` exists and every file it lists has the recorded hash."""
-    record_path = Path(folder) / "record.json"
+    return _item_complete(LocalStore(Path(folder)), "")
+
+
+def _item_rel(index: int) -> str:
+    """An item's folder relative to the run's root (``item_dir``'s, as a store path)."""
+    return f"items/{index:05d}"
+
+
+def _item_complete(store: Store, rel: str) -> bool:
+    def at(name: str) -> str:
+        return f"{rel}/{name}" if rel else name
+
     try:
-        record = json.loads(record_path.read_text(encoding="utf-8"))
+        record = json.loads(store.read_text(at("record.json")))
         files = record["files"]
     except (OSError, ValueError, KeyError, TypeError):
         return False
     for name, digest in files.items():
-        path = Path(folder) / name
-        if not path.is_file() or sha256_file(path) != digest:
+        if not store.is_file(at(name)) or store.sha256(at(name)) != digest:
             return False
     return True
 
@@ -348,39 +360,34 @@ def _render(folder: Path, render: dict, mesh: Any, occlusion: Any, settings: dic
 # --------------------------------------------------------------------------- the run
 
 
-def _check_out(out: Path, config: Config, seed: int) -> None:
-    """Create ``out/run.json`` or refuse an output folder made by another config or seed."""
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"`out` {str(out)!r} is a file; it must be a folder (new, empty, or of "
-                         "an earlier run of this config)")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ValueError(f"cannot create the output folder `out` {str(out)!r}: "
-                         f"{exc.strerror or exc}") from None
-    run_path = out / "run.json"
-    if run_path.is_file():
+def _check_out(store: Store | str | os.PathLike, config: Config, seed: int) -> None:
+    """Create ``run.json`` in the store (or folder) or refuse an output folder made by another
+    config or seed."""
+    store = store if isinstance(store, Store) else open_store(store)
+    out = store.name
+    holds_something = store.prepare()
+    if store.is_file("run.json"):
         try:
-            previous = json.loads(run_path.read_text(encoding="utf-8"))
+            previous = json.loads(store.read_text("run.json"))
         except ValueError:
             previous = {}
         if previous.get("config_sha256") != config.sha256 or previous.get("seed") != seed:
             raise FileExistsError(
-                f"`out` {str(out)!r} holds a run of config {previous.get('config_name')!r} with seed "
+                f"`out` {out!r} holds a run of config {previous.get('config_name')!r} with seed "
                 f"{previous.get('seed')!r}, not of {config.name!r} with seed {seed}; choose another "
                 "folder or delete it")
         return
-    if out.exists() and any(out.iterdir()):
-        raise FileExistsError(f"`out` {str(out)!r} exists, is not empty and holds no run.json; "
+    if holds_something:
+        raise FileExistsError(f"`out` {out!r} exists, is not empty and holds no run.json; "
                               "choose an empty or new folder")
     try:
-        write_json(run_path, {
+        store.write_bytes("run.json", json_bytes({
             "format": RUN_FORMAT, "config_name": config.name, "config_source": config.source,
             "config_sha256": config.sha256, "config_text": config.text, "seed": seed,
             "versions": _versions(), "n_items": len(config.items()),
-        })
+        }))
     except OSError as exc:  # a read-only file system, a full disk, no permission
-        raise ValueError(f"cannot write into the output folder `out` {str(out)!r}: "
+        raise ValueError(f"cannot write into the output folder `out` {out!r}: "
                          f"{exc.strerror or exc}") from None
 
 
@@ -400,16 +407,22 @@ def run(
     config : str, path or Config
         A configuration file, a shipped configuration's name (``"smoke"``, ``"tori"``, ...) or
         a loaded :class:`~datasets_gen.config.Config`.
-    out : path-like
+    out : path-like or str
         Output folder: new, empty, or holding an earlier (partial) run of the same config/seed.
+        A local path, or an fsspec URL (``s3://bucket/run``, ``gs://...``, ``file:///...``;
+        the protocol's package, such as ``s3fs``, must be installed): then every process
+        that makes items writes its own into the URL, with the same atomic protocol, and
+        this process writes only ``run.json``, the index and the manifest.
     workers : int
         Processes (spawned); 1 runs in this process.
     scheduler : str, optional
         Run the items as tasks on a dask.distributed scheduler instead: its address
         (``"tcp://host:8786"``) or ``"local:N"`` for a LocalCluster of N worker processes (one
-        thread each) started and stopped here. Each worker makes its item in a scratch folder
-        of its own and sends the files back; this process writes them (atomically, the record
-        last), so workers need ao4d but no shared filesystem. The files, and so the manifest,
+        thread each) started and stopped here. A worker that sees the output folder (its
+        ``run.json`` has this run's hash: a shared filesystem, a LocalCluster, or a URL
+        ``out``) writes its items there itself; any other makes its item in a scratch folder
+        and sends the files back for this process to write (atomically, the record last), so
+        workers need ao4d but no shared filesystem. The files, and so the manifest,
         are byte-identical to a ``workers=1`` run on the same software and AO device; a worker
         lost mid-item has its item redone on another worker (dask's own rescheduling).
     seed : int, optional
@@ -430,21 +443,21 @@ def run(
 
     cfg = config if isinstance(config, Config) else load_config(config)
     workers = check_positive_int(workers, "workers")
+    store = open_store(out)  # an unknown URL protocol fails here, before any work
     if scheduler is not None:
         _check_scheduler(scheduler)
         if workers != 1:
             raise ValueError(f"give `workers` ({workers}) or `scheduler` ({scheduler!r}), not both")
         _probe_scheduler(scheduler)  # before the output folder is touched
     seed = cfg.seed if seed is None else check_positive_int(seed, "seed", minimum=0)
-    out = Path(out)
-    _check_out(out, cfg, seed)
-    run_sha256 = sha256_file(out / "run.json")
+    _check_out(store, cfg, seed)
+    run_sha256 = store.sha256("run.json")
     items = cfg.items()
-    summary = RunSummary(out, len(items))
+    summary = RunSummary(out if is_url(out) else Path(out), len(items))
     start = time.perf_counter()
     todo = []
     for spec in items:
-        if item_complete(item_dir(out, spec.index)):
+        if _item_complete(store, _item_rel(spec.index)):
             summary.skipped += 1
         else:
             todo.append(_Job(spec, seed, str(out), cfg.backend, run_sha256))
@@ -456,10 +469,10 @@ def run(
                         show=True if progress is None else bool(progress))
     try:
         if scheduler is not None and todo:
-            _run_distributed(todo, scheduler, out, summary, bar)
+            _run_distributed(todo, scheduler, store, summary, bar)
         elif workers == 1 or len(todo) <= 1:
             for job in todo:
-                _collect(summary, job, lambda job=job: make_item(job))
+                _collect(summary, job, lambda job=job: make_item_anywhere(job))
                 bar.update()
         else:
             _run_parallel(todo, workers, summary, bar)
@@ -470,7 +483,7 @@ def run(
         raise
     bar.close()
     summary.seconds = time.perf_counter() - start
-    summary.bytes = _write_index(out, items, summary)
+    summary.bytes = _write_index(store, items, summary)
     return summary
 
 
@@ -489,7 +502,7 @@ def _run_parallel(todo: list[_Job], workers: int, summary: RunSummary, bar) -> N
     context = multiprocessing.get_context("spawn")  # no fork: OpenCL state must not be copied
     with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=context,
                              initializer=_ignore_sigint) as pool:
-        pending: dict[Future, _Job] = {pool.submit(make_item, job): job for job in todo}
+        pending: dict[Future, _Job] = {pool.submit(make_item_anywhere, job): job for job in todo}
         try:
             while pending:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
@@ -602,40 +615,48 @@ def make_item_files(job: _Job) -> dict[str, Any]:
 _WORKERS_WRITE = True
 
 
+def make_item_anywhere(job: _Job) -> dict[str, Any]:
+    """Make an item into its run's output: :func:`make_item` in a local folder; for a URL,
+    in a scratch folder whose files this process then writes into the URL itself
+    (:func:`write_item_files`). Returns its timing. Top-level: spawn-safe."""
+    if not is_url(job.out):
+        return make_item(job)
+    made = make_item_files(job)
+    write_item_files(open_store(job.out), job.spec.index, made["files"])
+    return made["timing"]
+
+
 def make_item_on_worker(job: _Job) -> dict[str, Any]:
     """Make an item on a dask worker, in the output folder itself when the worker sees it.
 
     The worker sees the folder when its ``run.json`` has the client's hash (a shared
-    filesystem, or a LocalCluster on the client's machine): it makes the item there as
-    :func:`make_item` does in one process (each file atomic, ``record.json`` last) and returns
-    only its timing. Otherwise it makes the item in a scratch folder and returns the files'
-    bytes (:func:`make_item_files`) for the client to write.
+    filesystem, a LocalCluster on the client's machine, or a URL it can reach): it makes the
+    item there as in one process (each file atomic, ``record.json`` last) and returns only
+    its timing. Otherwise it makes the item in a scratch folder and returns the files' bytes
+    (:func:`make_item_files`) for the client to write.
     """
-    out = Path(job.out)
     try:
-        sees = bool(job.run_sha256) and sha256_file(out / "run.json") == job.run_sha256
-    except OSError:
+        sees = bool(job.run_sha256) and open_store(job.out).sha256("run.json") == job.run_sha256
+    except (OSError, ValueError):
         sees = False
     if not sees:
         return make_item_files(job)
-    return {**make_item(job), "written": True}
+    return {**make_item_anywhere(job), "written": True}
 
 
-def write_item_files(out: Path, index: int, files: dict[str, bytes]) -> None:
+def write_item_files(store: Store, index: int, files: dict[str, bytes]) -> None:
     """Write an item's files into its folder, each atomically, ``record.json`` last (it marks
     the item complete), after deleting leftovers of an interrupted attempt."""
-    folder = item_dir(out, index)
-    folder.mkdir(parents=True, exist_ok=True)
-    for stale in folder.iterdir():
-        if stale.is_file() and stale.name not in files:
-            stale.unlink()
-    (folder / "record.json").unlink(missing_ok=True)
+    rel = _item_rel(index)
+    for stale in store.files(rel):
+        if stale not in files:
+            store.remove(f"{rel}/{stale}")
+    store.remove(f"{rel}/record.json")
     for name in sorted(files, key=lambda n: n == "record.json"):
-        with atomic_open(folder / name, "wb") as fh:
-            fh.write(files[name])
+        store.write_bytes(f"{rel}/{name}", files[name])
 
 
-def _run_distributed(todo: list[_Job], scheduler: str, out: Path, summary: RunSummary, bar) -> None:
+def _run_distributed(todo: list[_Job], scheduler: str, store: Store, summary: RunSummary, bar) -> None:
     """Items as tasks on a dask.distributed scheduler; workers that see the folder write their
     items themselves, the others send them back to be written here as they arrive."""
     import dataclasses
@@ -665,7 +686,8 @@ def _run_distributed(todo: list[_Job], scheduler: str, out: Path, summary: RunSu
     try:
         for job in todo:
             key = f"datasets_gen-item-{job.spec.index:05d}-{run_id}"
-            task = dataclasses.replace(job, out=str(Path(job.out).resolve()),
+            where = job.out if is_url(job.out) else str(Path(job.out).resolve())
+            task = dataclasses.replace(job, out=where,
                                        run_sha256=job.run_sha256 if _WORKERS_WRITE else "")
             futures[client.submit(make_item_on_worker, task, key=key, pure=False)] = job
         for future in as_completed(list(futures)):
@@ -675,7 +697,7 @@ def _run_distributed(todo: list[_Job], scheduler: str, out: Path, summary: RunSu
                 result = future.result()
                 if result.get("written"):  # the worker wrote the item into the folder
                     return result
-                write_item_files(out, job.spec.index, result["files"])
+                write_item_files(store, job.spec.index, result["files"])
                 summary.received += sum(len(b) for b in result["files"].values())
                 return result["timing"]
 
@@ -696,16 +718,18 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _write_index(out: Path, items: list[ItemSpec], summary: RunSummary) -> int:
+def _write_index(store: Store, items: list[ItemSpec], summary: RunSummary) -> int:
     """Write items.csv, manifest.json (hashes) and summary.json; return the hashed bytes."""
-    rows = []
+    records: dict[int, dict] = {}  # each complete item's record (never a failed or interrupted one)
     for spec in items:
-        folder = item_dir(out, spec.index)
-        if spec.index in summary.failed or not (folder / "record.json").is_file():
+        rel = _item_rel(spec.index)
+        if spec.index in summary.failed or not store.is_file(f"{rel}/record.json"):
             continue
-        rec = json.loads((folder / "record.json").read_text(encoding="utf-8"))
+        records[spec.index] = json.loads(store.read_text(f"{rel}/record.json"))
+    rows = []
+    for index, rec in records.items():
         m = rec["mesh"]
-        rows.append([spec.index, rec["family"], rec["kind"], m["vertices"], m["simplices"],
+        rows.append([index, rec["family"], rec["kind"], m["vertices"], m["simplices"],
                      m["check"]["ok"], repr(m["volume"]), repr(m["volume_expected"]),
                      repr(m["volume_rel_error"]), repr(rec["ao"]["mean"]) if rec["ao"] else ""])
     text = io.StringIO()
@@ -713,31 +737,25 @@ def _write_index(out: Path, items: list[ItemSpec], summary: RunSummary) -> int:
     writer.writerow(["index", "family", "kind", "vertices", "simplices", "ok", "volume",
                      "volume_expected", "volume_rel_error", "ao_mean"])
     writer.writerows(rows)
-    with atomic_open(out / "items.csv", "w", encoding="utf-8") as fh:
-        fh.write(text.getvalue())
+    store.write_bytes("items.csv", text.getvalue().encode("utf-8"))
 
     # top-level files, and each complete item's record and the files it lists (never the
     # leftovers of a failed or interrupted item). Item files carry the hashes their record
     # holds (made when they were written, checked when a rerun found the item complete), so
     # no item's bytes are read here again: only the records'.
-    known: dict[Path, str] = {}
-    paths = [p for p in out.iterdir() if p.is_file()]
-    for spec in items:
-        folder = item_dir(out, spec.index)
-        if spec.index in summary.failed or not (folder / "record.json").is_file():
-            continue
-        listed = json.loads((folder / "record.json").read_text(encoding="utf-8"))["files"]
-        paths.append(folder / "record.json")
-        for name, digest in listed.items():
-            known[folder / name] = digest
-    paths += list(known)
+    known: dict[str, str | None] = {name: None for name in store.files()}
+    for index, rec in records.items():
+        rel = _item_rel(index)
+        known[f"{rel}/record.json"] = None
+        for name, digest in rec["files"].items():
+            known[f"{rel}/{name}"] = digest
     files = {}
-    for path in sorted(paths):
-        if path.name not in UNHASHED and not path.name.startswith("."):
-            digest = known.get(path) or sha256_file(path)
-            files[path.relative_to(out).as_posix()] = {"sha256": digest, "bytes": path.stat().st_size}
-    run_info = json.loads((out / "run.json").read_text(encoding="utf-8"))
-    write_json(out / "manifest.json", {
+    for rel in sorted(known):
+        name = rel.rpartition("/")[2]
+        if name not in UNHASHED and not name.startswith("."):
+            files[rel] = {"sha256": known[rel] or store.sha256(rel), "bytes": store.size(rel)}
+    run_info = json.loads(store.read_text("run.json"))
+    store.write_bytes("manifest.json", json_bytes({
         "format": RUN_FORMAT,
         "config_sha256": run_info["config_sha256"],
         "seed": run_info["seed"],
@@ -745,14 +763,14 @@ def _write_index(out: Path, items: list[ItemSpec], summary: RunSummary) -> int:
         "complete": len(rows) == len(items),
         "unhashed": list(UNHASHED),
         "files": files,
-    })
+    }))
     size = sum(f["bytes"] for f in files.values())
-    write_json(out / "summary.json", {
+    store.write_bytes("summary.json", json_bytes({
         "device": _device_name(),
         "made": summary.made, "skipped": summary.skipped, "failed": summary.failed,
         "seconds": summary.seconds, "items_per_minute": summary.items_per_minute,
         "bytes": size, "stages": summary.stages,
-    })
+    }))
     return size
 
 
@@ -786,10 +804,13 @@ def main(argv: list[str] | None = None) -> int:
                "  python -m datasets_gen tori --out data/tori --workers 2 --seed 7\n"
                "  python -m datasets_gen tori --out data/tori --scheduler local:4\n"
                "  python -m datasets_gen tori --out data/tori --scheduler tcp://head:8786\n"
+               "  python -m datasets_gen tori --out s3://bucket/tori --scheduler tcp://head:8786\n"
                "  python -m datasets_gen my.toml --out data/mine   # rerun to resume",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("config", nargs="?", help="a TOML file or the name of a shipped config")
-    parser.add_argument("--out", help="output folder (created; reruns resume); required unless --list")
+    parser.add_argument("--out", help="output folder (created; reruns resume), or an fsspec URL "
+                                      "(s3://bucket/run, file:///shared/run) that the workers "
+                                      "write their items into; required unless --list")
     parser.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     parser.add_argument("--scheduler", metavar="ADDRESS|local:N",
                         help="run the items on a dask.distributed scheduler (an address such as "

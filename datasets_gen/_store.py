@@ -1,0 +1,205 @@
+"""Where a run's files live: a local folder, or any fsspec URL (``s3://``, ``gs://``, ``file://``).
+
+A :class:`Store` reads and writes files by relative POSIX paths under its root, every write
+atomic (the whole file or nothing): a local folder through ``ao4d._atomic``, an fsspec
+filesystem by writing a hidden temporary file beside the target and moving it into place (a
+rename on a local or network filesystem; on object stores each object appears whole). So the
+runner's protocol — each file atomic, an item's ``record.json`` last — is the same everywhere,
+and any process that can reach the URL can write its own items.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import uuid
+from pathlib import Path
+from typing import Any
+
+from ao4d._atomic import atomic_open
+
+__all__ = ["Store", "LocalStore", "FsspecStore", "open_store", "is_url"]
+
+_BLOCK = 1 << 20
+
+
+def is_url(out: Any) -> bool:
+    """True when ``out`` is a string with a protocol (``proto://...``), not a local path."""
+    return isinstance(out, str) and "://" in out
+
+
+def open_store(out: str | os.PathLike) -> Store:
+    """The store of ``out``: :class:`FsspecStore` for a URL, else :class:`LocalStore`.
+
+    Raises
+    ------
+    ValueError
+        An URL whose protocol fsspec does not know or whose filesystem package is missing
+        (``s3fs`` for ``s3://``, ``gcsfs`` for ``gs://``), naming ``out``.
+    """
+    if is_url(out):
+        return FsspecStore(out)
+    return LocalStore(Path(out))
+
+
+class Store:
+    """Files by relative POSIX path (``"items/00003/record.json"``) under one root."""
+
+    #: how the root is shown in messages and in the run summary
+    name: str
+
+    def read_bytes(self, rel: str) -> bytes:
+        raise NotImplementedError
+
+    def read_text(self, rel: str) -> str:
+        return self.read_bytes(rel).decode("utf-8")
+
+    def write_bytes(self, rel: str, data: bytes) -> None:
+        """Write ``data`` to ``rel`` atomically, creating its folders."""
+        raise NotImplementedError
+
+    def is_file(self, rel: str) -> bool:
+        raise NotImplementedError
+
+    def files(self, rel: str = "") -> list[str]:
+        """Names of the files directly in folder ``rel``, sorted (empty if it does not exist)."""
+        raise NotImplementedError
+
+    def size(self, rel: str) -> int:
+        raise NotImplementedError
+
+    def remove(self, rel: str) -> None:
+        """Delete file ``rel`` if it exists."""
+        raise NotImplementedError
+
+    def sha256(self, rel: str) -> str:
+        """Hex SHA-256 of file ``rel``'s bytes."""
+        raise NotImplementedError
+
+    def prepare(self) -> bool:
+        """Create the root if needed; return whether it holds anything. Errors name ``out``."""
+        raise NotImplementedError
+
+
+class LocalStore(Store):
+    """A folder on this machine (writes through :func:`ao4d._atomic.atomic_open`)."""
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+        self.name = str(root)
+
+    def _path(self, rel: str) -> Path:
+        return self.root / rel if rel else self.root
+
+    def read_bytes(self, rel: str) -> bytes:
+        return self._path(rel).read_bytes()
+
+    def write_bytes(self, rel: str, data: bytes) -> None:
+        path = self._path(rel)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_open(path, "wb") as fh:
+            fh.write(data)
+
+    def is_file(self, rel: str) -> bool:
+        return self._path(rel).is_file()
+
+    def files(self, rel: str = "") -> list[str]:
+        folder = self._path(rel)
+        if not folder.is_dir():
+            return []
+        return sorted(p.name for p in folder.iterdir() if p.is_file())
+
+    def size(self, rel: str) -> int:
+        return self._path(rel).stat().st_size
+
+    def remove(self, rel: str) -> None:
+        self._path(rel).unlink(missing_ok=True)
+
+    def sha256(self, rel: str) -> str:
+        digest = hashlib.sha256()
+        with open(self._path(rel), "rb") as fh:
+            for block in iter(lambda: fh.read(_BLOCK), b""):
+                digest.update(block)
+        return digest.hexdigest()
+
+    def prepare(self) -> bool:
+        out = self.root
+        if out.exists() and not out.is_dir():
+            raise ValueError(f"`out` {self.name!r} is a file; it must be a folder (new, empty, or "
+                             "of an earlier run of this config)")
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ValueError(f"cannot create the output folder `out` {self.name!r}: "
+                             f"{exc.strerror or exc}") from None
+        return any(out.iterdir())
+
+
+class FsspecStore(Store):
+    """A folder behind an fsspec URL; each write goes to a hidden temporary name first and is
+    then moved into place, so a reader never sees part of a file."""
+
+    def __init__(self, url: str):
+        import fsspec
+
+        self.name = url
+        try:
+            self.fs, self.root = fsspec.core.url_to_fs(url)
+        except (ImportError, ValueError) as exc:  # unknown protocol, or its package missing
+            raise ValueError(f"cannot open `out` {url!r}: {exc}") from None
+        self.root = self.root.rstrip("/")
+
+    def _path(self, rel: str) -> str:
+        return f"{self.root}/{rel}" if rel else self.root
+
+    def read_bytes(self, rel: str) -> bytes:
+        return self.fs.cat_file(self._path(rel))
+
+    def write_bytes(self, rel: str, data: bytes) -> None:
+        path = self._path(rel)
+        parent, _, base = path.rpartition("/")
+        self.fs.makedirs(parent, exist_ok=True)
+        temp = f"{parent}/.{base}.{uuid.uuid4().hex[:12]}.tmp"
+        self.fs.pipe_file(temp, data)
+        try:
+            self.fs.mv(temp, path)
+        except BaseException:
+            self.fs.rm_file(temp)
+            raise
+
+    def is_file(self, rel: str) -> bool:
+        return self.fs.isfile(self._path(rel))
+
+    def files(self, rel: str = "") -> list[str]:
+        path = self._path(rel)
+        try:
+            entries = self.fs.ls(path, detail=True)
+        except FileNotFoundError:
+            return []
+        return sorted(e["name"].rstrip("/").rpartition("/")[2] for e in entries if e["type"] == "file")
+
+    def size(self, rel: str) -> int:
+        return int(self.fs.size(self._path(rel)))
+
+    def remove(self, rel: str) -> None:
+        path = self._path(rel)
+        if self.fs.isfile(path):
+            self.fs.rm_file(path)
+
+    def sha256(self, rel: str) -> str:
+        digest = hashlib.sha256()
+        with self.fs.open(self._path(rel), "rb") as fh:
+            for block in iter(lambda: fh.read(_BLOCK), b""):
+                digest.update(block)
+        return digest.hexdigest()
+
+    def prepare(self) -> bool:
+        try:
+            if self.fs.isfile(self.root):
+                raise ValueError(f"`out` {self.name!r} is a file; it must be a folder (new, "
+                                 "empty, or of an earlier run of this config)")
+            self.fs.makedirs(self.root, exist_ok=True)
+            return bool(self.fs.ls(self.root))
+        except OSError as exc:
+            raise ValueError(f"cannot create the output folder `out` {self.name!r}: "
+                             f"{exc.strerror or exc}") from None
