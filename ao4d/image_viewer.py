@@ -36,7 +36,10 @@ Ray-march
     point). The opacity ``a`` of the entry is corrected for the step,
     ``alpha = 1 - (1 - a) ** STEP``, and samples are composited front to back,
     ``C += (1 - A) alpha c``, ``A += (1 - A) alpha``, until ``A >= A_STOP``. The pixel is
-    ``(C, A)``, premultiplied, over the page's background.
+    ``(C, A)``, premultiplied, over the page's background. Empty voxels add exactly nothing, so
+    both sides start at the box of hit voxels (one sample early) and stop one sample past it,
+    and the page also jumps over blocks of ``BLOCK^3`` voxels holding no hit voxel: the samples
+    taken are still the ``t_k`` above, and the pixel the same.
 State
     ``array, cmap, lo, hi, opacity, x0, x1, y0, y1, z0, z1, az, el, zoom``, in the URL fragment
     ``#array=shade&cmap=magma&lo=0&hi=0&opacity=1&x0=0&...&az=30&el=20&zoom=1``; the page
@@ -95,6 +98,7 @@ CMAPS = ("magma", "viridis", "inferno", "cividis", "gray", "coolwarm")
 STEP = 0.5  # sample spacing in voxels (of the smallest spacing)
 A_STOP = 0.995  # accumulated opacity at which a ray stops
 MAX_STEPS = 8192  # the shader's loop bound
+BLOCK = 8  # voxels per side of the blocks the page skips when they hold no hit voxel
 MAX_BYTES = 150_000_000
 # array = None: "rgba" when the image has colours, else "shade"
 DEFAULT_STATE: dict[str, Any] = {"array": None, "cmap": "magma", "lo": 0.0, "hi": 0.0,
@@ -410,16 +414,25 @@ def reference_march(image: Any, state: Mapping[str, Any] | None, width: int, hei
     t_in = np.maximum(np.minimum(ta, tb).max(axis=1), 0.0)
     t_out = np.maximum(ta, tb).min(axis=1)
     dt = STEP * float(data.spacing.min())
+    box = _hit_box(data)
+    if box is None:
+        return np.zeros((cam.height, cam.width, 4))
+    hit_lo = -half + data.spacing * np.asarray(box[0])
+    hit_hi = -half + data.spacing * np.asarray(box[1])
+    ha, hb = (hit_lo - eye) * inv, (hit_hi - eye) * inv
+    h_in, h_out = np.minimum(ha, hb).max(axis=1), np.maximum(ha, hb).min(axis=1)
+    t_out = np.minimum(t_out, h_out + dt)
+    first = np.maximum(0, np.ceil((h_in - t_in) / dt - 0.5).astype(np.int64) - 1)
     colours, ramp = transfer_function(st)
     mode = st["array"]
     channel = {"shade": 0, "occlusion": 1, "depth": 2, "rgba": 0}[mode]
     out = np.zeros((len(dirs), 4))
-    active = np.flatnonzero(t_out > t_in)
+    active = np.flatnonzero((t_out > t_in) & (h_out > h_in))
     shape = np.asarray(data.shape)
     for k in range(MAX_STEPS):
         if active.size == 0:
             break
-        t = t_in[active] + (k + 0.5) * dt
+        t = t_in[active] + (first[active] + k + 0.5) * dt
         inside = t < t_out[active]
         active, t = active[inside], t[inside]
         if active.size == 0:
@@ -462,6 +475,29 @@ def _histogram(data: ImageData) -> dict[str, list[int]]:
     return out
 
 
+def _hit_box(data: ImageData) -> list[list[int]] | None:
+    """Voxel index range ``[lo, hi)`` per axis of the hit voxels (None when nothing was hit)."""
+    hit = data.hit
+    if not hit.any():
+        return None
+    box = []
+    for axis in range(3):
+        any_hit = hit.any(axis=tuple(a for a in range(3) if a != axis))
+        idx = np.flatnonzero(any_hit)
+        box.append((int(idx[0]), int(idx[-1]) + 1))
+    return [[b[0] for b in box], [b[1] for b in box]]
+
+
+def _blocks(data: ImageData) -> np.ndarray:
+    """(bx, by, bz) uint8: 255 where a block of BLOCK^3 voxels holds a hit voxel, else 0."""
+    hit = data.hit
+    shape = [-(-n // BLOCK) for n in hit.shape]
+    padded = np.zeros([b * BLOCK for b in shape], dtype=bool)
+    padded[:hit.shape[0], :hit.shape[1], :hit.shape[2]] = hit
+    occupied = padded.reshape(shape[0], BLOCK, shape[1], BLOCK, shape[2], BLOCK).any(axis=(1, 3, 5))
+    return np.where(occupied, 255, 0).astype(np.uint8)
+
+
 def image_page_text(image: Any, *, state: Mapping[str, Any] | None = None, title: str | None = None,
                     compress: bool = True, max_bytes: int = MAX_BYTES) -> str:
     """The page of :func:`view_image` as a string (for notebooks and the demo's result page).
@@ -481,8 +517,8 @@ def image_page_text(image: Any, *, state: Mapping[str, Any] | None = None, title
     blobs: list[bytes] = []
 
     def blob(arr: np.ndarray) -> dict:
-        # WebGL's 3D textures run x fastest, then y, then z: (nz, ny, nx, 4) in C order
-        raw_bytes = np.ascontiguousarray(arr.transpose(2, 1, 0, 3)).tobytes()
+        # WebGL's 3D textures run x fastest, then y, then z: (nz, ny, nx[, 4]) in C order
+        raw_bytes = np.ascontiguousarray(np.swapaxes(arr, 0, 2)).tobytes()
         data_bytes, encoding = (zlib.compress(raw_bytes, 1), "deflate") if compress else (raw_bytes, "raw")
         blobs.append(data_bytes)
         return {"id": f"ao4d-blob-{len(blobs) - 1}", "encoding": encoding, "nbytes": len(raw_bytes)}
@@ -507,6 +543,10 @@ def image_page_text(image: Any, *, state: Mapping[str, Any] | None = None, title
         "a_stop": A_STOP,
         "max_steps": MAX_STEPS,
         "camera": {"half_fov_deg": HALF_FOV_DEG, "margin": MARGIN, "zoom_range": list(ZOOM_RANGE)},
+        "hit_box": _hit_box(data),
+        "block": BLOCK,
+        "blocks_shape": list(_blocks(data).shape),
+        "blocks": blob(_blocks(data)),
         "scalars": blob(data.scalars),
         "colors": None if data.colors is None else blob(data.colors),
     }

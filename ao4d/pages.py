@@ -42,12 +42,15 @@ LAYOUTS = ("image", "slices", "both")
 
 
 def is_image(what: Any) -> bool:
-    """True for what :mod:`ao4d.image_viewer` shows: a RenderResult, its ImageData, a .vti/.mhd path."""
+    """True for what :mod:`ao4d.image_viewer` shows: a RenderResult, its ImageData, a .vti/.mhd
+    path, or a 3D numpy array of shade values."""
+    import numpy as np
+
     from .image_viewer import ImageData
 
     if isinstance(what, (str, os.PathLike)):
         return Path(what).suffix.lower() in (".vti", ".mhd")
-    if isinstance(what, ImageData):
+    if isinstance(what, ImageData) or (isinstance(what, np.ndarray) and what.ndim == 3):
         return True
     return all(hasattr(what, k) for k in ("rgba8", "geometry", "object_id", "shade"))
 
@@ -259,7 +262,7 @@ _OUTER = """<!DOCTYPE html>
       const a = inner(name);
       if (a && a.ready && !applied[name]) { applied[name] = true; if (Object.keys(start[name]).length) a.setState(start[name]); }
     }
-    writeHash();
+    if (applied.slices && applied.image) writeHash();  // never a fragment without a view's state
   }
   for (const l of LAYOUTS) document.getElementById("tab-" + l).addEventListener("click", () => { layout = l; place(); writeHash(); });
   place();
@@ -268,7 +271,8 @@ _OUTER = """<!DOCTYPE html>
     kind: "result",
     tab: (name) => { if (name !== undefined) { if (!LAYOUTS.includes(name)) throw new Error("tab must be one of " + LAYOUTS); layout = name; place(); writeHash(); } return layout; },
     views: () => ({ slices: inner("slices"), image: inner("image") }),
-    get ready() { const s = inner("slices"), i = inner("image"); return !!(s && s.ready && i && i.ready); },
+    // both views drawn, and the fragment's states applied to them
+    get ready() { const s = inner("slices"), i = inner("image"); return !!(s && s.ready && i && i.ready && applied.slices && applied.image); },
     get error() { const s = inner("slices"), i = inner("image"); return (s && s.error) || (i && i.error) || null; },
     hash: () => hashText(),
   };

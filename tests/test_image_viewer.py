@@ -141,11 +141,17 @@ def test_page_holds_the_image(sphere_image, tmp_path):
     info = iv.page_info(text)
     assert info["state"]["array"] == "occlusion" and info["state"]["az"] == 40
     assert info["shape"] == [28, 28, 28] and info["hits"] == int(sphere_image.hit.sum())
-    start = text.index('id="ao4d-blob-0">') + len('id="ao4d-blob-0">')
+    tag = f'id="{info["scalars"]["id"]}">'
+    start = text.index(tag) + len(tag)
     raw = zlib.decompress(base64.b64decode(text[start:text.index("</script>", start)]))
     # x runs fastest in the 3D texture
     scalars = np.frombuffer(raw, np.uint8).reshape(28, 28, 28, 4).transpose(2, 1, 0, 3)
     assert np.array_equal(scalars, iv.encode(sphere_image).scalars)
+    # the hit box and the occupied blocks the page skips by
+    hit = sphere_image.hit
+    (i0, j0, k0), (i1, j1, k1) = info["hit_box"]
+    assert hit[i0:i1, j0:j1, k0:k1].sum() == hit.sum() and hit[i0].any() and hit[i1 - 1].any()
+    assert info["blocks_shape"] == [4, 4, 4] and info["block"] == iv.BLOCK
     with pytest.raises(ValueError, match="`path`.*html"):
         iv.view_image(sphere_image, tmp_path / "s.png")
     with pytest.raises(ValueError, match="max_bytes"):
