@@ -9,6 +9,7 @@ back, stopping at opacity 0.995). Figures per size and transfer function:
 
 * ``ms per frame``: frames drawn back to back by ``window.ao4d.bench(n)`` while az sweeps 20
   degrees, each waiting for the renderer with a 1-pixel read (no vsync cap);
+* a 16^3 page is drawn first, so that no size pays the browser's first shader compilation;
 * the transfer functions: ``surface`` (opaque: rays stop at the first hit voxel) and ``glass``
   (opacity 0.15 ramp: rays cross the whole object).
 
@@ -57,6 +58,12 @@ def main(argv=None) -> int:
     rows = []
     with tempfile.TemporaryDirectory() as tmp, \
             Chromium(width=args.window[0], height=args.window[1], timeout=600) as browser:
+        # warm up: the first page a fresh browser draws pays SwiftShader's shader compilation
+        warm = iv.view_image(_image(16), Path(tmp) / "warm.html")
+        for preset in ("surface", "glass"):
+            browser.goto(warm.as_uri() + iv._state_fragment({"array": "rgba", **iv.PRESETS[preset]}))
+            browser.wait_for("window.ao4d && (window.ao4d.ready || window.ao4d.error)", timeout=600)
+            _draw_ms(browser, budget_s=1.0)
         for k, n in enumerate(args.sizes):
             t = time.perf_counter()
             image = _image(n)
