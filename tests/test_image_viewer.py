@@ -302,3 +302,24 @@ def test_browser_drag_the_ramp_orbit_and_presets(browser, sphere_page):
     png = browser.evaluate("window.ao4d.png()")
     assert png.startswith("data:image/png;base64,")
     assert browser.errors == []
+
+
+def test_cli_serves_the_image_page(sphere_image, tmp_path, capsys, monkeypatch):
+    import urllib.request
+
+    from ao4d import viewer
+
+    vti = sphere_image.save(tmp_path / "s.vti")
+    got = {}
+
+    def fetch_then_stop(server):  # instead of blocking until Ctrl-C
+        with urllib.request.urlopen(server.url, timeout=10) as reply:
+            got["page"] = reply.read().decode()
+        server.close()
+
+    monkeypatch.setattr(viewer.ViewServer, "wait", fetch_then_stop)
+    assert cli.main(["view", str(vti), "--serve", "--array", "occlusion"]) == 0
+    assert "serving" in capsys.readouterr().out
+    assert iv.page_info(got["page"])["state"]["array"] == "occlusion"
+    assert cli.main(["view", str(vti), "--serve", "--out", str(tmp_path / "x.html")]) == 2
+    assert "exclude each other" in capsys.readouterr().err
