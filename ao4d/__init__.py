@@ -58,7 +58,9 @@ _LAZY = {
     "Camera4D": "camera:Camera4D",
     "Light": "lighting:Light",
     "viewer": "viewer:",
-    "view": "viewer:view",
+    "image_viewer": "image_viewer:",
+    "pages": "pages:",
+    "view": "pages:view",
 }
 
 __all__ = sorted(_LAZY) + ["__version__"]

@@ -137,6 +137,12 @@ class RenderResult:
         return (f"RenderResult({shape} voxels, {hits:,} hit ({hits / max(self.shade.size, 1):.0%})"
                 f", backend={info.get('backend')!r}{timing})")
 
+    def _repr_html_(self) -> str:
+        """The image's ray-marching page (:mod:`ao4d.image_viewer`), shown inline in Jupyter."""
+        from .pages import inline
+
+        return inline(self)._repr_html_()
+
     def save(self, path: str | os.PathLike) -> Path:
         """Write the image: ``.vti`` holds every array; ``.mhd`` holds the shade.
 

@@ -101,6 +101,7 @@ __all__ = [
     "camera",
     "cut_table",
     "full_state",
+    "page_text",
     "project",
     "rotation",
     "scene_frame",
@@ -888,6 +889,35 @@ def view(
     if isinstance(max_bytes, bool) or not isinstance(max_bytes, (int, np.integer)) or max_bytes < 1:
         raise ValueError(f"`max_bytes` must be a positive integer, got {max_bytes!r}")
     target = check_output_file(path, "path", (".html", ".htm"))  # before any work, as the CLI
+    text = page_text(meshes, names=names, state=state, center=center, offsets=offsets,
+                     colors=colors, cmap=cmap, title=title, compress=compress, cull=cull,
+                     max_bytes=max_bytes, progress=progress)
+    with atomic_open(target, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(text)
+    return target
+
+
+def page_text(
+    meshes: Any,
+    *,
+    names: Sequence[str] | None = None,
+    state: Mapping[str, Any] | None = None,
+    center: Any = None,
+    offsets: Any = None,
+    colors: Sequence[Any] | None = None,
+    cmap: str = "magma",
+    title: str | None = None,
+    compress: bool = True,
+    cull: str = "auto",
+    max_bytes: int = MAX_BYTES,
+    progress: bool | None = None,
+) -> str:
+    """The page of :func:`view` as a string (for notebooks and the demo's result page).
+
+    Parameters are those of :func:`view`.
+    """
+    if isinstance(max_bytes, bool) or not isinstance(max_bytes, (int, np.integer)) or max_bytes < 1:
+        raise ValueError(f"`max_bytes` must be a positive integer, got {max_bytes!r}")
     items = _as_meshes(meshes, names)
     raw = sum(m.n_vertices * m.dim * 4 + m.n_simplices * m.dim * 4 + m.n_vertices * 4
               for m, _ in items)
@@ -906,16 +936,13 @@ def view(
     size += sum(_b64_size(len(b.data)) + 80 for b in blobs)
     if size > max_bytes:
         raise ValueError(f"the page would be {size / 1e6:.0f} MB, {limit_text}")
-    with atomic_open(target, "w", encoding="utf-8", newline="\n") as fh:
-        fh.write(head)
-        fh.write(scene_text)
-        fh.write(middle)
-        for b in blobs:
-            fh.write(f'<script type="application/octet-stream" id="{b.meta["id"]}">')
-            fh.write(base64.b64encode(b.data).decode("ascii"))
-            fh.write("</script>\n")
-        fh.write(tail)
-    return target
+    parts = [head, scene_text, middle]
+    for b in blobs:
+        parts.append(f'<script type="application/octet-stream" id="{b.meta["id"]}">')
+        parts.append(base64.b64encode(b.data).decode("ascii"))
+        parts.append("</script>\n")
+    parts.append(tail)
+    return "".join(parts)
 
 
 # --------------------------------------------------------------------------- serving

@@ -18,6 +18,7 @@ from ..cl import BACKENDS
 HELP = "run the whole pipeline on a built-in 4D scene and write volumes, meshes and pictures"
 EXAMPLES = """  ao4d demo                          writes ./ao4d-demo/ (under a minute on 2 CPU cores)
   ao4d demo --out pictures --quality high
+  ao4d-demo/view.html                the scene in a browser: slices and the 3D image (tabs)
   paraview ao4d-demo/image.vti       3D image: shade, depth, object_id, occlusion, rgba
                                      (colour by rgba, untick Map Scalars: the voxels' own colours)
 """
@@ -241,9 +242,11 @@ def _write_files(out: Path, scene, image, settings, seconds: dict[str, float], *
     done("slice picture", save_slice_png(
         out / "slice_w0.png", tri, occlusion="ao",
         title=f"ao4d demo: slice w = 0 coloured by 4D AO ({samples} samples)"))
-    from ..viewer import split_objects, view  # the same scene, sliced in the browser
+    from ..pages import result_page  # the same scene in the browser: slices and projection
+    from ..viewer import split_objects
 
-    done("view.html", view(split_objects(scene), out / "view.html", title="ao4d demo", names=names))
+    done("view.html", result_page(split_objects(scene), image, out / "view.html",
+                                  title="ao4d demo", names=names))
     return files
 
 

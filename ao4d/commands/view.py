@@ -1,4 +1,6 @@
-"""``ao4d view``: a self-contained WebGL2 page that slices and turns 4D meshes in the browser."""
+"""``ao4d view``: a self-contained WebGL2 page that slices and turns 4D meshes in the browser, or
+ray-marches the 3D image of a 4D camera (``.vti`` / ``.mhd`` from ``ao4d render``): chosen by the
+files' suffix."""
 
 from __future__ import annotations
 
@@ -6,20 +8,25 @@ import argparse
 import sys
 from pathlib import Path
 
-HELP = "write a self-contained HTML page that slices 4D meshes (.npz) on the GPU, in the browser"
+HELP = ("write a self-contained HTML page that slices 4D meshes (.npz) or ray-marches a rendered "
+        "3D image (.vti, .mhd) on the GPU, in the browser")
 EXAMPLES = """  ao4d view scene.npz --out scene.html              open scene.html in any current browser
   ao4d view a.npz b.npz --names ball torus --out both.html
   ao4d view scene.npz --w 0.3 --xw 90 --out turned.html
   ao4d view huge.npz --serve --port 8000            serve on 127.0.0.1 (pages over 150 MB)
-  page state lives in the URL: scene.html#w=0.3&xw=90&az=30&el=20&zoom=1
+  ao4d view image.vti --out image.html              the 4D camera's 3D image, ray-marched
+  ao4d view image.vti --array occlusion --out ao.html
+  page state lives in the URL: scene.html#w=0.3&xw=90&az=30&el=20&zoom=1,
+  image.html#array=shade&cmap=magma&lo=0&hi=0&opacity=1&x0=0&x1=1&...&az=30&el=20&zoom=1
 """
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..viewer import ANGLES
 
-    parser.add_argument("meshes", nargs="+", type=Path, metavar="MESH.npz",
-                        help="meshes saved by ao4d (all 4D, or all 3D)")
+    parser.add_argument("meshes", nargs="+", type=Path, metavar="FILE",
+                        help="meshes saved by ao4d (.npz: all 4D, or all 3D), or one image "
+                             "written by ao4d render (.vti or .mhd)")
     parser.add_argument("--out", type=Path, metavar="PAGE.html",
                         help="the page to write (default: view.html; not with --serve)")
     parser.add_argument("--serve", action="store_true",
@@ -37,14 +44,73 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     start.add_argument("--az", type=float, default=30.0, metavar="DEG", help="camera azimuth (30)")
     start.add_argument("--el", type=float, default=20.0, metavar="DEG", help="camera elevation (20)")
     start.add_argument("--zoom", type=float, default=1.0, help="camera zoom (1)")
+    start.add_argument("--array", choices=("rgba", "shade", "occlusion", "depth"),
+                       help="images: the array shown (default rgba when present, else shade)")
+    start.add_argument("--cmap", default="magma",
+                       help="images: colour map of the scalar arrays (magma, viridis, inferno, "
+                            "cividis, gray, coolwarm)")
     parser.add_argument("--no-compress", action="store_true",
                         help="store the buffers uncompressed (for browsers without DecompressionStream)")
     parser.add_argument("--max-mb", type=float, default=150.0,
                         help="largest page to write, in MB (default 150); beyond it use --serve")
 
 
+def _run_image(args: argparse.Namespace) -> int:
+    from .._atomic import check_output_file
+    from ..image_viewer import full_state, image_page_text
+
+    if len(args.meshes) != 1:
+        raise ValueError(f"`FILE`: one image (.vti or .mhd) per page, got {len(args.meshes)} files")
+    if args.names:
+        raise ValueError("`--names` labels meshes; an image page has one image (use --title)")
+    state = {"az": args.az, "el": args.el, "zoom": args.zoom, "array": args.array, "cmap": args.cmap}
+    full_state(state)  # bad values are named before the image is read
+    image = args.meshes[0]
+    if not image.is_file():
+        raise FileNotFoundError(f"`FILE`: no such image file: {image}")
+    if args.serve:
+        if args.out is not None:
+            raise ValueError("`--out` and `--serve` exclude each other: --serve writes no file")
+        from ..viewer import ViewServer
+
+        text = image_page_text(image, state=state, title=args.title, compress=not args.no_compress)
+        server = ViewServer(text.encode("utf-8"), [], "127.0.0.1", args.port)
+        print(f"ao4d view: serving {image} at {server.url}  (Ctrl-C stops)", flush=True)
+        if args.open:
+            import webbrowser
+
+            webbrowser.open(server.url)
+        try:
+            server.wait()
+        except KeyboardInterrupt:
+            print("ao4d view: stopped", file=sys.stderr)
+        return 0
+    if not args.max_mb > 0:
+        raise ValueError(f"`--max-mb` must be > 0, got {args.max_mb}")
+    out = check_output_file(args.out if args.out is not None else Path("view.html"), "--out",
+                            (".html", ".htm"))
+    from ..image_viewer import view_image
+
+    path = view_image(image, out, state=state, title=args.title, compress=not args.no_compress,
+                      max_bytes=int(args.max_mb * 1e6))
+    print(f"ao4d view: wrote {path} ({path.stat().st_size / 1e6:.1f} MB); open it in a browser "
+          f"(file://{path.resolve()})")
+    if args.open:
+        import webbrowser
+
+        webbrowser.open(path.resolve().as_uri())
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from ..viewer import ANGLES, serve, view
+
+    suffixes = {p.suffix.lower() for p in args.meshes}
+    if suffixes & {".vti", ".mhd"}:
+        if suffixes - {".vti", ".mhd"}:
+            raise ValueError("`FILE`: meshes (.npz) and images (.vti, .mhd) go on separate pages, "
+                             f"got {sorted(suffixes)}")
+        return _run_image(args)
 
     state = {"w": args.w, "az": args.az, "el": args.el, "zoom": args.zoom,
              **{a: getattr(args, a) for a in ANGLES}}

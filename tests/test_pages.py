@@ -1,0 +1,203 @@
+""":mod:`ao4d.pages`: ``ao4d.view`` for meshes and images, inline display in Jupyter (a real
+notebook executed by ``nbclient`` in a real kernel), and the demo's one page with both views,
+loaded in headless Chromium (SwiftShader).
+
+The browser tests hold the result page's projection view of the demo image to the numpy
+ray-march (:func:`ao4d.image_viewer.reference_march`) as ``tests/test_image_viewer.py`` does for
+a page of its own: silhouette IoU >= 95 %, median colour error <= 0.02.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import ao4d
+from ao4d import image_viewer as iv
+from ao4d import pages
+from ao4d._chromium import Chromium, find_chromium
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    mesh = ao4d.extract_field(ao4d.fields.hypersphere(1.0), (10,) * 4, (-1.3, 1.3), progress=False)
+    mesh.point_data["ao"] = np.clip(0.5 + 0.45 * mesh.vertices[:, 0], 0.0, 1.0)
+    return mesh
+
+
+@pytest.fixture(scope="module")
+def image(sphere):
+    cam = ao4d.Camera4D([0, 0, 0, -4], [0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], fov=40)
+    return ao4d.render(sphere, cam, (24, 24, 24), ao="vertices", light=[0, 1, 0, -1],
+                       backend="numpy", progress=False)
+
+
+@pytest.fixture(scope="module")
+def demo_dir(tmp_path_factory):
+    from ao4d.commands.demo import run_demo
+
+    out = tmp_path_factory.mktemp("demo")
+    run_demo(out, quality="tiny", progress=False, stream=io.StringIO())
+    return out
+
+
+def _srcdoc(markup):
+    start = markup.index('srcdoc="') + len('srcdoc="')
+    return html.unescape(markup[start:markup.index('"', start)])
+
+
+def test_view_dispatches_meshes_and_images(sphere, image, tmp_path):
+    page = ao4d.view(sphere, tmp_path / "m.html")
+    assert isinstance(page, Path) and isinstance(page, pages.Page) and page.exists()
+    assert 'content="ao4d view"' in page.read_text()
+    page = ao4d.view(image, tmp_path / "i.html")
+    assert 'content="ao4d view (image)"' in page.read_text()
+    vti = image.save(tmp_path / "i.vti")
+    assert iv.page_info(ao4d.view(vti, tmp_path / "f.html").read_text())["hits"] == int(image.hit.sum())
+    # the notebook form: the page itself in an iframe's srcdoc
+    for what, generator in ((sphere, "ao4d view"), (image, "ao4d view (image)")):
+        shown = ao4d.view(what)
+        assert isinstance(shown, pages.InlinePage)
+        markup = shown._repr_html_()
+        assert markup.startswith('<iframe class="ao4d-view" srcdoc="')
+        assert _srcdoc(markup) == shown.html and f'content="{generator}"' in shown.html
+    assert _srcdoc(image._repr_html_()) == pages.inline(image).html  # RenderResult in Jupyter
+    assert 'content="ao4d view (image)"' in _srcdoc(page._repr_html_())  # a written Page too
+    with pytest.raises(TypeError, match="unexpected keyword argument 'colour'"):
+        ao4d.view(sphere, colour="red")
+    with pytest.raises(ValueError, match="`height`"):
+        ao4d.view(image, height=3)
+
+
+def test_a_page_over_the_inline_limit_is_served(image):
+    shown = ao4d.view(image, inline_limit=1000)
+    try:
+        markup = shown._repr_html_()
+        assert "srcdoc" not in markup and shown.server.url in markup
+        with urllib.request.urlopen(shown.server.url, timeout=10) as reply:
+            assert reply.read().decode() == shown.html
+    finally:
+        shown.close()
+
+
+def test_result_page_errors(sphere, image, tmp_path):
+    with pytest.raises(ValueError, match="`tab`"):
+        pages.result_page(sphere, image, tmp_path / "r.html", tab="left")
+    with pytest.raises(ValueError, match="`path`"):
+        pages.result_page(sphere, image, tmp_path / "r.txt")
+    with pytest.raises(ValueError, match="max_bytes"):
+        pages.result_page(sphere, image, tmp_path / "r.html", max_bytes=5000)
+
+
+def test_demo_view_html_holds_both_views(demo_dir):
+    text = (demo_dir / "view.html").read_text()
+    assert 'content="ao4d result page"' in text
+    inner = [html.unescape(part.split('"', 1)[0]) for part in text.split('srcdoc="')[1:]]
+    assert len(inner) == 2
+    assert 'content="ao4d view"' in inner[0] and 'content="ao4d view (image)"' in inner[1]
+    assert iv.page_info(inner[1])["shape"] == [16, 16, 16]
+
+
+# --------------------------------------------------------------------------- notebooks
+
+def _notebook(tmp_path):
+    nbformat = pytest.importorskip("nbformat", reason="notebook tests need nbformat (the test extra)")
+    pytest.importorskip("nbclient", reason="notebook tests need nbclient (the test extra)")
+    pytest.importorskip("ipykernel", reason="notebook tests need ipykernel (the test extra)")
+    cells = [
+        "import numpy as np, ao4d\n"
+        "mesh = ao4d.extract_field(ao4d.fields.hypersphere(1.0), (10,) * 4, (-1.3, 1.3), progress=False)\n"
+        "cam = ao4d.Camera4D([0, 0, 0, -4], [0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], fov=40)\n"
+        "result = ao4d.render(mesh, cam, (24, 24, 24), ao='none', light=[0, 1, 0, -1], backend='numpy', progress=False)",
+        "result",
+        "ao4d.view(mesh)",
+    ]
+    nb = nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(c) for c in cells])
+    from nbclient import NotebookClient
+
+    NotebookClient(nb, timeout=300, kernel_name="python3",
+                   resources={"metadata": {"path": str(tmp_path)}}).execute()
+    return nb
+
+
+def test_notebook_shows_the_image_and_the_meshes_inline(tmp_path):
+    nb = _notebook(tmp_path)
+    outputs = [cell.outputs for cell in nb.cells]
+    assert not any(o.get("output_type") == "error" for out in outputs for o in out)
+    shown = []
+    for out in outputs[1:]:
+        (result,) = [o for o in out if o.get("output_type") == "execute_result"]
+        markup = result["data"]["text/html"]
+        assert markup.startswith('<iframe class="ao4d-view" srcdoc="')
+        shown.append(_srcdoc(markup))
+    assert 'content="ao4d view (image)"' in shown[0] and 'content="ao4d view"' in shown[1]
+    assert iv.page_info(shown[0])["shape"] == [24, 24, 24]
+    # what an HTML export of the notebook holds: the outputs' HTML in one document
+    body = "\n".join(o["data"]["text/html"] for out in outputs[1:] for o in out
+                     if o.get("output_type") == "execute_result")
+    (tmp_path / "export.html").write_text(f"<!DOCTYPE html><html><body>{body}</body></html>")
+    if find_chromium() is None:
+        pytest.skip("Chromium is not installed: the exported notebook was not loaded")
+    with Chromium(width=900, height=1300) as browser:
+        browser.goto((tmp_path / "export.html").as_uri())
+        ready = ("Array.from(document.querySelectorAll('iframe')).every((f) => f.contentWindow.ao4d"
+                 " && (f.contentWindow.ao4d.ready || f.contentWindow.ao4d.error))")
+        browser.wait_for(ready, timeout=60)
+        for k in range(2):
+            api = f"document.querySelectorAll('iframe')[{k}].contentWindow.ao4d"
+            assert browser.evaluate(f"{api}.error") is None
+            cap = browser.evaluate(f"{api}.capture()")
+            alpha = np.frombuffer(base64.b64decode(cap["rgba"]), np.uint8)[3::4]
+            assert (alpha > 0).mean() > 0.02  # the canvas draws
+        assert browser.errors == []
+
+
+# --------------------------------------------------------------------------- the result page
+
+@pytest.fixture(scope="module")
+def browser():
+    if find_chromium() is None:
+        pytest.skip("Chromium is not installed (Debian: apt-get install chromium); "
+                    "the browser tests need it")
+    with Chromium(width=1000, height=460) as chromium:
+        yield chromium
+
+
+def test_browser_demo_page_both_views_and_its_fragment(browser, demo_dir):
+    url = (demo_dir / "view.html").as_uri()
+    browser.errors.clear()
+    browser.goto(url + "#tab=image&s.w=0.2&s.hide=1&i.array=occlusion&i.az=45")
+    browser.wait_for("window.ao4d && (window.ao4d.ready || window.ao4d.error)", timeout=60)
+    assert browser.evaluate("window.ao4d.error") is None
+    browser.wait_for("window.ao4d.views().image.state().az === 45", timeout=10)
+    s = browser.evaluate("window.ao4d.views().slices.state()")
+    assert s["w"] == pytest.approx(0.2) and s["hide"] == [1]
+    assert browser.evaluate("window.ao4d.views().image.state().array") == "occlusion"
+    # the projection view agrees with the numpy ray-march of the demo's image file
+    state = browser.evaluate("window.ao4d.views().image.state()")
+    cap = browser.evaluate("window.ao4d.views().image.capture()")
+    page = np.frombuffer(base64.b64decode(cap["rgba"]), np.uint8).reshape(cap["height"], cap["width"], 4) / 255
+    ref = iv.reference_march(demo_dir / "image.vti", state, cap["width"], cap["height"])
+    a, b = page[..., 3] > 0.5, ref[..., 3] > 0.5
+    assert b.sum() > 1000
+    iou = (a & b).sum() / (a | b).sum()
+    error = np.median(np.abs(page[a & b, :3] - ref[a & b, :3]).max(axis=1))
+    assert iou >= 0.95 and error <= 0.02, (iou, error)
+    # tabs and the outer fragment: the layout and both views' states
+    browser.evaluate("document.getElementById('tab-both').click()")
+    browser.evaluate("window.ao4d.views().image.setState({el: -30})")
+    fragment = browser.wait_for("location.hash.includes('i.el=-30') && location.hash", timeout=5)
+    assert fragment.startswith("#tab=both&") and "s.w=0.2" in fragment and "i.array=occlusion" in fragment
+    browser.goto("about:blank")
+    browser.goto(url + fragment)
+    browser.wait_for("window.ao4d && window.ao4d.ready", timeout=60)
+    browser.wait_for("window.ao4d.views().image.state().el === -30", timeout=10)
+    assert browser.evaluate("window.ao4d.tab()") == "both"
+    assert browser.evaluate("window.ao4d.views().slices.state().w") == pytest.approx(0.2)
+    assert browser.errors == []
