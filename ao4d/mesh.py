@@ -311,8 +311,8 @@ class SimplexMesh:
         """
         raw = self._raw_normals  # |raw| is proportional to the measure: the weighting we want
         total = np.zeros((self.n_vertices, self.dim))
-        # one bincount per (corner, coordinate) on contiguous columns: no repeated weights
-        # (a bincount over the raveled simplices took 1.6 s at 1.2 M tets, this 0.1 s)
+        # one bincount per (corner, coordinate) on contiguous columns, no repeated copy of the
+        # weights (1.2 M tets: 0.11-0.15 s of CPU, against 0.13-0.38 s over the raveled simplices)
         corners = [np.ascontiguousarray(self._simplices[:, i]) for i in range(self.dim)]
         for j in range(self.dim):
             weights = np.ascontiguousarray(raw[:, j])
