@@ -61,7 +61,7 @@ from .camera import Camera4D, ImageGeometry, _image_shape
 from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, lambert
 from .mesh import SimplexMesh, _mesh_list, concatenate, warn_if_inside_out
 from .raycast import cast_rays, check_distance, check_rays
-from .screen_ao import STEPS, DepthVolume, screen_space_occlusion
+from .screen_ao import STEPS, DepthVolume, screen_space_occlusion, viewer_side
 from .volumes import write_mhd, write_vti
 
 __all__ = ["render", "RenderResult", "prepare_scene", "ShadeRangeWarning", "composite_layer", "MAX_LAYERS",
@@ -760,9 +760,7 @@ def _cast_chunked(scene, origins, directions, backend, show, desc, *, closest=Tr
     return t, simplex, bary
 
 
-def _viewer_side(normals: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    """+1 where the normal faces against the ray (front side seen), -1 where it faces along."""
-    return np.where(np.einsum("hd,hd->h", normals, directions) > 0, -1.0, 1.0)
+_viewer_side = viewer_side  # +1 where a normal faces against its ray, -1 where along it
 
 
 def _depth_volume(scene, camera, shape, directions, t, simplex) -> DepthVolume:

@@ -74,7 +74,7 @@ from ._validate import as_array, as_real, check_int, check_memory, check_positiv
 from .camera import Camera4D, _image_shape
 from .sampling import cosine_hemisphere, sobol_table
 
-__all__ = ["DepthVolume", "screen_space_occlusion", "STEPS", "GRAZING"]
+__all__ = ["DepthVolume", "screen_space_occlusion", "viewer_side", "STEPS", "GRAZING"]
 
 STEPS = 8  # march points per direction
 GRAZING = 0.1  # |u . m| below which the voxel's depth replaces its tangent hyperplane
@@ -136,6 +136,35 @@ class DepthVolume:
             raise ValueError("`normals` must be finite and non-zero where `depth` is finite")
         arr[hit] /= length[hit][:, None]
         return cls(depth=depth, normals=arr, camera=camera)
+
+    @classmethod
+    def trace(cls, mesh, camera: Camera4D, shape, *, backend: str = "auto") -> DepthVolume:
+        """Cast one primary ray per voxel (closest hit, :func:`ao4d.raycast.cast_rays`) and keep
+        the depth and viewer-facing simplex normal of each first hit: the volume
+        :func:`ao4d.render` builds for ``ao="screen"``.
+
+        Parameters
+        ----------
+        mesh : SimplexMesh
+            A 4D mesh (join several with :func:`ao4d.mesh.concatenate`).
+        camera : Camera4D
+        shape : (3,) tuple of int
+        backend : {"auto", "opencl", "numpy"}
+        """
+        from .raycast import cast_rays
+
+        if not isinstance(camera, Camera4D):
+            raise TypeError(f"`camera` must be an ao4d.Camera4D, got {type(camera).__name__}")
+        shape = _image_shape(shape)
+        if getattr(mesh, "dim", None) != 4:
+            raise ValueError("`mesh` must be a 4D SimplexMesh (tetrahedra in R^4)")
+        origins, directions = (a.reshape(-1, 4) for a in camera.rays(shape))
+        hits = cast_rays(mesh, origins, directions, backend=backend)
+        hit = hits.simplex >= 0
+        raw = np.asarray(mesh.simplex_normals)[hits.simplex[hit]]
+        normals = np.zeros((len(hit), 4))
+        normals[hit] = raw * viewer_side(raw, directions[hit])[:, None]
+        return cls.from_hits(camera, shape, np.where(hit, hits.t, np.inf), normals)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -257,6 +286,11 @@ def screen_space_occlusion(
     else:
         counts = _opencl_counts(runtime, volume, pts, nrm, **args)
     return counts / samples
+
+
+def viewer_side(normals: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """(H,) +1 where a normal faces against its ray (its front is seen), -1 where along it."""
+    return np.where(np.einsum("hd,hd->h", normals, directions) > 0, -1.0, 1.0)
 
 
 # -- the camera as both backends see it --------------------------------------------------------
