@@ -62,6 +62,7 @@ from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue,
 from .mesh import SimplexMesh, _mesh_list, concatenate, warn_if_inside_out
 from .raycast import cast_rays, check_distance, check_rays
 from .screen_ao import STEPS, DepthVolume, screen_space_occlusion, viewer_side
+from .screen_ao import denoise as denoise_occlusion
 from .volumes import write_mhd, write_vti
 
 __all__ = ["render", "RenderResult", "prepare_scene", "ShadeRangeWarning", "composite_layer", "MAX_LAYERS",
@@ -243,6 +244,7 @@ def render(
     samples: int = 64,
     max_distance: float = math.inf,
     seed: int = 0,
+    denoise: int = 0,
     ambient: float | None = None,
     light=None,
     diffuse: float | None = None,
@@ -285,6 +287,10 @@ def render(
         visible points' bounding box).
     seed : int
         AO random seed (results are deterministic).
+    denoise : int
+        With ``ao="screen"``: radius in voxels of the depth- and normal-aware box filter
+        (:func:`ao4d.screen_ao.denoise`) applied to the first hits' occlusion before shading, so
+        that few ``samples`` suffice; 0 (default) for none.
     ambient : float, optional
         Weight of the ambient term ``1 - A`` (default 1 without a light, 0.7 with lights). Shade
         stays in [0, 1] when ``ambient + (sum of light intensities) * (diffuse + specular)`` is
@@ -363,6 +369,9 @@ def render(
     check_choice(backend, "backend", cl.BACKENDS)
     samples = check_positive_int(samples, "samples")
     seed = check_int(seed, "seed")
+    denoise = check_int(denoise, "denoise", minimum=0)
+    if denoise and ao != "screen":
+        raise ValueError(f"`denoise` filters screen-space AO: it needs ao='screen', got ao={ao!r}")
     lights = as_lights(light, "light")
     ambient, diffuse = default_weights(ambient, diffuse, bool(lights))
     shadows = check_bool(shadows, "shadows")
@@ -393,7 +402,8 @@ def render(
         warn_if_inside_out(scene, "AO is 1 on its surface and the image dark")
     info: dict[str, Any] = {"primary_rays": n_rays, "layer_rays": 0, "shadow_rays": 0,
                             "ao_rays": 0, "screen_lookups": 0, "primary_seconds": 0.0,
-                            "layer_seconds": 0.0, "shadow_seconds": 0.0, "ao_seconds": 0.0, "backend": backend,
+                            "layer_seconds": 0.0, "shadow_seconds": 0.0, "ao_seconds": 0.0,
+                            "backend": backend,
                             "device": cl.describe(runtime)}
     lo, hi = np.asarray(scene.bounds, dtype=np.float64)
     shading = _Shading(
@@ -410,12 +420,23 @@ def render(
     hit = simplex >= 0
     info["hits"] = int(hit.sum())
     rows = np.flatnonzero(hit)
-    if ao == "screen":
+    points = origins[rows] + t[rows, None] * directions[rows]
+    occlusion = None
+    if ao == "screen" and rows.size:
         tick = time.perf_counter()
-        shading.screen = _depth_volume(scene, camera, shape, directions, t, simplex)
+        volume = shading.screen = _depth_volume(scene, camera, shape, directions, t, simplex)
+        occlusion = screen_space_occlusion(volume, points, volume.normals.reshape(-1, 4)[rows],
+                                           samples=samples, max_distance=max_distance, seed=seed,
+                                           backend=backend)
+        info["screen_lookups"] += rows.size * samples * STEPS
+        if denoise:
+            image = np.full(n_rays, np.nan)
+            image[rows] = occlusion
+            occlusion = denoise_occlusion(image.reshape(shape), volume, radius=denoise,
+                                          backend=backend).reshape(-1)[rows]
         info["ao_seconds"] += time.perf_counter() - tick
-    first = shading.hits(origins[rows] + t[rows, None] * directions[rows], directions[rows],
-                         t[rows], simplex[rows], bary[rows])
+    first = shading.hits(points, directions[rows], t[rows], simplex[rows], bary[rows],
+                         occlusion=occlusion)
     rgba = _composite_rays(shading, origins, directions, rows, t[rows], simplex[rows], first)
     info["seconds"] = time.perf_counter() - started
     return RenderResult(
@@ -539,8 +560,9 @@ class _Shading:
     _vertex_ao: np.ndarray | None = None
     screen: DepthVolume | None = None  # the first hits, for ao="screen"
 
-    def hits(self, points, directions, depth, simplex, bary) -> _Shaded:
-        """Shade hits: points (H, 4), ray directions (H, 4), depths (H,), simplices, weights."""
+    def hits(self, points, directions, depth, simplex, bary, occlusion=None) -> _Shaded:
+        """Shade hits: points (H, 4), ray directions (H, 4), depths (H,), simplices, weights;
+        ``occlusion`` (H,) when already known (the first hits' screen-space AO)."""
         scene = self.scene
         tri = scene.simplices[simplex]  # (H, 4) vertex ids of the hit tetrahedra
         # two-sided shading: the side of the hit simplex that faces the ray decides, for the
@@ -552,7 +574,9 @@ class _Shading:
         face_n = raw_n * side[:, None]
 
         occ = np.zeros(len(simplex))
-        if self.ao == "vertices" and len(simplex):
+        if occlusion is not None:
+            occ = np.asarray(occlusion, dtype=np.float64)
+        elif self.ao == "vertices" and len(simplex):
             occ = np.einsum("hk,hk->h", bary, self._per_vertex_ao()[tri])
         elif self.ao == "hits" and len(simplex):
             occ = _hit_occlusion(scene, points, face_n, samples=self.samples, seed=self.seed,
@@ -764,13 +788,15 @@ _viewer_side = viewer_side  # +1 where a normal faces against its ray, -1 where 
 
 
 def _depth_volume(scene, camera, shape, directions, t, simplex) -> DepthVolume:
-    """The first hits as a depth volume: depth and viewer-facing face normal."""
+    """The first hits as a depth volume: depth and viewer-facing face normal (valid by
+    construction: built directly, without :meth:`DepthVolume.from_hits`' checks)."""
     hit = simplex >= 0
     normals = np.zeros((len(t), 4))
     rows = np.flatnonzero(hit)
     raw_n = np.asarray(scene.simplex_normals)[simplex[rows]]
     normals[rows] = raw_n * _viewer_side(raw_n, directions[rows])[:, None]
-    return DepthVolume.from_hits(camera, shape, np.where(hit, t, np.inf), normals)
+    return DepthVolume(depth=np.where(hit, t, np.inf).reshape(shape),
+                       normals=normals.reshape(shape + (4,)), camera=camera)
 
 
 def _hit_occlusion(scene, points, normals, *, samples, seed, max_distance, backend, info, show):

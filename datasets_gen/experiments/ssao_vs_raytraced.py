@@ -9,7 +9,8 @@ Times are the best of a few runs taken in turn: the AO stage alone (``info["ao_s
 the speed ratio divides) and the whole render.
 
 Scenes: the demo scene (:func:`ao4d.scenes.default_scene`, its camera, at two reaches), a pair
-of interlinked torispheres, and a concave one, a tesseract with a spherical bowl in its top.
+of interlinked torispheres, and a concave one, a tesseract with a spherical bowl in the facet
+that faces the eye.
 ``ssao_vs_raytraced_steps.csv`` sweeps the march points per direction on the demo scene.
 
 Where screen-space AO is wrong by construction (the figure's second row shows the demo image's
@@ -56,10 +57,11 @@ def scenes(quick: bool) -> list[dict]:
                          ([-reach, -reach, -reach, -small - 0.1],
                           [2 * big + small + 0.1, reach, reach, small + 0.1]), progress=False)
 
-    bowl_field = fields.difference(fields.tesseract(0.8), fields.hypersphere(0.72, [0, 0.75, 0, 0]))
+    # a tesseract with a spherical bowl in its facet towards the eye (-w): its inside is concave
+    bowl_field = fields.difference(fields.tesseract(0.8), fields.hypersphere(0.72, [0, 0, 0, -0.75]))
     bowl = extract_field(bowl_field, (n,) * 4, (-0.95, 0.95), progress=False)
 
-    down = (0.0, -0.45, -0.15, 1.0)
+    down = (0.15, -0.3, 0.1, 1.0)
     return [
         {"scene": "demo", "mesh": demo_mesh, "camera": demo.camera, "reach": REACH},
         {"scene": "demo (reach inf)", "mesh": demo_mesh, "camera": demo.camera, "reach": math.inf},
@@ -173,7 +175,10 @@ def plot_all(rows: list[dict], hist_rows: list[dict], slices: dict, sweep: list[
                   ha="center", va="bottom", fontsize=7)
     ax_t.set_xticks(x, [r["scene"].replace(" (", "\n(") for r in rows], fontsize=7)
     ax_t.set_ylabel(f"AO seconds at the same hits ({rows[0]['image']})")
-    ax_t.legend(fontsize=7)
+    top = max(max(r["traced_ao_seconds"], r["screen_ao_seconds"]) for r in rows)
+    ax_t.set_ylim(0, 1.35 * top)
+    ax_t.legend(fontsize=7, loc="upper left")
+    ax_t.set_title("ray-traced / screen-space time above the bars", fontsize=8)
 
     ax_s = fig.add_subplot(grid[0, 3])
     ax_s.plot([s["seconds"] for s in sweep], [s["mae"] for s in sweep], "o-")
