@@ -61,7 +61,7 @@ from .camera import Camera4D, ImageGeometry, _image_shape
 from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, lambert
 from .mesh import SimplexMesh, _mesh_list, concatenate, warn_if_inside_out
 from .raycast import cast_rays, check_distance, check_rays
-from .screen_ao import STEPS, DepthVolume, screen_space_occlusion, viewer_side
+from .screen_ao import DepthVolume, default_steps, screen_space_occlusion, viewer_side
 from .screen_ao import denoise as denoise_occlusion
 from .volumes import write_mhd, write_vti
 
@@ -277,7 +277,7 @@ def render(
         viewer (exact per voxel and right for open, two-sided geometry). ``"screen"``: 4D
         screen-space AO at every hit, read from the image's own depth volume (first hits,
         their points and viewer-facing normals) with the same directions as ``"hits"``
-        (:func:`ao4d.screen_ao.screen_space_occlusion`, :data:`ao4d.screen_ao.STEPS` look-ups
+        (:func:`ao4d.screen_ao.screen_space_occlusion`, :func:`ao4d.screen_ao.default_steps` look-ups
         per direction; no AO rays): fast, but blind to what the image does not show.
         ``"none"``: A = 0.
     samples : int
@@ -428,7 +428,7 @@ def render(
         occlusion = screen_space_occlusion(volume, points, volume.normals.reshape(-1, 4)[rows],
                                            samples=samples, max_distance=max_distance, seed=seed,
                                            backend=backend)
-        info["screen_lookups"] += rows.size * samples * STEPS
+        info["screen_lookups"] += rows.size * samples * default_steps(volume, max_distance)
         if denoise:
             image = np.full(n_rays, np.nan)
             image[rows] = occlusion
@@ -588,7 +588,8 @@ class _Shading:
                                          max_distance=self.max_distance, seed=self.seed,
                                          backend=self.backend)
             self.info["ao_seconds"] += time.perf_counter() - start
-            self.info["screen_lookups"] += len(points) * self.samples * STEPS
+            self.info["screen_lookups"] += (len(points) * self.samples
+                                            * default_steps(self.screen, self.max_distance))
 
         objects = self.object_ids[simplex]
         open_ = self.ambient * (1.0 - np.clip(occ, 0.0, 1.0))

@@ -103,7 +103,9 @@ def test_extract_throughput_counts_match_scikit_image(tmp_path):
 
 def test_ssao_vs_raytraced_compares_the_same_hits(tmp_path):
     rows = _run(ssao_vs_raytraced, tmp_path)
-    assert [r["scene"] for r in rows] == ["demo", "demo (reach inf)", "torus pair", "bowl (concave)"]
+    scenes = ["demo", "demo (reach inf)", "torus pair", "bowl (concave)"]
+    variants = [v[0] for v in ssao_vs_raytraced.SCREEN_VARIANTS]
+    assert [(r["scene"], r["variant"]) for r in rows] == [(s, v) for s in scenes for v in variants]
     for r in rows:
         assert int(r["hits"]) > 100
         # both estimates are fractions of the same 64 directions at the same hits: the error is
@@ -115,7 +117,8 @@ def test_ssao_vs_raytraced_compares_the_same_hits(tmp_path):
         assert float(r["mean_error"]) == pytest.approx(float(r["mean_screen"]) - float(r["mean_traced"]))
         assert float(r["ao_speedup"]) > 0
     hist = _rows(tmp_path / "ssao_vs_raytraced_histogram.csv")
-    for scene in {r["scene"] for r in rows}:
-        assert sum(float(h["fraction"]) for h in hist if h["scene"] == scene) == pytest.approx(1.0)
+    for key in {(r["scene"], r["variant"]) for r in rows}:
+        assert sum(float(h["fraction"]) for h in hist if (h["scene"], h["variant"]) == key) == pytest.approx(1.0)
     steps = _rows(tmp_path / "ssao_vs_raytraced_steps.csv")
-    assert [int(s["steps"]) for s in steps] == list(ssao_vs_raytraced.STEP_SWEEP)
+    assert [int(s["steps"]) for s in steps] == 2 * list(ssao_vs_raytraced.STEP_SWEEP)
+    assert sum(s["default"] == "True" for s in steps) == 2  # one default per reach

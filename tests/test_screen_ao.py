@@ -13,7 +13,7 @@ from _scenes import flat_patch
 from ao4d.camera import Camera4D
 from ao4d.mesh import SimplexMesh, concatenate
 from ao4d.rendering import render
-from ao4d.screen_ao import STEPS, DepthVolume, denoise, screen_space_occlusion
+from ao4d.screen_ao import DepthVolume, default_steps, denoise, screen_space_occlusion
 
 BETA = math.radians(30.0)  # the wall scene's camera looks this far down onto the floor
 WALL_X, REACH = 1.0, 1.0
@@ -61,11 +61,13 @@ def test_open_hyperplane_facing_the_camera_gets_zero(projection, backend):
     # every march point lies above the floor; the voxel's tangent hyperplane extended to the
     # point's own view ray lies behind it, whatever voxel it falls in: exactly 0, no acne
     floor = _floor(lo=(-4.0, -4.0, -4.0), hi=(4.0, 4.0, 4.0))
-    img = render(floor, _oblique_camera(projection), (16, 16, 16), ao="screen", samples=16,
-                 max_distance=0.8, backend=backend)
+    cam = _oblique_camera(projection)
+    img = render(floor, cam, (16, 16, 16), ao="screen", samples=16, max_distance=0.8,
+                 backend=backend)
     assert img.hit.sum() > 1000
     assert (img.occlusion[img.hit] == 0).all()
-    assert img.info["ao_rays"] == 0 and img.info["screen_lookups"] == img.hit.sum() * 16 * STEPS
+    assert img.info["ao_rays"] == 0 and img.info["screen_lookups"] == img.hit.sum() * 16 * 4
+    assert default_steps(DepthVolume.trace(floor, cam, (16, 16, 16)), 0.8) == 4  # 0.8 = 4.3 voxels
 
 
 def test_foot_of_a_visible_perpendicular_wall_matches_the_closed_form(backend):
