@@ -219,11 +219,12 @@ def plot_all(rows: list[dict], hist_rows: list[dict], slices: dict, sweep: list[
 
     if slices:
         hit = slices["hit"]
-        k = int(np.argmax(hit.sum(axis=(0, 1))))  # the z-slice with the most hits
+        diff = np.where(hit, np.abs(slices["screen"] - slices["traced"]), 0.0)
+        k = int(np.argmax(diff.sum(axis=(0, 1))))  # the z-slice with the largest error
         show = lambda a: np.where(hit[:, :, k], a[:, :, k], np.nan).T  # noqa: E731  (x right, y up)
         panels = [("ray-traced AO", slices["traced"], "magma_r", (0, 1)),
                   ("screen-space AO", slices["screen"], "magma_r", (0, 1)),
-                  ("screen - ray traced", slices["screen"] - slices["traced"], "RdBu_r", (-0.5, 0.5))]
+                  ("screen - ray traced", slices["screen"] - slices["traced"], "RdBu_r", (-0.3, 0.3))]
         for j, (title, arr, cmap, (vmin, vmax)) in enumerate(panels):
             ax = fig.add_subplot(grid[1, j])
             im = ax.imshow(show(arr), origin="lower", cmap=cmap, vmin=vmin, vmax=vmax)
@@ -233,15 +234,17 @@ def plot_all(rows: list[dict], hist_rows: list[dict], slices: dict, sweep: list[
             fig.colorbar(im, ax=ax, shrink=0.8)
         ax = fig.add_subplot(grid[1, 3])
         ax.axis("off")
-        ax.text(0, 1, "Wrong by construction (blue: too open, red: too occluded):\n"
-                "- occluders the image does not show: the ground\n"
-                "  under the objects, their hidden backs, anything\n"
-                "  outside the image -> contact shadows too light\n"
-                "- each visible surface is taken as solid up to the\n"
-                "  reach behind it -> haloes on surfaces behind\n"
+        ax.text(0, 1, "Wrong by construction\n(blue: too open, red: too occluded)\n\n"
+                "- occluders the image does not\n"
+                "  show: the ground under objects,\n"
+                "  their hidden backs, anything\n"
+                "  outside the image: too open\n"
+                "- a visible surface is taken as\n"
+                "  solid up to the reach behind\n"
+                "  it: haloes on what lies behind\n"
                 "  silhouettes and thin objects\n"
-                "- near the image's edge march points leave the\n"
-                "  image and count as open",
+                "- march points leaving the\n"
+                "  image count as open",
                 va="top", fontsize=8, family="monospace")
     fig.suptitle(f"4D screen-space AO vs ray-traced AO ({SAMPLES} rays), {rows[0]['image']} images "
                  f"({machine()})", fontsize=9)
