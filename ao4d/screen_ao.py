@@ -87,7 +87,7 @@ __all__ = ["DepthVolume", "screen_space_occlusion", "denoise", "default_steps", 
 # Default march: one point per STEP_VOXELS voxels of reach (at the target's distance), between
 # MIN_STEPS and MAX_STEPS. On the demo scene at reach 1 (20 voxels at 80^3) the error against
 # ray-traced AO is smallest at 4 points (the experiment's steps table); with an infinite reach
-# (130 voxels) 4 points step over whole objects.
+# (125 voxels) 4 points step over whole objects.
 STEP_VOXELS, MIN_STEPS, MAX_STEPS = 8, 4, 16
 GRAZING = 0.1  # |u . m| below which the voxel's depth replaces its tangent hyperplane
 _BIAS = 1e-3  # default bias, times the reach

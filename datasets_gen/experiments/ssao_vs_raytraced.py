@@ -13,7 +13,8 @@ the speed ratio divides) and the whole render.
 Scenes: the demo scene (:func:`ao4d.scenes.default_scene`, its camera, at two reaches), a pair
 of interlinked torispheres, and a concave one, a tesseract with a spherical bowl in the facet
 that faces the eye.
-``ssao_vs_raytraced_steps.csv`` sweeps the march points per direction on the demo scene.
+``ssao_vs_raytraced_steps.csv`` sweeps the march points per direction on the demo scene at both
+reaches.
 
 Where screen-space AO is wrong by construction (the figure's second row shows the demo image's
 middle z-slice): what the image does not show cannot occlude (the undersides of objects, the
