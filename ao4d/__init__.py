@@ -42,6 +42,7 @@ _LAZY = {
     "camera": "camera:",
     "lighting": "lighting:",
     "rendering": "rendering:",
+    "screen_ao": "screen_ao:",
     "volumes": "volumes:",
     "pictures": "pictures:",
     "lift": "lift:",

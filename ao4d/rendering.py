@@ -24,6 +24,10 @@ transparent hit. With ``light=`` a
 direction (one white light), ``specular=0``, ``shadows=False`` and no depth cue, ``shade`` is
 ``ambient * (1 - A) + diffuse * max(0, n . l)`` to the bit, as before these terms existed.
 
+With ``ao="screen"`` the occlusion comes from the image itself (:mod:`ao4d.screen_ao`): the first
+hits' depths, points and viewer-facing normals form a depth volume, and every shaded hit (those
+behind transparent surfaces too, against the same first-hit volume) reads its occlusion there.
+
 Background voxels have shade 0, depth inf, object id -1 and RGBA (0, 0, 0, 0).
 
 Why this stays one module: the shading model above, the layers behind transparent hits, the
@@ -57,6 +61,8 @@ from .camera import Camera4D, ImageGeometry, _image_shape
 from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, lambert
 from .mesh import SimplexMesh, _mesh_list, concatenate, warn_if_inside_out
 from .raycast import cast_rays, check_distance, check_rays
+from .screen_ao import DepthVolume, default_steps, screen_space_occlusion, viewer_side
+from .screen_ao import denoise as denoise_occlusion
 from .volumes import write_mhd, write_vti
 
 __all__ = ["render", "RenderResult", "prepare_scene", "ShadeRangeWarning", "composite_layer", "MAX_LAYERS",
@@ -102,7 +108,8 @@ class RenderResult:
         Voxel spacing and origin on the image hyperplane (what volume files store).
     info : dict
         Counts and timings: ``primary_rays``, ``layer_rays`` (rays past transparent hits),
-        ``shadow_rays``, ``ao_rays``, ``hits``; ``primary_seconds``, ``layer_seconds``,
+        ``shadow_rays``, ``ao_rays``, ``screen_lookups`` (depth-volume look-ups of
+        ``ao="screen"``, an upper bound), ``hits``; ``primary_seconds``, ``layer_seconds``,
         ``shadow_seconds``, ``ao_seconds``, ``seconds`` (the whole call); ``backend``, the one
         that ran (``"opencl"`` or ``"numpy"``), with ``device``, its description
         (:func:`ao4d.cl.describe`).
@@ -239,10 +246,11 @@ def render(
     camera: Camera4D,
     shape=(64, 64, 64),
     *,
-    ao: Literal["vertices", "hits", "none"] = "vertices",
+    ao: Literal["vertices", "hits", "screen", "none"] = "vertices",
     samples: int = 64,
     max_distance: float = math.inf,
     seed: int = 0,
+    denoise: int = 0,
     ambient: float | None = None,
     light=None,
     diffuse: float | None = None,
@@ -268,17 +276,27 @@ def render(
     camera : Camera4D
     shape : (3,) tuple of int
         Image size ``(nx, ny, nz)`` along the camera's image axes.
-    ao : {"vertices", "hits", "none"}
+    ao : {"vertices", "hits", "screen", "none"}
         ``"vertices"``: per-vertex occlusion from ``mesh.point_data["ao"]`` (computed with
         :func:`ao4d.ambient_occlusion` when absent) interpolated with the hit's barycentric
         weights. ``"hits"``: occlusion computed at every hit point with the normal facing the
-        viewer (exact per voxel and right for open, two-sided geometry). ``"none"``: A = 0.
+        viewer (exact per voxel and right for open, two-sided geometry). ``"screen"``: 4D
+        screen-space AO at every hit, read from the image's own depth volume (first hits,
+        their points and viewer-facing normals) with the same directions as ``"hits"``
+        (:func:`ao4d.screen_ao.screen_space_occlusion`, :func:`ao4d.screen_ao.default_steps` look-ups
+        per direction; no AO rays): fast, but blind to what the image does not show.
+        ``"none"``: A = 0.
     samples : int
-        Hemisphere rays per AO estimate (when AO is computed here).
+        Hemisphere rays (``"screen"``: directions) per AO estimate (when AO is computed here).
     max_distance : float
-        AO ray length (inf: any hit occludes).
+        AO ray length (inf: any hit occludes; ``"screen"`` then marches to the diagonal of the
+        visible points' bounding box).
     seed : int
         AO random seed (results are deterministic).
+    denoise : int
+        With ``ao="screen"``: radius in voxels of the depth- and normal-aware box filter
+        (:func:`ao4d.screen_ao.denoise`) applied to the first hits' occlusion before shading, so
+        that few ``samples`` suffice; 0 (default) for none.
     ambient : float, optional
         Weight of the ambient term ``1 - A`` (default 1 without a light, 0.7 with lights). Shade
         stays in [0, 1] when ``ambient + (sum of light intensities) * (diffuse + specular)`` is
@@ -352,11 +370,14 @@ def render(
     if not isinstance(camera, Camera4D):
         raise TypeError(f"`camera` must be an ao4d.Camera4D, got {type(camera).__name__}")
     shape = _image_shape(shape)
-    check_choice(ao, "ao", ("vertices", "hits", "none"))
+    check_choice(ao, "ao", ("vertices", "hits", "screen", "none"))
     check_choice(normals, "normals", ("smooth", "flat"))
     check_choice(backend, "backend", cl.BACKENDS)
     samples = check_positive_int(samples, "samples")
     seed = check_int(seed, "seed")
+    denoise = check_int(denoise, "denoise", minimum=0)
+    if denoise and ao != "screen":
+        raise ValueError(f"`denoise` filters screen-space AO: it needs ao='screen', got ao={ao!r}")
     lights = as_lights(light, "light")
     ambient, diffuse = default_weights(ambient, diffuse, bool(lights))
     shadows = check_bool(shadows, "shadows")
@@ -386,8 +407,9 @@ def render(
         # and the check costs a pass over every simplex
         warn_if_inside_out(scene, "AO is 1 on its surface and the image dark")
     info: dict[str, Any] = {"primary_rays": n_rays, "layer_rays": 0, "shadow_rays": 0,
-                            "ao_rays": 0, "primary_seconds": 0.0, "layer_seconds": 0.0,
-                            "shadow_seconds": 0.0, "ao_seconds": 0.0, "backend": backend,
+                            "ao_rays": 0, "screen_lookups": 0, "primary_seconds": 0.0,
+                            "layer_seconds": 0.0, "shadow_seconds": 0.0, "ao_seconds": 0.0,
+                            "backend": backend,
                             "device": cl.describe(runtime)}
     lo, hi = np.asarray(scene.bounds, dtype=np.float64)
     shading = _Shading(
@@ -404,8 +426,23 @@ def render(
     hit = simplex >= 0
     info["hits"] = int(hit.sum())
     rows = np.flatnonzero(hit)
-    first = shading.hits(origins[rows] + t[rows, None] * directions[rows], directions[rows],
-                         t[rows], simplex[rows], bary[rows])
+    points = origins[rows] + t[rows, None] * directions[rows]
+    occlusion = None
+    if ao == "screen" and rows.size:
+        tick = time.perf_counter()
+        volume = shading.screen = _depth_volume(scene, camera, shape, directions, t, simplex)
+        occlusion = screen_space_occlusion(volume, points, volume.normals.reshape(-1, 4)[rows],
+                                           samples=samples, max_distance=max_distance, seed=seed,
+                                           backend=backend)
+        info["screen_lookups"] += rows.size * samples * default_steps(volume, max_distance)
+        if denoise:
+            image = np.full(n_rays, np.nan)
+            image[rows] = occlusion
+            occlusion = denoise_occlusion(image.reshape(shape), volume, radius=denoise,
+                                          backend=backend).reshape(-1)[rows]
+        info["ao_seconds"] += time.perf_counter() - tick
+    first = shading.hits(points, directions[rows], t[rows], simplex[rows], bary[rows],
+                         occlusion=occlusion)
     rgba = _composite_rays(shading, origins, directions, rows, t[rows], simplex[rows], first)
     info["seconds"] = time.perf_counter() - started
     return RenderResult(
@@ -527,9 +564,11 @@ class _Shading:
     offset: float
     info: dict
     _vertex_ao: np.ndarray | None = None
+    screen: DepthVolume | None = None  # the first hits, for ao="screen"
 
-    def hits(self, points, directions, depth, simplex, bary) -> _Shaded:
-        """Shade hits: points (H, 4), ray directions (H, 4), depths (H,), simplices, weights."""
+    def hits(self, points, directions, depth, simplex, bary, occlusion=None) -> _Shaded:
+        """Shade hits: points (H, 4), ray directions (H, 4), depths (H,), simplices, weights;
+        ``occlusion`` (H,) when already known (the first hits' screen-space AO)."""
         scene = self.scene
         tri = scene.simplices[simplex]  # (H, 4) vertex ids of the hit tetrahedra
         # two-sided shading: the side of the hit simplex that faces the ray decides, for the
@@ -541,12 +580,22 @@ class _Shading:
         face_n = raw_n * side[:, None]
 
         occ = np.zeros(len(simplex))
-        if self.ao == "vertices" and len(simplex):
+        if occlusion is not None:
+            occ = np.asarray(occlusion, dtype=np.float64)
+        elif self.ao == "vertices" and len(simplex):
             occ = np.einsum("hk,hk->h", bary, self._per_vertex_ao()[tri])
         elif self.ao == "hits" and len(simplex):
             occ = _hit_occlusion(scene, points, face_n, samples=self.samples, seed=self.seed,
                                  max_distance=self.max_distance, backend=self.backend,
                                  info=self.info, show=self.show)
+        elif self.ao == "screen" and len(simplex):
+            start = time.perf_counter()
+            occ = screen_space_occlusion(self.screen, points, face_n, samples=self.samples,
+                                         max_distance=self.max_distance, seed=self.seed,
+                                         backend=self.backend)
+            self.info["ao_seconds"] += time.perf_counter() - start
+            self.info["screen_lookups"] += (len(points) * self.samples
+                                            * default_steps(self.screen, self.max_distance))
 
         objects = self.object_ids[simplex]
         open_ = self.ambient * (1.0 - np.clip(occ, 0.0, 1.0))
@@ -742,9 +791,19 @@ def _cast_chunked(scene, origins, directions, backend, show, desc, *, closest=Tr
     return t, simplex, bary
 
 
-def _viewer_side(normals: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    """+1 where the normal faces against the ray (front side seen), -1 where it faces along."""
-    return np.where(np.einsum("hd,hd->h", normals, directions) > 0, -1.0, 1.0)
+_viewer_side = viewer_side  # +1 where a normal faces against its ray, -1 where along it
+
+
+def _depth_volume(scene, camera, shape, directions, t, simplex) -> DepthVolume:
+    """The first hits as a depth volume: depth and viewer-facing face normal (valid by
+    construction: built directly, without :meth:`DepthVolume.from_hits`' checks)."""
+    hit = simplex >= 0
+    normals = np.zeros((len(t), 4))
+    rows = np.flatnonzero(hit)
+    raw_n = np.asarray(scene.simplex_normals)[simplex[rows]]
+    normals[rows] = raw_n * _viewer_side(raw_n, directions[rows])[:, None]
+    return DepthVolume(depth=np.where(hit, t, np.inf).reshape(shape),
+                       normals=normals.reshape(shape + (4,)), camera=camera)
 
 
 def _hit_occlusion(scene, points, normals, *, samples, seed, max_distance, backend, info, show):

@@ -97,6 +97,25 @@ def main() -> int:
         check(f"{d}D sample directions are unit", np.allclose(np.linalg.norm(dirs, axis=2), 1, atol=1e-5))
         eight = raycast.sample_directions(runtime, n, 11, 0, eight=True)
         check(f"{d}D directions eight at a time", np.array_equal(eight, raycast.sample_directions(runtime, n, 11, 0)))
+    # screen-space AO and its filter on a tiny image (9 directions: a cut group of eight)
+    from ao4d.screen_ao import DepthVolume, denoise, screen_space_occlusion
+
+    pair = ao4d.extract_field(ao4d.fields.union(ao4d.fields.hypersphere(0.5, [-0.5, 0, 0, 0]),
+                                                ao4d.fields.hypersphere(0.5, [0.5, 0, 0, 0])),
+                              (8, 5, 5, 5), ([-1.1, -0.6, -0.6, -0.6], [1.1, 0.6, 0.6, 0.6]))
+    cam = ao4d.Camera4D([0.2, 0.3, 0, -3], [0, 0, 0, 0], fov=50)
+    volume = DepthVolume.trace(pair, cam, (6, 4, 4), backend="numpy")
+    hit = volume.hit.reshape(-1)
+    origins, directions = (a.reshape(-1, 4) for a in cam.rays((6, 4, 4)))
+    pts = origins[hit] + volume.depth.reshape(-1)[hit][:, None] * directions[hit]
+    nrm = volume.normals.reshape(-1, 4)[hit]
+    occ = {b: screen_space_occlusion(volume, pts, nrm, samples=9, max_distance=0.8, backend=b)
+           for b in ("opencl", "numpy")}
+    check("screen-space AO near numpy", np.mean(occ["opencl"] == occ["numpy"]) >= 0.9)
+    image = np.full(hit.size, np.nan)
+    image[hit] = occ["numpy"]
+    smooth = {b: denoise(image.reshape(volume.shape), volume, backend=b) for b in ("opencl", "numpy")}
+    check("denoise equals numpy", np.allclose(smooth["opencl"], smooth["numpy"], atol=1e-5, equal_nan=True))
     print("kernels run: " + " ".join(sorted(ran)), flush=True)
     return 0
 

@@ -10,6 +10,8 @@ from ..cl import BACKENDS
 HELP = "render 4D meshes (.npz) into a 3D image volume (.mhd or .vti) with a 4D camera"
 EXAMPLES = """  ao4d render scene.npz --out image.mhd
   ao4d render a.npz b.npz --out image.vti --size 96 --ao hits --samples 64 --png image.png
+  ao4d render scene.npz --out fast.vti --size 80 --ao screen --max-distance 1 --png fast.png
+  ao4d render scene.npz --out faster.vti --ao screen --samples 8 --denoise 1 --max-distance 1
   ao4d render scene.npz --out image.mhd --eye 0 1.6 -0.6 -5.5 --target 0 0.45 0 0 --fov 40
   ao4d render ball.npz ground.npz --out lit.vti --light 0 1 0 -0.5 --specular 0.4 --shadows \\
       --color ball 0.9 0.2 0.1 --opacity ball 0.5 --png lit.png
@@ -34,9 +36,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fov", type=float, default=40.0, help="viewing angle in degrees")
     parser.add_argument("--projection", choices=("perspective", "orthographic"),
                         default="perspective")
-    parser.add_argument("--ao", choices=("vertices", "hits", "none"), default="vertices",
-                        help="AO per vertex (stored 'ao' or computed), at each hit, or none")
-    parser.add_argument("--samples", type=int, default=64, help="AO rays per point")
+    parser.add_argument("--ao", choices=("vertices", "hits", "screen", "none"), default="vertices",
+                        help="AO per vertex (stored 'ao' or computed), ray traced at each hit, "
+                             "screen-space from the image's depth volume, or none")
+    parser.add_argument("--samples", type=int, default=64,
+                        help="AO rays (screen: directions) per point")
+    parser.add_argument("--max-distance", type=float, default=math.inf,
+                        help="AO reach: only hits this close occlude (default inf)")
+    parser.add_argument("--denoise", type=int, default=0, metavar="R",
+                        help="with --ao screen: depth-aware box filter of radius R voxels "
+                             "(default 0: none)")
     parser.add_argument("--light", action="append", nargs="+", metavar="ARG", help=LIGHT_HELP)
     parser.add_argument("--ambient", type=float,
                         help="weight of 1 - AO (default 1 without a light, else 0.7)")
@@ -147,6 +156,7 @@ def run(args: argparse.Namespace) -> int:
                           projection=args.projection)
     print(camera)
     image = render(scene, camera, tuple(size), ao=args.ao, samples=args.samples,
+                   max_distance=args.max_distance, denoise=args.denoise,
                    light=lights or None, ambient=args.ambient, diffuse=args.diffuse,
                    specular=args.specular, shininess=args.shininess, shadows=args.shadows,
                    depth_cue=args.depth_cue, color=color, opacity=opacity, layers=args.layers,

@@ -9,9 +9,11 @@ Run one with ``python -m datasets_gen.experiments.NAME --out DIR [--quick]``:
 - ``ao_throughput``: AO rays per second versus mesh size, BVH versus brute force.
 - ``extract_throughput``: extraction cells per second, ao4d versus scikit-image's marching cubes
   (3D), and ao4d alone in 4D.
+- ``ssao_vs_raytraced``: 4D screen-space AO against ray-traced AO at the same hits (error,
+  correlation, histogram and time per scene).
 
 ``--quick`` runs a small version (seconds) with the same code path; the figures in
 ``docs/experiments/`` come from full runs.
 """
 
-NAMES = ("extraction_error", "ao_convergence", "ao_throughput", "extract_throughput")
+NAMES = ("extraction_error", "ao_convergence", "ao_throughput", "extract_throughput", "ssao_vs_raytraced")
