@@ -30,6 +30,7 @@ walks one row, so a slab of P points in rows of n gives P / n work-items.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -39,12 +40,27 @@ from . import cl
 from ._validate import check_finite
 from .cells import _CellTable, _corner_offsets, _Geometry, _interpolate, _Plan, _SlabMesh
 
-__all__ = ["fits", "get_runtime", "march", "march_slabs"]
+__all__ = ["fits", "get_runtime", "march", "march_slabs", "release_buffers"]
 
 _CHUNK = 256  # points per work-item of the passes after classification (a multiple of 16)
 _SCAN_BLOCK = 256  # chunks per block of the two-level scan
 _INT_MAX = 2**31 - 1
 _lock = threading.Lock()  # pyopencl kernels hold their arguments: one slab at a time per process
+
+#: Seconds per stage, summed over slabs, while :data:`PROFILE` is true (bench/extract.py sets
+#: it; the device queue is then drained after every stage, which costs a little).
+PROFILE = False
+profile: dict[str, float] = {}
+
+
+def _stage(name: str, queue: Any, since: float) -> float:
+    """Add the time since ``since`` to stage ``name`` (after draining the queue); return now."""
+    if not PROFILE:
+        return since
+    queue.finish()
+    now = time.perf_counter()
+    profile[name] = profile.get(name, 0.0) + now - since
+    return now
 
 
 def get_runtime(backend: str = "auto") -> cl.Runtime | None:
@@ -72,6 +88,19 @@ def _table_arrays(table: _CellTable) -> dict[str, np.ndarray]:
         "counts": table.counts.astype(np.int32),
         "table": np.ascontiguousarray(table.simplices, dtype=np.uint8),
     }
+
+
+# Scratch buffers that live for one slab, kept from slab to slab and from one extraction to the
+# next (fresh buffers cost a page fault per page on first touch): (context id, name) -> buffer,
+# and the host's sign bytes. At most a few bytes per point of the largest slab so far;
+# release_buffers() drops them.
+_pool: dict[Any, Any] = {}
+
+
+def release_buffers() -> None:
+    """Drop the scratch buffers kept between extractions (device and host memory)."""
+    with _lock:
+        _pool.clear()
 
 
 # the cell tables on each device, by (context, table): the tables are built once per process
@@ -124,19 +153,11 @@ class _Engine:
             "the slab's signs, cases, edge masks and first vertices": padded * (1 + case_size + mask_size + 4),
             "the shared layer's vertices (twice)": 2 * carry,
         }, task=f"extracting a grid of shape {geom.shape} on the device", fallback="thinner slabs (`chunk=`)")
-        self.sign = self._buf(points)
-        self.cases = self._buf(padded * case_size)
-        self.vmask = self._buf(padded * mask_size)
-        self.vfirst = self._buf(points * 4)
-        self.chunk_v, self.chunk_s, self.chunk_a = (self._buf(chunks * 4) for _ in range(3))
-        self.blk_v, self.blk_s, self.blk_a = (self._buf(blocks * 4) for _ in range(3))
-        self.totals = self._buf(12)
         self.case_size, self.mask_size = case_size, mask_size
+        # carry[key]: the vertex of a crossed in-plane edge of the shared layer (only those are
+        # read, and each is written by the slab below: no fill needed)
         self.carry = [self._buf(carry), self._buf(carry)]
-        self._fill(self.carry[0], carry)
-        self.out = self.keys = self.act_p = self.act_s = None
-        self.out_size = self.keys_size = self.act_size = 0
-        self.host_sign = np.empty(points, dtype=np.uint8)
+        self.has_below = False
         self.n_vertices = 0
 
     def _const(self, array: np.ndarray):
@@ -146,22 +167,44 @@ class _Engine:
     def _buf(self, nbytes: int):
         return self.cl.Buffer(self.ctx, self.mf.READ_WRITE, max(int(nbytes), 4))
 
-    def _fill(self, buf, nbytes: int) -> None:
-        self.cl.enqueue_fill_buffer(self.queue, buf, np.int32(-1), 0, max(int(nbytes), 4) // 4 * 4)
+    def _scratch(self, name: str, nbytes: int):
+        """A device buffer of at least ``nbytes`` that lives for one slab (from the pool)."""
+        key = (id(self.ctx), name)
+        buf = _pool.get(key)
+        if buf is None or buf.size < nbytes:
+            buf = _pool[key] = self._buf(int(nbytes * 1.25) + 64)
+        return buf
+
+    def _host_sign(self, n: int) -> np.ndarray:
+        buf = _pool.get("host sign")
+        if buf is None or buf.size < n:
+            buf = _pool["host sign"] = np.empty(int(n * 1.25) + 64, dtype=np.uint8)
+        return buf[:n]
 
     def slab(self, slab: np.ndarray, level: float, inside: str, want_cells: bool):
         """March one slab: (simplices (S, d) int32, new keys (K,) int64, cells, counts) or None."""
         cl_, q, k = self.cl, self.queue, self.kernels
         d, n_dirs = self.d, self.n_dirs
         n = slab.size
-        sign = self.host_sign[:n].view(bool).reshape(slab.shape)
-        (np.greater_equal if inside == "below" else np.less_equal)(slab, level, out=sign)
-        cl_.enqueue_copy(q, self.sign, self.host_sign[:n], is_blocking=False)
         chunks = -(-n // _CHUNK)
         blocks = -(-chunks // _SCAN_BLOCK)
+        scratch = self._scratch
+        self.sign = scratch("sign", n)
+        self.cases = scratch("cases", chunks * _CHUNK * self.case_size)
+        self.vmask = scratch("vmask", chunks * _CHUNK * self.mask_size)
+        self.vfirst = scratch("vfirst", n * 4)
+        self.chunk_v, self.chunk_s, self.chunk_a = (scratch(f"chunk {x}", chunks * 4) for x in "vsa")
+        self.blk_v, self.blk_s, self.blk_a = (scratch(f"block {x}", blocks * 4) for x in "vsa")
+        self.totals = scratch("totals", 12)
+        t = time.perf_counter()
+        host_sign = self._host_sign(n)
+        sign = host_sign.view(bool).reshape(slab.shape)
+        (np.greater_equal if inside == "below" else np.less_equal)(slab, level, out=sign)
+        t = _stage("signs (host)", q, t)
+        cl_.enqueue_copy(q, self.sign, host_sign, is_blocking=False)
+        t = _stage("upload", q, t)
         top_start = (slab.shape[0] - 1) * self.layer
         cur, nxt = self.carry
-        self._fill(nxt, self.layer * n_dirs * 4)
         if chunks * _CHUNK > n:  # zero the last chunk's padding
             zero = np.uint8(0)
             cl_.enqueue_fill_buffer(q, self.cases, zero, n * self.case_size,
@@ -171,9 +214,11 @@ class _Engine:
         i32 = np.int32
         e = slab.shape
         grid = (e[-1], e[-2], n // (e[-1] * e[-2]))
-        k["classify"](q, grid, None, self.sign, self.cases, self.vmask, cur, self.tables["counts"],
-                      i32(self.in_plane), *self.strides, *self.user_bits, i32(e[0]),
+        shared = self.in_plane if self.has_below else 0
+        k["classify"](q, grid, None, self.sign, self.cases, self.vmask, self.tables["counts"],
+                      i32(shared), *self.strides, *self.user_bits, i32(e[0]),
                       i32(e[1] if d == 4 else 1))
+        t = _stage("classify", q, t)
         k["count"](q, (chunks,), None, self.cases, self.vmask, self.tables["counts"], self.chunk_v,
                    self.chunk_s, self.chunk_a)
         k["scan_chunks"](q, (blocks,), None, self.chunk_v, self.chunk_s, self.chunk_a, self.blk_v,
@@ -181,29 +226,26 @@ class _Engine:
         k["scan_blocks"](q, (1,), None, self.blk_v, self.blk_s, self.blk_a, i32(blocks), self.totals)
         totals = np.empty(3, dtype=np.int32)
         cl_.enqueue_copy(q, totals, self.totals)
+        t = _stage("count and scan", q, t)
         n_new, n_simp, n_active = (int(t) for t in totals)
-        if n_simp == 0:  # as the numpy engine: nothing to carry over an empty slab
-            self._fill(cur, self.layer * n_dirs * 4)
+        self.has_below = True
+        if n_simp == 0:  # an empty slab shares no crossed edge with the next one
             return None
         if self.n_vertices + n_new > _INT_MAX:
             raise MemoryError(f"the mesh would have more than {_INT_MAX:,} vertices, more than the "
                               "device engine indexes; use AO4D_DEVICE=none (the numpy engine)")
-        if n_simp * d > self.out_size:
-            self.out_size = int(n_simp * d * 1.25) + 16
-            self.out = self._buf(self.out_size * 4)
-        if n_new > self.keys_size:
-            self.keys_size = int(n_new * 1.25) + 16
-            self.keys = self._buf(self.keys_size * 4)
-        if n_active > self.act_size:
-            self.act_size = int(n_active * 1.25) + 16
-            self.act_p, self.act_s = self._buf(self.act_size * 4), self._buf(self.act_size * 4)
+        self.out = scratch("simplices", n_simp * d * 4)
+        self.keys = scratch("keys", n_new * 4)
+        self.act_p, self.act_s = scratch("active points", n_active * 4), scratch("active first", n_active * 4)
         k["number"](q, (chunks,), None, self.cases, self.vmask, self.tables["counts"],
                     self.chunk_v, self.blk_v, self.chunk_s, self.blk_s, self.chunk_a, self.blk_a,
                     self.vfirst, self.keys, nxt, self.act_p, self.act_s, i32(self.n_vertices),
                     i32(self.in_plane), i32(top_start))
+        t = _stage("number", q, t)
         k["emit"](q, (n_active,), None, self.cases, self.vmask, self.vfirst, cur, self.act_p,
                   self.act_s, self.tables["offsets"], self.tables["table"], self.edge_off,
                   self.edge_dir, self.out)
+        t = _stage("emit", q, t)
         simplices = np.empty((n_simp, d), dtype=np.int32)
         keys = np.empty(n_new, dtype=np.int32)
         cl_.enqueue_copy(q, simplices, self.out, is_blocking=False)
@@ -216,6 +258,7 @@ class _Engine:
             cl_.enqueue_copy(q, cells, self.act_p, is_blocking=False)
             cl_.enqueue_copy(q, first[:n_active], self.act_s, is_blocking=False)
         q.finish()
+        t = _stage("download", q, t)
         if want_cells:
             cells, counts = cells.astype(np.int64), np.diff(first).astype(np.int64)
         self.carry = [nxt, cur]
@@ -223,12 +266,6 @@ class _Engine:
         return simplices, keys.astype(np.int64), cells, counts
 
     def release(self) -> None:
-        for name in ("sign", "cases", "vmask", "vfirst", "chunk_v", "chunk_s", "chunk_a", "blk_v",
-                     "blk_s", "blk_a", "totals", "out", "keys", "act_p", "act_s"):
-            buf = getattr(self, name, None)
-            if buf is not None:
-                buf.release()
-                setattr(self, name, None)
         for buf in self.carry:
             buf.release()
         self.carry = []
@@ -276,12 +313,15 @@ def march_slabs(
                 found = engine.slab(slab, level, inside, cells)
             if found is not None:
                 simplices, new_keys, active, counts = found
+                t = time.perf_counter()
                 lin, dir_ = np.divmod(new_keys, plan.n_dirs)
                 shift = z0 * geom.layer
-                yield _SlabMesh(_interpolate(slab, lin, plan.dirs[dir_], z0, level, plan), simplices,
-                                new_keys + shift * plan.n_dirs,
-                                empty if active is None else active + shift,
-                                empty if counts is None else counts)
+                part = _SlabMesh(_interpolate(slab, lin, plan.dirs[dir_], z0, level, plan), simplices,
+                                 new_keys + shift * plan.n_dirs,
+                                 empty if active is None else active + shift,
+                                 empty if counts is None else counts)
+                _stage("interpolate (host)", engine.queue, t)
+                yield part
             if progress is not None:
                 progress.update(z1 - z0)
             z0 = z1

@@ -40,7 +40,11 @@ typedef uchar vmask_t;
 #endif
 
 
-// The 16 values at chunk position x are all zero.
+// The passes that walk chunks read 16 values at a time themselves: the hint tells compilers that
+// vectorise across work-items (Intel's CPU runtime) that the kernel is vectorised already.
+#define CHUNK_KERNEL __attribute__((vec_type_hint(uchar16)))
+
+// The 16 values at chunk position i are all zero.
 inline int zero16_case(__global const case_t *a, int i)
 {
 #if DIM == 4
@@ -76,9 +80,9 @@ __kernel void classify(
     __global const uchar *sign,      // (P,) 1 where the value is positive
     __global case_t *cases,          // (P_pad,) out: case of the cell at its lowest corner, or 0
     __global vmask_t *vmask,         // (P_pad,) out: new crossed directions at this point
-    __global const int *carry,       // (layer * NDIRS,) vertex of a bottom-layer key, or -1
     __global const int *counts,      // (2^NCORNERS,) simplices per case
-    int in_plane,                    // bit j: direction j has no slab-axis component
+    int shared,                      // bit j: direction j lies in the layer shared with the
+                                     // slab below (0 for the first slab)
     int s0, int s1, int s2, int s3,  // linear stride of user axis k
     int u0, int u1, int u2, int u3,  // user-axis bit of engine axis e
     int n0, int n1)                  // engine axis lengths (n1 only for DIM 4)
@@ -103,47 +107,33 @@ __kernel void classify(
     if (z - i0 * n1 == n1 - 1) f |= u1;
 #endif
     if (i0 == n0 - 1) f |= u0;
-    const int full = (1 << NCORNERS) - 1;
-    int m = 0, c = 0;
-    if (f == 0) {  // a whole cell here: its corners give the case and the crossed edges
+    // corners beyond the slab's last index take corner 0's sign: no crossing towards them
+    const int v0 = sign[p];
+    int c = 0;
 #pragma unroll
-        for (int v = 0; v < NCORNERS; ++v) {
-            const int off = (v & 1) * s0 + ((v >> 1) & 1) * s1
+    for (int v = 0; v < NCORNERS; ++v) {
+        const int off = (v & 1) * s0 + ((v >> 1) & 1) * s1
 #if DIM > 2
-                + ((v >> 2) & 1) * s2
+            + ((v >> 2) & 1) * s2
 #endif
 #if DIM > 3
-                + ((v >> 3) & 1) * s3
+            + ((v >> 3) & 1) * s3
 #endif
-                ;
-            c |= (int)sign[p + off] << v;
-        }
-        if (c == full) c = 0;
-        if (c != 0) {
+            ;
+        c |= ((v & f) == 0 ? (int)sign[p + off] : v0) << v;
+    }
+    int m = 0;
 #pragma unroll
-            for (int j = 0; j < NDIRS; ++j) m |= (((c >> DIR_MASK(j)) ^ c) & 1) << j;
-            if (counts[c] == 0) c = 0;
-        }
-    } else {  // the slab's last index along some axis: only the edges that stay inside
-        const int v0 = sign[p];
-        for (int j = 0; j < NDIRS; ++j) {
-            const int dm = DIR_MASK(j);
-            if (dm & f) continue;
-            const int off = (dm & 1) * s0 + ((dm >> 1) & 1) * s1 + ((dm >> 2) & 1) * s2
-                            + ((dm >> 3) & 1) * s3;
-            if ((int)sign[p + off] != v0) m |= 1 << j;
-        }
-    }
-    if (i0 == 0 && m != 0) {  // vertices the slab below numbered already
-        for (int j = 0; j < NDIRS; ++j)
-            if (((m & in_plane) >> j) & 1)
-                if (carry[p * NDIRS + j] >= 0) m &= ~(1 << j);
-    }
+    for (int j = 0; j < NDIRS; ++j) m |= (((c >> DIR_MASK(j)) ^ c) & 1) << j;
+    // a crossed edge of the shared layer carries the vertex the slab below gave it (the slab
+    // below used it: its top-layer cells hold the edge, and every case uses its crossed edges)
+    if (i0 == 0) m &= ~shared;
+    if (f != 0 || counts[c] == 0) c = 0;  // no cell here, or no simplex in it
     cases[p] = (case_t)c;
     vmask[p] = (vmask_t)m;
 }
 
-__kernel void count(__global const case_t *cases, __global const vmask_t *vmask,
+__kernel CHUNK_KERNEL void count(__global const case_t *cases, __global const vmask_t *vmask,
                     __global const int *counts, __global int *chunk_v, __global int *chunk_s,
                     __global int *chunk_a)
 {
@@ -166,7 +156,7 @@ __kernel void count(__global const case_t *cases, __global const vmask_t *vmask,
 }
 
 // Exclusive scan of three count arrays, blocks of SCAN_BLOCK entries; block totals to blk.
-__kernel void scan_chunks(__global int *chunk_v, __global int *chunk_s, __global int *chunk_a,
+__kernel CHUNK_KERNEL void scan_chunks(__global int *chunk_v, __global int *chunk_s, __global int *chunk_a,
                           __global int *blk_v, __global int *blk_s, __global int *blk_a,
                           int n_chunks)
 {
@@ -209,7 +199,7 @@ __kernel void scan_blocks(__global int *blk_v, __global int *blk_s, __global int
 
 // New vertices numbered and their keys compacted; active cells compacted with their first
 // simplex.
-__kernel void number(
+__kernel CHUNK_KERNEL void number(
     __global const case_t *cases, __global const vmask_t *vmask, __global const int *counts,
     __global const int *chunk_v, __global const int *blk_v,
     __global const int *chunk_s, __global const int *blk_s,
