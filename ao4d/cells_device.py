@@ -11,20 +11,25 @@ the reference, in the values' own precision) and sends one byte per point; the d
 1. classifies every cell (its case) and finds the crossed edges starting at every point that
    are new in this slab (an edge of the layer shared with the slab below keeps the vertex that
    slab gave it: the *carry*, kept on the device);
-2. scans per-row counts of simplices and new vertices (rows of the last engine axis, then
-   blocks of rows);
+2. counts simplices, new vertices and active cells per chunk of 256 points and scans the
+   counts (chunks, then blocks of chunks);
 3. numbers the new vertices in (point, direction) order — the order of the numpy engine's
-   sorted unique edge keys — and compacts their keys;
-4. emits each active cell's simplices in cell order, table row by table row.
+   sorted unique edge keys —, compacts their keys, remembers the top layer's in-plane vertices
+   for the next slab, and compacts the active cells with their first simplex;
+4. emits each active cell's simplices (one work-item per active cell), table row by table row.
 
-Only the two totals, the simplices and the new vertices' keys come back; the host interpolates
+Only the totals, the simplices and the new vertices' keys come back (and, for block-wise
+welding, the active cells); the host interpolates
 the new vertices in float64 from its own copy of the slab (:func:`ao4d.cells._interpolate`), so
 the positions are the reference's bit for bit. Why reading "used" off the signs is exact: every
 table case uses each of its crossed edges (tests/test_cells_device.py checks every case of every
-table), and every crossed edge of the slab lies in one of its cells.
+table), and every crossed edge of the slab lies in one of its cells; so the shared layer's
+crossed in-plane edges are exactly the carried ones.
 
-Kernels are int only, with no local memory and runtime-chosen work-group sizes; one work-item
-walks one row, so a slab of P points in rows of n gives P / n work-items.
+Kernels are int only, with no local memory and runtime-chosen work-group sizes (classification
+one work-item per point, the chunk passes one per 256 points, emission one per active cell), so
+the same code suits CPUs and GPUs. Slabs are the numpy engine's (``cells._layers_per_slab``):
+the vertex order depends on where slabs meet, so the same slabs give the same order.
 """
 
 from __future__ import annotations
