@@ -238,7 +238,10 @@ class _Engine:
             return None
         if self.n_vertices + n_new > _INT_MAX:
             raise MemoryError(f"the mesh would have more than {_INT_MAX:,} vertices, more than the "
-                              "device engine indexes; use AO4D_DEVICE=none (the numpy engine)")
+                              "device engine indexes; use backend='numpy' (AO4D_DEVICE=none)")
+        if n_simp * d > _INT_MAX:
+            raise MemoryError(f"one slab makes {n_simp:,} simplices, more than the device engine "
+                              "indexes in one slab; use thinner slabs (`chunk=`)")
         self.out = scratch("simplices", n_simp * d * 4)
         self.keys = scratch("keys", n_new * 4)
         self.act_p, self.act_s = scratch("active points", n_active * 4), scratch("active first", n_active * 4)
@@ -254,7 +257,8 @@ class _Engine:
         simplices = np.empty((n_simp, d), dtype=np.int32)
         keys = np.empty(n_new, dtype=np.int32)
         cl_.enqueue_copy(q, simplices, self.out, is_blocking=False)
-        cl_.enqueue_copy(q, keys, self.keys, is_blocking=False)
+        if n_new:
+            cl_.enqueue_copy(q, keys, self.keys, is_blocking=False)
         cells = counts = None
         if want_cells:
             cells = np.empty(n_active, dtype=np.int32)
@@ -347,7 +351,8 @@ def march(
     progress: Any,
     runtime: cl.Runtime,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`ao4d.cells._march` on the device: (vertices (V, d) float64, simplices (S, d) int32)."""
+    """:func:`ao4d.cells._march` on the device: (vertices (V, d) float64, simplices (S, d) int64;
+    the numpy engine's are int32 while they fit, the same values)."""
     d = len(geom.shape)
     verts: list[np.ndarray] = []
     simps: list[np.ndarray] = []
@@ -358,4 +363,9 @@ def march(
         simps.append(part.simplices)
     if not simps:
         return np.zeros((0, d)), np.zeros((0, d), dtype=np.int64)
-    return np.concatenate(verts), np.concatenate(simps)
+    vertices = np.concatenate(verts)
+    del verts
+    # widened while concatenated: the int64 array SimplexMesh keeps, in one pass
+    simplices = np.empty((sum(len(s) for s in simps), d), dtype=np.int64)
+    np.concatenate(simps, out=simplices)
+    return vertices, simplices

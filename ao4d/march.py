@@ -94,7 +94,9 @@ def _run(
     finally:
         if bar is not None:
             bar.close()
-    return SimplexMesh(vertices, simplices)
+    # the engines' own fresh arrays: taken without the constructor's copies and checks
+    return SimplexMesh._adopt(np.ascontiguousarray(vertices, dtype=np.float64),
+                              np.ascontiguousarray(simplices, dtype=np.int64))
 
 
 def extract(
