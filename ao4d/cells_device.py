@@ -43,7 +43,7 @@ import numpy as np
 
 from . import cl
 from ._validate import check_finite
-from .cells import _CellTable, _corner_offsets, _Geometry, _interpolate, _Plan, _SlabMesh
+from .cells import _CellTable, _corner_offsets, _Geometry, _Plan, _SlabMesh
 
 __all__ = ["fits", "get_runtime", "march", "march_slabs", "release_buffers"]
 
@@ -186,8 +186,18 @@ class _Engine:
             buf = _pool["host sign"] = np.empty(int(n * 1.25) + 64, dtype=np.uint8)
         return buf[:n]
 
-    def slab(self, slab: np.ndarray, level: float, inside: str, want_cells: bool):
-        """March one slab: (simplices (S, d) int32, new keys (K,) int64, cells, counts) or None."""
+    def slab(self, slab: np.ndarray, level: float, inside: str, want_cells: bool,
+             take: Callable[[int, int], tuple[np.ndarray, np.ndarray]] | None,
+             below: bool | None = None):
+        """March one slab, or None when it has no simplex.
+
+        With ``take=None`` only count: (new vertices, simplices) of the slab, ``below`` saying
+        whether a slab lies below it (the engine's own state is left alone).
+
+        ``take(S, K)`` gives the (S, d) int64 rows the simplices are read into and the (K, d)
+        float64 rows for the new vertices (filled by the caller). Returns (those two arrays, the
+        new vertices' keys (K,) int64, the active cells and their simplex counts, or None).
+        """
         cl_, q, k = self.cl, self.queue, self.kernels
         d, n_dirs = self.d, self.n_dirs
         n = slab.size
@@ -219,7 +229,7 @@ class _Engine:
         i32 = np.int32
         e = slab.shape
         grid = (e[-1], e[-2], n // (e[-1] * e[-2]))
-        shared = self.in_plane if self.has_below else 0
+        shared = self.in_plane if (self.has_below if below is None else below) else 0
         k["classify"](q, grid, None, self.sign, self.cases, self.vmask, self.tables["counts"],
                       i32(shared), *self.strides, *self.user_bits, i32(e[0]),
                       i32(e[1] if d == 4 else 1))
@@ -233,6 +243,8 @@ class _Engine:
         cl_.enqueue_copy(q, totals, self.totals)
         t = _stage("count and scan", q, t)
         n_new, n_simp, n_active = (int(t) for t in totals)
+        if take is None:
+            return n_new, n_simp
         self.has_below = True
         if n_simp == 0:  # an empty slab shares no crossed edge with the next one
             return None
@@ -242,7 +254,7 @@ class _Engine:
         if n_simp * d > _INT_MAX:
             raise MemoryError(f"one slab makes {n_simp:,} simplices, more than the device engine "
                               "indexes in one slab; use thinner slabs (`chunk=`)")
-        self.out = scratch("simplices", n_simp * d * 4)
+        self.out = scratch("simplices", n_simp * d * 8)
         self.keys = scratch("keys", n_new * 4)
         self.act_p, self.act_s = scratch("active points", n_active * 4), scratch("active first", n_active * 4)
         k["number"](q, (chunks,), None, self.cases, self.vmask, self.tables["counts"],
@@ -254,7 +266,7 @@ class _Engine:
                   self.act_s, self.tables["offsets"], self.tables["table"], self.edge_off,
                   self.edge_dir, self.out)
         t = _stage("emit", q, t)
-        simplices = np.empty((n_simp, d), dtype=np.int32)
+        simplices, vertices = take(n_simp, n_new)
         keys = np.empty(n_new, dtype=np.int32)
         cl_.enqueue_copy(q, simplices, self.out, is_blocking=False)
         if n_new:
@@ -272,7 +284,7 @@ class _Engine:
             cells, counts = cells.astype(np.int64), np.diff(first).astype(np.int64)
         self.carry = [nxt, cur]
         self.n_vertices += n_new
-        return simplices, keys.astype(np.int64), cells, counts
+        return simplices, vertices, keys.astype(np.int64), cells, counts
 
     def release(self) -> None:
         for buf in self.carry:
@@ -292,6 +304,8 @@ def march_slabs(
     progress: Any,
     runtime: cl.Runtime,
     cells: bool = True,
+    take: Callable[[int, int, float], tuple[np.ndarray, np.ndarray]] | None = None,
+    count_first: Callable[[int, int], None] | None = None,
 ) -> Iterator[_SlabMesh]:
     """:func:`ao4d.cells._march_slabs` on the device: the same :class:`_SlabMesh` per slab.
 
@@ -305,28 +319,55 @@ def march_slabs(
         Also report each slab's active cells and their simplex counts (block-wise welding needs
         them; they cost one read of the slab's cases). When False, ``cells`` and ``counts`` of
         the yielded meshes are empty.
+    take : callable, optional
+        ``take(S, K, done)``: where the next slab's S simplices and K vertices go ((S, d) int64
+        and (K, d) float64 rows; ``done`` is the fraction of the grid's layers marched after
+        this slab). By default new arrays per slab.
+    count_first : callable, optional
+        Count every slab's simplices and new vertices first (reading each slab twice: for
+        arrays in memory) and call ``count_first(S, K)`` with the totals before marching, so
+        that the output can be allocated once, at its size.
     """
+    if take is None:
+        def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
+            return np.empty((n_simp, d), dtype=np.int64), np.empty((n_new, d))
+    d = len(geom.shape)
     with _lock:
         engine = _Engine(runtime, table, geom, layers_per_slab)
     plan = engine.plan
     empty = np.zeros(0, dtype=np.int64)
     try:
         n0 = geom.shape[0]
+        if count_first is not None:
+            total_simp = total_new = 0
+            z0 = 0
+            while z0 < n0 - 1:
+                z1 = min(z0 + layers_per_slab, n0 - 1)
+                slab = read(z0, z1 + 1)
+                if check_values:
+                    check_finite(slab, "values")
+                with _lock:
+                    n_new, n_simp = engine.slab(slab, level, inside, False, None, below=z0 > 0)
+                total_simp += n_simp
+                total_new += n_new if n_simp else 0
+                z0 = z1
+            count_first(total_simp, total_new)
         z0 = 0
         while z0 < n0 - 1:
             z1 = min(z0 + layers_per_slab, n0 - 1)
             slab = read(z0, z1 + 1)
             if check_values:
                 check_finite(slab, "values")
+            done = z1 / (n0 - 1)
             with _lock:
-                found = engine.slab(slab, level, inside, cells)
+                found = engine.slab(slab, level, inside, cells,
+                                    lambda n_simp, n_new: take(n_simp, n_new, done))
             if found is not None:
-                simplices, new_keys, active, counts = found
+                simplices, vertices, new_keys, active, counts = found
                 t = time.perf_counter()
-                lin, dir_ = np.divmod(new_keys, plan.n_dirs)
+                _interpolate_into(vertices, slab, new_keys, z0, level, plan)
                 shift = z0 * geom.layer
-                part = _SlabMesh(_interpolate(slab, lin, plan.dirs[dir_], z0, level, plan), simplices,
-                                 new_keys + shift * plan.n_dirs,
+                part = _SlabMesh(vertices, simplices, new_keys + shift * plan.n_dirs,
                                  empty if active is None else active + shift,
                                  empty if counts is None else counts)
                 _stage("interpolate (host)", engine.queue, t)
@@ -350,22 +391,96 @@ def march(
     check_values: bool,
     progress: Any,
     runtime: cl.Runtime,
+    reread: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`ao4d.cells._march` on the device: (vertices (V, d) float64, simplices (S, d) int64;
-    the numpy engine's are int32 while they fit, the same values)."""
+    the numpy engine's are int32 while they fit, the same values).
+
+    ``reread``: ``read`` is cheap (an array in memory), so the slabs are counted first and the
+    output is allocated once at its size (large fresh allocations are slow to fault in: numpy
+    asks for huge pages); otherwise the output grows as the slabs come.
+    """
     d = len(geom.shape)
-    verts: list[np.ndarray] = []
-    simps: list[np.ndarray] = []
+    simplices, vertices = _Rows(d, np.int64), _Rows(d, np.float64)
+
+    def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
+        return simplices.take(n_simp, done), vertices.take(n_new, done)
+
+    def count_first(n_simp: int, n_new: int) -> None:
+        simplices.reserve(n_simp)
+        vertices.reserve(n_new)
+
     for part in march_slabs(read, geom, level, table=table, inside=inside,
                             layers_per_slab=layers_per_slab, check_values=check_values,
-                            progress=progress, runtime=runtime, cells=False):
-        verts.append(part.vertices)
-        simps.append(part.simplices)
-    if not simps:
-        return np.zeros((0, d)), np.zeros((0, d), dtype=np.int64)
-    vertices = np.concatenate(verts)
-    del verts
-    # widened while concatenated: the int64 array SimplexMesh keeps, in one pass
-    simplices = np.empty((sum(len(s) for s in simps), d), dtype=np.int64)
-    np.concatenate(simps, out=simplices)
-    return vertices, simplices
+                            progress=progress, runtime=runtime, cells=False, take=take,
+                            count_first=count_first if reread else None):
+        del part  # views into the rows: none may outlive the trimming below
+    return vertices.result(), simplices.result()
+
+
+class _Rows:
+    """A (n, d) array filled slab by slab in place: no list of parts, no final concatenation.
+
+    It grows to what the rows so far project for the whole grid (they come in layer order), by
+    at least half its size, and is trimmed in place at the end (``ndarray.resize``: a shrinking
+    ``realloc``).
+    """
+
+    def __init__(self, d: int, dtype: Any) -> None:
+        self.array = np.empty((0, d), dtype=dtype)
+        self.n = 0
+
+    def reserve(self, n: int) -> None:
+        """Room for ``n`` rows in all (before any row is taken)."""
+        self.array = np.empty((n, self.array.shape[1]), dtype=self.array.dtype)
+
+    def take(self, k: int, done: float) -> np.ndarray:
+        """The next ``k`` rows (a view), after marching ``done`` (0..1] of the grid."""
+        need = self.n + k
+        if need > len(self.array):
+            # the projection, but at least 1.5 times the old size: few growths, each a copy
+            capacity = max(need, int(need / max(done, 1e-3) * 1.1) + 16,
+                           int(len(self.array) * 1.5))
+            grown = np.empty((capacity, self.array.shape[1]), dtype=self.array.dtype)
+            grown[: self.n] = self.array[: self.n]
+            self.array = grown
+        rows = self.array[self.n : need]
+        self.n = need
+        return rows
+
+    def result(self) -> np.ndarray:
+        if self.n < len(self.array):
+            self.array.resize((self.n, self.array.shape[1]), refcheck=False)
+        return self.array
+
+
+def _interpolate_into(out: np.ndarray, slab: np.ndarray, keys: np.ndarray, z0: int, level: float,
+                      plan: _Plan) -> None:
+    """:func:`ao4d.cells._interpolate` of the vertices with edge ``keys``, written into ``out``.
+
+    The same float64 operations on every element (so the same bits), column by column without
+    the (K, d) temporaries.
+    """
+    if len(keys) == 0:
+        return
+    geom = plan.geom
+    lin, dir_ = np.divmod(keys, plan.n_dirs)
+    masks = plan.dirs[dir_]
+    flat = slab.reshape(-1)
+    f0 = flat[lin].astype(np.float64, copy=False)
+    f1 = flat[lin + plan.offs[plan.dirs][dir_]].astype(np.float64, copy=False)
+    with np.errstate(invalid="ignore"):
+        t = np.subtract(level, f0)
+        t /= f1 - f0
+    np.clip(t, 0.0, 1.0, out=t)
+    t[np.isnan(t)] = 1.0  # the infinite padding of closed=True (see cells._interpolate)
+    eidx = np.unravel_index(lin, slab.shape)
+    start = [0] * len(geom.shape) if geom.offset is None else [int(k) for k in geom.offset]
+    col = np.empty(len(keys))
+    for e, axis in enumerate(geom.perm):
+        col[:] = eidx[e] + ((z0 if e == 0 else 0) + start[axis])
+        bit = (masks >> axis) & 1
+        col += t * bit  # as the reference's idx += t * mask_bits: t or 0.0, added
+        np.multiply(geom.spacing[axis], col, out=col)
+        np.add(geom.origin[axis], col, out=out[:, axis])
+

@@ -67,6 +67,7 @@ def _run(
     check_values: bool,
     itemsize: int,
     backend: str = "auto",
+    reread: bool = False,
 ) -> SimplexMesh:
     """Check the slab memory, then march with a progress bar (on the OpenCL device when one
     works, :mod:`ao4d.cells_device`; the same arrays as the numpy engine); wrap the result."""
@@ -77,7 +78,7 @@ def _run(
     engine: Callable[..., tuple[np.ndarray, np.ndarray]] = _march
     extra: dict[str, Any] = {}
     if runtime is not None and cells_device.fits(geom, layers, table):
-        engine, extra = cells_device.march, {"runtime": runtime}
+        engine, extra = cells_device.march, {"runtime": runtime, "reread": reread}
     bar = _progress_bar(progress, math.prod(n - 1 for n in geom.shape), geom.shape[0] - 1)
     try:
         vertices, simplices = engine(
@@ -254,7 +255,7 @@ def extract(
     if closed:
         read = _padded_reader(read, engine.shape, outside_value(inside))
     mesh = _run(read, geom, level, method, inside, chunk, progress, on_disk and not closed,
-                arr.dtype.itemsize, backend)
+                arr.dtype.itemsize, backend, reread=not on_disk)
     if not closed:
         _mark_grid_edge(mesh, geom)
     return _checked(mesh, level, inside, lambda: (float(np.min(arr)), float(np.max(arr))),
