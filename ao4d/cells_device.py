@@ -180,6 +180,12 @@ class _Engine:
             buf = _pool[key] = self._buf(int(nbytes * 1.25) + 64)
         return buf
 
+    def _host_rows(self, n: int) -> np.ndarray:
+        buf = _pool.get("host rows")
+        if buf is None or buf.size < n:
+            buf = _pool["host rows"] = np.empty(int(n * 1.25) + 64, dtype=np.int32)
+        return buf[:n]
+
     def _host_sign(self, n: int) -> np.ndarray:
         buf = _pool.get("host sign")
         if buf is None or buf.size < n:
@@ -194,7 +200,7 @@ class _Engine:
         With ``take=None`` only count: (new vertices, simplices) of the slab, ``below`` saying
         whether a slab lies below it (the engine's own state is left alone).
 
-        ``take(S, K)`` gives the (S, d) int64 rows the simplices are read into and the (K, d)
+        ``take(S, K)`` gives the (S, d) int32 or int64 rows the simplices are read into and the (K, d)
         float64 rows for the new vertices (filled by the caller). Returns (those two arrays, the
         new vertices' keys (K,) int64, the active cells and their simplex counts, or None).
         """
@@ -254,7 +260,7 @@ class _Engine:
         if n_simp * d > _INT_MAX:
             raise MemoryError(f"one slab makes {n_simp:,} simplices, more than the device engine "
                               "indexes in one slab; use thinner slabs (`chunk=`)")
-        self.out = scratch("simplices", n_simp * d * 8)
+        self.out = scratch("simplices", n_simp * d * 4)
         self.keys = scratch("keys", n_new * 4)
         self.act_p, self.act_s = scratch("active points", n_active * 4), scratch("active first", n_active * 4)
         k["number"](q, (chunks,), None, self.cases, self.vmask, self.tables["counts"],
@@ -268,7 +274,10 @@ class _Engine:
         t = _stage("emit", q, t)
         simplices, vertices = take(n_simp, n_new)
         keys = np.empty(n_new, dtype=np.int32)
-        cl_.enqueue_copy(q, simplices, self.out, is_blocking=False)
+        staged = simplices  # int32 rows are read as they are; wider ones through a staging copy
+        if simplices.dtype != np.int32:
+            staged = self._host_rows(n_simp * d).reshape(n_simp, d)
+        cl_.enqueue_copy(q, staged, self.out, is_blocking=False)
         if n_new:
             cl_.enqueue_copy(q, keys, self.keys, is_blocking=False)
         cells = counts = None
@@ -279,6 +288,8 @@ class _Engine:
             cl_.enqueue_copy(q, cells, self.act_p, is_blocking=False)
             cl_.enqueue_copy(q, first[:n_active], self.act_s, is_blocking=False)
         q.finish()
+        if staged is not simplices:
+            simplices[...] = staged
         t = _stage("download", q, t)
         if want_cells:
             cells, counts = cells.astype(np.int64), np.diff(first).astype(np.int64)
@@ -320,9 +331,9 @@ def march_slabs(
         them; they cost one read of the slab's cases). When False, ``cells`` and ``counts`` of
         the yielded meshes are empty.
     take : callable, optional
-        ``take(S, K, done)``: where the next slab's S simplices and K vertices go ((S, d) int64
-        and (K, d) float64 rows; ``done`` is the fraction of the grid's layers marched after
-        this slab). By default new arrays per slab.
+        ``take(S, K, done)``: where the next slab's S simplices and K vertices go ((S, d) int32
+        or int64 and (K, d) float64 rows; ``done`` is the fraction of the grid's layers marched
+        after this slab). By default new arrays per slab, int32 like the numpy engine's.
     count_first : callable, optional
         Count every slab's simplices and new vertices first (reading each slab twice: for
         arrays in memory) and call ``count_first(S, K)`` with the totals before marching, so
@@ -330,7 +341,7 @@ def march_slabs(
     """
     if take is None:
         def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
-            return np.empty((n_simp, d), dtype=np.int64), np.empty((n_new, d))
+            return np.empty((n_simp, d), dtype=np.int32), np.empty((n_new, d))
     d = len(geom.shape)
     with _lock:
         engine = _Engine(runtime, table, geom, layers_per_slab)
@@ -397,34 +408,41 @@ def march(
     the numpy engine's are int32 while they fit, the same values).
 
     ``reread``: ``read`` is cheap (an array in memory), so the slabs are counted first and the
-    output is allocated once at its size (large fresh allocations are slow to fault in: numpy
-    asks for huge pages); otherwise the output grows as the slabs come.
+    output is allocated once at its size and filled in place (no slab parts, no concatenation:
+    large fresh allocations are slow to fault in here); otherwise (a field sampled slab by slab)
+    the slab parts are concatenated at the end, as the numpy engine does.
     """
     d = len(geom.shape)
-    simplices, vertices = _Rows(d, np.int64), _Rows(d, np.float64)
+    kwargs = dict(table=table, inside=inside, layers_per_slab=layers_per_slab,
+                  check_values=check_values, progress=progress, runtime=runtime, cells=False)
+    if not reread:  # slab parts (int32, as the numpy engine keeps them), then one concatenation
+        verts, simps = [], []
+        for part in march_slabs(read, geom, level, **kwargs):
+            verts.append(part.vertices)
+            simps.append(part.simplices)
+        if not simps:
+            return np.zeros((0, d)), np.zeros((0, d), dtype=np.int64)
+        vertices = np.concatenate(verts)
+        del verts
+        simplices = np.empty((sum(len(x) for x in simps), d), dtype=np.int64)
+        np.concatenate(simps, out=simplices)  # widened while concatenated
+        return vertices, simplices
+    rows_s, rows_v = _Rows(d, np.int64), _Rows(d, np.float64)
 
     def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
-        return simplices.take(n_simp, done), vertices.take(n_new, done)
+        return rows_s.take(n_simp), rows_v.take(n_new)
 
     def count_first(n_simp: int, n_new: int) -> None:
-        simplices.reserve(n_simp)
-        vertices.reserve(n_new)
+        rows_s.reserve(n_simp)
+        rows_v.reserve(n_new)
 
-    for part in march_slabs(read, geom, level, table=table, inside=inside,
-                            layers_per_slab=layers_per_slab, check_values=check_values,
-                            progress=progress, runtime=runtime, cells=False, take=take,
-                            count_first=count_first if reread else None):
-        del part  # views into the rows: none may outlive the trimming below
-    return vertices.result(), simplices.result()
+    for part in march_slabs(read, geom, level, take=take, count_first=count_first, **kwargs):
+        del part  # views into the rows
+    return rows_v.array, rows_s.array
 
 
 class _Rows:
-    """A (n, d) array filled slab by slab in place: no list of parts, no final concatenation.
-
-    It grows to what the rows so far project for the whole grid (they come in layer order), by
-    at least half its size, and is trimmed in place at the end (``ndarray.resize``: a shrinking
-    ``realloc``).
-    """
+    """A (n, d) array allocated once at its counted size and filled slab by slab in place."""
 
     def __init__(self, d: int, dtype: Any) -> None:
         self.array = np.empty((0, d), dtype=dtype)
@@ -434,24 +452,13 @@ class _Rows:
         """Room for ``n`` rows in all (before any row is taken)."""
         self.array = np.empty((n, self.array.shape[1]), dtype=self.array.dtype)
 
-    def take(self, k: int, done: float) -> np.ndarray:
-        """The next ``k`` rows (a view), after marching ``done`` (0..1] of the grid."""
-        need = self.n + k
-        if need > len(self.array):
-            # the projection, but at least 1.5 times the old size: few growths, each a copy
-            capacity = max(need, int(need / max(done, 1e-3) * 1.1) + 16,
-                           int(len(self.array) * 1.5))
-            grown = np.empty((capacity, self.array.shape[1]), dtype=self.array.dtype)
-            grown[: self.n] = self.array[: self.n]
-            self.array = grown
-        rows = self.array[self.n : need]
-        self.n = need
+    def take(self, k: int) -> np.ndarray:
+        """The next ``k`` rows (a view)."""
+        rows = self.array[self.n : self.n + k]
+        if len(rows) != k:
+            raise RuntimeError("the slabs made more rows than they were counted to make")
+        self.n += k
         return rows
-
-    def result(self) -> np.ndarray:
-        if self.n < len(self.array):
-            self.array.resize((self.n, self.array.shape[1]), refcheck=False)
-        return self.array
 
 
 def _interpolate_into(out: np.ndarray, slab: np.ndarray, keys: np.ndarray, z0: int, level: float,

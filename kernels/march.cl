@@ -251,7 +251,7 @@ __kernel void emit(
     __global const uchar *table,     // (M, DIM) edge ids
     __global const int *edge_off,    // (E,) linear offset of edge e's lower corner
     __global const int *edge_dir,    // (E,) direction index of edge e
-    __global long *out)              // (S, DIM) out: vertex indices (the mesh's int64)
+    __global int *out)               // (S, DIM) out: vertex indices
 {
     const int i = get_global_id(0);
     const int p = act_p[i];
@@ -264,8 +264,8 @@ __kernel void emit(
             const int q = p + edge_off[e];
             const int j = edge_dir[e];
             const int m = vmask[q];
-            out[s * DIM + k] = (long)(((m >> j) & 1) ? vfirst[q] + popcount(m & ((1 << j) - 1))
-                                                      : carry[q * NDIRS + j]);
+            out[s * DIM + k] = ((m >> j) & 1) ? vfirst[q] + popcount(m & ((1 << j) - 1))
+                                              : carry[q * NDIRS + j];
         }
     }
 }
