@@ -76,6 +76,7 @@ from .cells import (
     _Plan,
     outside_value,
 )
+from . import cells_device
 from ._validate import check_finite
 from .mesh import SimplexMesh
 
@@ -185,6 +186,7 @@ class _Spec:
     # closed=True: ``shape`` is the grid padded by one outside cell per side, whose grid index
     # is one more than the user's (block offsets are in the padded grid)
     padded: bool = False
+    backend: str = "auto"  # where each task marches: ao4d.cells_device.get_runtime(backend)
 
 
 @dataclass
@@ -231,9 +233,14 @@ def _block_mesh(values: np.ndarray, offset: tuple[int, ...], spec: _Spec) -> _Bl
         slab = values[a:b]
         return slab if slab.dtype.kind == "f" else slab.astype(np.float64)
 
-    parts = list(_march_slabs(read, geom, spec.level, table=table, inside=spec.inside,
-                              layers_per_slab=_layers_per_slab(spec.chunk, geom, spec.method),
-                              check_values=not spec.padded, progress=None))
+    layers = _layers_per_slab(spec.chunk, geom, spec.method)
+    runtime = cells_device.get_runtime(spec.backend)  # the worker's own device, if any
+    kwargs = dict(table=table, inside=spec.inside, layers_per_slab=layers,
+                  check_values=not spec.padded, progress=None)
+    if runtime is not None and cells_device.fits(geom, layers, table):
+        parts = list(cells_device.march_slabs(read, geom, spec.level, runtime=runtime, **kwargs))
+    else:
+        parts = list(_march_slabs(read, geom, spec.level, **kwargs))
     if not parts:
         return _empty_block(d)
     n_dirs = _Plan.make(table, geom).n_dirs
@@ -422,6 +429,7 @@ def extract_blocks(
     chunk: int | None,
     progress: bool | None,
     closed: bool = False,
+    backend: str = "auto",
 ) -> SimplexMesh:
     """Extract a dask array block by block on the active scheduler (see the module docstring).
 
@@ -446,6 +454,8 @@ def extract_blocks(
     closed : bool
         As in :func:`ao4d.extract`: the array is padded (lazily) by one infinite outside cell
         per side.
+    backend : {"auto", "opencl", "numpy"}
+        Where each task marches (on its worker; the same arrays everywhere).
 
     Returns
     -------
@@ -471,7 +481,7 @@ def extract_blocks(
             values = values.astype(np.float64)
         values = da.pad(values, 1, mode="constant", constant_values=outside_value(inside))
     spec = _Spec(float(level), method, inside, tuple(range(d)), tuple(int(n) for n in values.shape),
-                 tuple(map(float, origin)), tuple(map(float, spacing)), chunk, closed)
+                 tuple(map(float, origin)), tuple(map(float, spacing)), chunk, closed, backend)
     ranges = _block_ranges(values.chunks)
     _check_blocks(ranges, spec, values.dtype.itemsize, f"`values` in chunks of {values.chunksize}")
     # one more point along every axis from the next blocks (thin slices move, not whole chunks)
@@ -498,6 +508,7 @@ def extract_field_blocks(
     chunk: int | None,
     chunks: Any,
     progress: bool | None,
+    backend: str = "auto",
 ) -> SimplexMesh:
     """Sample and extract ``field`` block by block on the active scheduler.
 
@@ -516,7 +527,7 @@ def extract_field_blocks(
     level : float
     origin, spacing : (d,) float64 ndarray
         First grid point and step per axis, as :func:`ao4d.extract_field` derives them.
-    method, inside, chunk, progress
+    method, inside, chunk, progress, backend
         As in :func:`ao4d.extract_field`.
     chunks : int, sequence of int, dask block sizes or "auto"
         Grid points per block along each axis (dask's ``normalize_chunks`` rules).
@@ -531,7 +542,7 @@ def extract_field_blocks(
     d = len(axes)
     shape = tuple(len(a) for a in axes)
     spec = _Spec(float(level), method, inside, (d - 1, *range(d - 1)), shape,
-                 tuple(map(float, origin)), tuple(map(float, spacing)), chunk)
+                 tuple(map(float, origin)), tuple(map(float, spacing)), chunk, backend=backend)
     ranges = _block_ranges(_chunks(chunks, shape))
     _check_blocks(ranges, spec, 8, f"`chunks={chunks!r}` on a grid of shape {shape}")
     args = [(field, [a[lo:hi] for a, (lo, hi) in zip(axes, box)], tuple(lo for lo, _ in box), spec)

@@ -1,9 +1,10 @@
 """Marching extraction of closed, oriented simplex meshes from 2D, 3D and 4D scalar grids.
 
 The public wrappers (:func:`extract`, :func:`extract_field`) validate and normalise their input
-and hand a slab reader to one vectorised core, :func:`ao4d.cells._march`, which has no checks of
-its own; dask arrays and ``chunks=`` go to :mod:`ao4d.blockwise`, which runs the same core on
-blocks as dask tasks.
+and hand a slab reader to one core with no checks of its own: :func:`ao4d.cells_device.march`
+on the OpenCL device where one works, else the vectorised numpy engine
+:func:`ao4d.cells._march`; both give the same arrays. Dask arrays and ``chunks=`` go to
+:mod:`ao4d.blockwise`, which runs the same cores on blocks as dask tasks.
 
 How the core works, and the papers it follows, are described in :mod:`ao4d.cells`.
 """
@@ -27,6 +28,8 @@ from .cells import (  # noqa: F401  (_kuhn_table: tests reach it through ao4d.ma
     _march,
     outside_value,
 )
+from . import cells_device
+from .cl import BACKENDS
 from .mesh import SimplexMesh
 from .topology import GRID_EDGE_KEY
 
@@ -63,14 +66,22 @@ def _run(
     progress: bool | None,
     check_values: bool,
     itemsize: int,
+    backend: str = "auto",
+    reread: bool = False,
 ) -> SimplexMesh:
-    """Check the slab memory, then march with a progress bar; wrap the result in a mesh."""
+    """Check the slab memory, then march with a progress bar (on the OpenCL device when one
+    works, :mod:`ao4d.cells_device`; the same arrays as the numpy engine); wrap the result."""
+    runtime = cells_device.get_runtime(backend)
     layers = _layers_per_slab(chunk, geom, method)
     _check_slab_memory(geom, min(layers, geom.shape[0] - 1), method, itemsize)
     table = _cell_table(len(geom.shape), method)
+    engine: Callable[..., tuple[np.ndarray, np.ndarray]] = _march
+    extra: dict[str, Any] = {}
+    if runtime is not None and cells_device.fits(geom, layers, table):
+        engine, extra = cells_device.march, {"runtime": runtime, "reread": reread}
     bar = _progress_bar(progress, math.prod(n - 1 for n in geom.shape), geom.shape[0] - 1)
     try:
-        vertices, simplices = _march(
+        vertices, simplices = engine(
             read,
             geom,
             level,
@@ -79,11 +90,14 @@ def _run(
             layers_per_slab=layers,
             check_values=check_values,
             progress=bar,
+            **extra,
         )
     finally:
         if bar is not None:
             bar.close()
-    return SimplexMesh(vertices, simplices)
+    # the engines' own fresh arrays: taken without the constructor's copies and checks
+    return SimplexMesh._adopt(np.ascontiguousarray(vertices, dtype=np.float64),
+                              np.ascontiguousarray(simplices, dtype=np.int64))
 
 
 def extract(
@@ -98,6 +112,7 @@ def extract(
     progress: bool | None = None,
     closed: bool = False,
     affine: Any = None,
+    backend: str = "auto",
 ) -> SimplexMesh:
     """Extract the closed, outward-oriented level set of a 2D, 3D or 4D grid of values.
 
@@ -138,6 +153,10 @@ def extract(
         (leave ``spacing`` and ``origin`` at their defaults). Its linear part must be invertible;
         an affine map keeps the mesh closed, and a negative determinant reverses the simplices
         so that the normals still point out of the solid.
+    backend : {"auto", "opencl", "numpy"}
+        Where the marching runs: ``"auto"`` on the OpenCL device :mod:`ao4d.cl` chooses
+        (``AO4D_DEVICE``) and in numpy where none works; ``"opencl"`` requires a device.
+        Every backend gives the same arrays (:mod:`ao4d.cells_device`).
 
     Returns
     -------
@@ -187,14 +206,15 @@ def extract(
             else as_array(values, "values").ndim
         matrix, shift = _affine(affine, d, spacing, origin)
         mesh = extract(values, level, method=method, inside=inside, chunk=chunk, progress=progress,
-                       closed=closed)
+                       closed=closed, backend=backend)
         hint = mesh.cache.get(GRID_EDGE_KEY)
         mesh = mesh.transformed(matrix, shift)
         if hint is not None:
             mesh.cache[GRID_EDGE_KEY] = hint
         return mesh
     if is_dask_array(values):  # blocks as tasks on the active dask scheduler
-        return _extract_dask(values, level, spacing, origin, method, inside, chunk, progress, closed)
+        return _extract_dask(values, level, spacing, origin, method, inside, chunk, progress, closed,
+                             backend)
     arr = values if isinstance(values, np.ndarray) else as_array(values, "values")
     if arr.ndim not in (2, 3, 4):
         raise ValueError(f"`values` must be a 2D, 3D or 4D array, got shape {arr.shape}")
@@ -208,6 +228,7 @@ def extract(
     origin = as_vector(origin, "origin", d)
     check_choice(method, "method", METHODS)
     check_choice(inside, "inside", _INSIDE)
+    check_choice(backend, "backend", BACKENDS)
     if progress is not None and not isinstance(progress, bool):
         raise TypeError(f"`progress` must be True, False or None, got {progress!r}")
     # read Fortran arrays transposed so that every slab is contiguous (integers: per slab)
@@ -234,7 +255,7 @@ def extract(
     if closed:
         read = _padded_reader(read, engine.shape, outside_value(inside))
     mesh = _run(read, geom, level, method, inside, chunk, progress, on_disk and not closed,
-                arr.dtype.itemsize)
+                arr.dtype.itemsize, backend, reread=not on_disk)
     if not closed:
         _mark_grid_edge(mesh, geom)
     return _checked(mesh, level, inside, lambda: (float(np.min(arr)), float(np.max(arr))),
@@ -297,7 +318,7 @@ def _affine(affine: Any, d: int, spacing: Any, origin: Any) -> tuple[np.ndarray,
 
 
 def _extract_dask(values, level, spacing, origin, method, inside, chunk, progress,
-                  closed) -> SimplexMesh:
+                  closed, backend) -> SimplexMesh:
     """Validate the options as :func:`extract` does, then run the blocks (ao4d.blockwise)."""
     from .blockwise import extract_blocks
 
@@ -308,11 +329,12 @@ def _extract_dask(values, level, spacing, origin, method, inside, chunk, progres
     spacing = as_vector(spacing, "spacing", d, positive=True)
     origin = as_vector(origin, "origin", d)
     inside = check_choice(inside, "inside", _INSIDE)
+    backend = check_choice(backend, "backend", BACKENDS)
     mesh = extract_blocks(
         values, level, spacing=spacing, origin=origin,
         method=check_choice(method, "method", METHODS), inside=inside,
         chunk=None if chunk is None else check_positive_int(chunk, "chunk"), progress=progress,
-        closed=closed)
+        closed=closed, backend=backend)
     if not closed:
         _mark_grid_edge(mesh, _Geometry(tuple(int(n) for n in values.shape), tuple(range(d)),
                                         origin, spacing))
@@ -330,6 +352,7 @@ def extract_field(
     chunk: int | None = None,
     chunks: Any = None,
     progress: bool | None = None,
+    backend: str = "auto",
 ) -> SimplexMesh:
     """Sample ``field`` and extract its level set slab by slab, never holding the whole grid.
 
@@ -356,6 +379,8 @@ def extract_field(
         exists; see :mod:`ao4d.blockwise` for worker and client memory). Same result.
     progress : bool, optional
         tqdm bar; by default from 2^21 cells on.
+    backend : {"auto", "opencl", "numpy"}
+        As in :func:`extract`.
 
     Returns
     -------
@@ -381,6 +406,7 @@ def extract_field(
     level = as_real(level, "level")
     check_choice(method, "method", METHODS)
     check_choice(inside, "inside", _INSIDE)
+    check_choice(backend, "backend", BACKENDS)
     n = [len(a) for a in axes]
     lo = np.array([a[0] for a in axes])
     spacing = np.array([(a[-1] - a[0]) / (len(a) - 1) for a in axes])
@@ -392,7 +418,7 @@ def extract_field(
         return _checked(extract_field_blocks(
             field, axes, level, origin=lo, spacing=spacing, method=method, inside=inside,
             chunk=None if chunk is None else check_positive_int(chunk, "chunk"), chunks=chunks,
-            progress=progress), level, inside, None, None)
+            progress=progress, backend=backend), level, inside, None, None)
     # engine axis 0 is the user's last axis, so each evaluated layer is one engine layer
     geom = _Geometry((n[-1], *n[:-1]), (d - 1, *range(d - 1)), lo, spacing)
     last: dict[int, np.ndarray] = {}
@@ -411,8 +437,8 @@ def extract_field(
             first.append(float(slab[(0,) * slab.ndim]))  # the value at the grid's first corner
         return slab
 
-    return _checked(_run(read, geom, level, method, inside, chunk, progress, False, 8), level, inside,
-                    None, lambda: first[0])
+    return _checked(_run(read, geom, level, method, inside, chunk, progress, False, 8, backend), level,
+                    inside, None, lambda: first[0])
 
 
 def _check_field_values(slab: np.ndarray, field: Callable, axes: list, first: int) -> None:

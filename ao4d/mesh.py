@@ -159,6 +159,27 @@ class SimplexMesh:
         self._point_data = _DataDict(self, "point_data", point_data)
         self._cell_data = _DataDict(self, "cell_data", cell_data)
 
+    @classmethod
+    def _adopt(cls, vertices: np.ndarray, simplices: np.ndarray) -> SimplexMesh:
+        """A mesh that takes ``vertices`` ((V, d) float64) and ``simplices`` ((S, d) int64), both
+        C-contiguous, finite and in range, as they are: no copy, no check; both become read-only.
+
+        For arrays that ao4d's own engines just made (marching extraction), which nobody else
+        holds: the copies and checks of the constructor cost as much as the marching there.
+        """
+        if (vertices.dtype != np.float64 or simplices.dtype != np.int64 or vertices.ndim != 2
+                or simplices.shape[1:] != vertices.shape[1:] or not vertices.flags.c_contiguous
+                or not simplices.flags.c_contiguous):
+            return cls(vertices, simplices)
+        mesh = cls.__new__(cls)
+        mesh._derived, mesh._cache, mesh._version = {}, {}, 0
+        vertices.flags.writeable = False
+        simplices.flags.writeable = False
+        mesh._vertices, mesh._simplices = vertices, simplices
+        mesh._point_data = _DataDict(mesh, "point_data", None)
+        mesh._cell_data = _DataDict(mesh, "cell_data", None)
+        return mesh
+
     # ---------------------------------------------------------------- source arrays
     @property
     def vertices(self) -> np.ndarray:

@@ -97,6 +97,13 @@ def main() -> int:
         check(f"{d}D sample directions are unit", np.allclose(np.linalg.norm(dirs, axis=2), 1, atol=1e-5))
         eight = raycast.sample_directions(runtime, n, 11, 0, eight=True)
         check(f"{d}D directions eight at a time", np.array_equal(eight, raycast.sample_directions(runtime, n, 11, 0)))
+        # extraction (kernels/march.cl): both methods, thin slabs, the numpy engine's arrays
+        values = rng.standard_normal((5, 4, 6, 3)[:d])
+        for method in ("cubes", "simplices"):
+            ref = ao4d.extract(values, 0.1, method=method, chunk=2, backend="numpy")
+            got = ao4d.extract(values, 0.1, method=method, chunk=2, backend="opencl")
+            check(f"{d}D extraction ({method}) equals the numpy engine",
+                  np.array_equal(ref.vertices, got.vertices) and np.array_equal(ref.simplices, got.simplices))
     # screen-space AO and its filter on a tiny image (9 directions: a cut group of eight)
     from ao4d.screen_ao import DepthVolume, denoise, screen_space_occlusion
 

@@ -435,3 +435,16 @@ def test_empty_mesh():
 # --------------------------------------------------------------------------------------------
 
 
+
+
+def test_adopt_takes_fresh_engine_arrays_without_copies():
+    vertices = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    simplices = np.array([[0, 2], [2, 1], [1, 0]], dtype=np.int64)
+    mesh = SimplexMesh._adopt(vertices, simplices)
+    assert mesh.vertices is vertices and mesh.simplices is simplices
+    assert not vertices.flags.writeable and not simplices.flags.writeable
+    assert float(mesh.volume) == 0.5 and mesh.check().ok
+    # anything else (another dtype) goes through the checking constructor
+    other = SimplexMesh._adopt(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
+                               np.array([[0, 2], [2, 1], [1, 0]], dtype=np.int32))
+    assert other.simplices.dtype == np.int64 and other.check().ok
