@@ -74,7 +74,7 @@ import numpy as np
 
 from ._atomic import atomic_open, check_output_file
 from ._validate import as_real, check_bool, check_choice
-from .viewer import HALF_FOV_DEG, MARGIN, ZOOM_RANGE, Camera, Frame, _b64_size, _scene_json, camera
+from .viewer import HALF_FOV_DEG, MARGIN, ZOOM_RANGE, Camera, Frame, _b64_size, _scene_json, _wrap, camera
 
 __all__ = [
     "ARRAYS",
@@ -296,11 +296,6 @@ def image_frame(image: ImageData) -> Frame:
 
 
 # --------------------------------------------------------------------------- state and TF
-
-def _wrap(angle: float) -> float:
-    a = (angle + 180.0) % 360.0 - 180.0
-    return 180.0 if a == -180.0 else a + 0.0
-
 
 def full_state(state: Mapping[str, Any] | None = None, *, image: ImageData | None = None) -> dict:
     """Complete and check a view state of the image page, the way the page does.

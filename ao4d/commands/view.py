@@ -75,16 +75,7 @@ def _run_image(args: argparse.Namespace) -> int:
 
         text = image_page_text(image, state=state, title=args.title, compress=not args.no_compress)
         server = ViewServer(text.encode("utf-8"), [], "127.0.0.1", args.port)
-        print(f"ao4d view: serving {image} at {server.url}  (Ctrl-C stops)", flush=True)
-        if args.open:
-            import webbrowser
-
-            webbrowser.open(server.url)
-        try:
-            server.wait()
-        except KeyboardInterrupt:
-            print("ao4d view: stopped", file=sys.stderr)
-        return 0
+        return _serve_until_stopped(server, f"{image}", args.open)
     if not args.max_mb > 0:
         raise ValueError(f"`--max-mb` must be > 0, got {args.max_mb}")
     out = check_output_file(args.out if args.out is not None else Path("view.html"), "--out",
@@ -99,6 +90,20 @@ def _run_image(args: argparse.Namespace) -> int:
         import webbrowser
 
         webbrowser.open(path.resolve().as_uri())
+    return 0
+
+
+def _serve_until_stopped(server, what: str, open_browser: bool) -> int:
+    """Say where ``server`` serves ``what``, open it if asked, and serve until Ctrl-C."""
+    print(f"ao4d view: serving {what} at {server.url}  (Ctrl-C stops)", flush=True)
+    if open_browser:
+        import webbrowser
+
+        webbrowser.open(server.url)
+    try:
+        server.wait()
+    except KeyboardInterrupt:
+        print("ao4d view: stopped", file=sys.stderr)
     return 0
 
 
@@ -119,17 +124,7 @@ def run(args: argparse.Namespace) -> int:
         if args.out is not None:
             raise ValueError("`--out` and `--serve` exclude each other: --serve writes no file")
         server = serve(args.meshes, port=args.port, **options)
-        print(f"ao4d view: serving {len(args.meshes)} mesh(es) at {server.url}  (Ctrl-C stops)",
-              flush=True)
-        if args.open:
-            import webbrowser
-
-            webbrowser.open(server.url)
-        try:
-            server.wait()
-        except KeyboardInterrupt:
-            print("ao4d view: stopped", file=sys.stderr)
-        return 0
+        return _serve_until_stopped(server, f"{len(args.meshes)} mesh(es)", args.open)
     if not args.max_mb > 0:
         raise ValueError(f"`--max-mb` must be > 0, got {args.max_mb}")
     from .._atomic import check_output_file
