@@ -74,7 +74,7 @@ import numpy as np
 
 from ._atomic import atomic_open, check_output_file
 from ._validate import as_real, check_bool, check_choice
-from .viewer import HALF_FOV_DEG, MARGIN, ZOOM_RANGE, Camera, Frame, _b64_size, _scene_json, _wrap, camera
+from .viewer import HALF_FOV_DEG, MARGIN, ZOOM_RANGE, Camera, Frame, _b64_size, _scene_json, _wrap, camera, merged_state
 
 __all__ = [
     "ARRAYS",
@@ -314,15 +314,7 @@ def full_state(state: Mapping[str, Any] | None = None, *, image: ImageData | Non
     -------
     state : dict
     """
-    if state is not None and not isinstance(state, Mapping):
-        raise TypeError(f"`state` must be a mapping such as {{'array': 'shade', 'az': 40}}, got "
-                        f"{type(state).__name__}")
-    given = {} if state is None else dict(state)
-    unknown = sorted(set(given) - set(DEFAULT_STATE))
-    if unknown:
-        raise ValueError(f"`state` has unknown key(s) {unknown}; known: {list(DEFAULT_STATE)}")
-    out = dict(DEFAULT_STATE)
-    out.update({k: v for k, v in given.items() if v is not None})
+    out = merged_state(state, DEFAULT_STATE, "{'array': 'shade', 'az': 40}")
     arrays = image.arrays if image is not None else ARRAYS
     if out["array"] is None:
         out["array"] = arrays[0]

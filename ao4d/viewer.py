@@ -187,6 +187,22 @@ def _wrap(angle: float) -> float:
     return 180.0 if a == -180.0 else a + 0.0
 
 
+def merged_state(state: Mapping[str, Any] | None, defaults: Mapping[str, Any], example: str) -> dict:
+    """``defaults`` updated by the non-None entries of a page's ``state``; a non-mapping or an
+    unknown key is an error naming ``state`` (``example``: a valid one, for the message)."""
+    if state is not None and not isinstance(state, Mapping):
+        hint = " (a URL fragment such as 'w=0.3' goes after the page's #)" if isinstance(state, str) else ""
+        raise TypeError(f"`state` must be a mapping such as {example}, got "
+                        f"{type(state).__name__} {state!r}{hint}")
+    given = {} if state is None else dict(state)
+    unknown = sorted(set(given) - set(defaults))
+    if unknown:
+        raise ValueError(f"`state` has unknown key(s) {unknown}; known: {list(defaults)}")
+    out = dict(defaults)
+    out.update({k: v for k, v in given.items() if v is not None})
+    return out
+
+
 def full_state(state: Mapping[str, Any] | None = None, *, frame: Frame | None = None) -> dict:
     """Complete and check a view state the way the page does.
 
@@ -204,16 +220,7 @@ def full_state(state: Mapping[str, Any] | None = None, *, frame: Frame | None = 
         Angles wrapped into (-180, 180], ``el`` clamped to [-90, 90], ``light`` an int,
         ``hide`` a sorted tuple of ints.
     """
-    if state is not None and not isinstance(state, Mapping):
-        example = " (a URL fragment such as 'w=0.3' goes after the page's #)" if isinstance(state, str) else ""
-        raise TypeError(f"`state` must be a mapping such as {{'w': 0.3, 'xw': 90}}, got "
-                        f"{type(state).__name__} {state!r}{example}")
-    given = {} if state is None else dict(state)
-    unknown = sorted(set(given) - set(DEFAULT_STATE))
-    if unknown:
-        raise ValueError(f"`state` has unknown key(s) {unknown}; known: {list(DEFAULT_STATE)}")
-    out = dict(DEFAULT_STATE)
-    out.update({k: v for k, v in given.items() if v is not None})
+    out = merged_state(state, DEFAULT_STATE, "{'w': 0.3, 'xw': 90}")
     for key in _NUMBER_KEYS:
         if key == "w" and out[key] is None:
             out["w"] = float(frame.center[3]) if frame is not None and frame.dim == 4 else 0.0

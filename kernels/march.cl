@@ -155,6 +155,25 @@ __kernel CHUNK_KERNEL void count(__global const case_t *cases, __global const vm
     chunk_a[g] = na;
 }
 
+// exclusive scan in place of entries lo .. hi - 1 of three count arrays; their sums to sum[3]
+inline void scan3(__global int *v_, __global int *s_, __global int *a_, const int lo, const int hi,
+                  int *sum)
+{
+    int sv = 0, ss = 0, sa = 0;
+    for (int i = lo; i < hi; ++i) {
+        const int v = v_[i], s = s_[i], a = a_[i];
+        v_[i] = sv;
+        s_[i] = ss;
+        a_[i] = sa;
+        sv += v;
+        ss += s;
+        sa += a;
+    }
+    sum[0] = sv;
+    sum[1] = ss;
+    sum[2] = sa;
+}
+
 // Exclusive scan of three count arrays, blocks of SCAN_BLOCK entries; block totals to blk.
 __kernel CHUNK_KERNEL void scan_chunks(__global int *chunk_v, __global int *chunk_s, __global int *chunk_a,
                           __global int *blk_v, __global int *blk_s, __global int *blk_a,
@@ -162,39 +181,22 @@ __kernel CHUNK_KERNEL void scan_chunks(__global int *chunk_v, __global int *chun
 {
     const int b = get_global_id(0);
     const int lo = b * SCAN_BLOCK;
-    const int hi = min(lo + SCAN_BLOCK, n_chunks);
-    int sv = 0, ss = 0, sa = 0;
-    for (int i = lo; i < hi; ++i) {
-        const int v = chunk_v[i], s = chunk_s[i], a = chunk_a[i];
-        chunk_v[i] = sv;
-        chunk_s[i] = ss;
-        chunk_a[i] = sa;
-        sv += v;
-        ss += s;
-        sa += a;
-    }
-    blk_v[b] = sv;
-    blk_s[b] = ss;
-    blk_a[b] = sa;
+    int sum[3];
+    scan3(chunk_v, chunk_s, chunk_a, lo, min(lo + SCAN_BLOCK, n_chunks), sum);
+    blk_v[b] = sum[0];
+    blk_s[b] = sum[1];
+    blk_a[b] = sum[2];
 }
 
 __kernel void scan_blocks(__global int *blk_v, __global int *blk_s, __global int *blk_a,
                           int n_blocks, __global int *totals)
 {
     if (get_global_id(0) != 0) return;
-    int sv = 0, ss = 0, sa = 0;
-    for (int i = 0; i < n_blocks; ++i) {
-        const int v = blk_v[i], s = blk_s[i], a = blk_a[i];
-        blk_v[i] = sv;
-        blk_s[i] = ss;
-        blk_a[i] = sa;
-        sv += v;
-        ss += s;
-        sa += a;
-    }
-    totals[0] = sv;
-    totals[1] = ss;
-    totals[2] = sa;
+    int sum[3];
+    scan3(blk_v, blk_s, blk_a, 0, n_blocks, sum);
+    totals[0] = sum[0];
+    totals[1] = sum[1];
+    totals[2] = sum[2];
 }
 
 // New vertices numbered and their keys compacted; active cells compacted with their first
