@@ -10,22 +10,45 @@ and any process that can reach the URL can write its own items.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import re
 import uuid
 from pathlib import Path
 from typing import Any
 
 from ao4d._atomic import atomic_open
 
-__all__ = ["Store", "LocalStore", "FsspecStore", "open_store", "is_url"]
+__all__ = ["Store", "LocalStore", "FsspecStore", "open_store", "is_url", "check_url"]
 
 _BLOCK = 1 << 20
+
+
+# an URL's protocol: a scheme (RFC 3986), or fsspec's chain of them ("simplecache::s3")
+_PROTOCOL = re.compile(r"[A-Za-z][A-Za-z0-9+.\-]*(::[A-Za-z][A-Za-z0-9+.\-]*)*")
 
 
 def is_url(out: Any) -> bool:
     """True when ``out`` is a string with a protocol (``proto://...``), not a local path."""
     return isinstance(out, str) and "://" in out
+
+
+def check_url(out: str) -> str:
+    """Refuse a malformed URL ``out`` (``"://x"`` would otherwise be read as the local folder
+    ``./:/x``): the part before ``://`` must be a protocol and the part after it a path.
+
+    Raises
+    ------
+    ValueError
+        Naming ``out`` and the form expected.
+    """
+    protocol, _, path = out.partition("://")
+    if not _PROTOCOL.fullmatch(protocol) or not path.strip("/"):
+        raise ValueError(f"`out` {out!r} is not a URL of the form PROTOCOL://PATH (such as "
+                         "s3://bucket/run or file:///data/run) nor a local folder; give a folder "
+                         "path without '://' or a complete URL")
+    return out
 
 
 def open_store(out: str | os.PathLike) -> Store:
@@ -34,12 +57,21 @@ def open_store(out: str | os.PathLike) -> Store:
     Raises
     ------
     ValueError
-        An URL whose protocol fsspec does not know or whose filesystem package is missing
-        (``s3fs`` for ``s3://``, ``gcsfs`` for ``gs://``), naming ``out``.
+        A malformed URL (:func:`check_url`), or one whose protocol fsspec does not know or
+        whose filesystem package is missing (``s3fs`` for ``s3://``, ``gcsfs`` for
+        ``gs://``), naming ``out``.
     """
     if is_url(out):
-        return FsspecStore(out)
+        return FsspecStore(check_url(out))
     return LocalStore(Path(out))
+
+
+def _naming(exc: OSError, path: str) -> OSError:
+    """``exc`` with ``path`` as its file name when it names none (a write cut short by a full
+    disk names no file), so that messages say which file could not be written."""
+    if exc.filename is not None or exc.errno is None:
+        return exc
+    return type(exc)(exc.errno, exc.strerror or str(exc), str(path))
 
 
 class Store:
@@ -47,6 +79,9 @@ class Store:
 
     #: how the root is shown in messages and in the run summary
     name: str
+    #: True when the files live in this process only (fsspec's ``memory://``): other
+    #: processes cannot see them and they are gone when this process exits
+    process_local: bool = False
 
     def read_bytes(self, rel: str) -> bytes:
         raise NotImplementedError
@@ -55,8 +90,20 @@ class Store:
         return self.read_bytes(rel).decode("utf-8")
 
     def write_bytes(self, rel: str, data: bytes) -> None:
-        """Write ``data`` to ``rel`` atomically, creating its folders."""
+        """Write ``data`` to ``rel`` atomically, creating its folders; a failed write (a full
+        disk) leaves the old file, or none, and no temporary file."""
         raise NotImplementedError
+
+    def create_bytes(self, rel: str, data: bytes) -> bool:
+        """Write ``data`` to ``rel`` atomically unless ``rel`` exists; return whether it wrote.
+
+        Exclusive on a local folder (of two processes creating the same file, exactly one
+        does); on other filesystems a check, then a write.
+        """
+        if self.is_file(rel):
+            return False
+        self.write_bytes(rel, data)
+        return True
 
     def is_file(self, rel: str) -> bool:
         raise NotImplementedError
@@ -96,9 +143,29 @@ class LocalStore(Store):
 
     def write_bytes(self, rel: str, data: bytes) -> None:
         path = self._path(rel)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_open(path, "wb") as fh:
+                fh.write(data)
+        except OSError as exc:
+            raise _naming(exc, str(path)) from None
+
+    def create_bytes(self, rel: str, data: bytes) -> bool:
+        path = self._path(rel)
         path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_open(path, "wb") as fh:
-            fh.write(data)
+        temp = path.parent / f".{path.name}.{uuid.uuid4().hex[:12]}.tmp"
+        try:
+            with atomic_open(temp, "wb") as fh:
+                fh.write(data)
+            try:
+                os.link(temp, path)  # fails when ``path`` exists: exclusive, and whole
+            except FileExistsError:
+                return False
+            except OSError:  # no hard links here (some network and FAT filesystems)
+                return super().create_bytes(rel, data)
+            return True
+        finally:
+            temp.unlink(missing_ok=True)
 
     def is_file(self, rel: str) -> bool:
         return self._path(rel).is_file()
@@ -148,6 +215,12 @@ class FsspecStore(Store):
         except (ImportError, ValueError) as exc:  # unknown protocol, or its package missing
             raise ValueError(f"cannot open `out` {url!r}: {exc}") from None
         self.root = self.root.rstrip("/")
+        try:
+            from fsspec.implementations.memory import MemoryFileSystem
+
+            self.process_local = isinstance(self.fs, MemoryFileSystem)
+        except ImportError:  # pragma: no cover - fsspec without its memory filesystem
+            pass
 
     def _path(self, rel: str) -> str:
         return f"{self.root}/{rel}" if rel else self.root
@@ -160,11 +233,16 @@ class FsspecStore(Store):
         parent, _, base = path.rpartition("/")
         self.fs.makedirs(parent, exist_ok=True)
         temp = f"{parent}/.{base}.{uuid.uuid4().hex[:12]}.tmp"
-        self.fs.pipe_file(temp, data)
         try:
+            self.fs.pipe_file(temp, data)
             self.fs.mv(temp, path)
-        except BaseException:
-            self.fs.rm_file(temp)
+        except BaseException as exc:
+            # a write cut short (a full disk) may have left part of the temporary file
+            with contextlib.suppress(OSError):
+                if self.fs.exists(temp):
+                    self.fs.rm_file(temp)
+            if isinstance(exc, OSError):
+                raise _naming(exc, f"{self.name.rstrip('/')}/{rel}") from None
             raise
 
     def is_file(self, rel: str) -> bool:

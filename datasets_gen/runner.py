@@ -84,6 +84,8 @@ class RunSummary:
     received : int
         Bytes of item files that came back to this process from dask workers (0 when the
         workers write their items themselves).
+    made_items : set of int
+        Indices of the items made (``made`` of them).
     """
 
     out: Path
@@ -95,6 +97,7 @@ class RunSummary:
     bytes: int = 0
     stages: dict[str, float] = field(default_factory=dict)
     received: int = 0
+    made_items: set[int] = field(default_factory=set, repr=False)
 
     def add_timing(self, seconds: dict[str, float]) -> None:
         """Add one made item's stage seconds."""
@@ -360,35 +363,67 @@ def _render(folder: Path, render: dict, mesh: Any, occlusion: Any, settings: dic
 # --------------------------------------------------------------------------- the run
 
 
+def _read_run_info(store: Store) -> dict[str, Any]:
+    """``run.json`` of the store, checked: a damaged one is an error naming the file."""
+    where = f"{store.name.rstrip('/')}/run.json"
+    try:
+        info = json.loads(store.read_text("run.json"))
+    except (OSError, ValueError) as exc:  # unreadable, not UTF-8, not JSON
+        raise ValueError(f"`out` {store.name!r}: its run.json ({where}) is unreadable or damaged "
+                         f"({type(exc).__name__}: {exc}); it names the run the folder holds, so "
+                         "nothing can be resumed there: restore it, or choose another folder") from None
+    if not isinstance(info, dict) or not isinstance(info.get("config_sha256"), str) \
+            or isinstance(info.get("seed"), bool) or not isinstance(info.get("seed"), int):
+        raise ValueError(f"`out` {store.name!r}: its run.json ({where}) is damaged (no "
+                         "config_sha256 and seed of a datasets_gen run); restore it, or choose "
+                         "another folder")
+    return info
+
+
+def _run_info(config: Config, seed: int) -> bytes:
+    return json_bytes({
+        "format": RUN_FORMAT, "config_name": config.name, "config_source": config.source,
+        "config_sha256": config.sha256, "config_text": config.text, "seed": seed,
+        "versions": _versions(), "n_items": len(config.items()),
+    })
+
+
+def _check_same_run(store: Store, config: Config, seed: int) -> None:
+    """Refuse when the store's ``run.json`` is of another config or seed (or damaged)."""
+    previous = _read_run_info(store)
+    if previous["config_sha256"] == config.sha256 and previous["seed"] == seed:
+        return
+    theirs = f"config {previous.get('config_name')!r} ({previous.get('config_source')}, " \
+             f"sha256 {previous['config_sha256'][:12]}) with seed {previous['seed']}"
+    ours = f"config {config.name!r} ({config.source}, sha256 {config.sha256[:12]}) with seed {seed}"
+    why = ("the seeds differ" if previous["config_sha256"] == config.sha256 else
+           "the configs' texts differ" if previous.get("config_name") == config.name else
+           "another config")
+    raise FileExistsError(
+        f"`out` {store.name!r} holds a run of {theirs}, not of {ours} ({why}); one folder holds "
+        "one run (that run may still be going): choose another folder, or delete it")
+
+
 def _check_out(store: Store | str | os.PathLike, config: Config, seed: int) -> None:
     """Create ``run.json`` in the store (or folder) or refuse an output folder made by another
-    config or seed."""
+    config or seed. The creation is exclusive on a local folder, so of two runs started into
+    one new folder at once, one is refused."""
     store = store if isinstance(store, Store) else open_store(store)
     out = store.name
     holds_something = store.prepare()
     if store.is_file("run.json"):
-        try:
-            previous = json.loads(store.read_text("run.json"))
-        except ValueError:
-            previous = {}
-        if previous.get("config_sha256") != config.sha256 or previous.get("seed") != seed:
-            raise FileExistsError(
-                f"`out` {out!r} holds a run of config {previous.get('config_name')!r} with seed "
-                f"{previous.get('seed')!r}, not of {config.name!r} with seed {seed}; choose another "
-                "folder or delete it")
+        _check_same_run(store, config, seed)
         return
     if holds_something:
         raise FileExistsError(f"`out` {out!r} exists, is not empty and holds no run.json; "
                               "choose an empty or new folder")
     try:
-        store.write_bytes("run.json", json_bytes({
-            "format": RUN_FORMAT, "config_name": config.name, "config_source": config.source,
-            "config_sha256": config.sha256, "config_text": config.text, "seed": seed,
-            "versions": _versions(), "n_items": len(config.items()),
-        }))
+        created = store.create_bytes("run.json", _run_info(config, seed))
     except OSError as exc:  # a read-only file system, a full disk, no permission
         raise ValueError(f"cannot write into the output folder `out` {out!r}: "
                          f"{exc.strerror or exc}") from None
+    if not created:  # another run created it since prepare() looked
+        _check_same_run(store, config, seed)
 
 
 def run(
@@ -444,12 +479,17 @@ def run(
     cfg = config if isinstance(config, Config) else load_config(config)
     workers = check_positive_int(workers, "workers")
     store = open_store(out)  # an unknown URL protocol fails here, before any work
+    if store.process_local and workers > 1:
+        raise ValueError(f"`out` {store.name!r} lives in this process only, so the {workers} "
+                         "`workers` processes could not write their items into it: use "
+                         "workers=1, a folder, or a URL every process reaches (file://, s3://)")
     if scheduler is not None:
         _check_scheduler(scheduler)
         if workers != 1:
             raise ValueError(f"give `workers` ({workers}) or `scheduler` ({scheduler!r}), not both")
         _probe_scheduler(scheduler)  # before the output folder is touched
     seed = cfg.seed if seed is None else check_positive_int(seed, "seed", minimum=0)
+    _device_name()  # an impossible AO4D_DEVICE fails here, before the folder is touched
     _check_out(store, cfg, seed)
     run_sha256 = store.sha256("run.json")
     items = cfg.items()
@@ -483,7 +523,19 @@ def run(
         raise
     bar.close()
     summary.seconds = time.perf_counter() - start
-    summary.bytes = _write_index(store, items, summary)
+    try:
+        ours = store.sha256("run.json") == run_sha256
+    except OSError:
+        ours = False
+    if not ours:  # another run wrote its own run.json meanwhile, or it was removed
+        _check_same_run(store, cfg, seed)
+    try:
+        summary.bytes = _write_index(store, items, summary)
+    except OSError as exc:  # a full disk, a lost mount: the items already written are kept
+        raise ValueError(f"cannot write the index of `out` {store.name!r} "
+                         f"({getattr(exc, 'filename', None) or 'items.csv, manifest.json'}): "
+                         f"{exc.strerror or exc}; the finished items are kept: make room and "
+                         "rerun the same command to finish") from None
     return summary
 
 
@@ -491,6 +543,7 @@ def _collect(summary: RunSummary, job: _Job, call) -> None:
     try:
         result = call()
         summary.made += 1
+        summary.made_items.add(job.spec.index)
         summary.add_timing((result or {}).get("seconds", {}))
     except (KeyboardInterrupt, SystemExit):
         raise
@@ -723,7 +776,12 @@ def _write_index(store: Store, items: list[ItemSpec], summary: RunSummary) -> in
     records: dict[int, dict] = {}  # each complete item's record (never a failed or interrupted one)
     for spec in items:
         rel = _item_rel(spec.index)
-        if spec.index in summary.failed or not store.is_file(f"{rel}/record.json"):
+        if spec.index in summary.failed:
+            continue
+        if not store.is_file(f"{rel}/record.json"):
+            if spec.index in summary.made_items:  # never count an item the store does not hold
+                summary.made -= 1
+                summary.failed[spec.index] = f"made, but its record.json is not in `out` {store.name!r}"
             continue
         records[spec.index] = json.loads(store.read_text(f"{rel}/record.json"))
     rows = []
@@ -833,6 +891,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("the following arguments are required: --out")
     try:
         cfg = load_config(args.config)
+        if args.out is not None and open_store(args.out).process_local:
+            raise ValueError(f"`--out` {args.out!r} is a filesystem inside this process: "
+                             "everything written there is gone when the command exits; give a "
+                             "folder or a URL that outlives it (file://, s3://, ...)")
         if args.list:
             print(f"{cfg.name} ({cfg.source}): {len(cfg.items())} items\n{describe(cfg)}")
             return 0
