@@ -20,7 +20,13 @@ Arrays on the page
     shade and occlusion clipped to [0, 1], and depth mapped linearly from its range over hit
     voxels (near 0, far 1) (:func:`encode`). A voxel is *hit* when ``object_id >= 0``, else
     (files without ids) when its depth is finite, else (``.mhd``: shade only) when shade > 0.
-    Empty voxels are transparent whatever the transfer function.
+    Empty voxels are transparent whatever the transfer function. Only the arrays the image
+    holds are offered (a ``.mhd`` or a bare array: ``shade`` alone).
+Foreign images
+    Shade outside [0, 1] (a volume not written by ao4d: CT numbers, densities) is mapped
+    linearly from its finite range ``[lo, hi]`` onto [0, 1] (``ranges["shade"] = (lo, hi)``;
+    voxels at ``lo`` are empty, as shade 0 is), and the image carries a note saying so
+    (:attr:`ImageData.notes`; the page's writers warn with :class:`ImageRangeWarning`).
 Transfer function
     256 entries, entry ``q``: colour ``cmap(q / 255)`` (a matplotlib map, sampled at 256
     points), opacity ``opacity * clamp((q / 255 - lo) / (hi - lo), 0, 1)``, or ``opacity *
@@ -63,6 +69,7 @@ from __future__ import annotations
 import base64
 import json
 import os
+import warnings
 import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -83,6 +90,7 @@ __all__ = [
     "PRESETS",
     "STEP",
     "ImageData",
+    "ImageRangeWarning",
     "encode",
     "full_state",
     "image_frame",
@@ -113,9 +121,15 @@ PRESETS: dict[str, dict[str, Any]] = {
     "cloud": {"lo": 0.0, "hi": 1.0, "opacity": 0.04},
 }
 _TEMPLATE = "image_page.html"
+# shade this far outside [0, 1] is round-off of ao4d's own (1 - A with A = -1e-16), not foreign
+_SHADE_SLACK = 1e-6
 
 
 # --------------------------------------------------------------------------- the image
+
+class ImageRangeWarning(UserWarning):
+    """An image's shade lies outside [0, 1] and is shown mapped from its own range."""
+
 
 @dataclass(frozen=True)
 class ImageData:
@@ -134,6 +148,11 @@ class ImageData:
         ``{"shade": (lo, hi), "occlusion": ..., "depth": ...}``: the values ``q = 0`` and
         ``q = 255`` stand for.
     name : str
+    present : tuple of str, optional
+        The arrays the image holds, of :data:`ARRAYS` (None: every array, ``rgba`` when
+        ``colors`` is given).
+    notes : tuple of str
+        What was done to show the image (foreign shade mapped from its range).
     """
 
     scalars: np.ndarray
@@ -142,6 +161,8 @@ class ImageData:
     origin: np.ndarray
     ranges: dict
     name: str = "image"
+    present: tuple[str, ...] | None = None
+    notes: tuple[str, ...] = ()
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -153,7 +174,9 @@ class ImageData:
 
     @property
     def arrays(self) -> tuple[str, ...]:
-        return ARRAYS if self.colors is not None else ARRAYS[1:]
+        """The arrays the page offers: those the image holds, in :data:`ARRAYS`' order."""
+        every = ARRAYS if self.colors is not None else ARRAYS[1:]
+        return every if self.present is None else tuple(a for a in every if a in self.present)
 
 
 def _quantise(v: np.ndarray) -> np.ndarray:
@@ -200,14 +223,36 @@ def encode(image: Any, *, name: str | None = None) -> ImageData:
                           spacing=np.ones(3), origin=np.zeros(3), name=name or "image")
 
 
-def _encode_arrays(shade, *, depth, occlusion, hit, colors, spacing, origin, name) -> ImageData:
+def _shade_range(shade: np.ndarray, name: str) -> tuple[np.ndarray, tuple[float, float], tuple[str, ...]]:
+    """Shade in [0, 1] as the page shows it, the values 0 and 1 stand for, and the notes: a
+    foreign image's shade outside [0, 1] is mapped linearly from its finite range."""
+    finite = np.isfinite(shade)
+    if not finite.any():
+        return np.zeros_like(shade), (0.0, 1.0), ()
+    lo, hi = float(shade[finite].min()), float(shade[finite].max())
+    if lo >= -_SHADE_SLACK and hi <= 1.0 + _SHADE_SLACK:  # ao4d's own (round-off clipped)
+        return np.where(finite, shade, 0.0), (0.0, 1.0), ()
+    if hi > lo:
+        rel = np.where(finite, (shade - lo) / (hi - lo), 0.0)
+        empty = f"voxels at {lo:g} are empty"
+    else:
+        rel = np.where(finite, 1.0, 0.0)
+        empty = "every voxel is drawn"
+    note = (f"`image` {name}: shade spans [{lo:g}, {hi:g}], outside the [0, 1] of ao4d's images "
+            f"(not written by ao4d?); shown mapped linearly from [{lo:g}, {hi:g}] onto [0, 1] "
+            f"({empty})")
+    return rel, (lo, hi), (note,)
+
+
+def _encode_arrays(shade, *, depth, occlusion, hit, colors, spacing, origin, name,
+                   present=None) -> ImageData:
     if shade.ndim != 3 or min(shade.shape) < 1:
         raise ValueError(f"`image` must be a 3D image with at least one voxel, got shape {shade.shape}")
     if not np.isfinite(spacing).all() or (spacing <= 0).any():
         raise ValueError(f"`image` spacing must be positive, got {spacing.tolist()}")
     if not np.isfinite(origin).all():
         raise ValueError(f"`image` origin must be finite, got {origin.tolist()}")
-    shade = np.where(np.isfinite(shade), shade, 0.0)
+    shade, shade_range, notes = _shade_range(shade, name)
     if hit is None:
         hit = np.isfinite(depth) if depth is not None else shade > 0
     hit = np.asarray(hit, dtype=bool)
@@ -231,8 +276,12 @@ def _encode_arrays(shade, *, depth, occlusion, hit, colors, spacing, origin, nam
         if colors.shape != shade.shape + (4,):
             raise ValueError(f"`image` rgba must have shape {shade.shape + (4,)}, got {colors.shape}")
         colors = np.where(hit[..., None], colors, 0).astype(np.uint8)
+    if present is None:
+        present = ("shade",) + (("occlusion",) if occlusion is not None else ()) + \
+                  (("depth",) if depth is not None else ()) + (("rgba",) if colors is not None else ())
     return ImageData(scalars, colors, np.asarray(spacing, np.float64), np.asarray(origin, np.float64),
-                     {"shade": (0.0, 1.0), "occlusion": (0.0, 1.0), "depth": (d_lo, d_hi)}, name)
+                     {"shade": shade_range, "occlusion": (0.0, 1.0), "depth": (d_lo, d_hi)}, name,
+                     tuple(present), notes)
 
 
 def load_image(path: str | os.PathLike) -> ImageData:
@@ -249,7 +298,7 @@ def load_image(path: str | os.PathLike) -> ImageData:
     -------
     ImageData
     """
-    from .volumes import pyvista_offscreen, read_mhd
+    from .volumes import read_mhd, read_vtk_image
 
     p = Path(path)
     suffix = check_choice(p.suffix.lower(), "image extension", (".vti", ".mhd"))
@@ -260,7 +309,7 @@ def load_image(path: str | os.PathLike) -> ImageData:
         return _encode_arrays(np.asarray(vol.data, np.float64), depth=None, occlusion=None,
                               hit=None, colors=None, spacing=np.asarray(vol.spacing, np.float64),
                               origin=np.asarray(vol.origin, np.float64), name=p.stem)
-    grid = pyvista_offscreen().read(p)
+    grid = read_vtk_image(p, "image")  # an unreadable or truncated file is named as such
     dims = tuple(int(n) for n in grid.dimensions)
     names = list(grid.point_data.keys())
 
@@ -273,7 +322,8 @@ def load_image(path: str | os.PathLike) -> ImageData:
     shade = get("shade")
     if shade is None:
         if len(names) != 1:
-            raise ValueError(f"`image` {p.name} has no 'shade' array (has {names})")
+            raise ValueError(f"`image` {p.name} has no 'shade' array, and more than one other "
+                             f"(has {names}): which to show is unclear")
         shade = get(names[0])
     if shade.ndim != 3:
         raise ValueError(f"`image` {p.name}: shade must be one value per voxel, got shape {shade.shape}")
@@ -318,6 +368,10 @@ def full_state(state: Mapping[str, Any] | None = None, *, image: ImageData | Non
     arrays = image.arrays if image is not None else ARRAYS
     if out["array"] is None:
         out["array"] = arrays[0]
+    if image is not None and out["array"] in ARRAYS and out["array"] not in arrays:
+        raise ValueError(f"`state['array']` {out['array']!r} is not in the image {image.name!r}, "
+                         f"which holds {', '.join(map(repr, arrays))} (a .mhd file or a bare array "
+                         "holds shade only)")
     out["array"] = check_choice(out["array"], "state['array']", arrays)
     out["cmap"] = check_choice(out["cmap"], "state['cmap']", CMAPS)
     for key in ("lo", "hi", "opacity", *CLIPS):
@@ -498,6 +552,8 @@ def image_page_text(image: Any, *, state: Mapping[str, Any] | None = None, title
         raise TypeError(f"`title` must be a string, got {type(title).__name__}")
     data = encode(image)
     st = full_state(state, image=data)
+    for note in data.notes:
+        warnings.warn(note, ImageRangeWarning, stacklevel=2)
     raw = data.scalars.nbytes + (0 if data.colors is None else data.colors.nbytes)
     if not compress and _b64_size(raw) > max_bytes:
         raise ValueError(f"the page would be about {_b64_size(raw) / 1e6:.0f} MB, over `max_bytes`")
@@ -521,6 +577,7 @@ def image_page_text(image: Any, *, state: Mapping[str, Any] | None = None, title
         "radius": image_frame(data).radius,
         "arrays": list(data.arrays),
         "ranges": {k: list(v) for k, v in data.ranges.items()},
+        "notes": list(data.notes),
         "hits": int(data.hit.sum()),
         "histogram": _histogram(data),
         "state": st,

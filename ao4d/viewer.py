@@ -978,6 +978,8 @@ class ViewServer:
             def log_message(self, format: str, *args: Any) -> None:
                 pass
 
+        if isinstance(port, bool) or not isinstance(port, (int, np.integer)) or not 0 <= port <= 65535:
+            raise ValueError(f"`port` must be an integer in 0..65535 (0: any free one), got {port!r}")
         try:
             self._httpd = http.server.ThreadingHTTPServer((host, port), Handler)
         except OSError as exc:

@@ -32,6 +32,7 @@ from collections.abc import Mapping
 from xml.sax.saxutils import quoteattr
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -231,6 +232,57 @@ def pyvista_offscreen():
     return pv
 
 
+def read_vtk_image(path: str | os.PathLike, name: str = "path") -> Any:
+    """pyvista's ImageData of a ``.vti`` file, checked whole: every point-data array holds one
+    value (or tuple) per grid point.
+
+    Parameters
+    ----------
+    path : path-like
+        An existing ``.vti`` file.
+    name : str
+        The parameter named in messages.
+
+    Raises
+    ------
+    ValueError
+        VTK cannot read the file (not VTK XML, truncated, damaged), or it holds no point-data
+        arrays, or an array is shorter than the grid: the message says the file is unreadable
+        or truncated (VTK reports such files as an empty grid, not as an error).
+    """
+    import warnings
+
+    import vtk
+
+    pv = pyvista_offscreen()
+    path = Path(path)
+    shown = vtk.vtkObject.GetGlobalWarningDisplay()
+    vtk.vtkObject.GlobalWarningDisplayOff()  # VTK's own error lines; the message below says it
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                grid = pv.read(path)
+            except Exception as exc:  # pyvista raises for some damage, returns empty for other
+                grid, caught = None, [*caught, warnings.WarningMessage(str(exc), UserWarning, "", 0)]
+    finally:
+        vtk.vtkObject.SetGlobalWarningDisplay(shown)
+    why = None
+    if grid is None or caught:
+        why = " ".join(str(w.message).split())[:300] if caught else "VTK read nothing"
+    elif not list(grid.point_data.keys()):
+        why = "VTK read no point-data arrays (it reads a damaged or cut-short file as an empty grid)"
+    else:
+        points = int(np.prod([int(n) for n in grid.dimensions]))
+        short = [k for k in grid.point_data.keys() if len(np.asarray(grid.point_data[k])) != points]
+        if points == 0 or short:
+            why = f"arrays {short} do not hold one value per grid point" if short else "an empty grid"
+    if why is not None:
+        raise ValueError(f"`{name}` {str(path)!r} is unreadable or truncated as VTK ImageData "
+                         f"(.vti): {why}")
+    return grid
+
+
 def write_vti(path: str | os.PathLike, arrays, *, spacing=1.0, origin=0.0) -> Path:
     """Write one or more 3D arrays on the same grid as VTK ImageData (``.vti``).
 
@@ -354,14 +406,11 @@ def read_vti(path: str | os.PathLike, *, array: str | None = None) -> Volume:
     -------
     Volume
     """
-    pv = pyvista_offscreen()
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
-    grid = pv.read(path)
+    grid = read_vtk_image(path)
     names = list(grid.point_data.keys())
-    if not names:
-        raise ValueError(f"{path.name}: holds no point-data arrays")
     name = array if array is not None else (grid.active_scalars_name or names[0])
     if name not in names:
         raise ValueError(f"`array` must be one of {', '.join(map(repr, names))}; got {name!r}")

@@ -393,9 +393,9 @@ def _check_same_run(store: Store, config: Config, seed: int) -> None:
     previous = _read_run_info(store)
     if previous["config_sha256"] == config.sha256 and previous["seed"] == seed:
         return
-    theirs = f"config {previous.get('config_name')!r} ({previous.get('config_source')}, " \
-             f"sha256 {previous['config_sha256'][:12]}) with seed {previous['seed']}"
-    ours = f"config {config.name!r} ({config.source}, sha256 {config.sha256[:12]}) with seed {seed}"
+    theirs = f"config {previous.get('config_name')!r} with seed {previous['seed']} " \
+             f"({previous.get('config_source')}, text sha256 {previous['config_sha256'][:12]})"
+    ours = f"config {config.name!r} with seed {seed} ({config.source}, text sha256 {config.sha256[:12]})"
     why = ("the seeds differ" if previous["config_sha256"] == config.sha256 else
            "the configs' texts differ" if previous.get("config_name") == config.name else
            "another config")

@@ -102,3 +102,13 @@ def test_every_command_is_silent_with_no_progress_and_logs_plain_lines(name, bal
     assert "\r" not in err and "\x1b[" not in err and not eager_progress, (err, eager_progress)
     if name == "render":  # the log gets the ray counts as plain lines
         assert "primary rays: " in err and "shadow rays: " in err, err
+
+
+@pytest.mark.parametrize("port", ["70000", "-1", "65536", "http"])
+def test_view_port_out_of_range_is_an_argument_error(port, tmp_path, capsys):
+    # socket's OverflowError surfaced as a traceback
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["view", str(tmp_path / "s.vti"), "--serve", "--port", port])
+    assert exit_.value.code == 2
+    assert f"argument --port: must be an integer in 0..65535 (0: any free one), got '{port}'" in \
+        capsys.readouterr().err

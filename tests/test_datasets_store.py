@@ -265,8 +265,8 @@ def test_damaged_run_json_is_named(config, tmp_path):
 def test_two_configs_of_one_name_into_one_folder(config, reference, tmp_path):
     other = tmp_path / "tiny.toml"  # the same name, another text
     other.write_text(config.read_text().replace("count = 2", "count = 1", 1), encoding="utf-8")
-    with pytest.raises(FileExistsError, match=r"holds a run of config 'tiny' \(.*tiny.toml, sha256 "
-                                              r"\w{12}\) with seed 3, not of config 'tiny' .*the "
+    with pytest.raises(FileExistsError, match=r"holds a run of config 'tiny' with seed 3 \(.*tiny.toml, "
+                                              r"text sha256 \w{12}\), not of config 'tiny' .*the "
                                               r"configs' texts differ"):
         run(other, reference, progress=False)
 

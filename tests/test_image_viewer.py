@@ -64,11 +64,12 @@ def test_encode_quantises_and_marks_the_hits(sphere_image):
 
 def test_files_give_the_image_of_the_result(sphere_image, tmp_path):
     data = iv.encode(sphere_image)
+    assert data.notes == () and data.ranges["shade"] == (0.0, 1.0)  # ao4d's own: as it is
     vti = iv.load_image(sphere_image.save(tmp_path / "s.vti"))
     assert np.array_equal(vti.scalars, data.scalars) and np.array_equal(vti.colors, data.colors)
     assert np.allclose(vti.spacing, data.spacing) and np.allclose(vti.origin, data.origin)
     mhd = iv.load_image(sphere_image.save(tmp_path / "s.mhd"))  # shade only: hit = shade > 0
-    assert mhd.colors is None and mhd.arrays == ("shade", "occlusion", "depth")
+    assert mhd.colors is None and mhd.arrays == ("shade",)  # only what the file holds
     assert np.array_equal(mhd.scalars[..., 0], data.scalars[..., 0])
     assert np.array_equal(mhd.hit, sphere_image.hit & (sphere_image.shade > 0))
     with pytest.raises(ValueError, match="image extension"):
@@ -170,9 +171,77 @@ def test_cli_view_writes_the_image_page(sphere_image, tmp_path, capsys):
     assert "separate pages" in capsys.readouterr().err
     mhd = sphere_image.save(tmp_path / "s.mhd")
     assert cli.main(["view", str(mhd), "--out", str(out), "--array", "rgba"]) == 2
-    assert "state['array']" in capsys.readouterr().err
+    assert "`--array` 'rgba'" in capsys.readouterr().err
     assert cli.main(["view", str(tmp_path / "gone.vti"), "--out", str(out)]) == 2
     assert "gone.vti" in capsys.readouterr().err
+
+
+def test_mhd_offers_only_the_shade_it_holds(sphere_image, tmp_path, capsys):
+    # a .mhd holds shade alone: occlusion and depth would be all zeros
+    mhd = sphere_image.save(tmp_path / "s.mhd")
+    page = iv.view_image(mhd, tmp_path / "m.html")
+    assert iv.page_info(page.read_text())["arrays"] == ["shade"]
+    for array in ("occlusion", "depth"):
+        with pytest.raises(ValueError, match=rf"`state\['array'\]` '{array}' is not in the image 's', "
+                                             r"which holds 'shade'"):
+            iv.view_image(mhd, tmp_path / "m.html", state={"array": array})
+        assert cli.main(["view", str(mhd), "--out", str(tmp_path / "o.html"), "--array", array]) == 2
+        err = capsys.readouterr().err
+        assert f"`--array` '{array}'" in err and "holds only 'shade' (a .mhd file holds shade alone)" in err
+    assert not (tmp_path / "o.html").exists()
+    assert iv.encode(_box()).arrays == ("shade",)  # a bare array: shade alone
+    vti = ao4d.volumes.write_vti(tmp_path / "two.vti", {"shade": _box(), "depth": _box(2.0)})
+    assert iv.load_image(vti).arrays == ("shade", "depth")
+
+
+def _foreign(values_at, n=16):
+    """A ball of radius 6 voxels whose values run along x, on a background, as another tool
+    would write it: one array, no ids, no depth."""
+    i = np.indices((n, n, n)).astype(np.float64)
+    inside = ((i - (n - 1) / 2) ** 2).sum(axis=0) <= 36
+    ramp = (i[0] - i[0][inside].min()) / (i[0][inside].max() - i[0][inside].min())  # 0..1 inside
+    return values_at(np.where(inside, 0.2 + 0.8 * ramp, 0.0)), inside
+
+
+@pytest.mark.parametrize("lo, hi", [(0.0, 1000.0), (-5.0, -1.0)], ids=["0..1000", "-5..-1"])
+def test_foreign_image_is_shown_over_its_own_range(tmp_path, capsys, lo, hi):
+    # [0, 1000] drew saturated and [-5, -1] drew nothing, without a word
+    unit, inside = _foreign(lambda v: v)
+    values = lo + (hi - lo) * unit  # background at lo, the ball in [lo + 0.2 (hi - lo), hi]
+    path = ao4d.volumes.write_vti(tmp_path / "ct.vti", {"density": values.astype(np.float32)})
+    data = iv.load_image(path)
+    assert data.ranges["shade"] == (lo, hi) and len(data.notes) == 1
+    assert f"shade spans [{lo:g}, {hi:g}]" in data.notes[0] and "mapped linearly" in data.notes[0]
+    assert np.array_equal(data.hit, inside)
+    expected = iv.encode(unit)  # the same image in [0, 1]: what ao4d itself would show
+    assert np.array_equal(data.scalars, expected.scalars)
+    state = {"az": 20, "el": 10, "lo": 0.1, "hi": 0.9}
+    picture = iv.reference_march(data, state, 48, 40)
+    assert np.array_equal(picture, iv.reference_march(expected, state, 48, 40))
+    alpha = picture[..., 3]
+    assert alpha.max() > 0.9 and 0.05 < (alpha > 0.5).mean() < 0.6  # drawn, and not a solid box
+    colour = picture[..., 0][alpha > 0.5] / alpha[alpha > 0.5]
+    assert colour.max() - colour.min() > 0.3  # the values vary on the picture (not saturated)
+    with pytest.warns(iv.ImageRangeWarning, match=r"shown mapped linearly"):
+        text = iv.image_page_text(path)
+    info = iv.page_info(text)
+    assert info["ranges"]["shade"] == [lo, hi] and info["notes"] == list(data.notes)
+    assert info["arrays"] == ["shade"] and info["hits"] == int(inside.sum())
+    assert cli.main(["view", str(path), "--out", str(tmp_path / "ct.html")]) == 0
+    assert "ao4d view: note: `image` ct: shade spans" in capsys.readouterr().err
+
+
+def test_unreadable_or_truncated_vti_is_named_so(sphere_image, tmp_path, capsys):
+    whole = sphere_image.save(tmp_path / "s.vti").read_bytes()
+    for name, data in [("half.vti", whole[: len(whole) // 2]), ("cut.vti", whole[:-40]),
+                       ("head.vti", whole[:300]), ("empty.vti", b""), ("text.vti", b"not VTK " * 9)]:
+        path = tmp_path / name
+        path.write_bytes(data)
+        with pytest.raises(ValueError, match=rf"`image` '.*{name}' is unreadable or truncated"):
+            iv.load_image(path)
+        assert cli.main(["view", str(path), "--out", str(tmp_path / "p.html")]) == 2
+        err = capsys.readouterr().err
+        assert "unreadable or truncated" in err and "has no 'shade' array" not in err
 
 
 # --------------------------------------------------------------------------- in the browser

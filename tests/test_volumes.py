@@ -127,6 +127,16 @@ def test_read_mhd_errors(tmp_path):
         io.read_vti(io.write_vti(tmp_path / "a.vti", _ramp()), array="nope")
 
 
+def test_truncated_vti_is_named_unreadable(tmp_path):
+    # VTK reads a cut-short file as an empty grid, with no error
+    whole = io.write_vti(tmp_path / "a.vti", {"a": _ramp(), "b": _ramp()}).read_bytes()
+    for cut in (len(whole) // 2, len(whole) - 60, 200, 0):  # (the last 27 bytes close the XML)
+        (tmp_path / "t.vti").write_bytes(whole[:cut])
+        with pytest.raises(ValueError, match=r"`path` '.*t.vti' is unreadable or truncated as VTK "
+                                             r"ImageData \(.vti\)"):
+            io.read_vti(tmp_path / "t.vti")
+
+
 
 
 def _vtk_read_arrays(path):

@@ -21,6 +21,17 @@ EXAMPLES = """  ao4d view scene.npz --out scene.html              open scene.htm
 """
 
 
+def _port(text: str) -> int:
+    """``--port``'s value: a TCP port, 0..65535 (0: any free one)."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"must be an integer in 0..65535 (0: any free one), got {text!r}")
+    return port
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..viewer import ANGLES
 
@@ -31,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the page to write (default: view.html; not with --serve)")
     parser.add_argument("--serve", action="store_true",
                         help="serve the page on 127.0.0.1 instead of writing it (any size); Ctrl-C stops")
-    parser.add_argument("--port", type=int, default=0,
+    parser.add_argument("--port", type=_port, default=0,
                         help="port for --serve (default: any free one; the URL is printed)")
     parser.add_argument("--open", action="store_true", help="open the page in the default browser")
     parser.add_argument("--names", nargs="+", metavar="NAME", help="one label per mesh")
@@ -56,8 +67,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run_image(args: argparse.Namespace) -> int:
+    import warnings
+
     from .._atomic import check_output_file
-    from ..image_viewer import full_state, image_page_text
+    from ..image_viewer import ImageRangeWarning, full_state, image_page_text, load_image, view_image
 
     if len(args.meshes) != 1:
         raise ValueError(f"`FILE`: one image (.vti or .mhd) per page, got {len(args.meshes)} files")
@@ -68,22 +81,31 @@ def _run_image(args: argparse.Namespace) -> int:
     image = args.meshes[0]
     if not image.is_file():
         raise FileNotFoundError(f"`FILE`: no such image file: {image}")
-    if args.serve:
-        if args.out is not None:
-            raise ValueError("`--out` and `--serve` exclude each other: --serve writes no file")
-        from ..viewer import ViewServer
+    if args.serve and args.out is not None:
+        raise ValueError("`--out` and `--serve` exclude each other: --serve writes no file")
+    out = None
+    if not args.serve:
+        if not args.max_mb > 0:
+            raise ValueError(f"`--max-mb` must be > 0, got {args.max_mb}")
+        out = check_output_file(args.out if args.out is not None else Path("view.html"), "--out",
+                                (".html", ".htm"))
+    data = load_image(image)
+    if args.array is not None and args.array not in data.arrays:
+        raise ValueError(f"`--array` {args.array!r}: {image} holds only "
+                         f"{', '.join(map(repr, data.arrays))}"
+                         + (" (a .mhd file holds shade alone)" if image.suffix.lower() == ".mhd" else ""))
+    for note in data.notes:
+        print(f"ao4d view: note: {note}", file=sys.stderr)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ImageRangeWarning)  # the notes are printed above
+        if args.serve:
+            from ..viewer import ViewServer
 
-        text = image_page_text(image, state=state, title=args.title, compress=not args.no_compress)
-        server = ViewServer(text.encode("utf-8"), [], "127.0.0.1", args.port)
-        return _serve_until_stopped(server, f"{image}", args.open)
-    if not args.max_mb > 0:
-        raise ValueError(f"`--max-mb` must be > 0, got {args.max_mb}")
-    out = check_output_file(args.out if args.out is not None else Path("view.html"), "--out",
-                            (".html", ".htm"))
-    from ..image_viewer import view_image
-
-    path = view_image(image, out, state=state, title=args.title, compress=not args.no_compress,
-                      max_bytes=int(args.max_mb * 1e6))
+            text = image_page_text(data, state=state, title=args.title, compress=not args.no_compress)
+            server = ViewServer(text.encode("utf-8"), [], "127.0.0.1", args.port)
+            return _serve_until_stopped(server, f"{image}", args.open)
+        path = view_image(data, out, state=state, title=args.title, compress=not args.no_compress,
+                          max_bytes=int(args.max_mb * 1e6))
     print(f"ao4d view: wrote {path} ({path.stat().st_size / 1e6:.1f} MB); open it in a browser "
           f"(file://{path.resolve()})")
     if args.open:
