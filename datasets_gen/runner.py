@@ -472,7 +472,13 @@ def run(
     Raises
     ------
     FileExistsError
-        ``out`` holds something else (another config or seed, or unrelated files).
+        ``out`` holds something else (another config or seed, or unrelated files), or another
+        run wrote its own ``run.json`` there while this one ran.
+    ValueError
+        Before any work: a malformed URL, a damaged ``run.json``, ``workers > 1`` into a
+        filesystem that lives in this process (``memory://``), an ``AO4D_DEVICE`` that names
+        no working device (:class:`ao4d.cl.DeviceSelectionError`). After the items: the index
+        cannot be written (a full disk; the message names the file, the items are kept).
     """
     from ao4d._validate import check_positive_int
 
@@ -891,13 +897,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("the following arguments are required: --out")
     try:
         cfg = load_config(args.config)
-        if args.out is not None and open_store(args.out).process_local:
-            raise ValueError(f"`--out` {args.out!r} is a filesystem inside this process: "
-                             "everything written there is gone when the command exits; give a "
-                             "folder or a URL that outlives it (file://, s3://, ...)")
         if args.list:
             print(f"{cfg.name} ({cfg.source}): {len(cfg.items())} items\n{describe(cfg)}")
             return 0
+        if open_store(args.out).process_local:
+            raise ValueError(f"`--out` {args.out!r} is a filesystem inside this process: "
+                             "everything written there is gone when the command exits; give a "
+                             "folder or a URL that outlives it (file://, s3://, ...)")
         if args.no_progress:
             from ao4d import _progress
 

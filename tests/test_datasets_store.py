@@ -308,7 +308,7 @@ def test_a_run_taken_over_while_running_writes_no_index(config, tmp_path, monkey
     assert not (out / "manifest.json").exists()
 
 
-def test_impossible_device_is_refused_before_any_work(config, tmp_path, monkeypatch):
+def test_impossible_device_is_refused_before_any_work(config, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("AO4D_DEVICE", "nonsense-device-xyz")
     out = tmp_path / "run"
     from ao4d.cl import DeviceSelectionError
@@ -316,3 +316,6 @@ def test_impossible_device_is_refused_before_any_work(config, tmp_path, monkeypa
     with pytest.raises(DeviceSelectionError, match="AO4D_DEVICE='nonsense-device-xyz'"):
         run(config, out, progress=False)
     assert not out.exists()  # no folder, no items left behind
+    assert runner_mod.main([str(config), "--out", str(out), "--workers", "2", "--no-progress"]) == 2
+    assert "error: AO4D_DEVICE='nonsense-device-xyz'" in capsys.readouterr().err
+    assert not out.exists()
