@@ -319,3 +319,12 @@ def test_impossible_device_is_refused_before_any_work(config, tmp_path, monkeypa
     assert runner_mod.main([str(config), "--out", str(out), "--workers", "2", "--no-progress"]) == 2
     assert "error: AO4D_DEVICE='nonsense-device-xyz'" in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("kind", ["folder", "file-url", "memory"])
+def test_create_bytes_writes_only_a_new_file(kind, tmp_path):
+    store = {"folder": lambda: LocalStore(tmp_path / "s"), "file-url": lambda: open_store(f"file://{tmp_path / 's'}"),
+             "memory": lambda: open_store(_memory_url())}[kind]()
+    assert store.create_bytes("a/run.json", b"first") is True
+    assert store.create_bytes("a/run.json", b"second") is False
+    assert store.read_bytes("a/run.json") == b"first" and store.files("a") == ["run.json"]
