@@ -1,0 +1,325 @@
+"""Learning samples of one item: labelled points, surface points, and the item's normalisation.
+
+``samples = { uniform = 16384, near_surface = 16384, sigmas = [0.01, 0.05], surface = 16384 }``
+in a configuration's ``[defaults]`` or a ``[[family]]`` makes each item's ``samples.npz``:
+
+``points`` (N, 4) float32
+    ``uniform`` points uniform in the item's box (``record["samples"]["box"]``: the grid's
+    bounds for implicit families, the mesh's bounds grown by 5 % of their width per side for
+    lifted ones), then for each sigma in order ``near_surface`` points: surface points plus
+    Gaussian offsets of standard deviation ``sigma`` times the box's diagonal. So
+    ``N = uniform + near_surface * len(sigmas)``.
+``occupancy`` (N,) bool
+    True inside the solid.
+``sdf`` (N,) float32
+    Signed distance, negative inside; ``sdf < 0`` exactly where ``occupancy``.
+``surface_points``, ``surface_normals`` (M, 4) float32, ``surface_ao`` (M,) float32
+    Points uniform by 3-volume on the mesh (a simplex with probability proportional to its
+    3-volume, then a uniform point in it), the simplex's outward unit normal, and the
+    occlusion interpolated there (per vertex: barycentric; per simplex: the simplex's value),
+    ``surface_ao`` only when the item has AO.
+
+Label provenance (``record["samples"]["labels"]``): ``occupancy`` is ``"field"`` (the sign of
+the family's field, the solid's own definition) for implicit families and ``"mesh"`` (the
+first hit of three rays, inside where it leaves through the outward mesh, by majority) for
+lifted ones; ``sdf`` is ``"exact"`` for kinds whose field is a closed-form signed distance
+(:data:`EXACT_SDF_KINDS`: the value of the rotated field) and otherwise ``"mesh"``: the exact
+distance to the mesh's simplices, signed by ``occupancy``. Labels are computed at the float32
+points that are stored. Everything is drawn from the item's own generator, so the same seed
+gives the same bytes.
+
+``record["normalization"] = {"loc": [...], "scale": s}`` maps the item into the unit ball:
+``(x - loc) / scale``, ``loc`` the centre of the mesh's bounding box and ``scale`` the largest
+distance of a vertex from it.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+import math
+from typing import Any
+
+import numpy as np
+
+__all__ = ["SAMPLE_KEYS", "DEFAULT_SAMPLES", "EXACT_SDF_KINDS", "check_samples", "normalization",
+           "sample_box", "surface_samples", "mesh_distance", "mesh_occupancy", "make_samples",
+           "SAMPLE_ARRAYS"]
+
+DEFAULT_SAMPLES: dict[str, Any] = {"uniform": 16384, "near_surface": 16384, "sigmas": [0.01, 0.05],
+                                   "surface": 16384}
+SAMPLE_KEYS = frozenset(DEFAULT_SAMPLES)
+#: the arrays a samples.npz may hold
+SAMPLE_ARRAYS = ("points", "occupancy", "sdf", "surface_points", "surface_normals", "surface_ao")
+#: family kinds whose field is an exact signed distance (a rotation keeps it one)
+EXACT_SDF_KINDS = frozenset({"hypersphere", "spheritorus", "torisphere", "ditorus", "tiger",
+                             "duocylinder", "tesseract"})
+_MAX_COUNT = 1 << 24
+_BOX_GROWTH = 0.05  # lifted items: the mesh's bounds grown by this fraction of the width per side
+
+
+def check_samples(value: Any) -> dict[str, Any] | bool:
+    """The validated ``samples`` setting: ``False`` (none), or the four keys with defaults filled.
+
+    ``True`` means the defaults. Raises ``ValueError`` naming the bad key (the configuration
+    reader adds the file and table).
+    """
+    if value is False:
+        return False
+    if value is True:
+        return copy.deepcopy(DEFAULT_SAMPLES)
+    if not isinstance(value, dict):
+        raise ValueError(f"`samples` must be a table (or true/false), got {value!r}")
+    unknown = sorted(set(value) - SAMPLE_KEYS)
+    if unknown:
+        raise ValueError(f"`samples`: unknown key(s) {', '.join(map(repr, unknown))}; allowed: "
+                         f"{', '.join(sorted(SAMPLE_KEYS))}")
+    out = {**copy.deepcopy(DEFAULT_SAMPLES), **copy.deepcopy(value)}
+    for key in ("uniform", "near_surface", "surface"):
+        n = out[key]
+        if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= _MAX_COUNT:
+            raise ValueError(f"`samples.{key}` must be an integer in [0, {_MAX_COUNT}], got {n!r}")
+    sigmas = out["sigmas"]
+    if not isinstance(sigmas, list) or not all(
+            isinstance(s, (int, float)) and not isinstance(s, bool) for s in sigmas):
+        raise ValueError(f"`samples.sigmas` must be a list of numbers, got {sigmas!r}")
+    bad = [s for s in sigmas if not (math.isfinite(s) and s > 0)]
+    if bad:
+        raise ValueError(f"`samples.sigmas` must all be finite and > 0, got {bad}")
+    if out["near_surface"] and not sigmas:
+        raise ValueError("`samples.near_surface` > 0 needs at least one sigma in `samples.sigmas`")
+    out["sigmas"] = [float(s) for s in sigmas]
+    if out["uniform"] + out["near_surface"] * len(sigmas) + out["surface"] == 0:
+        raise ValueError("`samples` asks for no points at all (every count is 0); use samples = false")
+    return out
+
+
+def normalization(mesh: Any) -> dict[str, Any]:
+    """``{"loc": centre of the mesh's bounding box, "scale": largest vertex distance from it}``."""
+    lo, hi = mesh.bounds
+    loc = (np.asarray(lo, float) + np.asarray(hi, float)) / 2
+    scale = float(np.max(np.linalg.norm(mesh.vertices - loc, axis=1)))
+    return {"loc": loc.tolist(), "scale": scale if scale > 0 else 1.0}
+
+
+def sample_box(shape: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The box uniform points fill: the item's grid bounds, or the mesh's bounds grown 5 %."""
+    if shape.grid:
+        lo, hi = (np.asarray(b, float) for b in shape.grid["bounds"])
+        return lo, hi
+    lo, hi = (np.asarray(b, float) for b in shape.mesh.bounds)
+    grow = _BOX_GROWTH * (hi - lo)
+    return lo - grow, hi + grow
+
+
+def surface_samples(mesh: Any, count: int, rng: np.random.Generator
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``count`` points uniform by 3-volume on ``mesh``.
+
+    Returns
+    -------
+    points (count, 4) float64, normals (count, 4) outward unit, simplex (count,) int64,
+    barycentric (count, 4) float64
+    """
+    measures = mesh.simplex_measures
+    total = float(measures.sum())
+    if not total > 0:
+        raise ValueError("the mesh has no 3-volume to sample surface points on")
+    cdf = np.cumsum(measures) / total
+    simplex = np.minimum(np.searchsorted(cdf, rng.random(count), side="right"), len(cdf) - 1)
+    # uniform in a simplex: barycentric weights Dirichlet(1, 1, 1, 1) (normalised exponentials)
+    bary = -np.log1p(-rng.random((count, 4)))
+    bary /= bary.sum(axis=1, keepdims=True)
+    corners = mesh.vertices[mesh.simplices[simplex]]  # (count, 4, 4)
+    points = np.einsum("nk,nkd->nd", bary, corners)
+    return points, mesh.simplex_normals[simplex], simplex.astype(np.int64), bary
+
+
+# --------------------------------------------------------------------------- mesh labels
+
+# every non-empty face of a tetrahedron, as vertex subsets (4 vertices, 6 edges, 4 triangles, 1)
+_FACES = [list(c) for k in range(1, 5) for c in itertools.combinations(range(4), k)]
+
+
+def _simplex_distance(p: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Exact Euclidean distance from points ``p`` (K, d) to tetrahedra ``corners`` (K, 4, d).
+
+    The closest point lies in the relative interior of one face, where the projection onto that
+    face's affine hull has non-negative barycentric weights; every such projection is a point of
+    the tetrahedron, so the least distance over the valid projections is the distance.
+    """
+    best = np.full(len(p), np.inf)
+    for face in _FACES:
+        a0 = corners[:, face[0]]
+        r = p - a0
+        if len(face) == 1:
+            best = np.minimum(best, np.einsum("kd,kd->k", r, r))
+            continue
+        e = corners[:, face[1:]] - a0[:, None, :]  # (K, m, d)
+        gram = np.einsum("kmd,knd->kmn", e, e)
+        rhs = np.einsum("kmd,kd->km", e, r)
+        det = np.linalg.det(gram)
+        ok = np.abs(det) > 1e-18 * np.einsum("kmm->k", gram) ** (len(face) - 1)
+        lam = np.zeros_like(rhs)
+        if ok.any():
+            lam[ok] = np.linalg.solve(gram[ok], rhs[ok][..., None])[..., 0]
+        ok &= (lam >= 0).all(axis=1) & (lam.sum(axis=1) <= 1)
+        diff = r - np.einsum("km,kmd->kd", lam, e)
+        d2 = np.einsum("kd,kd->k", diff, diff)
+        best = np.where(ok, np.minimum(best, d2), best)
+    return np.sqrt(best)
+
+
+def mesh_distance(mesh: Any, points: np.ndarray, *, pairs_per_step: int = 1 << 18) -> np.ndarray:
+    """Exact distance from each point to the mesh (the nearest simplex), float64.
+
+    Candidates come from a k-d tree of simplex centroids: with ``u`` the distance to the nearest
+    of a few candidates and ``rho`` the largest centroid-to-corner radius, only simplices whose
+    centroid lies within ``u + rho`` can be nearer, and those are all tested.
+    """
+    from scipy.spatial import cKDTree
+
+    points = np.asarray(points, np.float64)
+    corners = mesh.vertices[mesh.simplices]  # (S, 4, 4)
+    centroids = corners.mean(axis=1)
+    radii = np.max(np.linalg.norm(corners - centroids[:, None, :], axis=2), axis=1)
+    rho = float(radii.max())
+    tree = cKDTree(centroids)
+    k = min(8, len(centroids))
+    _, near = tree.query(points, k=k)
+    near = near.reshape(len(points), k)
+    upper = _simplex_distance(np.repeat(points, k, axis=0), corners[near.ravel()]).reshape(-1, k).min(axis=1)
+    out = upper.copy()
+    # all simplices whose bounding ball may come nearer than the best so far, in bounded steps
+    order = np.argsort(upper, kind="stable")
+    start = 0
+    while start < len(order):
+        rows, pairs = [], 0
+        while start < len(order) and (pairs < pairs_per_step or not rows):
+            i = order[start]
+            cand = tree.query_ball_point(points[i], upper[i] + rho)
+            rows.append((i, cand))
+            pairs += len(cand)
+            start += 1
+        idx = np.concatenate([np.full(len(c), i) for i, c in rows]).astype(np.int64)
+        sim = np.concatenate([np.asarray(c, np.int64) for _, c in rows])
+        # each simplex lies in its ball: farther than the best so far cannot come nearer
+        gap = np.linalg.norm(points[idx] - centroids[sim], axis=1) - radii[sim]
+        keep = gap <= upper[idx]
+        idx, sim = idx[keep], sim[keep]
+        if len(sim):
+            d = _simplex_distance(points[idx], corners[sim])
+            np.minimum.at(out, idx, d)
+    return out
+
+
+def mesh_occupancy(mesh: Any, points: np.ndarray, rng: np.random.Generator, backend: str) -> np.ndarray:
+    """Inside test against a closed outward-oriented mesh: three rays per point in random
+    directions; a ray that first leaves through a simplex (its outward normal along the ray)
+    votes inside; the majority decides."""
+    from ao4d.raycast import cast_rays
+
+    points = np.asarray(points, np.float64)
+    votes = np.zeros(len(points), np.int64)
+    if not len(points):
+        return votes.astype(bool)
+    for _ in range(3):
+        w = rng.standard_normal(4)
+        w /= np.linalg.norm(w)
+        dirs = np.broadcast_to(w, points.shape)
+        hits = cast_rays(mesh, points, dirs, backend=backend, progress=False)
+        hit = hits.simplex >= 0
+        leaving = np.zeros(len(points), bool)
+        leaving[hit] = mesh.simplex_normals[hits.simplex[hit]] @ w > 0
+        votes += leaving
+    return votes >= 2
+
+
+def _labels(shape: Any, kind: str, points: np.ndarray, rng: np.random.Generator, backend: str,
+            *, sdf: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """Occupancy (bool) and signed distance (float32, negative exactly where occupied; ``None``
+    when ``sdf`` is false)."""
+    if shape.field is not None:
+        value = np.asarray(shape.field(points), np.float64)
+        occupancy = value < 0
+        signed = value if kind in EXACT_SDF_KINDS else None
+    else:
+        occupancy = mesh_occupancy(shape.mesh, points, rng, backend)
+        signed = None
+    if not sdf:
+        return occupancy, None
+    if signed is None:
+        signed = np.where(occupancy, -1.0, 1.0) * mesh_distance(shape.mesh, points)
+    sdf32 = signed.astype(np.float32)
+    tiny = np.float32(np.finfo(np.float32).smallest_subnormal)
+    sdf32[occupancy & ~(sdf32 < 0)] = -tiny  # a rounding to -0.0 or a point on the mesh
+    sdf32[~occupancy & (sdf32 < 0)] = 0.0
+    return occupancy, sdf32
+
+
+def labels_provenance(shape: Any, kind: str) -> dict[str, str]:
+    """Per label: ``"exact"`` (closed-form signed distance), ``"field"`` (the family field's
+    sign), or ``"mesh"`` (computed from the extracted mesh)."""
+    implicit = shape.field is not None
+    return {"occupancy": "field" if implicit else "mesh",
+            "sdf": "exact" if implicit and kind in EXACT_SDF_KINDS else "mesh",
+            "surface_points": "mesh", "surface_normals": "mesh", "surface_ao": "mesh"}
+
+
+def make_samples(shape: Any, kind: str, settings: dict[str, Any], rng: np.random.Generator, *,
+                 occlusion: np.ndarray | None = None, ao_at: str = "vertices",
+                 backend: str = "auto") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The arrays of ``samples.npz`` and the record's ``samples`` entry for one item.
+
+    Parameters
+    ----------
+    shape : datasets_gen.families.Shape
+    kind : str
+        The family kind (decides whether the field is an exact signed distance).
+    settings : dict
+        The validated ``samples`` setting (:func:`check_samples`).
+    rng : numpy.random.Generator
+        The item's samples generator (the only source of randomness here).
+    occlusion : array, optional
+        The item's AO (per vertex or per simplex, ``ao_at``); gives ``surface_ao``.
+    backend : str
+        Ray-casting backend for the mesh inside test of lifted items.
+    """
+    mesh = shape.mesh
+    lo, hi = sample_box(shape)
+    diagonal = float(np.linalg.norm(hi - lo))
+    parts = [lo + (hi - lo) * rng.random((settings["uniform"], 4))]
+    rows = {"uniform": [0, settings["uniform"]]}
+    start = settings["uniform"]
+    for sigma in settings["sigmas"]:
+        n = settings["near_surface"]
+        base, _, _, _ = surface_samples(mesh, n, rng)
+        parts.append(base + rng.normal(0.0, sigma * diagonal, size=(n, 4)))
+        rows[f"sigma={sigma!r}"] = [start, start + n]
+        start += n
+    points = np.concatenate(parts).astype(np.float32)
+    occupancy, sdf = _labels(shape, kind, points.astype(np.float64), rng, backend)
+    arrays: dict[str, np.ndarray] = {"points": points, "occupancy": occupancy, "sdf": sdf}
+    surface, normals, simplex, bary = surface_samples(mesh, settings["surface"], rng)
+    arrays["surface_points"] = surface.astype(np.float32)
+    arrays["surface_normals"] = normals.astype(np.float32)
+    if occlusion is not None:
+        occ = np.asarray(occlusion, np.float64)
+        if ao_at == "vertices":
+            ao = np.einsum("nk,nk->n", bary, occ[mesh.simplices[simplex]])
+        else:
+            ao = occ[simplex]
+        arrays["surface_ao"] = ao.astype(np.float32)
+    provenance = labels_provenance(shape, kind)
+    if occlusion is None:
+        del provenance["surface_ao"]
+    n_uniform = settings["uniform"]
+    record = {
+        **settings,
+        "box": [lo.tolist(), hi.tolist()],
+        "offset_scale": diagonal,
+        "rows": rows,
+        "labels": provenance,
+        "inside_fraction_uniform": float(occupancy[:n_uniform].mean()) if n_uniform else None,
+    }
+    return arrays, record
