@@ -141,6 +141,37 @@ def surface_samples(mesh: Any, count: int, rng: np.random.Generator
 _FACES = [list(c) for k in range(1, 5) for c in itertools.combinations(range(4), k)]
 
 
+def _solve_small(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched ``gram @ x = rhs`` for (K, m, m) Gram matrices, m <= 3, by Cramer's rule
+    (elementwise arithmetic: far faster than a LAPACK call per tiny system); also returns
+    which systems are well conditioned (determinant not negligible against the diagonal)."""
+    m = gram.shape[1]
+    g = [[gram[:, i, j] for j in range(m)] for i in range(m)]
+    r = [rhs[:, i] for i in range(m)]
+    if m == 1:
+        det = g[0][0]
+        x = [r[0]]
+    elif m == 2:
+        det = g[0][0] * g[1][1] - g[0][1] * g[1][0]
+        x = [r[0] * g[1][1] - g[0][1] * r[1], g[0][0] * r[1] - r[0] * g[1][0]]
+    else:
+        c00 = g[1][1] * g[2][2] - g[1][2] * g[2][1]
+        c01 = g[1][2] * g[2][0] - g[1][0] * g[2][2]
+        c02 = g[1][0] * g[2][1] - g[1][1] * g[2][0]
+        det = g[0][0] * c00 + g[0][1] * c01 + g[0][2] * c02
+        # the inverse of a symmetric matrix is its cofactor matrix over the determinant
+        c11 = g[0][0] * g[2][2] - g[0][2] * g[2][0]
+        c12 = g[0][1] * g[2][0] - g[0][0] * g[2][1]
+        c22 = g[0][0] * g[1][1] - g[0][1] * g[1][0]
+        x = [c00 * r[0] + c01 * r[1] + c02 * r[2],
+             c01 * r[0] + c11 * r[1] + c12 * r[2],
+             c02 * r[0] + c12 * r[1] + c22 * r[2]]
+    trace = sum(g[i][i] for i in range(m))
+    ok = np.abs(det) > 1e-18 * trace**m
+    safe = np.where(ok, det, 1.0)
+    return np.stack([xi / safe for xi in x], axis=1), ok
+
+
 def _simplex_distance(p: np.ndarray, corners: np.ndarray) -> np.ndarray:
     """Exact Euclidean distance from points ``p`` (K, d) to tetrahedra ``corners`` (K, 4, d).
 
@@ -158,11 +189,7 @@ def _simplex_distance(p: np.ndarray, corners: np.ndarray) -> np.ndarray:
         e = corners[:, face[1:]] - a0[:, None, :]  # (K, m, d)
         gram = np.einsum("kmd,knd->kmn", e, e)
         rhs = np.einsum("kmd,kd->km", e, r)
-        det = np.linalg.det(gram)
-        ok = np.abs(det) > 1e-18 * np.einsum("kmm->k", gram) ** (len(face) - 1)
-        lam = np.zeros_like(rhs)
-        if ok.any():
-            lam[ok] = np.linalg.solve(gram[ok], rhs[ok][..., None])[..., 0]
+        lam, ok = _solve_small(gram, rhs)
         ok &= (lam >= 0).all(axis=1) & (lam.sum(axis=1) <= 1)
         diff = r - np.einsum("km,kmd->kd", lam, e)
         d2 = np.einsum("kd,kd->k", diff, diff)
