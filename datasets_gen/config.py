@@ -4,6 +4,7 @@ A configuration (see ``datasets_gen/configs/*.toml``)::
 
     name = "tori"
     seed = 0                      # default run seed (--seed overrides)
+    split = { train = 0.8, val = 0.1, test = 0.1 }   # optional: datasets_gen.splits
 
     [defaults]                    # settings every family inherits (each may override them)
     grid = 32                     # grid points across the widest axis of the fitted box
@@ -14,6 +15,9 @@ A configuration (see ``datasets_gen/configs/*.toml``)::
     rotation = "random"           # "none" | "random" (uniform in SO(4))
     ao = { samples = 64, max_distance = inf, at = "vertices" }   # or ao = false
     renders = [{ name = "front", shape = [32, 32, 32], samples = 32 }]   # projection, fov
+    samples = { uniform = 16384, near_surface = 16384, sigmas = [0.01, 0.05], surface = 16384 }
+                                  # samples.npz (datasets_gen.samples); default false
+    sequence = { frames = 17, axis = "w" }   # sequence.npz (datasets_gen.sequence); default false
 
     [[family]]
     kind = "spheritorus"          # see datasets_gen.families.KINDS
