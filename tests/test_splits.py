@@ -65,11 +65,18 @@ split = { train = 0.5, val = 0.25, test = 0.25 }
 grid = 6
 padding = 0.2
 ao = false
+samples = { uniform = 60, near_surface = 20, sigmas = [0.05], surface = 20 }
+sequence = { frames = 2 }
 
 [[family]]
 kind = "hypersphere"
-count = 8
+count = 7
 params = { radius = { uniform = [0.5, 0.8] } }
+
+[[family]]
+kind = "lifted"
+count = 1
+params = { shape = "box", op = "prism", size = 0.4 }
 """
 
 
@@ -82,7 +89,8 @@ def _splits(folder):
     return [r["split"] for r in rows]
 
 
-def test_splits_are_in_items_csv_and_records_and_the_same_for_any_worker_count(tmp_path):
+def test_splits_and_samples_are_the_same_for_any_worker_count(tmp_path):
+    # the samples and sequences (field and mesh labels) are byte-identical too: same manifest
     path = tmp_path / "c.toml"
     path.write_text(CONFIG)
     one = run(path, tmp_path / "one", progress=False)
