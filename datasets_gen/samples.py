@@ -197,17 +197,74 @@ def _simplex_distance(p: np.ndarray, corners: np.ndarray) -> np.ndarray:
     return np.sqrt(best)
 
 
+class _Simplices:
+    """Per-simplex values for fast exact point-to-tetrahedron distances (:meth:`distance`).
+
+    Every vector is taken relative to the simplex's first corner (no cancellation between
+    large coordinates): ``E`` (S, 4, d) the corners minus corner 0 (row 0 zero) and the
+    diagonal of their Gram matrix; for each face of two or more corners, the inverse of its
+    edges' Gram matrix, the constant part of its projection's right-hand side, and whether
+    it is well conditioned.
+    """
+
+    def __init__(self, corners: np.ndarray):
+        self.v0 = np.ascontiguousarray(corners[:, 0])
+        self.E = corners - corners[:, :1]
+        W = np.einsum("sid,sjd->sij", self.E, self.E)
+        self.diag = np.ascontiguousarray(np.einsum("sii->si", W))
+        self.faces = []
+        for face in _FACES[4:]:
+            i0, rest = face[0], list(face[1:])
+            m = len(rest)
+            gram = np.empty((len(W), m, m))
+            for a_, ia in enumerate(rest):
+                for b_, ib in enumerate(rest):
+                    gram[:, a_, b_] = W[:, ia, ib] - W[:, ia, i0] - W[:, i0, ib] + W[:, i0, i0]
+            inverse, ok = _inverse_small(gram)
+            const = np.stack([W[:, i0, i0] - W[:, k, i0] for k in rest], axis=1)
+            self.faces.append((i0, rest, inverse, const, ok))
+
+    def distance(self, p: np.ndarray, sim: np.ndarray) -> np.ndarray:
+        """Exact distances from points ``p`` (K, d) to simplices ``sim`` (K,): the least over
+        the faces whose hull projection lies in the face (see :func:`_simplex_distance`)."""
+        r0 = p - self.v0[sim]
+        P = np.einsum("kid,kd->ki", self.E[sim], r0)  # (K, 4): r0 . E_i
+        # |p - v_i|^2 = |r0|^2 - 2 r0.E_i + E_i.E_i
+        norms = np.einsum("kd,kd->k", r0, r0)[:, None] - 2 * P + self.diag[sim]
+        best = norms.min(axis=1)
+        for i0, rest, inverse, const, ok in self.faces:
+            # rhs_k = (E_k - E_i0) . (r0 - E_i0)
+            rhs = P[:, rest] - P[:, i0:i0 + 1] + const[sim]
+            lam = np.einsum("kab,kb->ka", inverse[sim], rhs)
+            valid = ok[sim] & (lam.min(axis=1) >= 0) & (lam.sum(axis=1) <= 1)
+            # the projection's squared distance: |r|^2 - lam . rhs (lam = G^-1 rhs)
+            d2 = norms[:, i0] - np.einsum("ka,ka->k", lam, rhs)
+            np.minimum(best, d2, out=best, where=valid)
+        return np.sqrt(np.maximum(best, 0.0))
+
+
+def _inverse_small(gram: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverses of (S, m, m) symmetric matrices, m <= 3, by cofactors; and which are well
+    conditioned (see :func:`_solve_small`)."""
+    m = gram.shape[1]
+    eye = np.eye(m)
+    cols = [_solve_small(gram, np.broadcast_to(eye[:, j], (len(gram), m)))[0] for j in range(m)]
+    _, ok = _solve_small(gram, np.zeros((len(gram), m)))
+    return np.stack(cols, axis=2), ok
+
+
 def mesh_distance(mesh: Any, points: np.ndarray, *, pairs_per_step: int = 1 << 18) -> np.ndarray:
     """Exact distance from each point to the mesh (the nearest simplex), float64.
 
     Candidates come from a k-d tree of simplex centroids: with ``u`` the distance to the nearest
-    of a few candidates and ``rho`` the largest centroid-to-corner radius, only simplices whose
-    centroid lies within ``u + rho`` can be nearer, and those are all tested.
+    of a few candidates, only simplices whose bounding ball (centroid, farthest corner) comes
+    within ``u`` can be nearer, and those are all tested.
     """
     from scipy.spatial import cKDTree
 
     points = np.asarray(points, np.float64)
     corners = mesh.vertices[mesh.simplices]  # (S, 4, 4)
+    table = _Simplices(corners)
     centroids = corners.mean(axis=1)
     radii = np.max(np.linalg.norm(corners - centroids[:, None, :], axis=2), axis=1)
     rho = float(radii.max())
@@ -215,28 +272,28 @@ def mesh_distance(mesh: Any, points: np.ndarray, *, pairs_per_step: int = 1 << 1
     k = min(8, len(centroids))
     _, near = tree.query(points, k=k)
     near = near.reshape(len(points), k)
-    upper = _simplex_distance(np.repeat(points, k, axis=0), corners[near.ravel()]).reshape(-1, k).min(axis=1)
+    upper = table.distance(np.repeat(points, k, axis=0), near.ravel()).reshape(-1, k).min(axis=1)
     out = upper.copy()
-    # all simplices whose bounding ball may come nearer than the best so far, in bounded steps
+    # all simplices whose bounding ball may come nearer than the best so far, in bounded
+    # steps of points with similar bounds (sorted), the pairs found by one k-d tree join
     order = np.argsort(upper, kind="stable")
+    step = 64
     start = 0
     while start < len(order):
-        rows, pairs = [], 0
-        while start < len(order) and (pairs < pairs_per_step or not rows):
-            i = order[start]
-            cand = tree.query_ball_point(points[i], upper[i] + rho)
-            rows.append((i, cand))
-            pairs += len(cand)
-            start += 1
-        idx = np.concatenate([np.full(len(c), i) for i, c in rows]).astype(np.int64)
-        sim = np.concatenate([np.asarray(c, np.int64) for _, c in rows])
-        # each simplex lies in its ball: farther than the best so far cannot come nearer
-        gap = np.linalg.norm(points[idx] - centroids[sim], axis=1) - radii[sim]
-        keep = gap <= upper[idx]
+        chunk = order[start:start + step]
+        start += len(chunk)
+        pairs = cKDTree(points[chunk]).sparse_distance_matrix(
+            tree, float(upper[chunk].max()) + rho, output_type="ndarray")
+        if not len(pairs):
+            continue
+        idx, sim = chunk[pairs["i"]], pairs["j"].astype(np.int64)
+        # each simplex lies in its ball: one farther than the best so far cannot come nearer
+        keep = pairs["v"] - radii[sim] <= upper[idx]
         idx, sim = idx[keep], sim[keep]
         if len(sim):
-            d = _simplex_distance(points[idx], corners[sim])
-            np.minimum.at(out, idx, d)
+            np.minimum.at(out, idx, table.distance(points[idx], sim))
+        # keep steps near pairs_per_step pairs
+        step = int(np.clip(step * pairs_per_step / max(1, len(pairs)), 1, 4096))
     return out
 
 
