@@ -837,7 +837,8 @@ def main(argv: list[str] | None = None) -> int:
                "  python -m datasets_gen tori --out data/tori --scheduler local:4\n"
                "  python -m datasets_gen tori --out data/tori --scheduler tcp://head:8786\n"
                "  python -m datasets_gen tori --out s3://bucket/tori --scheduler tcp://head:8786\n"
-               "  python -m datasets_gen my.toml --out data/mine   # rerun to resume",
+               "  python -m datasets_gen my.toml --out data/mine   # rerun to resume\n"
+               "  python -m datasets_gen export data/mine --format webdataset --out shards/",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("config", nargs="?", help="a TOML file or the name of a shipped config")
     parser.add_argument("--out", help="output folder (created; reruns resume), or an fsspec URL "

@@ -132,3 +132,18 @@ def test_fsspec_url_and_frames(dataset):
 def test_not_a_dataset(tmp_path):
     with pytest.raises(DatasetError, match="holds no readable dataset"):
         datasets_gen.load(tmp_path)
+
+
+def test_dataset_labels_against_analytic_volumes(dataset):
+    # every item: the uniform points' inside fraction x the box's 4-volume is the solid's
+    # analytic 4-volume, within 5 binomial standard deviations; sdf < 0 exactly where inside
+    for item in load(dataset):
+        rec = item["record"]
+        n = rec["samples"]["uniform"]
+        lo, hi = (np.array(b) for b in rec["samples"]["box"])
+        box = float(np.prod(hi - lo))
+        p = rec["mesh"]["volume_expected"] / box
+        frac = item["occupancy"][:n].mean()
+        assert abs(frac - p) <= 5 * np.sqrt(p * (1 - p) / n), rec["index"]
+        np.testing.assert_array_equal(item["sdf"] < 0, item["occupancy"])
+        assert set(rec["samples"]["labels"]) >= {"occupancy", "sdf", "surface_points"}
