@@ -169,3 +169,14 @@ def test_bad_samples_settings_are_clear_config_errors(samples, message):
 
 def test_samples_true_means_the_defaults():
     assert check_samples(True)["uniform"] == 16384 and check_samples(False) is False
+
+
+def test_the_shipped_training_config_asks_for_exact_labels():
+    from datasets_gen import load_config
+    from datasets_gen.samples import EXACT_SDF_KINDS
+
+    cfg = load_config("training")
+    assert cfg.split == {"train": 0.8, "val": 0.1, "test": 0.1}
+    for fam in cfg.families:
+        assert fam.kind in EXACT_SDF_KINDS and fam.settings["samples"]["uniform"] == 16384
+        assert fam.settings["sequence"] == {"frames": 17, "axis": "w"}
