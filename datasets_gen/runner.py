@@ -6,6 +6,8 @@ Layout of an output folder::
     items/00000/mesh.npz      the closed 4D mesh (ao4d.mesh_files npz layout: SimplexMesh.load reads it)
     items/00000/ao.npz        occlusion per vertex (or per simplex), float64
     items/00000/<render>.png  optional renders (z-slice montage of the shaded 3D image)
+    items/00000/samples.npz   optional learning samples (datasets_gen.samples)
+    items/00000/sequence.npz  optional 3D frames along an axis (datasets_gen.sequence)
     items/00000/record.json   parameters, seeds, versions, mesh check, measures, file hashes
     items/00000/timing.json   wall-clock seconds per stage        (not hashed)
     items.csv                 one line per item
@@ -112,7 +114,7 @@ class RunSummary:
         total = grouped.pop("total", sum(grouped.values()))
         if not self.made or total <= 0:
             return ""
-        order = ["build", "check", "bvh", "ao", "render_*", "picture_*", "write"]
+        order = ["build", "check", "bvh", "ao", "render_*", "picture_*", "samples", "sequence", "write"]
         names = [n for n in order if n in grouped] + sorted(set(grouped) - set(order))
         other = total - sum(grouped.values())
         rows = [(n, grouped[n]) for n in names] + ([("other", other)] if other > 0.005 * total else [])
@@ -220,8 +222,9 @@ def make_item(job: _Job) -> dict[str, Any]:
     ``timing.json`` holds the wall-clock seconds of each stage: ``build`` (field, grid and
     extraction, or the lifted solid), ``check`` (mesh check, volume, measure), ``bvh`` (the
     tree the AO rays and the renders trace), ``ao``, ``render_<name>`` (primary rays, AO at
-    hits, shading) and ``picture_<name>`` (the PNG) per render, ``write`` (every file and hash),
-    and ``total``.
+    hits, shading) and ``picture_<name>`` (the PNG) per render, ``samples`` and ``sequence``
+    (the labelled points and the frames, when the config asks), ``write`` (every file and
+    hash), and ``total``.
     """
     from .families import build_shape, random_rotation
     from .samples import normalization
@@ -233,7 +236,7 @@ def make_item(job: _Job) -> dict[str, Any]:
         if stale.is_file():
             stale.unlink()
     settings = spec.family.settings
-    # spawn(5)'s first three children are spawn(3)'s: adding samples kept every older item's bytes
+    # spawn(5)'s first three children are spawn(3)'s: samples left the meshes, AO and renders as they were
     params_ss, rotation_ss, ao_ss, samples_ss, sequence_ss = item_seed(job.seed, spec.index).spawn(5)
     rng = np.random.default_rng(params_ss)
     params = sample_params(spec.family.params, rng)
