@@ -187,13 +187,19 @@ class Dataset:
 
     def frames(self, i: int) -> list[Any]:
         """The frames of item ``ds[i]``'s ``sequence.npz`` as ``trimesh.Trimesh`` objects
-        (``metadata["time"]`` in [0, 1]); raises :class:`DatasetError` if it has none."""
+        (``metadata["time"]`` in [0, 1]; with ``normalize``, in the normalised coordinates);
+        raises :class:`DatasetError` if it has none."""
         from .sequence import frames_of
 
         index = self._index(i)
-        if "sequence.npz" not in self.record(i).get("files", {}):
+        record = self.record(i)
+        if "sequence.npz" not in record.get("files", {}):
             raise DatasetError(f"item {index} has no sequence.npz (the config sets no `sequence`)")
-        return frames_of(self._npz(index, "sequence.npz"))
+        arrays = self._npz(index, "sequence.npz")
+        if self.normalize:  # a frame's point y is x = x0 + y @ basis with x0 along the axis
+            loc, scale = np.asarray(record["normalization"]["loc"]), float(record["normalization"]["scale"])
+            arrays["vertices"] = (arrays["vertices"] - arrays["basis"] @ loc) / scale
+        return frames_of(arrays)
 
 
 def normalized(item: dict[str, Any]) -> dict[str, Any]:

@@ -121,12 +121,30 @@ def test_loads_in_a_process_pool_and_pickles(dataset):
         assert list(pool.map(_points_sum, [(ds, i) for i in range(len(ds))])) == want
 
 
+def test_frames_of_an_item_without_a_sequence(tmp_path, dataset):
+    import json
+    import shutil
+
+    copy = shutil.copytree(dataset, tmp_path / "copy")
+    path = copy / "items/00000/record.json"
+    rec = json.loads(path.read_text())
+    del rec["files"]["sequence.npz"]
+    path.write_text(json.dumps(rec))
+    with pytest.raises(DatasetError, match="item 0 has no sequence.npz"):
+        load(copy).frames(0)
+
+
 def test_fsspec_url_and_frames(dataset):
     ds = load(f"file://{dataset}")
     np.testing.assert_array_equal(ds[3]["sdf"], load(dataset)[3]["sdf"])
     frames = ds.frames(0)
     assert len(frames) == 3 and all(0 <= f.metadata["time"] <= 1 for f in frames)
     assert "ao" in frames[0].vertex_attributes
+    # normalised frames: the slice of the normalised item (axis w: frame coordinates are x, y, z)
+    rec = ds.record(0)
+    loc, scale = np.array(rec["normalization"]["loc"]), rec["normalization"]["scale"]
+    for raw, norm in zip(frames, load(dataset, normalize=True).frames(0)):
+        np.testing.assert_allclose(norm.vertices, (raw.vertices - loc[:3]) / scale)
 
 
 def test_not_a_dataset(tmp_path):
@@ -147,3 +165,4 @@ def test_dataset_labels_against_analytic_volumes(dataset):
         assert abs(frac - p) <= 5 * np.sqrt(p * (1 - p) / n), rec["index"]
         np.testing.assert_array_equal(item["sdf"] < 0, item["occupancy"])
         assert set(rec["samples"]["labels"]) >= {"occupancy", "sdf", "surface_points"}
+
