@@ -313,6 +313,6 @@ def parse_size(text: str) -> int:
         value = float(number) * factor
     except ValueError:
         raise ValueError(f"`--shard-size` must be bytes or a size like 1GB, got {text!r}") from None
-    if not value >= 1024 or value != value:
+    if not value >= 1024:  # NaN fails this too
         raise ValueError(f"`--shard-size` must be at least 1024 bytes, got {text!r}")
     return int(value)

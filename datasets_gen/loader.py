@@ -17,6 +17,8 @@ import hashlib
 import io
 import json
 import os
+import zipfile
+import zlib
 from collections.abc import Callable
 from typing import Any
 
@@ -146,7 +148,7 @@ class Dataset:
         try:
             with np.load(io.BytesIO(data), allow_pickle=False) as z:
                 return {k: z[k] for k in z.files}
-        except Exception as exc:  # zipfile.BadZipFile, zlib.error, ValueError, EOFError
+        except (zipfile.BadZipFile, zlib.error, ValueError, EOFError, OSError, KeyError) as exc:
             raise DatasetError(f"item {index}: {name} is damaged: {type(exc).__name__}: {exc}") from None
 
     def record(self, i: int) -> dict:

@@ -12,8 +12,13 @@ from ao4d._npz import npz_bytes
 from datasets_gen import ConfigError
 from datasets_gen.config import _parse
 from datasets_gen.families import build_shape, random_rotation
-from datasets_gen.samples import (_simplex_distance, check_samples, make_samples, mesh_distance,
-                                  normalization)
+from datasets_gen.samples import (
+    _simplex_distance,
+    check_samples,
+    make_samples,
+    mesh_distance,
+    normalization,
+)
 
 SETTINGS = {"grid": 12, "method": "cubes", "padding": 0.15, "bounds": None, "rotation": "random",
             "tetrahedra": "star", "ao": False, "renders": []}
