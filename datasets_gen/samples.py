@@ -31,8 +31,8 @@ gives the same bytes.
 Cost: exact-field labels cost one field evaluation per point. Mesh distances test every
 simplex whose bounding ball comes within the best distance found (a k-d tree of centroids
 finds them): a few per point near the surface, hundreds for a point far from a fine mesh
-(about 400 for uniform points around a 3e4-simplex metaball at grid 24), at about a
-microsecond each, so ``uniform`` points dominate the ``samples`` stage of such items.
+(about 400 for uniform points around a 3e4-simplex metaball at grid 24), at a few
+microseconds each here, so ``uniform`` points dominate the ``samples`` stage of such items.
 
 ``record["normalization"] = {"loc": [...], "scale": s}`` maps the item into the unit ball:
 ``(x - loc) / scale``, ``loc`` the centre of the mesh's bounding box and ``scale`` the largest
