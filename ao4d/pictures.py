@@ -171,22 +171,59 @@ def save_montage(
     origin3 = tuple(as_vector(origin, "origin", 3))
     lo, hi = _value_range(arr, vmin, vmax)
     import matplotlib
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
 
     colormap = matplotlib.colormaps[cmap].with_extremes(bad=(0.33, 0.38, 0.45))
     extent = _xy_extent(arr.shape, spacing3, origin3)
     occupied = (~np.ma.getmaskarray(arr)).any(axis=(0, 1))
-    fig, grid, panels = _montage(occupied, n_slices, columns, extent, origin3[2], spacing3[2],
-                                 colorbar=True)
-    image = None
-    for ax, k in panels:
-        image = ax.imshow(arr[:, :, k].T, origin="lower", cmap=colormap, vmin=lo, vmax=hi,
-                          extent=extent, interpolation="nearest")
-    cax = fig.add_subplot(grid[:, -1])
-    bar = fig.colorbar(image, cax=cax)
+    ks = _slice_indices(occupied, n_slices)
+    columns = min(columns, len(ks))
+    rows = math.ceil(len(ks) / columns)
+    aspect = (extent[3] - extent[2]) / (extent[1] - extent[0])
+    panel = 2.2
+    fig = figure(panel * columns + 1.2, panel * aspect * rows + 0.9)
+    top = 1 - 0.55 / fig.get_figheight()
+    # one image of all panels on one axes (a dozen axes cost most of a montage's time), each
+    # panel titled with its z; same layout, colours and colour bar as a montage of axes
+    norm = Normalize(lo, hi)
+    tiles, gap = _tile([arr[:, :, k].T[::-1] for k in ks], columns, norm, colormap)
+    ax = fig.add_axes((0.04, 0.03, 0.86 - 0.04, top - 0.03))
+    ax.imshow(tiles, interpolation="nearest", aspect=spacing3[1] / spacing3[0])
+    ax.set_axis_off()
+    ny, nx = arr.shape[1], arr.shape[0]
+    for n, k in enumerate(ks):
+        r, c = divmod(n, columns)
+        ax.text(c * (nx + gap) + nx / 2 - 0.5, gap * 3 + r * (ny + gap * 3) - 0.6, f"z = {origin3[2] + spacing3[2] * k:.3g}",
+                fontsize=8, ha="center", va="bottom")
+    cax = fig.add_axes((0.895, 0.03, 0.02, top - 0.03))
+    bar = fig.colorbar(ScalarMappable(norm, colormap), cax=cax)
     bar.set_label(label, fontsize=9)
     bar.ax.tick_params(labelsize=8)
     fig.suptitle(title, fontsize=10)
     return save_figure(fig, path)
+
+
+def _slice_indices(occupied: np.ndarray, n_slices: int) -> np.ndarray:
+    """``n_slices`` z indices evenly through the occupied z range (all of it if none)."""
+    z = np.flatnonzero(occupied)
+    k0, k1 = (z[0], z[-1]) if z.size else (0, len(occupied) - 1)
+    return np.unique(np.linspace(k0, k1, n_slices).round().astype(int))
+
+
+def _tile(panels: list[np.ndarray], columns: int, norm, colormap) -> tuple[np.ndarray, int]:
+    """RGBA image of equal-shaped 2D ``panels`` (rows top first) in rows of ``columns``, with
+    transparent gaps (one pixel in 16, at least 1) between panels and three times that between
+    rows (room for the panel titles); returns (image, gap)."""
+    ny, nx = panels[0].shape
+    gap = max(1, round(max(nx, ny) / 16))
+    rows = math.ceil(len(panels) / columns)
+    out = np.zeros((rows * ny + (rows - 1) * gap * 3 + gap * 3, columns * nx + (columns - 1) * gap, 4))
+    for n, data in enumerate(panels):
+        r, c = divmod(n, columns)
+        y0, x0 = gap * 3 + r * (ny + gap * 3), c * (nx + gap)
+        out[y0:y0 + ny, x0:x0 + nx] = colormap(norm(data))
+    return out, gap
 
 
 def composite(

@@ -5,6 +5,9 @@ configuration (a TOML file or a shipped name: see :func:`shipped_configs`): its 
 ambient occlusion, optional renders and a JSON record, plus a ``manifest.json`` of sha256
 hashes. The same configuration and seed give byte-identical files; an interrupted run resumes.
 
+``datasets_gen.load(DIR)`` reads a dataset back for training (:mod:`datasets_gen.loader`);
+``python -m datasets_gen export DIR --format webdataset|parquet --out OUT`` writes shards.
+
 ``python -m datasets_gen.experiments.<name> --out DIR [--quick]`` regenerates a table (CSV)
 and figure (PNG) of the README.
 
@@ -19,7 +22,8 @@ True
 from __future__ import annotations
 
 from .config import Config, ConfigError, load_config, shipped_configs
+from .loader import Dataset, DatasetError, load
 from .runner import RunSummary, item_seed, run
 
 __all__ = ["run", "RunSummary", "load_config", "shipped_configs", "Config", "ConfigError",
-           "item_seed"]
+           "item_seed", "load", "Dataset", "DatasetError"]

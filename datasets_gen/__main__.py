@@ -1,8 +1,13 @@
-"""``python -m datasets_gen CONFIG --out DIR [--workers N | --scheduler ADDRESS|local:N] [--seed S]``."""
+"""``python -m datasets_gen CONFIG --out DIR [--workers N | --scheduler ADDRESS|local:N] [--seed S]``,
+or ``python -m datasets_gen export DIR --format webdataset|parquet --out OUT`` (shards)."""
 
 import sys
 
-from .runner import main
-
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["export"]:
+        from .export import main as export_main
+
+        sys.exit(export_main(sys.argv[2:]))
+    from .runner import main
+
     sys.exit(main())

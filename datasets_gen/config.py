@@ -4,6 +4,7 @@ A configuration (see ``datasets_gen/configs/*.toml``)::
 
     name = "tori"
     seed = 0                      # default run seed (--seed overrides)
+    split = { train = 0.8, val = 0.1, test = 0.1 }   # optional: datasets_gen.splits
 
     [defaults]                    # settings every family inherits (each may override them)
     grid = 32                     # grid points across the widest axis of the fitted box
@@ -14,6 +15,9 @@ A configuration (see ``datasets_gen/configs/*.toml``)::
     rotation = "random"           # "none" | "random" (uniform in SO(4))
     ao = { samples = 64, max_distance = inf, at = "vertices" }   # or ao = false
     renders = [{ name = "front", shape = [32, 32, 32], samples = 32 }]   # projection, fov
+    samples = { uniform = 16384, near_surface = 16384, sigmas = [0.01, 0.05], surface = 16384 }
+                                  # samples.npz (datasets_gen.samples); default false
+    sequence = { frames = 17, axis = "w" }   # sequence.npz (datasets_gen.sequence); default false
 
     [[family]]
     kind = "spheritorus"          # see datasets_gen.families.KINDS
@@ -40,6 +44,10 @@ from typing import Any
 import numpy as np
 from ao4d.cl import BACKENDS
 
+from .samples import check_samples
+from .sequence import check_sequence
+from .splits import check_split
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python 3.10
@@ -49,8 +57,9 @@ __all__ = ["Config", "Family", "ItemSpec", "load_config", "shipped_configs", "sa
            "ConfigError"]
 
 DISTRIBUTIONS = ("uniform", "loguniform", "normal", "integers", "choice")
-_TOP_KEYS = {"name", "description", "seed", "backend", "defaults", "family"}
-_SETTING_KEYS = {"grid", "method", "padding", "bounds", "rotation", "ao", "renders", "tetrahedra"}
+_TOP_KEYS = {"name", "description", "seed", "backend", "defaults", "family", "split"}
+_SETTING_KEYS = {"grid", "method", "padding", "bounds", "rotation", "ao", "renders", "tetrahedra",
+                 "samples", "sequence"}
 _FAMILY_KEYS = _SETTING_KEYS | {"kind", "count", "params", "name"}
 _AO_KEYS = {"samples", "max_distance", "at"}
 _RENDER_KEYS = {"name", "shape", "samples", "projection", "fov"}
@@ -63,6 +72,8 @@ DEFAULTS: dict[str, Any] = {
     "ao": {"samples": 64, "max_distance": math.inf, "at": "vertices"},
     "renders": [],
     "tetrahedra": "star",
+    "samples": False,
+    "sequence": False,
 }
 
 
@@ -104,6 +115,8 @@ class Config:
     seed : int
     backend : {"auto", "opencl", "numpy"}
     families : list of Family
+    split : dict of str to float, optional
+        The top-level ``split`` table (name -> fraction; :mod:`datasets_gen.splits`).
     """
 
     name: str
@@ -112,6 +125,7 @@ class Config:
     seed: int
     backend: str
     families: list[Family] = field(default_factory=list)
+    split: dict[str, float] | None = None
 
     @property
     def sha256(self) -> str:
@@ -171,6 +185,12 @@ def _parse(data: dict, text: str, source: str) -> Config:
     backend = data.get("backend", "auto")
     if backend not in BACKENDS:
         raise ConfigError(f"{source}: `backend` must be one of {', '.join(map(repr, BACKENDS))}, got {backend!r}")
+    split = None
+    if "split" in data:
+        try:
+            split = check_split(data["split"])
+        except ValueError as exc:
+            raise ConfigError(f"{source}: {exc}") from None
     defaults = copy.deepcopy(DEFAULTS)
     user_defaults = data.get("defaults", {})
     _no_unknown(user_defaults, _SETTING_KEYS, source, "[defaults]")
@@ -198,7 +218,7 @@ def _parse(data: dict, text: str, source: str) -> Config:
         settings.update({k: v for k, v in fam.items() if k in _SETTING_KEYS})
         _check_settings(settings, f"{source}: {where}")
         parsed.append(Family(str(fam.get("name", kind)), kind, count, dict(params), settings))
-    return Config(str(data.get("name", Path(source).stem)), source, text, seed, backend, parsed)
+    return Config(str(data.get("name", Path(source).stem)), source, text, seed, backend, parsed, split)
 
 
 def _no_unknown(table: Any, allowed: set[str], source: str, where: str) -> None:
@@ -240,6 +260,11 @@ def _check_settings(s: dict[str, Any], where: str) -> None:
             raise ConfigError(f"{where}: `ao.max_distance` must be > 0, got {ao['max_distance']!r}")
         if ao["at"] not in ("vertices", "simplices"):
             raise ConfigError(f"{where}: `ao.at` must be 'vertices' or 'simplices', got {ao['at']!r}")
+    try:
+        s["samples"] = check_samples(s["samples"])
+        s["sequence"] = check_sequence(s["sequence"])
+    except ValueError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
     renders = s["renders"]
     if not isinstance(renders, list):
         raise ConfigError(f"{where}: `renders` must be a list of tables")

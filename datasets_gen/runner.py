@@ -6,6 +6,8 @@ Layout of an output folder::
     items/00000/mesh.npz      the closed 4D mesh (ao4d.mesh_files npz layout: SimplexMesh.load reads it)
     items/00000/ao.npz        occlusion per vertex (or per simplex), float64
     items/00000/<render>.png  optional renders (z-slice montage of the shaded 3D image)
+    items/00000/samples.npz   optional learning samples (datasets_gen.samples)
+    items/00000/sequence.npz  optional 3D frames along an axis (datasets_gen.sequence)
     items/00000/record.json   parameters, seeds, versions, mesh check, measures, file hashes
     items/00000/timing.json   wall-clock seconds per stage        (not hashed)
     items.csv                 one line per item
@@ -58,6 +60,7 @@ import numpy as np
 from ._files import json_bytes, save_mesh_npz, sha256_file, write_json, write_npz
 from ._store import LocalStore, Store, is_url, open_store
 from .config import Config, ItemSpec, load_config, sample_params
+from .splits import split_of
 
 __all__ = ["run", "RunSummary", "item_seed", "item_complete", "RUN_FORMAT", "UNHASHED"]
 
@@ -114,7 +117,7 @@ class RunSummary:
         total = grouped.pop("total", sum(grouped.values()))
         if not self.made or total <= 0:
             return ""
-        order = ["build", "check", "bvh", "ao", "render_*", "picture_*", "write"]
+        order = ["build", "check", "bvh", "ao", "render_*", "picture_*", "samples", "sequence", "write"]
         names = [n for n in order if n in grouped] + sorted(set(grouped) - set(order))
         other = total - sum(grouped.values())
         rows = [(n, grouped[n]) for n in names] + ([("other", other)] if other > 0.005 * total else [])
@@ -203,6 +206,7 @@ class _Job:
     out: str
     backend: str
     run_sha256: str = ""  # of out/run.json: a worker that reads the same sees the same folder
+    split: str | None = None  # the item's split (datasets_gen.splits), None without a split table
 
 
 @contextlib.contextmanager
@@ -221,10 +225,12 @@ def make_item(job: _Job) -> dict[str, Any]:
     ``timing.json`` holds the wall-clock seconds of each stage: ``build`` (field, grid and
     extraction, or the lifted solid), ``check`` (mesh check, volume, measure), ``bvh`` (the
     tree the AO rays and the renders trace), ``ao``, ``render_<name>`` (primary rays, AO at
-    hits, shading) and ``picture_<name>`` (the PNG) per render, ``write`` (every file and hash),
-    and ``total``.
+    hits, shading) and ``picture_<name>`` (the PNG) per render, ``samples`` and ``sequence``
+    (the labelled points and the frames, when the config asks), ``write`` (every file and
+    hash), and ``total``.
     """
     from .families import build_shape, random_rotation
+    from .samples import normalization
 
     start = time.perf_counter()
     spec, folder = job.spec, item_dir(Path(job.out), job.spec.index)
@@ -233,7 +239,8 @@ def make_item(job: _Job) -> dict[str, Any]:
         if stale.is_file():
             stale.unlink()
     settings = spec.family.settings
-    params_ss, rotation_ss, ao_ss = item_seed(job.seed, spec.index).spawn(3)
+    # spawn(5)'s first three children are spawn(3)'s: samples left the meshes, AO and renders as they were
+    params_ss, rotation_ss, ao_ss, samples_ss, sequence_ss = item_seed(job.seed, spec.index).spawn(5)
     rng = np.random.default_rng(params_ss)
     params = sample_params(spec.family.params, rng)
     rotation = (random_rotation(np.random.default_rng(rotation_ss))
@@ -264,6 +271,29 @@ def make_item(job: _Job) -> dict[str, Any]:
                                                progress=False)
         with _stage(timing, "write"):
             files.append(write_npz(folder / "ao.npz", {"occlusion": np.asarray(occlusion, np.float64)}).name)
+
+    extra: dict[str, Any] = {}
+    if settings.get("samples"):
+        from .samples import make_samples
+
+        with _stage(timing, "samples"):
+            arrays, extra["samples"] = make_samples(
+                shape, spec.family.kind, settings["samples"], np.random.default_rng(samples_ss),
+                occlusion=occlusion, ao_at=settings["ao"]["at"] if settings["ao"] else "vertices",
+                backend=job.backend)
+        with _stage(timing, "write"):
+            files.append(write_npz(folder / "samples.npz", arrays).name)
+    if settings.get("sequence"):
+        from .sequence import make_sequence
+
+        with _stage(timing, "sequence"):
+            arrays, extra["sequence"] = make_sequence(
+                shape, spec.family.kind, settings["sequence"], occlusion=occlusion,
+                ao_at=settings["ao"]["at"] if settings["ao"] else "vertices",
+                samples=settings.get("samples") or None, rng=np.random.default_rng(sequence_ss),
+                backend=job.backend)
+        with _stage(timing, "write"):
+            files.append(write_npz(folder / "sequence.npz", arrays).name)
 
     for render in settings["renders"]:
         title = f"item {spec.index}: {spec.family.name} ({spec.family.kind}), looking along +w"
@@ -301,6 +331,9 @@ def make_item(job: _Job) -> dict[str, Any]:
                 "max": float(np.max(occlusion)), "values": len(occlusion),
                 "backend": _backend_ran(job.backend)},
             "files": {name: sha256_file(folder / name) for name in files},
+            "split": job.split,
+            "normalization": normalization(mesh),
+            **extra,
         }
     timing["total"] = time.perf_counter() - start
     write_json(folder / "timing.json", {"seconds": timing, "pid": os.getpid()})
@@ -506,7 +539,8 @@ def run(
         if _item_complete(store, _item_rel(spec.index)):
             summary.skipped += 1
         else:
-            todo.append(_Job(spec, seed, str(out), cfg.backend, run_sha256))
+            todo.append(_Job(spec, seed, str(out), cfg.backend, run_sha256,
+                             split_of(cfg.split, seed, spec.index)))
 
     from ao4d import _progress
 
@@ -795,11 +829,12 @@ def _write_index(store: Store, items: list[ItemSpec], summary: RunSummary) -> in
         m = rec["mesh"]
         rows.append([index, rec["family"], rec["kind"], m["vertices"], m["simplices"],
                      m["check"]["ok"], repr(m["volume"]), repr(m["volume_expected"]),
-                     repr(m["volume_rel_error"]), repr(rec["ao"]["mean"]) if rec["ao"] else ""])
+                     repr(m["volume_rel_error"]), repr(rec["ao"]["mean"]) if rec["ao"] else "",
+                     rec.get("split") or ""])
     text = io.StringIO()
     writer = csv.writer(text, lineterminator="\n")
     writer.writerow(["index", "family", "kind", "vertices", "simplices", "ok", "volume",
-                     "volume_expected", "volume_rel_error", "ao_mean"])
+                     "volume_expected", "volume_rel_error", "ao_mean", "split"])
     writer.writerows(rows)
     store.write_bytes("items.csv", text.getvalue().encode("utf-8"))
 
@@ -869,7 +904,8 @@ def main(argv: list[str] | None = None) -> int:
                "  python -m datasets_gen tori --out data/tori --scheduler local:4\n"
                "  python -m datasets_gen tori --out data/tori --scheduler tcp://head:8786\n"
                "  python -m datasets_gen tori --out s3://bucket/tori --scheduler tcp://head:8786\n"
-               "  python -m datasets_gen my.toml --out data/mine   # rerun to resume",
+               "  python -m datasets_gen my.toml --out data/mine   # rerun to resume\n"
+               "  python -m datasets_gen export data/mine --format webdataset --out shards/",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("config", nargs="?", help="a TOML file or the name of a shipped config")
     parser.add_argument("--out", help="output folder (created; reruns resume), or an fsspec URL "

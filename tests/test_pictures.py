@@ -206,3 +206,19 @@ def test_triangle_view_equals_brute_force_ray_casting():
     np.testing.assert_allclose(at @ up, base[hit] @ up, atol=1e-9)
 
 
+
+
+def test_montage_tiles_put_each_slice_in_its_panel():
+    from matplotlib.colors import Normalize
+
+    import matplotlib
+
+    panels = [np.full((3, 5), float(v)) for v in range(7)]
+    cmap = matplotlib.colormaps["gray"]
+    tiles, gap = pictures._tile(panels, 3, Normalize(0, 6), cmap)
+    assert gap == 1 and tiles.shape == (3 * 3 + 2 * 3 + 3, 3 * 5 + 2, 4)
+    for n in range(7):
+        r, c = divmod(n, 3)
+        y0, x0 = 3 + r * 6, c * 6
+        np.testing.assert_allclose(tiles[y0:y0 + 3, x0:x0 + 5], np.broadcast_to(np.array(cmap(n / 6)), (3, 5, 4)))
+    assert tiles[:3, :, 3].max() == 0 and tiles[3:6, 5, 3].max() == 0  # transparent gaps

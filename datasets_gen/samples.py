@@ -1,0 +1,436 @@
+"""Learning samples of one item: labelled points, surface points, and the item's normalisation.
+
+``samples = { uniform = 16384, near_surface = 16384, sigmas = [0.01, 0.05], surface = 16384 }``
+in a configuration's ``[defaults]`` or a ``[[family]]`` makes each item's ``samples.npz``:
+
+``points`` (N, 4) float32
+    ``uniform`` points uniform in the item's box (``record["samples"]["box"]``: the grid's
+    bounds for implicit families, the mesh's bounds grown by 5 % of their width per side for
+    lifted ones), then for each sigma in order ``near_surface`` points: surface points plus
+    Gaussian offsets of standard deviation ``sigma`` times the box's diagonal. So
+    ``N = uniform + near_surface * len(sigmas)``.
+``occupancy`` (N,) bool
+    True inside the solid.
+``sdf`` (N,) float32
+    Signed distance, negative inside; ``sdf < 0`` exactly where ``occupancy``.
+``surface_points``, ``surface_normals`` (M, 4) float32, ``surface_ao`` (M,) float32
+    Points uniform by 3-volume on the mesh (a simplex with probability proportional to its
+    3-volume, then a uniform point in it), the simplex's outward unit normal, and the
+    occlusion interpolated there (per vertex: barycentric; per simplex: the simplex's value),
+    ``surface_ao`` only when the item has AO.
+
+Label provenance (``record["samples"]["labels"]``): ``occupancy`` is ``"field"`` (the sign of
+the family's field, the solid's own definition) for implicit families and ``"mesh"`` (the
+first hit of three rays, inside where it leaves through the outward mesh, by majority) for
+lifted ones; ``sdf`` is ``"exact"`` for kinds whose field is a closed-form signed distance
+(:data:`EXACT_SDF_KINDS`: the value of the rotated field) and otherwise ``"mesh"``: the exact
+distance to the mesh's simplices, signed by ``occupancy``. Labels are computed at the float32
+points that are stored. Everything is drawn from the item's own generator, so the same seed
+gives the same bytes.
+
+Cost: exact-field labels cost one field evaluation per point. Mesh distances test every
+simplex whose bounding ball comes within the best distance found (a k-d tree of centroids
+finds them): a few per point near the surface, hundreds for a point far from a fine mesh
+(about 400 for uniform points around a 3e4-simplex metaball at grid 24), at a few
+microseconds each here, so ``uniform`` points dominate the ``samples`` stage of such items.
+
+``record["normalization"] = {"loc": [...], "scale": s}`` maps the item into the unit ball:
+``(x - loc) / scale``, ``loc`` the centre of the mesh's bounding box and ``scale`` the largest
+distance of a vertex from it.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+import math
+from typing import Any
+
+import numpy as np
+
+__all__ = ["SAMPLE_KEYS", "DEFAULT_SAMPLES", "EXACT_SDF_KINDS", "check_samples", "normalization",
+           "sample_box", "surface_samples", "mesh_distance", "mesh_occupancy", "make_samples",
+           "SAMPLE_ARRAYS"]
+
+DEFAULT_SAMPLES: dict[str, Any] = {"uniform": 16384, "near_surface": 16384, "sigmas": [0.01, 0.05],
+                                   "surface": 16384}
+SAMPLE_KEYS = frozenset(DEFAULT_SAMPLES)
+#: the arrays a samples.npz may hold
+SAMPLE_ARRAYS = ("points", "occupancy", "sdf", "surface_points", "surface_normals", "surface_ao")
+#: family kinds whose field is an exact signed distance (a rotation keeps it one)
+EXACT_SDF_KINDS = frozenset({"hypersphere", "spheritorus", "torisphere", "ditorus", "tiger",
+                             "duocylinder", "tesseract"})
+_MAX_COUNT = 1 << 24
+_PAIRS_PER_BLOCK = 1 << 14  # point-simplex pairs per block of mesh_distance's arithmetic
+_BOX_GROWTH = 0.05  # lifted items: the mesh's bounds grown by this fraction of the width per side
+
+
+def check_samples(value: Any) -> dict[str, Any] | bool:
+    """The validated ``samples`` setting: ``False`` (none), or the four keys with defaults filled.
+
+    ``True`` means the defaults. Raises ``ValueError`` naming the bad key (the configuration
+    reader adds the file and table).
+    """
+    if value is False:
+        return False
+    if value is True:
+        return copy.deepcopy(DEFAULT_SAMPLES)
+    if not isinstance(value, dict):
+        raise ValueError(f"`samples` must be a table (or true/false), got {value!r}")
+    unknown = sorted(set(value) - SAMPLE_KEYS)
+    if unknown:
+        raise ValueError(f"`samples`: unknown key(s) {', '.join(map(repr, unknown))}; allowed: "
+                         f"{', '.join(sorted(SAMPLE_KEYS))}")
+    out = {**copy.deepcopy(DEFAULT_SAMPLES), **copy.deepcopy(value)}
+    for key in ("uniform", "near_surface", "surface"):
+        n = out[key]
+        if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= _MAX_COUNT:
+            raise ValueError(f"`samples.{key}` must be an integer in [0, {_MAX_COUNT}], got {n!r}")
+    sigmas = out["sigmas"]
+    if not isinstance(sigmas, list) or not all(
+            isinstance(s, (int, float)) and not isinstance(s, bool) for s in sigmas):
+        raise ValueError(f"`samples.sigmas` must be a list of numbers, got {sigmas!r}")
+    bad = [s for s in sigmas if not (math.isfinite(s) and s > 0)]
+    if bad:
+        raise ValueError(f"`samples.sigmas` must all be finite and > 0, got {bad}")
+    if out["near_surface"] and not sigmas:
+        raise ValueError("`samples.near_surface` > 0 needs at least one sigma in `samples.sigmas`")
+    out["sigmas"] = [float(s) for s in sigmas]
+    if out["uniform"] + out["near_surface"] * len(sigmas) + out["surface"] == 0:
+        raise ValueError("`samples` asks for no points at all (every count is 0); use samples = false")
+    return out
+
+
+def normalization(mesh: Any) -> dict[str, Any]:
+    """``{"loc": centre of the mesh's bounding box, "scale": largest vertex distance from it}``."""
+    lo, hi = mesh.bounds
+    loc = (np.asarray(lo, float) + np.asarray(hi, float)) / 2
+    scale = float(np.max(np.linalg.norm(mesh.vertices - loc, axis=1)))
+    return {"loc": loc.tolist(), "scale": scale if scale > 0 else 1.0}
+
+
+def sample_box(shape: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The box uniform points fill: the item's grid bounds, or the mesh's bounds grown 5 %."""
+    if shape.grid:
+        lo, hi = (np.asarray(b, float) for b in shape.grid["bounds"])
+        return lo, hi
+    lo, hi = (np.asarray(b, float) for b in shape.mesh.bounds)
+    grow = _BOX_GROWTH * (hi - lo)
+    return lo - grow, hi + grow
+
+
+def surface_samples(mesh: Any, count: int, rng: np.random.Generator
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``count`` points uniform by 3-volume on ``mesh``.
+
+    Returns
+    -------
+    points (count, 4) float64, normals (count, 4) outward unit, simplex (count,) int64,
+    barycentric (count, 4) float64
+    """
+    measures = mesh.simplex_measures
+    total = float(measures.sum())
+    if not total > 0:
+        raise ValueError("the mesh has no 3-volume to sample surface points on")
+    cdf = np.cumsum(measures) / total
+    simplex = np.minimum(np.searchsorted(cdf, rng.random(count), side="right"), len(cdf) - 1)
+    # uniform in a simplex: barycentric weights Dirichlet(1, 1, 1, 1) (normalised exponentials)
+    bary = -np.log1p(-rng.random((count, 4)))
+    bary /= bary.sum(axis=1, keepdims=True)
+    corners = mesh.vertices[mesh.simplices[simplex]]  # (count, 4, 4)
+    points = np.einsum("nk,nkd->nd", bary, corners)
+    return points, mesh.simplex_normals[simplex], simplex.astype(np.int64), bary
+
+
+# --------------------------------------------------------------------------- mesh labels
+
+# every non-empty face of a tetrahedron, as vertex subsets (4 vertices, 6 edges, 4 triangles, 1)
+_FACES = [list(c) for k in range(1, 5) for c in itertools.combinations(range(4), k)]
+
+
+def _solve_small(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched ``gram @ x = rhs`` for (K, m, m) Gram matrices, m <= 3, by Cramer's rule
+    (elementwise arithmetic: far faster than a LAPACK call per tiny system); also returns
+    which systems are well conditioned (determinant not negligible against the diagonal)."""
+    m = gram.shape[1]
+    g = [[gram[:, i, j] for j in range(m)] for i in range(m)]
+    r = [rhs[:, i] for i in range(m)]
+    if m == 1:
+        det = g[0][0]
+        x = [r[0]]
+    elif m == 2:
+        det = g[0][0] * g[1][1] - g[0][1] * g[1][0]
+        x = [r[0] * g[1][1] - g[0][1] * r[1], g[0][0] * r[1] - r[0] * g[1][0]]
+    else:
+        c00 = g[1][1] * g[2][2] - g[1][2] * g[2][1]
+        c01 = g[1][2] * g[2][0] - g[1][0] * g[2][2]
+        c02 = g[1][0] * g[2][1] - g[1][1] * g[2][0]
+        det = g[0][0] * c00 + g[0][1] * c01 + g[0][2] * c02
+        # the inverse of a symmetric matrix is its cofactor matrix over the determinant
+        c11 = g[0][0] * g[2][2] - g[0][2] * g[2][0]
+        c12 = g[0][1] * g[2][0] - g[0][0] * g[2][1]
+        c22 = g[0][0] * g[1][1] - g[0][1] * g[1][0]
+        x = [c00 * r[0] + c01 * r[1] + c02 * r[2],
+             c01 * r[0] + c11 * r[1] + c12 * r[2],
+             c02 * r[0] + c12 * r[1] + c22 * r[2]]
+    trace = sum(g[i][i] for i in range(m))
+    ok = np.abs(det) > 1e-18 * trace**m
+    safe = np.where(ok, det, 1.0)
+    return np.stack([xi / safe for xi in x], axis=1), ok
+
+
+def _simplex_distance(p: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Exact Euclidean distance from points ``p`` (K, d) to tetrahedra ``corners`` (K, 4, d).
+
+    The closest point lies in the relative interior of one face, where the projection onto that
+    face's affine hull has non-negative barycentric weights; every such projection is a point of
+    the tetrahedron, so the least distance over the valid projections is the distance.
+    """
+    best = np.full(len(p), np.inf)
+    for face in _FACES:
+        a0 = corners[:, face[0]]
+        r = p - a0
+        if len(face) == 1:
+            best = np.minimum(best, np.einsum("kd,kd->k", r, r))
+            continue
+        e = corners[:, face[1:]] - a0[:, None, :]  # (K, m, d)
+        gram = np.einsum("kmd,knd->kmn", e, e)
+        rhs = np.einsum("kmd,kd->km", e, r)
+        lam, ok = _solve_small(gram, rhs)
+        ok &= (lam >= 0).all(axis=1) & (lam.sum(axis=1) <= 1)
+        diff = r - np.einsum("km,kmd->kd", lam, e)
+        d2 = np.einsum("kd,kd->k", diff, diff)
+        best = np.where(ok, np.minimum(best, d2), best)
+    return np.sqrt(best)
+
+
+class _Simplices:
+    """Per-simplex values for fast exact point-to-tetrahedron distances (:meth:`distance`).
+
+    Every vector is taken relative to the simplex's first corner (no cancellation between
+    large coordinates): ``E`` (S, 4, d) the corners minus corner 0 (row 0 zero) and the
+    diagonal of their Gram matrix; for each face of two or more corners, the inverse of its
+    edges' Gram matrix, the constant part of its projection's right-hand side, and whether
+    it is well conditioned.
+    """
+
+    def __init__(self, corners: np.ndarray):
+        self.v0 = np.ascontiguousarray(corners[:, 0])
+        self.E = corners - corners[:, :1]
+        W = np.einsum("sid,sjd->sij", self.E, self.E)
+        self.diag = np.ascontiguousarray(np.einsum("sii->si", W))
+        self.faces = []
+        for face in _FACES[4:]:
+            i0, rest = face[0], list(face[1:])
+            m = len(rest)
+            gram = np.empty((len(W), m, m))
+            for a_, ia in enumerate(rest):
+                for b_, ib in enumerate(rest):
+                    gram[:, a_, b_] = W[:, ia, ib] - W[:, ia, i0] - W[:, i0, ib] + W[:, i0, i0]
+            inverse, ok = _inverse_small(gram)
+            const = np.stack([W[:, i0, i0] - W[:, k, i0] for k in rest], axis=1)
+            self.faces.append((i0, rest, inverse, const, ok))
+
+    def distance(self, p: np.ndarray, sim: np.ndarray) -> np.ndarray:
+        """Exact distances from points ``p`` (K, d) to simplices ``sim`` (K,): the least over
+        the faces whose hull projection lies in the face (see :func:`_simplex_distance`).
+        Worked in blocks of pairs that stay in cache, with every small product written out."""
+        out = np.empty(len(sim))
+        for start in range(0, len(sim), _PAIRS_PER_BLOCK):
+            block = slice(start, start + _PAIRS_PER_BLOCK)
+            out[block] = self._distance(p[block], sim[block])
+        return out
+
+    def _distance(self, p: np.ndarray, sim: np.ndarray) -> np.ndarray:
+        r0 = p - self.v0[sim]
+        E = self.E[sim]
+        P = [np.zeros(len(sim))] + [np.einsum("kd,kd->k", E[:, i], r0)
+                      for i in range(1, 4)]  # r0 . E_i (E_0 = 0)
+        diag = self.diag[sim]
+        rr = np.einsum("kd,kd->k", r0, r0)
+        # |p - v_i|^2 = |r0|^2 - 2 r0.E_i + E_i.E_i
+        norms = [rr] + [rr - 2 * P[i] + diag[:, i] for i in range(1, 4)]
+        best = np.minimum(np.minimum(norms[0], norms[1]), np.minimum(norms[2], norms[3]))
+        for i0, rest, inverse, const, ok in self.faces:
+            inv, c = inverse[sim], const[sim]
+            # rhs_k = (E_k - E_i0) . (r0 - E_i0)
+            rhs = [P[k] - P[i0] + c[:, a_] for a_, k in enumerate(rest)]
+            m = len(rest)
+            lam = [sum(inv[:, a_, b_] * rhs[b_] for b_ in range(m)) for a_ in range(m)]
+            valid = ok[sim]
+            total = lam[0]
+            for a_ in range(m):
+                valid &= lam[a_] >= 0
+                if a_:
+                    total = total + lam[a_]
+            valid &= total <= 1
+            # the projection's squared distance: |r|^2 - lam . rhs (lam = G^-1 rhs)
+            d2 = norms[i0] - sum(lam[a_] * rhs[a_] for a_ in range(m))
+            np.minimum(best, d2, out=best, where=valid)
+        return np.sqrt(np.maximum(best, 0.0))
+
+
+def _inverse_small(gram: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverses of (S, m, m) symmetric matrices, m <= 3, by cofactors; and which are well
+    conditioned (see :func:`_solve_small`)."""
+    m = gram.shape[1]
+    eye = np.eye(m)
+    cols = [_solve_small(gram, np.broadcast_to(eye[:, j], (len(gram), m)))[0] for j in range(m)]
+    _, ok = _solve_small(gram, np.zeros((len(gram), m)))
+    return np.stack(cols, axis=2), ok
+
+
+def mesh_distance(mesh: Any, points: np.ndarray, *, pairs_per_step: int = 1 << 18) -> np.ndarray:
+    """Exact distance from each point to the mesh (the nearest simplex), float64.
+
+    Candidates come from a k-d tree of simplex centroids: with ``u`` the distance to the nearest
+    of a few candidates, only simplices whose bounding ball (centroid, farthest corner) comes
+    within ``u`` can be nearer, and those are all tested.
+    """
+    from scipy.spatial import cKDTree
+
+    points = np.asarray(points, np.float64)
+    corners = mesh.vertices[mesh.simplices]  # (S, 4, 4)
+    table = _Simplices(corners)
+    centroids = corners.mean(axis=1)
+    radii = np.max(np.linalg.norm(corners - centroids[:, None, :], axis=2), axis=1)
+    rho = float(radii.max())
+    tree = cKDTree(centroids)
+    k = min(8, len(centroids))
+    _, near = tree.query(points, k=k)
+    near = near.reshape(len(points), k)
+    upper = table.distance(np.repeat(points, k, axis=0), near.ravel()).reshape(-1, k).min(axis=1)
+    out = upper.copy()
+    # all simplices whose bounding ball may come nearer than the best so far, in bounded
+    # steps of points with similar bounds (sorted), the pairs found by one k-d tree join
+    order = np.argsort(upper, kind="stable")
+    step = 64
+    start = 0
+    while start < len(order):
+        chunk = order[start:start + step]
+        start += len(chunk)
+        pairs = cKDTree(points[chunk]).sparse_distance_matrix(
+            tree, float(upper[chunk].max()) + rho, output_type="ndarray")
+        if not len(pairs):
+            continue
+        idx, sim = chunk[pairs["i"]], pairs["j"].astype(np.int64)
+        # each simplex lies in its ball: one farther than the best so far cannot come nearer
+        keep = pairs["v"] - radii[sim] <= upper[idx]
+        idx, sim = idx[keep], sim[keep]
+        if len(sim):
+            np.minimum.at(out, idx, table.distance(points[idx], sim))
+        # keep steps near pairs_per_step pairs
+        step = int(np.clip(step * pairs_per_step / max(1, len(pairs)), 1, 4096))
+    return out
+
+
+def mesh_occupancy(mesh: Any, points: np.ndarray, rng: np.random.Generator, backend: str) -> np.ndarray:
+    """Inside test against a closed outward-oriented mesh: three rays per point in random
+    directions; a ray that first leaves through a simplex (its outward normal along the ray)
+    votes inside; the majority decides."""
+    from ao4d.raycast import cast_rays
+
+    points = np.asarray(points, np.float64)
+    votes = np.zeros(len(points), np.int64)
+    if not len(points):
+        return votes.astype(bool)
+    for _ in range(3):
+        w = rng.standard_normal(4)
+        w /= np.linalg.norm(w)
+        dirs = np.broadcast_to(w, points.shape)
+        hits = cast_rays(mesh, points, dirs, backend=backend, progress=False)
+        hit = hits.simplex >= 0
+        leaving = np.zeros(len(points), bool)
+        leaving[hit] = mesh.simplex_normals[hits.simplex[hit]] @ w > 0
+        votes += leaving
+    return votes >= 2
+
+
+def _labels(shape: Any, kind: str, points: np.ndarray, rng: np.random.Generator, backend: str,
+            *, sdf: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """Occupancy (bool) and signed distance (float32, negative exactly where occupied; ``None``
+    when ``sdf`` is false)."""
+    if shape.field is not None:
+        value = np.asarray(shape.field(points), np.float64)
+        occupancy = value < 0
+        signed = value if kind in EXACT_SDF_KINDS else None
+    else:
+        occupancy = mesh_occupancy(shape.mesh, points, rng, backend)
+        signed = None
+    if not sdf:
+        return occupancy, None
+    if signed is None:
+        signed = np.where(occupancy, -1.0, 1.0) * mesh_distance(shape.mesh, points)
+    sdf32 = signed.astype(np.float32)
+    tiny = np.float32(np.finfo(np.float32).smallest_subnormal)
+    sdf32[occupancy & ~(sdf32 < 0)] = -tiny  # a rounding to -0.0 or a point on the mesh
+    sdf32[~occupancy & (sdf32 < 0)] = 0.0
+    return occupancy, sdf32
+
+
+def labels_provenance(shape: Any, kind: str) -> dict[str, str]:
+    """Per label: ``"exact"`` (closed-form signed distance), ``"field"`` (the family field's
+    sign), or ``"mesh"`` (computed from the extracted mesh)."""
+    implicit = shape.field is not None
+    return {"occupancy": "field" if implicit else "mesh",
+            "sdf": "exact" if implicit and kind in EXACT_SDF_KINDS else "mesh",
+            "surface_points": "mesh", "surface_normals": "mesh", "surface_ao": "mesh"}
+
+
+def make_samples(shape: Any, kind: str, settings: dict[str, Any], rng: np.random.Generator, *,
+                 occlusion: np.ndarray | None = None, ao_at: str = "vertices",
+                 backend: str = "auto") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The arrays of ``samples.npz`` and the record's ``samples`` entry for one item.
+
+    Parameters
+    ----------
+    shape : datasets_gen.families.Shape
+    kind : str
+        The family kind (decides whether the field is an exact signed distance).
+    settings : dict
+        The validated ``samples`` setting (:func:`check_samples`).
+    rng : numpy.random.Generator
+        The item's samples generator (the only source of randomness here).
+    occlusion : array, optional
+        The item's AO (per vertex or per simplex, ``ao_at``); gives ``surface_ao``.
+    backend : str
+        Ray-casting backend for the mesh inside test of lifted items.
+    """
+    mesh = shape.mesh
+    lo, hi = sample_box(shape)
+    diagonal = float(np.linalg.norm(hi - lo))
+    parts = [lo + (hi - lo) * rng.random((settings["uniform"], 4))]
+    rows = {"uniform": [0, settings["uniform"]]}
+    start = settings["uniform"]
+    for sigma in settings["sigmas"]:
+        n = settings["near_surface"]
+        base, _, _, _ = surface_samples(mesh, n, rng)
+        parts.append(base + rng.normal(0.0, sigma * diagonal, size=(n, 4)))
+        rows[f"sigma={sigma!r}"] = [start, start + n]
+        start += n
+    points = np.concatenate(parts).astype(np.float32)
+    occupancy, sdf = _labels(shape, kind, points.astype(np.float64), rng, backend)
+    arrays: dict[str, np.ndarray] = {"points": points, "occupancy": occupancy, "sdf": sdf}
+    surface, normals, simplex, bary = surface_samples(mesh, settings["surface"], rng)
+    arrays["surface_points"] = surface.astype(np.float32)
+    arrays["surface_normals"] = normals.astype(np.float32)
+    if occlusion is not None:
+        occ = np.asarray(occlusion, np.float64)
+        if ao_at == "vertices":
+            ao = np.einsum("nk,nk->n", bary, occ[mesh.simplices[simplex]])
+        else:
+            ao = occ[simplex]
+        arrays["surface_ao"] = ao.astype(np.float32)
+    provenance = labels_provenance(shape, kind)
+    if occlusion is None:
+        del provenance["surface_ao"]
+    n_uniform = settings["uniform"]
+    record = {
+        **settings,
+        "box": [lo.tolist(), hi.tolist()],
+        "offset_scale": diagonal,
+        "rows": rows,
+        "labels": provenance,
+        "inside_fraction_uniform": float(occupancy[:n_uniform].mean()) if n_uniform else None,
+    }
+    return arrays, record
