@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import as_real, as_vector, check_bool, check_memory
+from ._validate import as_real, as_vector, check_bool, check_grid_lengths, check_memory
 
 __all__ = ["Grid", "read_grid", "ObliqueAffineWarning", "natural_key", "FRAME_SUFFIXES"]
 
@@ -238,6 +238,12 @@ def read_grid(
     if chunks is not None:
         values = _as_dask(values, chunks, text)
     step, start = np.asarray(step, np.float64), np.asarray(start, np.float64)
+    extent = np.abs(start) + np.abs(step) * (np.asarray(values.shape, dtype=np.float64) + 1.0)
+    if w_scale is not None and spacing is None:
+        check_grid_lengths(step, extent, "w_scale", hint=f" (the grid steps of {text!r}: {step.tolist()})")
+    else:
+        check_grid_lengths(step, extent, "spacing", hint=f" (the grid steps of {text!r}: {step.tolist()}; "
+                           "`spacing=` overrides them)")
     matrix = None
     if affine:
         matrix = scale.get("affine_matrix")

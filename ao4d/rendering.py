@@ -583,7 +583,8 @@ class _Shading:
         if occlusion is not None:
             occ = np.asarray(occlusion, dtype=np.float64)
         elif self.ao == "vertices" and len(simplex):
-            occ = np.einsum("hk,hk->h", bary, self._per_vertex_ao()[tri])
+            # weights a rounding below 0 or summing above 1 would leave [0, 1]
+            occ = np.clip(np.einsum("hk,hk->h", bary, self._per_vertex_ao()[tri]), 0.0, 1.0)
         elif self.ao == "hits" and len(simplex):
             occ = _hit_occlusion(scene, points, face_n, samples=self.samples, seed=self.seed,
                                  max_distance=self.max_distance, backend=self.backend,

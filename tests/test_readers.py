@@ -599,3 +599,12 @@ def test_mhd_bad_headers_name_the_problem(tmp_path, grid4):
     (tmp_path / "utf8.mhd").write_bytes(
         text.replace("ElementDataFile = g.raw", "ElementDataFile = données_é.raw").encode("utf-8"))
     np.testing.assert_array_equal(np.asarray(read_grid(tmp_path / "utf8.mhd").values), frame)
+
+
+def test_w_scale_or_spacing_whose_products_leave_float64_is_refused(tmp_path, grid4):
+    # --w-scale 1e300 gave a volume of inf and a report of "OK"
+    path = _nifti_4d(tmp_path / "t.nii", grid4)
+    with pytest.raises(ValueError, match="`w_scale` gives the grid an extent of .* too large"):
+        read_grid(path, w_scale=1e300)
+    with pytest.raises(ValueError, match="`spacing` .* too small"):
+        read_grid(path, spacing=(None, None, None, 1e-300))

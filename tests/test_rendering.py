@@ -182,6 +182,18 @@ def test_stored_vertex_ao_is_used(sphere):
     assert img.info["ao_rays"] == 0
 
 
+def test_interpolated_vertex_ao_stays_in_the_unit_interval(sphere):
+    # barycentric weights a rounding below 0 (or a sum above 1) gave occlusion -1e-16 or 1 + 1e-16
+    cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=1.3)
+    mesh = sphere.copy()
+    rng = np.random.default_rng(3400)
+    mesh.point_data["ao"] = rng.integers(0, 2, mesh.n_vertices).astype(float)
+    img = render(mesh, cam, (24, 24, 24), ao="vertices")
+    occ = img.occlusion[img.hit]
+    assert occ.size and np.isfinite(occ).all()
+    assert occ.min() >= 0.0 and occ.max() <= 1.0
+
+
 def test_save_round_trip(sphere, tmp_path):
     cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=1.3)
     img = render(sphere, cam, (10, 9, 8), ao="none")
