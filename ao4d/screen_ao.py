@@ -211,11 +211,24 @@ class DepthVolume:
         return np.ascontiguousarray(self.gbuffer, dtype=np.float32)
 
     def default_reach(self) -> float:
-        """The reach used for ``max_distance=inf``: the diagonal of the visible points' box."""
+        """The reach used for ``max_distance=inf``, and the most any reach marches: the
+        diagonal of the visible points' box (the image's extent)."""
+        return self._extent
+
+    @cached_property
+    def _extent(self) -> float:
         pts = self.hit_points()
         if not len(pts):
             return 1.0
         return max(float(np.linalg.norm(np.ptp(pts, axis=0))), 1e-12)
+
+    @cached_property
+    def _rounding(self) -> float:
+        """The least depth difference both backends resolve: ``2^-16`` times the largest
+        eye distance of a visible point (float32 keeps 24 bits; the kernel's plane test divides
+        by ``|u . m| >= GRAZING`` and rounds a few times)."""
+        depth = self.depth[self.hit]
+        return 2.0**-16 * (float(depth.max()) if depth.size else 0.0)
 
 
 def screen_space_occlusion(
@@ -245,14 +258,16 @@ def screen_space_occlusion(
         Cosine-weighted directions per point (>= 1); point i uses the directions the ray-traced
         :func:`ao4d.ambient_occlusion` traces for point i with the same ``seed``.
     max_distance : float
-        The reach ``L`` (> 0): directions are marched to ``p + L w``. ``inf`` takes the diagonal
-        of the visible points' bounding box.
+        The reach ``L`` (> 0): directions are marched to ``p + L w``, ``L`` clamped to the
+        diagonal of the visible points' bounding box (the image's extent; ``inf`` takes it).
     steps : int, optional
         March points per direction (>= 1): ``samples * steps`` look-ups per point at most;
         default :func:`default_steps` (4 to 16, one per 8 voxels of reach).
     bias : float, optional
         Depth (>= 0) by which a surface must lie in front of a march point to hide it; default
-        ``1e-3 L``.
+        ``1e-3 L``. At least ``2^-16`` times the largest eye distance of the points and the
+        visible surface, on both backends: the float32 kernel cannot resolve less, and would
+        count its rounding as occlusion (a reach of 1e-6 gave 0.37 there).
     thickness : float, optional
         Range limit (> ``bias``): surfaces farther than this in front of a march point do not
         hide it (the depth volume's assumed thickness); default ``L``.
@@ -303,6 +318,9 @@ def screen_space_occlusion(
     steps = default_steps(volume, reach) if steps is None else check_positive_int(steps, "steps")
     bias = _BIAS * reach if bias is None else as_real(bias, "bias", ge=0)
     thickness = reach if thickness is None else as_real(thickness, "thickness", gt=bias, finite=False)
+    # below float32's resolution of the points the kernel would count rounding as depth
+    eye_distance = float(np.linalg.norm(pts - volume.camera.eye, axis=1).max()) if len(pts) else 0.0
+    bias = max(bias, volume._rounding, 2.0**-16 * eye_distance)
     check_memory(samples * 4 * 12.0, f"the direction table for samples={samples}", hint="use fewer `samples`")
     runtime = cl.resolve_backend(backend)
     if not len(pts):
@@ -316,10 +334,13 @@ def screen_space_occlusion(
 
 
 def _reach(volume: DepthVolume, max_distance) -> float:
+    """The reach marched: ``max_distance`` clamped to the image's extent
+    (:meth:`DepthVolume.default_reach`). Farther march points lie outside the image, or behind
+    everything it holds: a longer reach would only spread the same steps thinner."""
     reach = as_real(max_distance, "max_distance", gt=0, finite=False)
     if math.isnan(reach):
         raise ValueError("`max_distance` must be a number, got nan")
-    return volume.default_reach() if math.isinf(reach) else reach
+    return min(reach, volume.default_reach())
 
 
 def default_steps(volume: DepthVolume, max_distance: float) -> int:
