@@ -887,6 +887,27 @@ def test_ray_budget_is_checked_before_any_ray_and_can_be_lifted(monkeypatch):
     assert img.hit.any() and cast
 
 
+@pytest.mark.parametrize("backend", ["numpy", "opencl"])
+def test_screen_ao_and_its_filter_are_budgeted_before_any_ray(backend, request, monkeypatch):
+    # --samples 10000000 and --denoise 30 ran for minutes on numpy without an estimate
+    from ao4d import raycast
+
+    if backend == "opencl":
+        request.getfixturevalue("cl_runtime")
+    mesh, cam = _small_scene()
+    cast = []
+    monkeypatch.setattr(ao4d.rendering, "cast_rays",
+                        lambda *a, **k: cast.append(1) or raycast.cast_rays(*a, **k))
+    with pytest.raises(ValueError, match=r"`samples`=10000000 \(.* depth look-ups.*about \d+ (h|days) on the"):
+        render(mesh, cam, (32, 32, 32), ao="screen", samples=10_000_000, backend=backend)
+    if backend == "numpy":
+        with pytest.raises(ValueError, match=r"`denoise`=30 \(.*filter-window voxels.*about \d+ min on the numpy"):
+            render(mesh, cam, (64, 64, 64), ao="screen", samples=4, denoise=30, backend=backend)
+    assert not cast
+    img = render(mesh, cam, (8, 8, 8), ao="screen", samples=8, denoise=1, backend=backend)
+    assert img.hit.any() and cast
+
+
 def test_render_command_force_lifts_the_ray_budget(tmp_path, capsys, monkeypatch):
     from ao4d import cli, raycast
 
