@@ -130,7 +130,8 @@ def extract(
     level : float
         Iso-value.
     spacing : float or (d,) array_like
-        Grid step per axis (> 0).
+        Grid step per axis (> 0); a ``None`` entry keeps that axis at the default step 1
+        (``spacing=(None, None, None, 0.5)`` sets only w, as in :func:`ao4d.readers.read_grid`).
     origin : float or (d,) array_like
         Position of ``values[0, ..., 0]``.
     method : {"cubes", "simplices"}
@@ -202,6 +203,8 @@ def extract(
                              "needs a value at every grid point: fill them with a value on the "
                              "side they belong to (values.filled(...))")
         values = values.data  # nothing masked: the plain array (NaN in it is still refused)
+    if isinstance(spacing, (list, tuple)) and any(step is None for step in spacing):
+        spacing = [1.0 if step is None else step for step in spacing]  # None keeps the default
     if affine is not None:
         d = getattr(values, "ndim", None) if is_dask_array(values) or isinstance(values, np.ndarray) \
             else as_array(values, "values").ndim
@@ -482,6 +485,19 @@ def _in_solid(value: float, level: float, inside: str) -> bool:
     return value < level if inside == "below" else value > level
 
 
+def _empty_reason(level: float, inside: str, lo: float, hi: float) -> str:
+    """Why a grid with values in [lo, hi] gives no surface at ``level``."""
+    if lo == hi:
+        return f"the grid is constant (every value is {lo:g}): no level crosses it"
+    if level < lo or level > hi:
+        return f"`level` {level:g} is outside the data range [{lo:g}, {hi:g}]"
+    # the level is the range's end on the solid's side: the solid (strict inequality) is empty
+    end, side, sign = ("minimum", "below", "<") if inside == "below" else ("maximum", "above", ">")
+    return (f"`level` {level:g} equals the data's {end}: the solid is f {sign} level and no value "
+            f"lies {side} it (values equal to the level count as outside); choose a level strictly "
+            f"between {lo:g} and {hi:g}, e.g. {(lo + hi) / 2:g}")
+
+
 class EmptyMeshWarning(UserWarning):
     """The extracted level set is empty (the level misses the data)."""
 
@@ -502,8 +518,7 @@ def _checked(mesh: SimplexMesh, level: float, inside: str, value_range: Callable
     mesh._mark_constructed(MARCHING_PROVED)  # what the table guarantees: check() need not test it
     if mesh.n_simplices == 0:
         if value_range is not None:
-            lo, hi = value_range()
-            why = f"`level` {level:g} is outside the data range [{lo:g}, {hi:g}]"
+            why = _empty_reason(level, inside, *value_range())
         else:
             why = f"no grid cell crosses `level` {level:g} (check `level` and the grid's bounds)"
         warnings.warn(f"the extracted mesh is empty: {why}", EmptyMeshWarning, stacklevel=3)

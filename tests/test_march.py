@@ -788,3 +788,35 @@ def test_affine_with_small_uniform_steps_is_invertible(step):
         ao4d.extract(values, affine=flat)
     stretched = np.diag([step, step, step, step * 1e-13, 1.0])  # other steps per axis are fine
     assert ao4d.extract(values, affine=stretched).check().ok
+
+
+def test_empty_results_say_why_for_constant_and_two_valued_grids():
+    # "`level` 1 is outside the data range [1, 1]" and "0 is outside [0, 1]" said nothing useful
+    with pytest.warns(march.EmptyMeshWarning, match=r"the grid is constant \(every value is 1\)"):
+        ao4d.extract(np.ones((3, 3, 3, 3)), 1.0)
+    binary = (np.random.default_rng(3700).random((4, 4, 4, 4)) > 0.5).astype(np.uint8)
+    with pytest.warns(march.EmptyMeshWarning,
+                      match=r"`level` 0 equals the data's minimum: the solid is f < level.*e\.g\. 0\.5"):
+        ao4d.extract(binary, 0.0)
+    with pytest.warns(march.EmptyMeshWarning, match=r"`level` 1 equals the data's maximum: the solid is f > level"):
+        ao4d.extract(binary, 1.0, inside="above")
+    with pytest.warns(march.EmptyMeshWarning, match=r"`level` 2 is outside the data range \[0, 1\]"):
+        ao4d.extract(binary, 2.0)
+    assert ao4d.extract(binary, 0.5).n_simplices > 0
+
+
+def test_a_none_spacing_entry_keeps_the_default_step():
+    # read_grid's None ("keep the file's step") met "3 non-finite values" in extract
+    values = ao4d.sample(ao4d.fields.hypersphere(0.7), (6,) * 4, (-1.0, 1.0))
+    mesh = ao4d.extract(values, spacing=(None, None, None, 0.5))
+    np.testing.assert_array_equal(mesh.vertices, ao4d.extract(values, spacing=(1, 1, 1, 0.5)).vertices)
+    with pytest.raises(ValueError, match="`spacing` must be > 0"):
+        ao4d.extract(values, spacing=(None, None, None, -1.0))
+
+
+def test_a_complex_valued_field_is_refused_like_complex_values():
+    field = lambda p: np.linalg.norm(p, axis=-1) - 0.5 + 0j  # noqa: E731
+    with pytest.raises(TypeError, match="`field` must return real numbers, got dtype complex128"):
+        ao4d.extract_field(field, (5,) * 4, (-1.0, 1.0))
+    with pytest.raises(TypeError, match="`field` must return real numbers"):
+        ao4d.sample(field, (5,) * 4, (-1.0, 1.0))

@@ -86,6 +86,20 @@ def test_a_page_over_the_inline_limit_is_served(image):
         shown.close()
 
 
+def test_view_refuses_an_array_and_unknown_options_naming_them(sphere, image, tmp_path):
+    # an array met "`meshes[0]` must be ..."; foo=1 "page_text() got an unexpected keyword"
+    with pytest.raises(TypeError, match=r"`what` must be a SimplexMesh.*array of shape \(4, 4, 4, 4\).*ao4d.extract"):
+        ao4d.view(np.zeros((4, 4, 4, 4)))
+    with pytest.raises(TypeError, match="`what` must be"):
+        ao4d.view(np.zeros((4, 4, 4, 4)), tmp_path / "a.html")
+    for what, kind in ((image, "an image's page"), (sphere, "the meshes' page")):
+        for path in (None, tmp_path / "b.html"):
+            with pytest.raises(TypeError, match=f"unknown option.*'foo' for {kind}; it takes .*title"):
+                ao4d.view(what, path, foo=1)
+    assert not (tmp_path / "a.html").exists() and not (tmp_path / "b.html").exists()
+    assert "ao4d" in ao4d.view(image, title="t")._repr_html_()
+
+
 def test_result_page_errors(sphere, image, tmp_path):
     with pytest.raises(ValueError, match="`tab`"):
         pages.result_page(sphere, image, tmp_path / "r.html", tab="left")
