@@ -184,7 +184,10 @@ def ambient_occlusion(
     Notes
     -----
     Rays start ``1e-4`` bounding-box diagonals above the point along its normal
-    (``ORIGIN_OFFSET``). Degenerate simplices are left out of the BVH: they cannot occlude.
+    (``ORIGIN_OFFSET``). Degenerate simplices (the BVH's test, relative to each simplex's size:
+    :func:`ao4d.bvh.host.nondegenerate`) are left out of the BVH, cannot occlude and add nothing
+    to vertex normals; normal components below 1e-12 count as zero. So the result does not
+    depend on the scene's scale.
 
     References
     ----------
