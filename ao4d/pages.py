@@ -138,10 +138,11 @@ def _check_view_input(what: Any, options: dict) -> None:
 
     import numpy as np
 
-    if isinstance(what, np.ndarray):
-        raise TypeError(f"`what` must be a SimplexMesh, a .npz path, a sequence of them, a RenderResult "
-                        f"or a .vti/.mhd path; got an array of shape {what.shape}: extract a mesh from "
-                        "it first (ao4d.extract(values, level)) or render one (ao4d.render)")
+    if isinstance(what, np.ndarray) and what.ndim != 3:
+        raise TypeError(f"`what` must be a SimplexMesh, a .npz path, a sequence of them, a RenderResult, "
+                        f"a .vti/.mhd path or a 3D array of shade values; got an array of shape "
+                        f"{what.shape}: extract a mesh from it first (ao4d.extract(values, level)) or "
+                        "render one (ao4d.render)")
     if is_image(what):
         from .image_viewer import image_page_text as target
         kind = "an image's page"

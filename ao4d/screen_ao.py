@@ -345,6 +345,8 @@ def _reach(volume: DepthVolume, max_distance) -> float:
     reach = as_real(max_distance, "max_distance", gt=0, finite=False)
     if math.isnan(reach):
         raise ValueError("`max_distance` must be a number, got nan")
+    if not volume.hit.any():  # an empty image has no extent to clamp to
+        return volume.default_reach() if math.isinf(reach) else reach
     return min(reach, volume.default_reach())
 
 
