@@ -11,7 +11,7 @@ import numpy as np
 
 __all__ = [
     "as_array", "as_real", "as_vector", "check_choice", "check_int", "check_positive_int", "check_bool", "check_finite",
-    "check_memory",
+    "check_memory", "check_grid_lengths",
 ]
 
 # Refuse allocations above this many bytes before starting work (overridable per call).
@@ -163,6 +163,36 @@ def as_vector(
     if nonzero and not (arr != 0).any():
         raise ValueError(f"`{name}` must be a non-zero vector, got {value!r}")
     return np.array(np.broadcast_to(arr, (length,)), dtype=np.float64)
+
+
+def check_grid_lengths(steps: Any, extents: Any, name: str, *, hint: str = "") -> None:
+    """Refuse grid steps whose products underflow or overflow float64 in a mesh's measures.
+
+    A d-dimensional mesh squares products of d - 1 edge lengths (``|n|^2`` of a simplex normal,
+    its measure and the degeneracy test) and sums products of d lengths (its volume). A step
+    ``s`` needs ``s^(2(d-1))`` to be a normal float with 52 bits to spare below it, and the
+    largest extent ``L`` (grid size, origin included) ``L^(2(d-1))`` finite with as much room
+    above (sums over many simplices); else every simplex comes out degenerate, or a volume
+    ``nan``/``inf``, with nothing said. ``steps`` are the per-axis grid steps (> 0), ``extents``
+    the largest coordinate magnitudes per axis; ``name`` is the parameter to name.
+    """
+    steps = np.abs(np.asarray(steps, dtype=np.float64)).ravel()
+    extents = np.abs(np.asarray(extents, dtype=np.float64)).ravel()
+    d = steps.size
+    power = max(2 * (d - 1), d)
+    room = 2.0**52
+    lowest = (np.finfo(np.float64).tiny * room) ** (1 / power)
+    highest = (np.finfo(np.float64).max / room) ** (1 / power)
+    small, big = float(steps.min()), float(max(steps.max(), extents.max()))
+    if small < lowest:
+        raise ValueError(f"`{name}` {small:.3g} is too small for a {d}D mesh: its measures multiply "
+                         f"{power} lengths, which underflow float64 below {lowest:.1e}; give the grid "
+                         f"in larger units (e.g. spacing=1) and scale the mesh afterwards{hint}")
+    if not big <= highest:
+        raise ValueError(f"`{name}` gives the grid an extent of {big:.3g}, too large for a {d}D mesh: "
+                         f"its measures multiply {power} lengths, which overflow float64 above "
+                         f"{highest:.1e}; give the grid in smaller units and scale the mesh "
+                         f"afterwards{hint}")
 
 
 def check_bool(value: Any, name: str) -> bool:

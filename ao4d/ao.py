@@ -21,6 +21,7 @@ import numpy as np
 
 from . import cl
 from ._validate import as_array, check_choice, check_int, check_memory, check_positive_int
+from .bvh.host import nondegenerate
 from .geometry import simplex_normals
 from .mesh import warn_if_inside_out
 from .topology import GRID_EDGE_KEY
@@ -66,34 +67,52 @@ def _query_points(mesh, at, points, normals, d):
             )
         return points, unit_rows(normals, "normals"), np.ones(len(points), dtype=bool)
     check_choice(at, "at", ("vertices", "simplices"))
+    vertices, simplices = mesh_arrays(mesh)
+    vertices = np.asarray(vertices, dtype=np.float64)
+    raw = _measured_normals(vertices, simplices)
     if at == "vertices":
-        points, normals = np.asarray(mesh.vertices, dtype=np.float64), _vertex_normals(mesh)
+        points, normals = vertices, _unit(_vertex_sums(raw, simplices, len(vertices)))
     else:
-        points, normals = _simplex_points(mesh)
+        points, normals = vertices[simplices].mean(1), _unit(raw)
     length = np.linalg.norm(normals, axis=1)
     defined = np.isfinite(length) & (length > 0.5)  # unit, or zero where undefined
     return points, np.where(defined[:, None], normals, 0.0), defined
 
 
-def _vertex_normals(mesh) -> np.ndarray:
-    if hasattr(mesh, "vertex_normals"):
-        return np.asarray(mesh.vertex_normals, dtype=np.float64)
-    vertices, simplices = mesh_arrays(mesh)
-    raw = simplex_normals(vertices, simplices)  # length ~ measure: area weighting
-    total = np.zeros_like(vertices, dtype=np.float64)
+def _measured_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
+    """Simplex normals (length ~ measure), zero where the BVH's test
+    (:func:`ao4d.bvh.host.nondegenerate`, relative to the simplex's size) finds no measure.
+
+    An exact zero test would depend on the scene's scale: scaling rounds the corners of a flat
+    simplex off its hyperplane, and its normal becomes rounding noise pointing anywhere.
+    """
+    raw = simplex_normals(vertices, simplices)
+    raw[~nondegenerate(vertices, np.asarray(simplices))] = 0.0
+    return raw
+
+
+def _vertex_sums(raw: np.ndarray, simplices: np.ndarray, n: int) -> np.ndarray:
+    """(n, d) sums of the normals ``raw`` of the simplices around each vertex (area weighting)."""
+    total = np.zeros((n, raw.shape[1]))
     for k in range(simplices.shape[1]):
-        np.add.at(total, simplices[:, k], raw)
-    length = np.linalg.norm(total, axis=1, keepdims=True)
-    return np.divide(total, length, out=np.zeros_like(total), where=length > 0)
+        ids = np.ascontiguousarray(simplices[:, k])
+        for j in range(raw.shape[1]):
+            total[:, j] += np.bincount(ids, raw[:, j], n)
+    return total
 
 
-def _simplex_points(mesh) -> tuple[np.ndarray, np.ndarray]:
-    vertices, simplices = mesh_arrays(mesh)
-    corners = vertices[simplices].astype(np.float64)
-    raw = simplex_normals(vertices.astype(np.float64), simplices)
-    length = np.linalg.norm(raw, axis=1, keepdims=True)
-    normals = np.divide(raw, length, out=np.zeros_like(raw), where=length > 0)
-    return corners.mean(1), normals
+def _unit(normals: np.ndarray) -> np.ndarray:
+    """Unit rows (zero rows stay zero), components below 1e-12 set to zero.
+
+    The directions' tangent frame (:func:`ao4d.sampling.tangent_frames`) flips with the sign of
+    the last component: grid data has many normals whose exact zeros come back as +-1e-17 after
+    a scaling of the scene, and their rays would change with the scale.
+    """
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    unit = np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+    unit[np.abs(unit) < 1e-12] = 0.0
+    length = np.linalg.norm(unit, axis=1, keepdims=True)
+    return np.divide(unit, length, out=np.zeros_like(unit), where=length > 0)
 
 
 def ambient_occlusion(
@@ -165,7 +184,10 @@ def ambient_occlusion(
     Notes
     -----
     Rays start ``1e-4`` bounding-box diagonals above the point along its normal
-    (``ORIGIN_OFFSET``). Degenerate simplices are left out of the BVH: they cannot occlude.
+    (``ORIGIN_OFFSET``). Degenerate simplices (the BVH's test, relative to each simplex's size:
+    :func:`ao4d.bvh.host.nondegenerate`) are left out of the BVH, cannot occlude and add nothing
+    to vertex normals; normal components below 1e-12 count as zero. So the result does not
+    depend on the scene's scale.
 
     References
     ----------
@@ -220,7 +242,7 @@ def ambient_occlusion(
         if alone.size:  # clusters of zero measure only: no neighbour has an AO to share
             occlusion[alone] = _both_sides(mesh, pts=np.asarray(mesh_arrays(mesh)[0])[alone],
                                            samples=samples, seed=seed,
-                                           offset=ORIGIN_OFFSET * tree.diagonal,
+                                           offset=ORIGIN_OFFSET * tree.world_diagonal,
                                            max_distance=max_distance, runtime=runtime, accel=accel)
     return occlusion
 

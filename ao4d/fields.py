@@ -826,7 +826,11 @@ def evaluate_layers(field: Callable, axes: Sequence[np.ndarray], start: int, sto
             for pos, coords in enumerate(block):  # pts axis `pos` runs along `coords`
                 axis = d - 1 if pos == 0 else pos - 1
                 pts[..., axis] = coords.reshape([-1 if q == pos else 1 for q in range(d)])
-            vals = np.asarray(field(pts), dtype=np.float64)
+            vals = np.asarray(field(pts))
+            if vals.dtype.kind not in "fiub":  # complex parts would be dropped with a warning
+                raise TypeError(f"`field` must return real numbers, got dtype {vals.dtype} (as "
+                                "ao4d.extract refuses such values: take .real or abs() first)")
+            vals = vals.astype(np.float64, copy=False)
             if vals.shape != pts.shape[:-1]:
                 raise ValueError(f"`field` returned shape {vals.shape} for points of shape {pts.shape}")
             out[k0 - start : k1 - start, r0:r1] = vals

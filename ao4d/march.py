@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import as_array, as_real, as_vector, check_bool, check_choice, check_finite, check_positive_int
+from ._validate import (as_array, as_real, as_vector, check_bool, check_choice, check_finite, check_grid_lengths,
+                        check_positive_int)
 from .cells import (  # noqa: F401  (_kuhn_table: tests reach it through ao4d.march)
     _PROGRESS_CELLS,
     _cell_table,
@@ -129,7 +130,8 @@ def extract(
     level : float
         Iso-value.
     spacing : float or (d,) array_like
-        Grid step per axis (> 0).
+        Grid step per axis (> 0); a ``None`` entry keeps that axis at the default step 1
+        (``spacing=(None, None, None, 0.5)`` sets only w, as in :func:`ao4d.readers.read_grid`).
     origin : float or (d,) array_like
         Position of ``values[0, ..., 0]``.
     method : {"cubes", "simplices"}
@@ -201,10 +203,14 @@ def extract(
                              "needs a value at every grid point: fill them with a value on the "
                              "side they belong to (values.filled(...))")
         values = values.data  # nothing masked: the plain array (NaN in it is still refused)
+    if isinstance(spacing, (list, tuple)) and any(step is None for step in spacing):
+        spacing = [1.0 if step is None else step for step in spacing]  # None keeps the default
     if affine is not None:
         d = getattr(values, "ndim", None) if is_dask_array(values) or isinstance(values, np.ndarray) \
             else as_array(values, "values").ndim
         matrix, shift = _affine(affine, d, spacing, origin)
+        corners = np.abs(matrix) @ (np.asarray(values.shape, dtype=np.float64) + 1.0)  # padding included
+        check_grid_lengths(np.abs(matrix).max(axis=0), np.abs(shift) + corners, "affine")
         mesh = extract(values, level, method=method, inside=inside, chunk=chunk, progress=progress,
                        closed=closed, backend=backend)
         hint = mesh.cache.get(GRID_EDGE_KEY)
@@ -226,6 +232,7 @@ def extract(
     level = as_real(level, "level")
     spacing = as_vector(spacing, "spacing", d, positive=True)
     origin = as_vector(origin, "origin", d)
+    _check_lengths(spacing, origin, arr.shape, "spacing")
     check_choice(method, "method", METHODS)
     check_choice(inside, "inside", _INSIDE)
     check_choice(backend, "backend", BACKENDS)
@@ -260,6 +267,14 @@ def extract(
         _mark_grid_edge(mesh, geom)
     return _checked(mesh, level, inside, lambda: (float(np.min(arr)), float(np.max(arr))),
                     lambda: outside_value(inside) if closed else float(arr[(0,) * d]))
+
+
+def _check_lengths(spacing: np.ndarray, origin: np.ndarray, shape: Any, name: str) -> None:
+    """:func:`ao4d._validate.check_grid_lengths` for a grid ``origin + spacing * i`` of ``shape``
+    (with one more cell on every side: ``closed=True`` pads the grid)."""
+    n = np.asarray(shape, dtype=np.float64)
+    extent = np.maximum(np.abs(origin - spacing), np.abs(origin + spacing * n))
+    check_grid_lengths(spacing, extent, name)
 
 
 def _padded_reader(read: Callable[[int, int], np.ndarray], shape: tuple[int, ...],
@@ -312,8 +327,18 @@ def _affine(affine: Any, d: int, spacing: Any, origin: Any) -> tuple[np.ndarray,
     if np.any(np.asarray(spacing, dtype=float) != 1.0) or np.any(np.asarray(origin, dtype=float) != 0.0):
         raise ValueError("give either `affine` or `spacing`/`origin`, not both (the affine holds "
                          "the spacing and origin)")
-    if abs(np.linalg.det(m[:d, :d])) <= 1e-12 * max(1.0, float(np.abs(m[:d, :d]).max())) ** d:
-        raise ValueError(f"`affine`'s linear part must be invertible, got {m[:d, :d].tolist()}")
+    # relative, not an absolute determinant: data stored in metres (steps of 1e-3) is fine
+    # the columns (the grid's axes) scaled to unit size first: different steps per axis, however
+    # small or large, are fine; axes (nearly) parallel are not
+    linear = m[:d, :d]
+    top = np.abs(linear).max(axis=0)
+    cond = math.inf
+    if (top > 0).all():
+        axes = linear / top
+        cond = float(np.linalg.cond(axes / np.linalg.norm(axes, axis=0)))
+    if not cond < 1e12:
+        raise ValueError(f"`affine`'s linear part must be invertible (condition number below 1e12, "
+                         f"got {cond:.3g}), got {linear.tolist()}")
     return m[:d, :d], m[:d, d]
 
 
@@ -328,6 +353,8 @@ def _extract_dask(values, level, spacing, origin, method, inside, chunk, progres
     level = as_real(level, "level")
     spacing = as_vector(spacing, "spacing", d, positive=True)
     origin = as_vector(origin, "origin", d)
+    if d == values.ndim:
+        _check_lengths(spacing, origin, values.shape, "spacing")
     inside = check_choice(inside, "inside", _INSIDE)
     backend = check_choice(backend, "backend", BACKENDS)
     mesh = extract_blocks(
@@ -410,6 +437,7 @@ def extract_field(
     n = [len(a) for a in axes]
     lo = np.array([a[0] for a in axes])
     spacing = np.array([(a[-1] - a[0]) / (len(a) - 1) for a in axes])
+    _check_lengths(spacing, lo, n, "bounds")
     if chunks is not None:
         from .blockwise import extract_field_blocks
 
@@ -457,6 +485,19 @@ def _in_solid(value: float, level: float, inside: str) -> bool:
     return value < level if inside == "below" else value > level
 
 
+def _empty_reason(level: float, inside: str, lo: float, hi: float) -> str:
+    """Why a grid with values in [lo, hi] gives no surface at ``level``."""
+    if lo == hi:
+        return f"the grid is constant (every value is {lo:g}): no level crosses it"
+    if level < lo or level > hi:
+        return f"`level` {level:g} is outside the data range [{lo:g}, {hi:g}]"
+    # the level is the range's end on the solid's side: the solid (strict inequality) is empty
+    end, side, sign = ("minimum", "below", "<") if inside == "below" else ("maximum", "above", ">")
+    return (f"`level` {level:g} equals the data's {end}: the solid is f {sign} level and no value "
+            f"lies {side} it (values equal to the level count as outside); choose a level strictly "
+            f"between {lo:g} and {hi:g}, e.g. {(lo + hi) / 2:g}")
+
+
 class EmptyMeshWarning(UserWarning):
     """The extracted level set is empty (the level misses the data)."""
 
@@ -477,8 +518,7 @@ def _checked(mesh: SimplexMesh, level: float, inside: str, value_range: Callable
     mesh._mark_constructed(MARCHING_PROVED)  # what the table guarantees: check() need not test it
     if mesh.n_simplices == 0:
         if value_range is not None:
-            lo, hi = value_range()
-            why = f"`level` {level:g} is outside the data range [{lo:g}, {hi:g}]"
+            why = _empty_reason(level, inside, *value_range())
         else:
             why = f"no grid cell crosses `level` {level:g} (check `level` and the grid's bounds)"
         warnings.warn(f"the extracted mesh is empty: {why}", EmptyMeshWarning, stacklevel=3)

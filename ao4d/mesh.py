@@ -525,9 +525,10 @@ class SimplexMesh:
         t = as_array(offset, "offset", ndim=(0, 1), dtype=np.float64, finite=True)
         if t.shape not in ((), (d,)):
             raise ValueError(f"`offset` must be a scalar or have shape ({d},), got {t.shape}")
-        det = float(np.linalg.det(m))
-        if det == 0.0:
-            raise ValueError("`matrix` must be invertible (its determinant is 0)")
+        # the rank is relative to the matrix's size; a determinant of small steps underflows
+        if np.linalg.matrix_rank(m) < d:
+            raise ValueError(f"`matrix` must be invertible, got rank {np.linalg.matrix_rank(m)} of {d}")
+        det = float(np.sign(np.linalg.slogdet(m)[0]))
         mesh = SimplexMesh(
             self._vertices @ m.T + t,
             self._simplices.copy(),

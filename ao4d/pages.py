@@ -122,6 +122,7 @@ class Page(type(Path())):  # type: ignore[misc]
 
 
 def _page_text(what: Any, options: dict) -> str:
+    _check_view_input(what, options)
     if is_image(what):
         from .image_viewer import image_page_text
 
@@ -129,6 +130,31 @@ def _page_text(what: Any, options: dict) -> str:
     from .viewer import page_text
 
     return page_text(what, **options)
+
+
+def _check_view_input(what: Any, options: dict) -> None:
+    """Refuse, naming the parameter, what neither page shows and options neither page takes."""
+    import inspect
+
+    import numpy as np
+
+    if isinstance(what, np.ndarray) and what.ndim != 3:
+        raise TypeError(f"`what` must be a SimplexMesh, a .npz path, a sequence of them, a RenderResult, "
+                        f"a .vti/.mhd path or a 3D array of shade values; got an array of shape "
+                        f"{what.shape}: extract a mesh from it first (ao4d.extract(values, level)) or "
+                        "render one (ao4d.render)")
+    if is_image(what):
+        from .image_viewer import image_page_text as target
+        kind = "an image's page"
+    else:
+        from .viewer import page_text as target
+        kind = "the meshes' page"
+    known = [name for name, p in inspect.signature(target).parameters.items()
+             if p.kind == p.KEYWORD_ONLY]
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise TypeError(f"ao4d.view got unknown option(s) {', '.join(map(repr, unknown))} for {kind}; "
+                        f"it takes {', '.join(known)} (and path, height, inline_limit)")
 
 
 def inline(what: Any, *, height: int = HEIGHT, inline_limit: int = INLINE_LIMIT,
@@ -171,6 +197,7 @@ def view(what: Any, path: str | os.PathLike | None = None, *, height: int = HEIG
     """
     if path is None:
         return inline(what, height=height, inline_limit=inline_limit, **options)
+    _check_view_input(what, options)
     if is_image(what):
         from .image_viewer import view_image
 

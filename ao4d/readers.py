@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import as_real, as_vector, check_bool, check_memory
+from ._validate import as_real, as_vector, check_bool, check_grid_lengths, check_memory
 
 __all__ = ["Grid", "read_grid", "ObliqueAffineWarning", "natural_key", "FRAME_SUFFIXES"]
 
@@ -238,15 +238,30 @@ def read_grid(
     if chunks is not None:
         values = _as_dask(values, chunks, text)
     step, start = np.asarray(step, np.float64), np.asarray(start, np.float64)
+    extent = np.abs(start) + np.abs(step) * (np.asarray(values.shape, dtype=np.float64) + 1.0)
+    if w_scale is not None and spacing is None:
+        check_grid_lengths(step, extent, "w_scale", hint=f" (the grid steps of {text!r}: {step.tolist()})")
+    else:
+        check_grid_lengths(step, extent, "spacing", hint=f" (the grid steps of {text!r}: {step.tolist()}; "
+                           "`spacing=` overrides them)")
     matrix = None
     if affine:
         matrix = scale.get("affine_matrix")
-        if matrix is None or spacing is not None or origin is not None:
+        if matrix is None:
             matrix = np.eye(d + 1)
             matrix[:d, :d] = np.diag(step)
             matrix[:d, d] = start
-        else:
+        else:  # the file's affine, with the given steps and origin in place of its own
             matrix = np.array(matrix, dtype=np.float64)
+            given = np.flatnonzero(_given_axes(spacing, d))
+            if given.size:  # each given axis keeps its direction (oblique rotation included)
+                length = np.linalg.norm(matrix[:d, given], axis=0)
+                matrix[:d, given] *= step[given] / length
+                notes.append(f"the affine's axes {', '.join('xyzw'[k] for k in given)} "
+                             "take the given spacing (their directions kept)")
+            if origin is not None:
+                matrix[:d, d] = start
+                notes.append("the affine's translation is the given origin")
     return Grid(values, step, start, text, tuple(notes), tuple(scale.get("units", ())),
                 scale.get("w_scaled"), matrix)
 
@@ -258,8 +273,17 @@ def _is_int(value: Any) -> bool:
 def _w_override(spacing: Any) -> float | None:
     """The w step ``spacing`` sets (a 4-entry sequence with a number last), else None."""
     if isinstance(spacing, (list, tuple, np.ndarray)) and len(spacing) == 4 and spacing[3] is not None:
-        return float(spacing[3])
+        return as_real(spacing[3], "spacing", gt=0)  # its w entry: named like the rest
     return None
+
+
+def _given_axes(spacing: Any, d: int) -> np.ndarray:
+    """(d,) bool: the axes whose step ``spacing`` sets (None: none; a None entry keeps the file's)."""
+    if spacing is None:
+        return np.zeros(d, dtype=bool)
+    if isinstance(spacing, (list, tuple)) and len(spacing) == d:
+        return np.array([s is not None for s in spacing])
+    return np.ones(d, dtype=bool)
 
 
 def _merge_spacing(spacing: Any, step: np.ndarray, d: int) -> np.ndarray:

@@ -60,8 +60,9 @@ from .ao import ORIGIN_OFFSET, ambient_occlusion
 from .camera import Camera4D, ImageGeometry, _image_shape
 from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, lambert
 from .mesh import SimplexMesh, _mesh_list, concatenate, warn_if_inside_out
-from .raycast import cast_rays, check_distance, check_rays
-from .screen_ao import DepthVolume, default_steps, screen_space_occlusion, viewer_side
+from .raycast import RAYS_PER_SECOND, cast_rays, check_distance, check_rays
+from .screen_ao import (DENOISE_PER_SECOND, LOOKUPS_PER_SECOND, MAX_STEPS, MIN_STEPS, STEP_VOXELS, DepthVolume,
+                        default_steps, screen_space_occlusion, viewer_side)
 from .screen_ao import denoise as denoise_occlusion
 from .volumes import write_mhd, write_vti
 
@@ -401,7 +402,8 @@ def render(
     runtime = cl.resolve_backend(backend)
     backend = cl.backend_name(runtime)  # what runs: every stage on the same device
     _check_budget(scene, n_rays, ao=ao, samples=samples, lights=lights, shadows=shadows,
-                  layers=1 if material.opaque else layers, backend=backend, max_rays=max_rays)
+                  layers=1 if material.opaque else layers, backend=backend, max_rays=max_rays,
+                  camera=camera, shape=shape, max_distance=max_distance, denoise=denoise)
     if ao == "hits" or (ao == "vertices" and "ao" not in scene.point_data):
         # only AO computed here: stored AO was computed (and warned about) where it was made,
         # and the check costs a pass over every simplex
@@ -583,7 +585,8 @@ class _Shading:
         if occlusion is not None:
             occ = np.asarray(occlusion, dtype=np.float64)
         elif self.ao == "vertices" and len(simplex):
-            occ = np.einsum("hk,hk->h", bary, self._per_vertex_ao()[tri])
+            # weights a rounding below 0 or summing above 1 would leave [0, 1]
+            occ = np.clip(np.einsum("hk,hk->h", bary, self._per_vertex_ao()[tri]), 0.0, 1.0)
         elif self.ao == "hits" and len(simplex):
             occ = _hit_occlusion(scene, points, face_n, samples=self.samples, seed=self.seed,
                                  max_distance=self.max_distance, backend=self.backend,
@@ -757,19 +760,39 @@ def _composite_rays(shading: _Shading, origins, directions, rows, t, simplex, fi
 
 
 def _check_budget(scene, n_voxels: int, *, ao: str, samples: int, lights, shadows: bool,
-                  layers: int, backend: str, max_rays) -> None:
+                  layers: int, backend: str, max_rays, camera=None, shape=None,
+                  max_distance: float = math.inf, denoise: int = 0) -> None:
     """Refuse a render whose rays would exceed ``max_rays``, before any of them is cast.
 
     An upper bound: every voxel's ray hits ``layers`` surfaces, each with AO at the hit
-    (``ao="hits"``) and a shadow ray per light (transparent scenes: ``layers`` per light).
+    (``ao="hits"``; ``"screen"``: ``samples`` directions of at most :func:`_screen_steps`
+    look-ups, and the ``denoise`` filter's window per voxel, as rays taking as long) and a
+    shadow ray per light (transparent scenes: ``layers`` per light).
     """
     per_hit = (samples if ao == "hits" else 0) + (len(lights) * layers if shadows else 0)
     ao_vertices = scene.n_vertices * samples if ao == "vertices" and "ao" not in scene.point_data else 0
     total = n_voxels * layers * (1 + per_hit) + ao_vertices
-    check_rays(total, backend, max_rays,
-               what=f"rendering {n_voxels:,} voxels with ao={ao!r}, `samples`={samples}",
-               hint="use fewer `samples` or a smaller `shape`, or pass max_rays=math.inf "
+    what = f"rendering {n_voxels:,} voxels with ao={ao!r}, `samples`={samples}"
+    if ao == "screen":  # look-ups and the filter's window, counted as rays at their cost
+        lookups = n_voxels * layers * samples * _screen_steps(scene, camera, shape, max_distance)
+        window = n_voxels * (2 * denoise + 1) ** 3 if denoise else 0
+        seconds = lookups / LOOKUPS_PER_SECOND[backend] + window / DENOISE_PER_SECOND[backend]
+        total += seconds * RAYS_PER_SECOND[backend]
+        what += (f"{f', `denoise`={denoise}' if denoise else ''} ({lookups:.3g} depth look-ups"
+                 f"{f' and {window:.3g} filter-window voxels' if window else ''}, counted as rays "
+                 "at their cost)")
+    check_rays(total, backend, max_rays, what=what,
+               hint="use fewer `samples`, a smaller `denoise` or `shape`, or pass max_rays=math.inf "
                     "(CLI: --force)")
+
+
+def _screen_steps(scene, camera, shape, max_distance) -> int:
+    """An upper bound of :func:`ao4d.screen_ao.default_steps` before the image exists: the
+    reach clamped to the scene's diagonal (the visible points' box is inside it)."""
+    lo, hi = np.asarray(scene.bounds, dtype=np.float64)
+    reach = min(max_distance, float(np.linalg.norm(hi - lo)))
+    voxels = reach / camera.geometry(shape).spacing
+    return int(min(MAX_STEPS, max(MIN_STEPS, math.ceil(voxels / STEP_VOXELS))))
 
 
 def _cast_chunked(scene, origins, directions, backend, show, desc, *, closest=True,

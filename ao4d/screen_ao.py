@@ -82,7 +82,7 @@ from .camera import Camera4D, _image_shape
 from .sampling import cosine_hemisphere, sobol_table
 
 __all__ = ["DepthVolume", "screen_space_occlusion", "denoise", "default_steps", "viewer_side",
-           "STEP_VOXELS", "MIN_STEPS", "MAX_STEPS", "GRAZING"]
+           "STEP_VOXELS", "MIN_STEPS", "MAX_STEPS", "GRAZING", "LOOKUPS_PER_SECOND", "DENOISE_PER_SECOND"]
 
 # Default march: one point per STEP_VOXELS voxels of reach (at the target's distance), between
 # MIN_STEPS and MAX_STEPS. On the demo scene at reach 1 (20 voxels at 80^3) the error against
@@ -90,6 +90,11 @@ __all__ = ["DepthVolume", "screen_space_occlusion", "denoise", "default_steps", 
 # (125 voxels) 4 points step over whole objects.
 STEP_VOXELS, MIN_STEPS, MAX_STEPS = 8, 4, 16
 GRAZING = 0.1  # |u . m| below which the voxel's depth replaces its tangent hyperplane
+# Rates for render's estimates before work, on the fast side (raycast.RAYS_PER_SECOND's rule):
+# depth look-ups per second (measured 3e7 on Intel's CPU runtime with 2 cores, 6e5 in numpy)
+# and denoise filter-window voxels per second (1.5-7e8 and 1e7)
+LOOKUPS_PER_SECOND = {"opencl": 1e8, "numpy": 1e6}
+DENOISE_PER_SECOND = {"opencl": 1e9, "numpy": 1.5e7}
 _BIAS = 1e-3  # default bias, times the reach
 _POINTS_PER_LAUNCH = 1 << 15
 _NUMPY_CHUNK = 1 << 18  # (point, sample, step) triples per numpy chunk
@@ -211,11 +216,24 @@ class DepthVolume:
         return np.ascontiguousarray(self.gbuffer, dtype=np.float32)
 
     def default_reach(self) -> float:
-        """The reach used for ``max_distance=inf``: the diagonal of the visible points' box."""
+        """The reach used for ``max_distance=inf``, and the most any reach marches: the
+        diagonal of the visible points' box (the image's extent)."""
+        return self._extent
+
+    @cached_property
+    def _extent(self) -> float:
         pts = self.hit_points()
         if not len(pts):
             return 1.0
         return max(float(np.linalg.norm(np.ptp(pts, axis=0))), 1e-12)
+
+    @cached_property
+    def _rounding(self) -> float:
+        """The least depth difference both backends resolve: ``2^-16`` times the largest
+        eye distance of a visible point (float32 keeps 24 bits; the kernel's plane test divides
+        by ``|u . m| >= GRAZING`` and rounds a few times)."""
+        depth = self.depth[self.hit]
+        return 2.0**-16 * (float(depth.max()) if depth.size else 0.0)
 
 
 def screen_space_occlusion(
@@ -245,14 +263,16 @@ def screen_space_occlusion(
         Cosine-weighted directions per point (>= 1); point i uses the directions the ray-traced
         :func:`ao4d.ambient_occlusion` traces for point i with the same ``seed``.
     max_distance : float
-        The reach ``L`` (> 0): directions are marched to ``p + L w``. ``inf`` takes the diagonal
-        of the visible points' bounding box.
+        The reach ``L`` (> 0): directions are marched to ``p + L w``, ``L`` clamped to the
+        diagonal of the visible points' bounding box (the image's extent; ``inf`` takes it).
     steps : int, optional
         March points per direction (>= 1): ``samples * steps`` look-ups per point at most;
         default :func:`default_steps` (4 to 16, one per 8 voxels of reach).
     bias : float, optional
         Depth (>= 0) by which a surface must lie in front of a march point to hide it; default
-        ``1e-3 L``.
+        ``1e-3 L``. At least ``2^-16`` times the largest eye distance of the points and the
+        visible surface, on both backends: the float32 kernel cannot resolve less, and would
+        count its rounding as occlusion (a reach of 1e-6 gave 0.37 there).
     thickness : float, optional
         Range limit (> ``bias``): surfaces farther than this in front of a march point do not
         hide it (the depth volume's assumed thickness); default ``L``.
@@ -303,6 +323,9 @@ def screen_space_occlusion(
     steps = default_steps(volume, reach) if steps is None else check_positive_int(steps, "steps")
     bias = _BIAS * reach if bias is None else as_real(bias, "bias", ge=0)
     thickness = reach if thickness is None else as_real(thickness, "thickness", gt=bias, finite=False)
+    # below float32's resolution of the points the kernel would count rounding as depth
+    eye_distance = float(np.linalg.norm(pts - volume.camera.eye, axis=1).max()) if len(pts) else 0.0
+    bias = max(bias, volume._rounding, 2.0**-16 * eye_distance)
     check_memory(samples * 4 * 12.0, f"the direction table for samples={samples}", hint="use fewer `samples`")
     runtime = cl.resolve_backend(backend)
     if not len(pts):
@@ -316,10 +339,15 @@ def screen_space_occlusion(
 
 
 def _reach(volume: DepthVolume, max_distance) -> float:
+    """The reach marched: ``max_distance`` clamped to the image's extent
+    (:meth:`DepthVolume.default_reach`). Farther march points lie outside the image, or behind
+    everything it holds: a longer reach would only spread the same steps thinner."""
     reach = as_real(max_distance, "max_distance", gt=0, finite=False)
     if math.isnan(reach):
         raise ValueError("`max_distance` must be a number, got nan")
-    return volume.default_reach() if math.isinf(reach) else reach
+    if not volume.hit.any():  # an empty image has no extent to clamp to
+        return volume.default_reach() if math.isinf(reach) else reach
+    return min(reach, volume.default_reach())
 
 
 def default_steps(volume: DepthVolume, max_distance: float) -> int:

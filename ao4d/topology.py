@@ -9,6 +9,8 @@ arrays and do no validation.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import Any
 
@@ -358,11 +360,18 @@ class MeshReport:
         return self.closed and self.oriented and self.volume < 0
 
     @property
+    def measurable(self) -> bool:
+        """Some simplex has a measure and the volume is finite (coordinates whose products
+        underflow or overflow float64 make every simplex degenerate, or the volume nan/inf)."""
+        return self.n_degenerate < self.n_simplices and math.isfinite(self.volume)
+
+    @property
     def ok(self) -> bool:
-        """Closed, manifold, consistently oriented and outward (degenerate simplices are only
-        reported: extraction legitimately makes zero-measure simplices where values equal the
-        level)."""
-        return self.closed and self.manifold and self.oriented and not self.inside_out
+        """Closed, manifold, consistently oriented, outward and measurable (degenerate simplices
+        are otherwise only reported: extraction legitimately makes zero-measure simplices where
+        values equal the level)."""
+        return (self.closed and self.manifold and self.oriented and not self.inside_out
+                and self.measurable)
 
     def __str__(self) -> str:
         def flag(value: bool) -> str:
@@ -390,6 +399,10 @@ class MeshReport:
         ]
         if self.hint and not self.closed:
             lines.append(f"  open at the grid's edge: {self.hint}")
+        if not self.measurable:
+            lines.append(f"  measures: NO (volume {self.volume:.6g}, {self.n_degenerate} of {self.n_simplices} "
+                         "simplices degenerate: coordinates whose products underflow or overflow "
+                         "float64; rescale the mesh)")
         lines.append(f"  => {'OK' if self.ok else 'NOT OK'}")
         return "\n".join(lines)
 

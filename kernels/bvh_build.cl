@@ -3,8 +3,9 @@
 //
 // Compile with -D DIM=2|3|4. With -D USE_DOUBLE (devices with cl_khr_fp64) the per-simplex
 // geometry (degeneracy test, boxes with margins, centroids, inverse matrices) is computed in
-// double with the very operations of ao4d.bvh._prepare / build, so every simplex's box,
-// centroid and leaf-block entries equal the host builder's bit for bit; without it, in float.
+// double with the very operations of ao4d.bvh.host.frames / build, so every simplex's box,
+// centroid and leaf-block entries equal the host builder's bit for bit; without it, in float,
+// and the degeneracy test comes from the host (-D KEEP_GIVEN), so both keep the same simplices.
 //
 // Nothing here depends on work-group sizes (every kernel runs with a NULL local size) and no
 // kernel uses local memory or float atomics: bins are per-work-item partials reduced by one
@@ -71,7 +72,7 @@ inline void cross(const real *a, const real *b, const real *c, real *out)
 }
 
 // edges from vertex 0, the normal, |n|^2; returns whether the simplex has non-zero measure
-// (ao4d.bvh._prepare: |n| > 1e-12 * longest edge^(d-1) and |n| > 0)
+// (ao4d.bvh.host.frames: |n| > 1e-12 * longest edge^(d-1), the power as repeated products, and |n| > 0)
 inline int simplex_frame(const real p[DIM][DIM], real e[DIM][DIM], real n[DIM], real *norm2)
 {
     for (int k = 1; k < DIM; ++k)
@@ -103,7 +104,7 @@ inline int simplex_frame(const real p[DIM][DIM], real e[DIM][DIM], real n[DIM], 
     return norm > (real)1e-12 * scale && norm > 0;
 }
 
-// rows of inverse([e1 .. e_{d-1} | n]) by Cramer's rule (ao4d.bvh._prepare): row i is
+// rows of inverse([e1 .. e_{d-1} | n]) by Cramer's rule (ao4d.bvh.host.frames): row i is
 // (-1)^(d-1-i) X(the columns but i) / |n|^2, the last row n / |n|^2
 inline void simplex_inverse(const real e[DIM][DIM], const real n[DIM], const real norm2,
                             real inv[DIM][DIM])
@@ -146,7 +147,9 @@ inline float next_up(const float x)
 }
 
 // pass 1, one work-item per chunk of simplices: keep (1) or skip (0) each, the kept count and
-// the kept corners' bounds
+// the kept corners' bounds. With -D KEEP_GIVEN (devices without doubles) `keep` arrives filled
+// by the host's float64 test (ao4d.bvh.host.nondegenerate): a float test would keep or skip
+// other simplices than the host tree and the numpy backend
 __kernel __attribute__((vec_type_hint(float4))) void scan_simplices(
     __global const real *vertices, __global const int *simplices, const int n_simplices,
     const int chunk, __global uchar *keep, __global int *kept, __global real *part_lo,
@@ -161,10 +164,15 @@ __kernel __attribute__((vec_type_hint(float4))) void scan_simplices(
     }
     int count = 0;
     for (int s = begin; s < end; ++s) {
-        real p[DIM][DIM], e[DIM][DIM], n[DIM], nn;
+        real p[DIM][DIM];
         load_corners(vertices, simplices, s, p);
+#ifdef KEEP_GIVEN
+        const int ok = keep[s];  // decided by the host in float64
+#else
+        real e[DIM][DIM], n[DIM], nn;
         const int ok = simplex_frame(p, e, n, &nn);
         keep[s] = (uchar)ok;
+#endif
         if (!ok) continue;
         ++count;
         for (int k = 0; k < DIM; ++k)

@@ -480,3 +480,47 @@ def test_cli_ao_keeps_the_input_files_field_data(tmp_path):
     assert cli.main(["ao", str(tmp_path / "in.npz"), "--samples", "2", "--out",
                      str(tmp_path / "out.npz"), "--backend", "numpy"]) == 0
     assert float(mesh_files.read_field_data(tmp_path / "out.npz")["w_scale"]) == 0.5
+
+
+def _ball_with_holes(d: int) -> np.ndarray:
+    """A ball sampled on a grid (f = |x|^2 - 0.64 on [-1, 1]^d, level 0) with its centre and
+    some points next to the surface exactly at the level: zero-measure simplices enclosed by
+    the solid (a hole) and on the surface (vertices without a normal of their own)."""
+    n = 9
+    x = np.linspace(-1.0, 1.0, n)
+    values = (np.stack(np.meshgrid(*[x] * d, indexing="ij"), -1) ** 2).sum(-1) - 0.64
+    values[(n // 2,) * d] = 0.0
+    values[6, 5] = values[2, 3] = values[5, 2] = 0.0  # |x|^2 = 0.625 (d = 3, 4: rows of them)
+    return values
+
+
+@pytest.mark.parametrize("d", (3, 4))
+def test_ao_does_not_depend_on_the_scenes_scale(d, backend):
+    # the rays of a hole (no normal: both hemispheres) started an offset in the tree's units
+    # where world units were meant: AO 0 at scale 1e-6 for a hole that is 1 at 1; flat simplices
+    # whose normals are rounding noise after the scaling, and normals whose zero components
+    # came back as +-1e-17 (the rays' tangent frame flips with their sign), changed AO too
+    samples = 8
+    base = ao4d.extract(_ball_with_holes(d), 0.0, spacing=0.25, origin=-1.0)
+    hole = np.flatnonzero(np.all(base.vertices == 0.0, axis=1))
+    flat = np.flatnonzero(np.linalg.norm(base.vertex_normals, axis=1) == 0)
+    assert hole.size and flat.size > hole.size  # level-valued points on the surface too
+    rng = np.random.default_rng(3300 + d)
+    points = rng.uniform(-1, 1, (40, d))
+    normals = rng.normal(size=(40, d))
+
+    def all_paths(scale, at_simplices):
+        mesh = ao4d.SimplexMesh(base.vertices * scale, base.simplices)
+        kw = dict(samples=samples, backend=backend)
+        return (ao4d.ambient_occlusion(mesh, **kw),
+                ao4d.ambient_occlusion(mesh, points=points * scale, normals=normals, **kw),
+                ao4d.ambient_occlusion(mesh, points=points * scale, normals=normals,
+                                       max_distance=0.5 * scale, **kw),
+                ) + ((ao4d.ambient_occlusion(mesh, at="simplices", **kw),) if at_simplices else ())
+
+    reference = all_paths(1.0, True)
+    np.testing.assert_array_equal(reference[0][hole], 1.0)
+    for scale in (1e-6, 1e-3, 1e3, 1e6):  # the simplices' path (slow on numpy) at the extremes
+        for got, want in zip(all_paths(scale, scale in (1e-6, 1e6)), reference):
+            np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+            assert np.nanmax(np.abs(got - want)) <= 1 / samples, scale

@@ -211,3 +211,16 @@ def test_wide_tree_needs_small_leaves():
 def corner_normals(corners: np.ndarray) -> np.ndarray:
     """DESIGN.md normals of simplices given by their corners (S, d, d)."""
     return cross(*np.moveaxis(corners[:, 1:] - corners[:, :1], 1, 0))
+
+
+@pytest.mark.parametrize("d", (2, 3, 4))
+def test_nondegenerate_is_the_test_frames_applies(d):
+    # the device builder on devices without doubles takes its keep/skip from here
+    rng = np.random.default_rng(3200 + d)
+    v = rng.normal(size=(40, d))
+    s = rng.integers(0, 40, (300, d))
+    s[:50, -1] = s[:50, 0]  # repeated vertices: zero measure
+    v[s[50:80, -1]] = v[s[50:80, 0]] + 1e-13 * rng.normal(size=(30, d))  # slivers
+    keep = bvh.host.nondegenerate(v, s, chunk=7)
+    np.testing.assert_array_equal(np.flatnonzero(keep), bvh.host.frames(v, s)[0])
+    assert not keep[:50].any() and keep.sum() < 300

@@ -304,3 +304,69 @@ def test_leaf_size_beyond_the_leaf_encoding_is_refused_up_front(lanes, cl_runtim
     with pytest.raises(ValueError, match=rf"`leaf_size` must be at most {4 * lanes} on this device"):
         raycast.get_bvh(mesh, leaf_size=4 * lanes + 1, runtime=cl_runtime)
     assert raycast.get_bvh(mesh, leaf_size=4 * lanes, runtime=cl_runtime).n_prims == 50
+
+
+# a tetrahedron of R^4 at the degeneracy threshold: |n| / L^3 falls between the one rounding of
+# numpy's L ** 3 and the two of the kernel's L * L * L (issue 31); a unit one far away keeps the
+# mesh from being all degenerate
+SLIVER_A, SLIVER_H = 2.0219080013611848, 4.088111965968381e-12
+
+
+def sliver_mesh(first: bool) -> ao4d.SimplexMesh:
+    a, h = SLIVER_A, SLIVER_H
+    sliver = [(0, 0, 0, 0), (a, 0, 0, 0), (0, 1, 0, 0), (0, 0, 0, h)]
+    unit = [(5, 0, 0, 0), (6, 0, 0, 0), (5, 1, 0, 0), (5, 0, 1, 0)]
+    simplices = [[0, 1, 2, 3], [4, 5, 6, 7]] if first else [[4, 5, 6, 7], [0, 1, 2, 3]]
+    return ao4d.SimplexMesh(np.array(sliver + unit, dtype=float), simplices)
+
+
+@pytest.mark.parametrize("double", [True, False])  # False: a device without cl_khr_fp64, forced
+@pytest.mark.parametrize("first", [True, False])
+def test_sliver_at_the_degeneracy_threshold_traces_alike_on_both_backends(double, first, cl_runtime,
+                                                                           monkeypatch):
+    if double and not has_double(cl_runtime):
+        pytest.skip("this OpenCL device has no cl_khr_fp64")
+    if not double:
+        monkeypatch.setattr(device, "_has_double", lambda device: False)
+    h = SLIVER_H
+    o, w = [(0.3, 0.3, -1.0, h / 4)], [(0.0, 0.0, 1.0, 0.0)]
+    hits = {b: raycast.cast_rays(sliver_mesh(first), o, w, backend=b) for b in ("numpy", "opencl")}
+    np.testing.assert_array_equal(hits["opencl"].simplex, hits["numpy"].simplex)
+    np.testing.assert_array_equal(hits["opencl"].t, hits["numpy"].t)  # closest hit: t in float64
+    assert hits["numpy"].simplex[0] == (0 if first else 1) and hits["numpy"].t[0] == 1.0
+    any_hit = raycast.cast_rays(sliver_mesh(first), o, w, closest=False, backend="opencl")
+    np.testing.assert_array_equal(any_hit.simplex, hits["numpy"].simplex)
+
+
+@pytest.mark.parametrize("d", (3, 4))
+def test_both_builders_keep_the_same_simplices_without_doubles(d, cl_runtime, monkeypatch):
+    # a float test kept slivers the float64 one skips (44-232 per extracted mesh) and the
+    # closest-hit refinement of a hit on one raised
+    monkeypatch.setattr(device, "_has_double", lambda device: False)
+    rng = np.random.default_rng(3100 + d)
+    scene = soup_scene(rng, d, n=300)
+    v = scene.vertices.copy()
+    flat = rng.integers(0, len(scene.simplices), 60)  # squash 60 simplices to slivers of every thinness
+    s = scene.simplices[flat]
+    v = np.concatenate([v, v[s[:, 0]] + (v[s[:, 1]] - v[s[:, 0]]) * 0.5
+                        + 10.0 ** rng.uniform(-16, -8, (60, 1)) * rng.normal(size=(60, d))])
+    simplices = scene.simplices.copy()
+    simplices[flat, -1] = len(scene.vertices) + np.arange(60)
+    mesh = ao4d.SimplexMesh(v, simplices)
+    dev = raycast.get_bvh(mesh_with_tree(mesh, "device", cl_runtime), builder="device")
+    cpu = raycast.get_bvh(mesh_with_tree(mesh, "host", None), builder="host")
+    assert cpu.n_skipped > 0
+    assert dev.n_skipped == cpu.n_skipped
+    np.testing.assert_array_equal(np.sort(dev.prim), np.sort(cpu.prim))
+    o, w = random_rays(rng, d, 2000)
+    fast = raycast.cast_rays(mesh_with_tree(mesh, "device", cl_runtime), o, w, backend="opencl")
+    assert np.isfinite(fast.t[fast.hit]).all()  # the float64 refinement of every closest hit
+
+
+def test_inverses_of_kept_slivers_are_finite():
+    # DeviceBVH.frames' fallback when the device keeps a simplex the float64 test skips
+    mesh = sliver_mesh(True)
+    inverse = device._frames_unfiltered(mesh.vertices, mesh.simplices)
+    assert np.isfinite(inverse).all()
+    _, _, exact = bvh.host.frames(mesh.vertices, mesh.simplices[1:])
+    np.testing.assert_allclose(inverse[1], exact[0], atol=1e-12)

@@ -748,3 +748,75 @@ def test_masked_arrays_are_refused_or_read_plainly():
     with pytest.raises(ValueError, match=r"`values` contains 1 non-finite"):
         ao4d.extract(np.ma.array(holey), 0.0)  # nothing masked: the NaN itself
     _assert_same_mesh(ao4d.extract(v, 0.0), ao4d.extract(np.ma.array(v), 0.0), tol=0.0 + 1e-15)
+
+
+@pytest.mark.parametrize("spacing", [1e-300, 1e300, (1.0, 1.0, 1.0, 1e300), (1e-60, 1.0, 1.0, 1.0)])
+def test_spacings_whose_products_leave_float64_are_refused(spacing):
+    # 1e-300: every simplex degenerate yet check() "OK"; 1e300: volume nan; both with exit 0
+    values = np.random.default_rng(3500).normal(size=(5, 5, 5, 5))
+    with pytest.raises(ValueError, match="`spacing`.*(too small|too large).*float64"):
+        ao4d.extract(values, spacing=spacing)
+    with pytest.raises(ValueError, match="`spacing`.*float64"):
+        ao4d.extract(values, spacing=spacing, closed=True, method="simplices")
+    with pytest.raises(ValueError, match="`affine`.*float64"):
+        ao4d.extract(values, affine=np.diag([*np.broadcast_to(spacing, 4), 1.0]))
+    # the largest and smallest steps that pass keep their measures
+    for ok in (1e-45, 1e45):
+        mesh = ao4d.extract_field(lambda p: np.linalg.norm(p, axis=-1) - 0.7 * ok, (6,) * 4, (-ok, ok))
+        report = mesh.check()
+        assert report.ok and report.n_degenerate == 0 and np.isfinite(mesh.volume)
+
+
+def test_field_bounds_whose_products_leave_float64_are_refused():
+    with pytest.raises(ValueError, match="`bounds`.*too small"):
+        ao4d.extract_field(lambda p: p[..., 0], (5,) * 4, (0.0, 1e-300))
+
+
+@pytest.mark.parametrize("step", [1e-3, 1e-4, 1e-20])
+def test_affine_with_small_uniform_steps_is_invertible(step):
+    # data stored in metres: an absolute determinant test refused steps below 1e-3 in 4D
+    values = ao4d.sample(ao4d.fields.hypersphere(0.7), (8,) * 4, (-1.0, 1.0))
+    ref = ao4d.extract(values, spacing=2 / 7, origin=-1.0)
+    a = np.diag([step] * 4 + [1.0])
+    a[:4, 4] = 5 * step
+    mesh = ao4d.extract(values, affine=a)
+    assert mesh.check().ok
+    np.testing.assert_allclose(mesh.volume, ref.volume * (step * 7 / 2) ** 4, rtol=1e-9)
+    flat = np.diag([step] * 4 + [1.0])
+    flat[:4, 3] = [step, 0.0, 0.0, step * 1e-13]  # the w axis along x: no 4D grid
+    with pytest.raises(ValueError, match="invertible.*condition number"):
+        ao4d.extract(values, affine=flat)
+    stretched = np.diag([step, step, step, step * 1e-13, 1.0])  # other steps per axis are fine
+    assert ao4d.extract(values, affine=stretched).check().ok
+
+
+def test_empty_results_say_why_for_constant_and_two_valued_grids():
+    # "`level` 1 is outside the data range [1, 1]" and "0 is outside [0, 1]" said nothing useful
+    with pytest.warns(march.EmptyMeshWarning, match=r"the grid is constant \(every value is 1\)"):
+        ao4d.extract(np.ones((3, 3, 3, 3)), 1.0)
+    binary = (np.random.default_rng(3700).random((4, 4, 4, 4)) > 0.5).astype(np.uint8)
+    with pytest.warns(march.EmptyMeshWarning,
+                      match=r"`level` 0 equals the data's minimum: the solid is f < level.*e\.g\. 0\.5"):
+        ao4d.extract(binary, 0.0)
+    with pytest.warns(march.EmptyMeshWarning, match=r"`level` 1 equals the data's maximum: the solid is f > level"):
+        ao4d.extract(binary, 1.0, inside="above")
+    with pytest.warns(march.EmptyMeshWarning, match=r"`level` 2 is outside the data range \[0, 1\]"):
+        ao4d.extract(binary, 2.0)
+    assert ao4d.extract(binary, 0.5).n_simplices > 0
+
+
+def test_a_none_spacing_entry_keeps_the_default_step():
+    # read_grid's None ("keep the file's step") met "3 non-finite values" in extract
+    values = ao4d.sample(ao4d.fields.hypersphere(0.7), (6,) * 4, (-1.0, 1.0))
+    mesh = ao4d.extract(values, spacing=(None, None, None, 0.5))
+    np.testing.assert_array_equal(mesh.vertices, ao4d.extract(values, spacing=(1, 1, 1, 0.5)).vertices)
+    with pytest.raises(ValueError, match="`spacing` must be > 0"):
+        ao4d.extract(values, spacing=(None, None, None, -1.0))
+
+
+def test_a_complex_valued_field_is_refused_like_complex_values():
+    field = lambda p: np.linalg.norm(p, axis=-1) - 0.5 + 0j  # noqa: E731
+    with pytest.raises(TypeError, match="`field` must return real numbers, got dtype complex128"):
+        ao4d.extract_field(field, (5,) * 4, (-1.0, 1.0))
+    with pytest.raises(TypeError, match="`field` must return real numbers"):
+        ao4d.sample(field, (5,) * 4, (-1.0, 1.0))

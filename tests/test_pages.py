@@ -69,7 +69,7 @@ def test_view_dispatches_meshes_and_images(sphere, image, tmp_path):
         assert _srcdoc(markup) == shown.html and f'content="{generator}"' in shown.html
     assert _srcdoc(image._repr_html_()) == pages.inline(image).html  # RenderResult in Jupyter
     assert 'content="ao4d view (image)"' in _srcdoc(page._repr_html_())  # a written Page too
-    with pytest.raises(TypeError, match="unexpected keyword argument 'colour'"):
+    with pytest.raises(TypeError, match="unknown option.*'colour'.*takes .*colors"):
         ao4d.view(sphere, colour="red")
     with pytest.raises(ValueError, match="`height`"):
         ao4d.view(image, height=3)
@@ -84,6 +84,20 @@ def test_a_page_over_the_inline_limit_is_served(image):
             assert reply.read().decode() == shown.html
     finally:
         shown.close()
+
+
+def test_view_refuses_an_array_and_unknown_options_naming_them(sphere, image, tmp_path):
+    # an array met "`meshes[0]` must be ..."; foo=1 "page_text() got an unexpected keyword"
+    with pytest.raises(TypeError, match=r"`what` must be a SimplexMesh.*array of shape \(4, 4, 4, 4\).*ao4d.extract"):
+        ao4d.view(np.zeros((4, 4, 4, 4)))
+    with pytest.raises(TypeError, match="`what` must be"):
+        ao4d.view(np.zeros((4, 4, 4, 4)), tmp_path / "a.html")
+    for what, kind in ((image, "an image's page"), (sphere, "the meshes' page")):
+        for path in (None, tmp_path / "b.html"):
+            with pytest.raises(TypeError, match=f"unknown option.*'foo' for {kind}; it takes .*title"):
+                ao4d.view(what, path, foo=1)
+    assert not (tmp_path / "a.html").exists() and not (tmp_path / "b.html").exists()
+    assert "ao4d" in ao4d.view(image, title="t")._repr_html_()
 
 
 def test_result_page_errors(sphere, image, tmp_path):

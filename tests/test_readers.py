@@ -599,3 +599,45 @@ def test_mhd_bad_headers_name_the_problem(tmp_path, grid4):
     (tmp_path / "utf8.mhd").write_bytes(
         text.replace("ElementDataFile = g.raw", "ElementDataFile = données_é.raw").encode("utf-8"))
     np.testing.assert_array_equal(np.asarray(read_grid(tmp_path / "utf8.mhd").values), frame)
+
+
+def test_w_scale_or_spacing_whose_products_leave_float64_is_refused(tmp_path, grid4):
+    # --w-scale 1e300 gave a volume of inf and a report of "OK"
+    path = _nifti_4d(tmp_path / "t.nii", grid4)
+    with pytest.raises(ValueError, match="`w_scale` gives the grid an extent of .* too large"):
+        read_grid(path, w_scale=1e300)
+    with pytest.raises(ValueError, match="`spacing` .* too small"):
+        read_grid(path, spacing=(None, None, None, 1e-300))
+
+
+def test_affine_true_with_a_given_spacing_keeps_the_oblique_rotation(tmp_path, grid4):
+    # spacing= (CLI: --spacing file file file 0.5) replaced the file's oblique affine by a
+    # diagonal one while the notes still said "vertices placed by the file's affine"
+    rng = np.random.default_rng(3600)
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    affine = np.eye(4)
+    affine[:3, :3], affine[:3, 3] = q @ np.diag([2.0, 1.5, 1.0]), [-90.0, 120.0, 30.0]
+    path = _nifti_4d(tmp_path / "o.nii", grid4, zooms=(2.0, 1.5, 1.0, 3.0), units=("mm", "unknown"),
+                     affine=affine)
+    whole = read_grid(path, affine=True)
+    np.testing.assert_allclose(whole.affine[:3, :3], affine[:3, :3], atol=1e-6)
+    w_only = read_grid(path, affine=True, spacing=(None, None, None, 0.5))
+    np.testing.assert_allclose(w_only.affine[:3], whole.affine[:3], atol=0)  # rotation kept
+    assert w_only.affine[3, 3] == 0.5 and w_only.affine[3, 4] == whole.affine[3, 4]
+    assert any("vertices placed by the file's affine" in n for n in w_only.notes)
+    assert any("axes w take the given spacing" in n for n in w_only.notes)
+    every = read_grid(path, affine=True, spacing=0.25, origin=(1, 2, 3, 4))
+    np.testing.assert_allclose(every.affine[:4, :4], whole.affine[:4, :4]
+                               / np.linalg.norm(whole.affine[:4, :4], axis=0) * 0.25, atol=1e-12)
+    np.testing.assert_array_equal(every.affine[:4, 4], [1, 2, 3, 4])
+    mesh = ao4d.extract(np.asarray(w_only.values), 0.0, affine=w_only.affine)
+    index = ao4d.extract(np.asarray(w_only.values), 0.0)
+    np.testing.assert_allclose(mesh.vertices, index.vertices @ w_only.affine[:4, :4].T + w_only.affine[:4, 4],
+                               atol=1e-9)
+
+
+@pytest.mark.parametrize("spacing", [(1, 1, 1, "x"), (None, None, None, "x"), (1, "y", 1, 1)])
+def test_a_bad_spacing_entry_names_the_parameter(tmp_path, grid4, spacing):
+    np.save(tmp_path / "v.npy", grid4)
+    with pytest.raises(TypeError, match="`spacing` must be"):
+        read_grid(tmp_path / "v.npy", spacing=spacing)

@@ -182,6 +182,18 @@ def test_stored_vertex_ao_is_used(sphere):
     assert img.info["ao_rays"] == 0
 
 
+def test_interpolated_vertex_ao_stays_in_the_unit_interval(sphere):
+    # barycentric weights a rounding below 0 (or a sum above 1) gave occlusion -1e-16 or 1 + 1e-16
+    cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=1.3)
+    mesh = sphere.copy()
+    rng = np.random.default_rng(3400)
+    mesh.point_data["ao"] = rng.integers(0, 2, mesh.n_vertices).astype(float)
+    img = render(mesh, cam, (24, 24, 24), ao="vertices")
+    occ = img.occlusion[img.hit]
+    assert occ.size and np.isfinite(occ).all()
+    assert occ.min() >= 0.0 and occ.max() <= 1.0
+
+
 def test_save_round_trip(sphere, tmp_path):
     cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=1.3)
     img = render(sphere, cam, (10, 9, 8), ao="none")
@@ -872,6 +884,27 @@ def test_ray_budget_is_checked_before_any_ray_and_can_be_lifted(monkeypatch):
     with pytest.raises(ValueError, match="above the limit"):
         render(mesh, cam, (8, 8, 8), ao="none", backend="numpy")
     img = render(mesh, cam, (8, 8, 8), ao="none", backend="numpy", max_rays=math.inf)
+    assert img.hit.any() and cast
+
+
+@pytest.mark.parametrize("backend", ["numpy", "opencl"])
+def test_screen_ao_and_its_filter_are_budgeted_before_any_ray(backend, request, monkeypatch):
+    # --samples 10000000 and --denoise 30 ran for minutes on numpy without an estimate
+    from ao4d import raycast
+
+    if backend == "opencl":
+        request.getfixturevalue("cl_runtime")
+    mesh, cam = _small_scene()
+    cast = []
+    monkeypatch.setattr(ao4d.rendering, "cast_rays",
+                        lambda *a, **k: cast.append(1) or raycast.cast_rays(*a, **k))
+    with pytest.raises(ValueError, match=r"`samples`=10000000 \(.* depth look-ups.*about \d+ (h|days) on the"):
+        render(mesh, cam, (32, 32, 32), ao="screen", samples=10_000_000, backend=backend)
+    if backend == "numpy":
+        with pytest.raises(ValueError, match=r"`denoise`=30 \(.*filter-window voxels.*about \d+ min on the numpy"):
+            render(mesh, cam, (64, 64, 64), ao="screen", samples=4, denoise=30, backend=backend)
+    assert not cast
+    img = render(mesh, cam, (8, 8, 8), ao="screen", samples=8, denoise=1, backend=backend)
     assert img.hit.any() and cast
 
 

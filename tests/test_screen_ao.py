@@ -267,6 +267,27 @@ def test_denoised_few_directions_stay_close_to_ray_traced(touching_pair):
         render(touching_pair, cam, shape, ao="hits", denoise=1)
 
 
+@pytest.mark.parametrize("projection", ["orthographic", "perspective"])
+def test_any_reach_agrees_on_both_backends_and_long_ones_clamp_to_the_image(projection, cl_runtime):
+    # a reach of 1e4 or more marched past the image (AO 0; 1e300 overflowed); 1e-6 left the
+    # float32 kernel counting its rounding as occlusion (0.19-0.27 against numpy's 0)
+    cam = _oblique_camera(projection)
+    volume, points, hit = _volume(_wall_scene(), cam, (12, 12, 12))
+    points, normals = points[hit], volume.normals.reshape(-1, 4)[hit]
+    extent = volume.default_reach()
+    runs = {}
+    for reach in (1e-6, 1e-3, 0.3, 2.0, extent, 1e4, 1e300, math.inf):
+        a, b = (screen_space_occlusion(volume, points, normals, samples=16, max_distance=reach,
+                                       backend=backend) for backend in ("numpy", "opencl"))
+        # float32 against float64 at the voxel and depth thresholds: a few directions of a few points
+        assert np.abs(a - b).max() <= 2 / 16 and np.mean(a != b) <= 0.01, reach
+        runs[reach] = a
+    assert runs[1e-6].max() == 0.0  # nothing within a micron of a flat floor and wall
+    for reach in (1e4, 1e300, math.inf):  # clamped to the image's extent
+        np.testing.assert_array_equal(runs[reach], runs[extent])
+    assert runs[extent].mean() > 0.05  # the wall occludes the floor at its foot
+
+
 # -- bad input ------------------------------------------------------------------------------------
 
 

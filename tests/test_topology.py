@@ -314,3 +314,16 @@ def test_proof_applies_only_to_unchanged_marching_meshes():
     report = duplicated.check()
     assert report.proved == () and report == reference_report(duplicated)
     assert report.n_singular_vertices > 0
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e300])
+def test_check_is_not_ok_when_measures_leave_float64(scale):
+    # every simplex degenerate (1e-300) or the volume nan (1e300) was reported "OK"
+    import ao4d
+
+    mesh = ao4d.extract_field(ao4d.fields.hypersphere(0.7), (7,) * 4, (-1.0, 1.0))
+    with np.errstate(all="ignore"):
+        report = SimplexMesh(mesh.vertices * scale, mesh.simplices).check()
+        assert not report.measurable and not report.ok
+        assert "measures: NO" in str(report) and "NOT OK" in str(report)
+    assert SimplexMesh(mesh.vertices, mesh.simplices).check().ok

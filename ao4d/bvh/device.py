@@ -25,7 +25,8 @@ bookkeeping per node:
 
 On devices with double precision every per-simplex value (keep/skip, box, centroid, the leaf
 blocks' inverse matrices) equals the host builder's bit for bit: the kernels repeat its float64
-operations in order. The float64 ``inverse`` and ``origin`` of the tree, which only the numpy
+operations in order. Devices without it compute in float, except the keep/skip test, which the
+host does in float64 (:func:`ao4d.bvh.host.nondegenerate`): both trees hold the same simplices. The float64 ``inverse`` and ``origin`` of the tree, which only the numpy
 traversal and the refinement of hits need, are computed on the host on first use.
 
 Work-group sizes are left to the runtime (NULL local size), bins are per-work-item partials
@@ -112,7 +113,7 @@ class DeviceBVH(BVH):
 
 def _frames_unfiltered(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
     """Inverses of simplices that may include near-degenerate ones (huge but finite entries)."""
-    from .geometry import simplex_normals
+    from ..geometry import simplex_normals
 
     corners = vertices[simplices].astype(np.float64)
     edges = corners[:, 1:] - corners[:, :1]
@@ -125,6 +126,8 @@ def _kernels(runtime, dim: int, use_double: bool) -> dict[str, Any]:
     defines: dict[str, Any] = {"DIM": dim, "SUBTREE_STACK": 64}
     if use_double:
         defines["USE_DOUBLE"] = 1
+    else:  # the float64 degeneracy test comes from the host
+        defines["KEEP_GIVEN"] = 1
     return cl.build_kernels(runtime, "bvh_build.cl", defines)
 
 
@@ -272,6 +275,9 @@ class _Job:
         self.mf = cl_.mem_flags
         self.vertices = self.input(np.ascontiguousarray(vertices, dtype=self.real))
         self.simplices = self.input(np.ascontiguousarray(simplices, dtype=np.int32))
+        # without doubles a float test would keep other simplices than the host's float64 one
+        # (slivers): the host decides, one byte per simplex
+        self.keep = None if use_double else host.nondegenerate(vertices, simplices).view(np.uint8)
 
     def input(self, array: np.ndarray):
         """A read-only device copy of ``array``."""
@@ -310,7 +316,7 @@ def _scan(job: _Job) -> _Scan:
     part_abs = np.empty(n_chunks, dtype=real)
     host = (kept, part_lo, part_hi, part_abs)
     bufs = [job.scratch(a.nbytes, job.mf.WRITE_ONLY) for a in host]
-    keep = job.scratch(n)
+    keep = job.scratch(n) if job.keep is None else job.input(job.keep)
     job.k["scan_simplices"](job.queue, (n_chunks,), None, job.vertices, job.simplices, np.int32(n),
                             np.int32(_SCAN_CHUNK), keep, *bufs)
     job.read(*zip(host, bufs))

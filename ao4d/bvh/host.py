@@ -23,12 +23,46 @@ from .._validate import as_array, check_positive_int
 from ..geometry import cross_components
 from .layout import _BOX_FMA_MARGIN, _BOX_MARGIN, BARY_EPS, BVH, box_area
 
-__all__ = ["build", "check_mesh_arrays", "frames"]
+__all__ = ["build", "check_mesh_arrays", "frames", "nondegenerate"]
 
 _DEGENERATE_RTOL = 1e-12  # |n| below this times (longest edge)^(d-1): zero measure
 _SAH_BINS = 32
 _SAH_MIN_COUNT = 16  # smaller nodes split at the median: 3 fewer levels, 20% less build time, same speed (8 and 32 measured)
 _SAH_MAX_LEVEL = 40  # deeper levels split at the median: depth <= 40 + log2(P) < 64
+
+
+def _keep(edges: list[np.ndarray], normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The degeneracy test: which simplices to keep, and ``|n|^2``, from the edge and normal
+    components (component-major, float64).
+
+    A simplex is kept when ``|n| > 1e-12 * L^(d-1)`` (L its longest edge from vertex 0) and
+    ``|n| > 0``. ``kernels/bvh_build.cl`` repeats these operations in this order, the power as
+    products left to right (``L * L * L`` in 4D): ``np.power`` rounds once where the products
+    round twice, and a simplex in that gap would be kept by one side and skipped by the other.
+    """
+    d = len(edges) + 1
+    longest = np.sqrt(np.max([(e * e).sum(0) for e in edges], axis=0))
+    scale = longest
+    for _ in range(d - 2):
+        scale = scale * longest
+    norm2 = (normals * normals).sum(0)
+    norm = np.sqrt(norm2)
+    return (norm > _DEGENERATE_RTOL * scale) & (norm > 0), norm2
+
+
+def nondegenerate(vertices: np.ndarray, simplices: np.ndarray, *, chunk: int = 1 << 20) -> np.ndarray:
+    """(S,) bool: the simplices :func:`frames` keeps (float64 vertices (V, d), simplices (S, d)),
+    ``chunk`` simplices at a time. The device builder takes it from here on devices without
+    double precision, so that both builders keep the same simplices."""
+    d = vertices.shape[1]
+    coords = np.ascontiguousarray(vertices.T, dtype=np.float64)
+    keep = np.empty(len(simplices), dtype=bool)
+    for start in range(0, len(simplices), chunk):
+        ids = np.ascontiguousarray(simplices[start : start + chunk].T)
+        pts = [np.take(coords, ids[k], axis=1) for k in range(d)]
+        edges = [p - pts[0] for p in pts[1:]]
+        keep[start : start + chunk] = _keep(edges, cross_components(edges))[0]
+    return keep
 
 
 def frames(vertices: np.ndarray, simplices: np.ndarray):
@@ -44,10 +78,7 @@ def frames(vertices: np.ndarray, simplices: np.ndarray):
     pts = [np.take(coords, ids[k], axis=1) for k in range(d)]  # d x (d, S)
     edges = [p - pts[0] for p in pts[1:]]
     normals = cross_components(edges)
-    longest = np.sqrt(np.max([(e * e).sum(0) for e in edges], axis=0))
-    norm2 = (normals * normals).sum(0)
-    norm = np.sqrt(norm2)
-    keep = (norm > _DEGENERATE_RTOL * longest ** (d - 1)) & (norm > 0)
+    keep, norm2 = _keep(edges, normals)
     idx = np.flatnonzero(keep)
     if idx.size < len(keep):
         pts = [p[:, idx] for p in pts]
