@@ -43,7 +43,7 @@ import numpy as np
 
 from . import cl
 from ._validate import check_finite
-from .cells import _CellTable, _corner_offsets, _Geometry, _Plan, _SlabMesh
+from .cells import _CellTable, _corner_offsets, _Geometry, _Plan, _positive, _SlabMesh
 
 __all__ = ["fits", "get_runtime", "march", "march_slabs", "release_buffers"]
 
@@ -220,7 +220,7 @@ class _Engine:
         t = time.perf_counter()
         host_sign = self._host_sign(n)
         sign = host_sign.view(bool).reshape(slab.shape)
-        (np.greater_equal if inside == "below" else np.less_equal)(slab, level, out=sign)
+        _positive(slab, level, inside, out=sign)
         t = _stage("signs (host)", q, t)
         cl_.enqueue_copy(q, self.sign, host_sign, is_blocking=False)
         t = _stage("upload", q, t)

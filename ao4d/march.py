@@ -250,7 +250,10 @@ def extract(
         slab = np.ascontiguousarray(engine[a:b])
         if on_disk and closed:
             check_finite(slab, "values")  # the padded slabs hold infinities: check before
-        return slab if slab.dtype.kind == "f" else slab.astype(np.float64)
+        # integers stay as they are (compared exactly, widened where interpolated), except in
+        # the padding of closed=True, which holds infinities
+        native = "f" if closed else "fiu"
+        return slab if slab.dtype.kind in native else slab.astype(np.float64)
 
     if closed:
         read = _padded_reader(read, engine.shape, outside_value(inside))
