@@ -67,9 +67,11 @@ def fits(geom: _Geometry, layers: int, table: _CellTable) -> bool:
     return points * n_dirs < _INT_MAX
 
 
-def device_layers(geom: _Geometry, period: int, table: _CellTable, points: int = _SLAB_POINTS) -> int:
+def device_layers(geom: _Geometry, period: int, table: _CellTable, points: int | None = None) -> int:
     """Cell layers per device slab: the largest multiple of the numpy engine's ``period`` whose
-    slab holds about ``points`` grid points (at least ``period``) and fits 32-bit indices."""
+    slab holds about ``points`` grid points (default :data:`_SLAB_POINTS`; at least ``period``
+    layers) and fits 32-bit indices."""
+    points = _SLAB_POINTS if points is None else points
     n_cells = geom.shape[0] - 1
     n_dirs = len(np.unique(table.mask))
     per = max(1, period) * geom.layer  # points of ``period`` layers
@@ -361,7 +363,7 @@ def march_slabs(
     cells: bool = True,
     take: Callable[[int, int, float], tuple[np.ndarray, np.ndarray]] | None = None,
     count_first: Callable[[int, int], None] | None = None,
-    slab_points: int = _SLAB_POINTS,
+    slab_points: int | None = None,
 ) -> Iterator[_SlabMesh]:
     """:func:`ao4d.cells._march_slabs` on the device: the same arrays, in device slabs.
 
@@ -388,8 +390,8 @@ def march_slabs(
         Count every slab's simplices and new vertices first (reading each slab twice: for
         arrays in memory) and call ``count_first(S, K)`` with the totals before marching, so
         that the output can be allocated once, at its size.
-    slab_points : int
-        About how many grid points a device slab holds.
+    slab_points : int, optional
+        About how many grid points a device slab holds (default :data:`_SLAB_POINTS`).
     """
     if take is None:
         def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
@@ -467,7 +469,8 @@ def march(
                   check_values=check_values, progress=progress, runtime=runtime, cells=False)
     if not reread:  # slab parts (int32, as the numpy engine keeps them), then one concatenation
         verts, simps = [], []
-        for part in march_slabs(read, geom, level, slab_points=_FIELD_SLAB_POINTS, **kwargs):
+        for part in march_slabs(read, geom, level, slab_points=min(_SLAB_POINTS, _FIELD_SLAB_POINTS),
+                                **kwargs):
             verts.append(part.vertices)
             simps.append(part.simplices)
         if not simps:
