@@ -364,6 +364,7 @@ def march_slabs(
     take: Callable[[int, int, float], tuple[np.ndarray, np.ndarray]] | None = None,
     count_first: Callable[[int, int], None] | None = None,
     slab_points: int | None = None,
+    grow: bool = True,
 ) -> Iterator[_SlabMesh]:
     """:func:`ao4d.cells._march_slabs` on the device: the same arrays, in device slabs.
 
@@ -392,12 +393,15 @@ def march_slabs(
         that the output can be allocated once, at its size.
     slab_points : int, optional
         About how many grid points a device slab holds (default :data:`_SLAB_POINTS`).
+    grow : bool
+        Whether device slabs may be larger than ``layers_per_slab`` (False: the user chose the
+        slab size, ``chunk=``, to bound memory).
     """
     if take is None:
         def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
             return np.empty((n_simp, d), dtype=np.int32), np.empty((n_new, d))
     d = len(geom.shape)
-    layers = device_layers(geom, layers_per_slab, table, slab_points)
+    layers = device_layers(geom, layers_per_slab, table, slab_points) if grow else layers_per_slab
     with _lock:
         engine = _Engine(runtime, table, geom, layers, layers_per_slab)
     plan = engine.plan
@@ -455,6 +459,7 @@ def march(
     progress: Any,
     runtime: cl.Runtime,
     reread: bool = False,
+    grow: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`ao4d.cells._march` on the device: (vertices (V, d) float64, simplices (S, d) int64;
     the numpy engine's are int32 while they fit, the same values).
@@ -463,10 +468,12 @@ def march(
     and each device slab is read straight into it (a grid in one device slab is counted by its
     own march; more slabs are counted first); otherwise (a field sampled slab by slab, in
     smaller device slabs) the slab parts are concatenated at the end, as the numpy engine does.
+    ``grow``: as for :func:`march_slabs`.
     """
     d = len(geom.shape)
     kwargs = dict(table=table, inside=inside, layers_per_slab=layers_per_slab,
-                  check_values=check_values, progress=progress, runtime=runtime, cells=False)
+                  check_values=check_values, progress=progress, runtime=runtime, cells=False,
+                  grow=grow)
     if not reread:  # slab parts (int32, as the numpy engine keeps them), then one concatenation
         verts, simps = [], []
         for part in march_slabs(read, geom, level, slab_points=min(_SLAB_POINTS, _FIELD_SLAB_POINTS),
@@ -483,7 +490,8 @@ def march(
         np.concatenate(simps, out=simplices)  # widened while concatenated
         return vertices, simplices
     rows_s, rows_v = _Rows(d, np.int64), _Rows(d, np.float64)
-    one_slab = device_layers(geom, layers_per_slab, table) >= geom.shape[0] - 1
+    layers = device_layers(geom, layers_per_slab, table) if grow else layers_per_slab
+    one_slab = layers >= geom.shape[0] - 1
 
     def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
         if one_slab:

@@ -78,7 +78,9 @@ def _run(
     engine: Callable[..., tuple[np.ndarray, np.ndarray]] = _march
     extra: dict[str, Any] = {}
     if runtime is not None and cells_device.fits(geom, layers, table):
-        engine, extra = cells_device.march, {"runtime": runtime, "reread": reread}
+        # device slabs grow past the numpy engine's unless the user chose them (chunk=)
+        engine, extra = cells_device.march, {"runtime": runtime, "reread": reread,
+                                             "grow": chunk is None}
     bar = _progress_bar(progress, math.prod(n - 1 for n in geom.shape), geom.shape[0] - 1)
     try:
         vertices, simplices = engine(

@@ -264,21 +264,24 @@ def test_small_device_slabs_with_closed_fields_and_dask(cl_runtime, monkeypatch)
     from ao4d import fields
 
     values = ao4d.sample(fields.hypersphere(1.0), 11, (-1.3, 1.3)).astype(np.float32)
+    # numpy slabs of one layer without chunk= (which fixes the device's slabs too)
+    monkeypatch.setattr(cells, "_KEYS_PER_SLAB", 2 * 13**3 * 4)
     for method in METHODS:
-        ref = ao4d.extract(values, method=method, backend="numpy", chunk=1, closed=True)
-        ref_blocks = ao4d.extract(da.from_array(values, chunks=6), method=method, backend="numpy",
-                                  chunk=1)
+        ref = ao4d.extract(values, method=method, backend="numpy", closed=True)
+        ref_blocks = ao4d.extract(da.from_array(values, chunks=6), method=method, backend="numpy")
         ref_field = ao4d.extract_field(fields.hypersphere(1.0), 11, (-1.3, 1.3), method=method,
-                                       chunk=1, backend="numpy")
+                                       backend="numpy")
         for points in (11**3, 3 * 11**3):  # device slabs of 1 and of 3 numpy slabs
             monkeypatch.setattr(cells_device, "_SLAB_POINTS", points)
-            _assert_same_mesh(ref, ao4d.extract(values, method=method, backend="opencl", chunk=1,
+            _assert_same_mesh(ref, ao4d.extract(values, method=method, backend="opencl",
                                                 closed=True))
             _assert_same_mesh(ref_blocks, ao4d.extract(da.from_array(values, chunks=6),
-                                                       method=method, backend="opencl", chunk=1))
+                                                       method=method, backend="opencl"))
             _assert_same_mesh(ref_field, ao4d.extract_field(
-                fields.hypersphere(1.0), 11, (-1.3, 1.3), method=method, chunk=1,
-                backend="opencl"))
+                fields.hypersphere(1.0), 11, (-1.3, 1.3), method=method, backend="opencl"))
+        # chunk= fixes the device's slabs: the user bounds memory with it
+        _assert_same_mesh(ao4d.extract(values, method=method, backend="numpy", chunk=2),
+                          ao4d.extract(values, method=method, backend="opencl", chunk=2))
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32, np.float16])
