@@ -298,18 +298,19 @@ class _Engine:
         vfirst, vax = scratch("vfirst", n * 4), scratch("vax", n * 4)
         layer_in, layer_ax = scratch("layer in", (n0 + 1) * 4), scratch("layer ax", (n0 + 1) * 4)
         act_p, act_s = scratch("active points", n_active * 4), scratch("active first", n_active * 4)
+        act_b = scratch("active flags", n_active)
         z0_, period = i32(z0), i32(self.period)
         k["layer_prefix"](q, (n0 + 1,), None, vmask, chunk_vi, chunk_va, blk, totals_buf,
                           layer_in, layer_ax, i32(self.layer), i32(n), i32(blocks), in_plane)
         k["number"](q, (chunks,), None, cases, vmask, self.tables["counts"], chunk_vi, chunk_va,
                     chunk_s, chunk_a, blk, layer_in, layer_ax, vfirst, vax, keys_buf, nxt,
-                    act_p, act_s, i32(blocks), i32(self.n_vertices), in_plane, i32(top_start),
+                    act_p, act_s, act_b, i32(blocks), i32(self.n_vertices), in_plane, i32(top_start),
                     i32(self.layer), z0_, period)
         t = _stage("number", q, t)
         k["emit64" if wide else "emit32"](
-            q, (n_active,), None, cases, vmask, vfirst, vax, cur, act_p, act_s,
+            q, (n_active,), None, cases, vmask, vfirst, vax, cur, act_p, act_s, act_b,
             self.tables["offsets"], self.tables["table"], self.edge_off, self.edge_dir, in_plane,
-            i32(self.layer), z0_, period, out)
+            out)
         t = _stage("emit", q, t)
         if n_new:
             g, real = self.geom, self.real

@@ -318,6 +318,16 @@ __kernel void layer_prefix(__global const vmask_t *vmask, __global const int *ch
 // Layer z of the slab (z0: the slab's first layer in the grid) is a boundary of the numpy
 // engine's slabs of `period` layers: its in-plane vertices come before its others.
 #define BOUNDARY(z) ((z0 + (z)) > 0 && (z0 + (z)) % period == 0)
+// bit 0: layer z is a boundary; bit 1: layer z + 1 is
+#define FLAGS(z) (BOUNDARY(z) | (BOUNDARY((z) + 1) << 1))
+// Follow consecutive points p upwards: z their layer, next the first point of the layer above,
+// flags FLAGS(z) (no division per point)
+#define TRACK(p, z, next, flags)          \
+    while ((p) >= (next)) {               \
+        ++(z);                            \
+        (next) += layer;                  \
+        (flags) = FLAGS(z);               \
+    }
 
 // New vertices numbered and their keys compacted; active cells compacted with their first
 // simplex.
@@ -334,6 +344,7 @@ __kernel CHUNK_KERNEL void number(
     __global int *carry_next,        // (layer * NDIRS,) out: the top layer's in-plane vertices
     __global int *act_p,             // (A,) out: point of each active cell
     __global int *act_s,             // (A,) out: its first simplex
+    __global uchar *act_b,           // (A,) out: FLAGS of its layer
     int n_blocks, int v_base, int in_plane, int top_start, int layer, int z0, int period)
 {
     const int g = get_global_id(0);
@@ -343,13 +354,18 @@ __kernel CHUNK_KERNEL void number(
     int s = chunk_s[g] + blk[2 * n_blocks + gb];
     int a = chunk_a[g] + blk[3 * n_blocks + gb];
     const int base = g * CHUNK;
+    const int z_base = base / layer;
+    int zc = z_base, nc = (z_base + 1) * layer, fc = FLAGS(z_base);  // cells' layer tracker
+    int z = zc, nz = nc, fz = fc;                                  // vertices' layer tracker
     for (int i = base; i < base + CHUNK; i += 16) {
         if (!zero16_case(cases, i)) {
             for (int p = i; p < i + 16; ++p) {
                 const int c = cases[p];
                 if (c == 0) continue;
+                TRACK(p, zc, nc, fc);
                 act_p[a] = p;
                 act_s[a] = s;
+                act_b[a] = (uchar)fc;
                 ++a;
                 s += counts[c];
             }
@@ -358,9 +374,9 @@ __kernel CHUNK_KERNEL void number(
         for (int p = i; p < i + 16; ++p) {
             const int m = vmask[p];
             if (m == 0) continue;
-            const int z = p / layer;
+            TRACK(p, z, nz, fz);
             int bi, ba;  // next index of an in-plane and of another vertex here
-            const int bnd = BOUNDARY(z);
+            const int bnd = fz & 1;
             if (bnd) {
                 const int lt = layer_in[z] + layer_ax[z];
                 bi = lt + ki - layer_in[z];
@@ -388,8 +404,8 @@ __kernel CHUNK_KERNEL void number(
 #define EMIT_BODY(out)                                                                      \
     const int i = get_global_id(0);                                                         \
     const int p = act_p[i];                                                                 \
-    const int zp = p / layer;                                                               \
-    int s = act_s[i];                                                               \
+    const int bnd = act_b[i];                                                               \
+    int s = act_s[i];                                                                       \
     const int c = cases[p];                                                                 \
     const int t1 = offsets[c + 1];                                                          \
     for (int t = offsets[c]; t < t1; ++t, ++s) {                                            \
@@ -402,7 +418,7 @@ __kernel CHUNK_KERNEL void number(
             int v;                                                                          \
             if (!((m >> j) & 1))                                                            \
                 v = carry[q * NDIRS + j];                                                   \
-            else if (!BOUNDARY(zp + (edge_dir[e] >> 8)))                                    \
+            else if (!((bnd >> (edge_dir[e] >> 8)) & 1))                                    \
                 v = vfirst[q] + popcount(below);                                            \
             else if ((in_plane >> j) & 1)                                                   \
                 v = vfirst[q] + popcount(below & in_plane);                                 \
@@ -415,12 +431,12 @@ __kernel CHUNK_KERNEL void number(
 #define EMIT_ARGS                                                                           \
     __global const case_t *cases, __global const vmask_t *vmask, __global const int *vfirst, \
     __global const int *vax, __global const int *carry, __global const int *act_p,          \
-    __global const int *act_s,                                                              \
+    __global const int *act_s, __global const uchar *act_b,                                 \
     __global const int *offsets,     /* (2^NCORNERS + 1,) first table row of each case */   \
     __global const uchar *table,     /* (M, DIM) edge ids */                                \
     __global const int *edge_off,    /* (E,) linear offset of edge e's lower corner */      \
     __global const int *edge_dir,    /* (E,) direction | (layer step of that corner) << 8 */ \
-    int in_plane, int layer, int z0, int period
+    int in_plane
 
 __kernel void emit32(EMIT_ARGS, __global int *out) { EMIT_BODY(out) }
 __kernel void emit64(EMIT_ARGS, __global long *out) { EMIT_BODY(out) }
