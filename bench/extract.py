@@ -34,6 +34,9 @@ import time
 
 import numpy as np
 
+# this checkout's ao4d, whichever one is installed
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
 
 def machine_line() -> tuple[str, float]:
     """(a line naming the CPU, its SIMD, caches, the OpenCL device and the load; load average)."""
@@ -92,11 +95,20 @@ def vtk_threaded_backend() -> str:
     import vtk
 
     smp = vtk.vtkSMPTools
-    for name in ("TBB", "OpenMP", "STDThread"):
-        if smp.SetBackend(name):
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with open(os.devnull, "w") as null:  # VTK prints a warning for every backend it lacks
+        os.dup2(null.fileno(), 2)
+        try:
+            for name in ("TBB", "OpenMP", "STDThread"):
+                smp.SetBackend(name)
+                if smp.GetBackend() == name:
+                    return name
+            return "Sequential"
+        finally:
             smp.SetBackend("Sequential")
-            return name
-    return "Sequential"
+            os.dup2(saved, 2)
+            os.close(saved)
 
 
 def _cases(sizes3, sizes4, threaded: str):
