@@ -16,16 +16,20 @@ __all__ = ["fits", "get_runtime", "march", "march_slabs", "release_buffers", "FL
 _CHUNK = 256  # points per work-item of the passes after classification (a multiple of 16)
 _SCAN_BLOCK = 256  # chunks per block of the two-level scan
 _INT_MAX = 2**31 - 1
-# Grid points per device slab: arrays in memory, and fields sampled slab by slab on the host
-# (whose evaluation holds several float64 temporaries per point). About 20 bytes per point of
-# device scratch plus the values.
-_SLAB_POINTS = 1 << 24
+# Grid points per device slab: arrays in memory (a 256^3 or 64^4 grid in one slab, which needs
+# no counting pass), and fields sampled slab by slab on the host (whose evaluation holds several
+# float64 temporaries per point). About 13 bytes per point of device scratch plus the values.
+_SLAB_POINTS = 1 << 25
 _FIELD_SLAB_POINTS = 1 << 22
 _lock = threading.Lock()  # pyopencl kernels hold their arguments: one slab at a time per process
 
 #: Interpolate in float32 even where the device has ``cl_khr_fp64`` (the path of devices without
 #: it; tests set it). Read when an extraction starts.
 FLOAT32 = False
+
+#: On a CPU device, let the kernels write the final arrays in place (``CL_MEM_USE_HOST_PTR``)
+#: instead of device buffers read back (what other devices do; tests clear it).
+IN_PLACE = True
 
 #: Seconds per stage, summed over slabs, while :data:`PROFILE` is true (bench/extract.py sets
 #: it; the device queue is then drained after every stage, which costs a little).
@@ -106,6 +110,16 @@ def release_buffers() -> None:
 _device_tables: dict[tuple[int, int, int], dict[str, Any]] = {}
 
 
+def _aligned_empty(shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+    """``np.empty`` whose data starts on a 4096-byte page: a CPU device writes such an array in
+    place (``CL_MEM_USE_HOST_PTR`` without a copy)."""
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape)) * dtype.itemsize
+    raw = np.empty(nbytes + 4096, dtype=np.uint8)
+    start = (-raw.ctypes.data) % 4096
+    return raw[start : start + nbytes].view(dtype).reshape(shape)
+
+
 def _kernel_value(dtype: np.dtype, fp64: bool) -> tuple[str, int] | None:
     """(stored OpenCL type, VKIND) for values of ``dtype``, or None: widen to float64 first."""
     code = f"{dtype.kind}{dtype.itemsize}"
@@ -133,6 +147,8 @@ class _Engine:
         self.period = period
         self.fp64 = not FLOAT32 and "cl_khr_fp64" in runtime.device.extensions
         self.real = np.float64 if self.fp64 else np.float32
+        # a CPU device shares the host's memory: the kernels write the final arrays in place
+        self.in_place = IN_PLACE and bool(runtime.device.type & pyopencl.device_type.CPU)
         self._built: dict[str, dict[str, Any]] = {}
         key = (id(self.ctx), id(table), d)
         if key not in _device_tables:
@@ -292,8 +308,13 @@ class _Engine:
                               "indexes in one slab; use thinner slabs (`chunk=`)")
         simplices, vertices = take(n_simp, n_new)
         wide = simplices.dtype == np.int64
-        out = scratch("simplices", n_simp * d * (8 if wide else 4))
-        verts = scratch("vertices", n_new * d * 8)
+        if self.in_place:  # the final rows themselves (mapped below, which copies only if needed)
+            flags = self.mf.WRITE_ONLY | self.mf.USE_HOST_PTR
+            out = cl_.Buffer(self.ctx, flags, hostbuf=simplices)
+            verts = cl_.Buffer(self.ctx, flags, hostbuf=vertices) if n_new else None
+        else:
+            out = scratch("simplices", n_simp * d * (8 if wide else 4))
+            verts = scratch("vertices", n_new * d * 8)
         keys_buf = scratch("keys", n_new * 4)
         vfirst, vax = scratch("vfirst", n * 4), scratch("vax", n * 4)
         layer_in, layer_ax = scratch("layer in", (n0 + 1) * 4), scratch("layer ax", (n0 + 1) * 4)
@@ -323,9 +344,17 @@ class _Engine:
                              *(i32(x) for x in shape[:3]), *self.strides,
                              *(i32(x) for x in perm), *(i32(x) for x in base), *origin, *spacing)
         t = _stage("interpolate", q, t)
-        cl_.enqueue_copy(q, simplices, out, is_blocking=False)
-        if n_new:
-            cl_.enqueue_copy(q, vertices, verts, is_blocking=False)
+        mapped = []
+        if self.in_place:
+            for buf, rows in ((out, simplices), (verts, vertices)):
+                if buf is not None:
+                    view, _ = cl_.enqueue_map_buffer(q, buf, cl_.map_flags.READ, 0, rows.shape,
+                                                     rows.dtype, is_blocking=False)
+                    mapped.append((buf, view))
+        else:
+            cl_.enqueue_copy(q, simplices, out, is_blocking=False)
+            if n_new:
+                cl_.enqueue_copy(q, vertices, verts, is_blocking=False)
         keys = cells = counts = None
         if want_cells:
             keys = np.empty(n_new, dtype=np.int32)
@@ -337,6 +366,9 @@ class _Engine:
             cl_.enqueue_copy(q, cells, act_p, is_blocking=False)
             cl_.enqueue_copy(q, first[:n_active], act_s, is_blocking=False)
         q.finish()
+        for buf, view in mapped:  # the rows hold the results now
+            view.base.release()
+            buf.release()
         t = _stage("download", q, t)
         if want_cells:
             keys, cells, counts = keys.astype(np.int64), cells.astype(np.int64), np.diff(first).astype(np.int64)
@@ -400,7 +432,7 @@ def march_slabs(
     """
     if take is None:
         def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
-            return np.empty((n_simp, d), dtype=np.int32), np.empty((n_new, d))
+            return _aligned_empty((n_simp, d), np.int32), _aligned_empty((n_new, d), np.float64)
     d = len(geom.shape)
     layers = device_layers(geom, layers_per_slab, table, slab_points) if grow else layers_per_slab
     with _lock:
@@ -519,7 +551,7 @@ class _Rows:
 
     def reserve(self, n: int) -> None:
         """Room for ``n`` rows in all (before any row is taken)."""
-        self.array = np.empty((n, self.array.shape[1]), dtype=self.array.dtype)
+        self.array = _aligned_empty((n, self.array.shape[1]), self.array.dtype)
 
     def take(self, k: int) -> np.ndarray:
         """The next ``k`` rows (a view)."""

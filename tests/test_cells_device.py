@@ -312,3 +312,17 @@ def test_the_float32_path_gives_the_same_simplices_and_close_vertices(cl_runtime
         err = np.abs(got[0] - ref[0])
         assert np.all(err <= bound_index + bound_t), float((err - bound_index - bound_t).max())
         assert float(err.max()) < 1e-4 * (abs(origin) + spacing * 14)
+
+
+@pytest.mark.parametrize("in_place", [True, False])
+def test_output_written_in_place_or_read_back_is_the_same(cl_runtime, monkeypatch, in_place):
+    """CPU devices write the final arrays in place; other devices fill device buffers that are
+    read back (forced here): the same arrays, in one slab and in several."""
+    monkeypatch.setattr(cells_device, "IN_PLACE", in_place)
+    rng = np.random.default_rng(2980)
+    values = rng.standard_normal((9, 6, 5, 7))
+    for method in METHODS:
+        for points in (1 << 20, 2 * 6 * 5 * 7):
+            monkeypatch.setattr(cells_device, "_SLAB_POINTS", points)
+            for reread in (False, True):
+                _assert_same(*_engines(values, 0.1, method, "below", 1, cl_runtime, reread))
