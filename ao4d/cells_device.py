@@ -20,7 +20,7 @@ _INT_MAX = 2**31 - 1
 # no counting pass), and fields sampled slab by slab on the host (whose evaluation holds several
 # float64 temporaries per point). About 13 bytes per point of device scratch plus the values.
 _SLAB_POINTS = 1 << 25
-_FIELD_SLAB_POINTS = 1 << 22
+_FIELD_SLAB_POINTS = 1 << 23
 _lock = threading.Lock()  # pyopencl kernels hold their arguments: one slab at a time per process
 
 #: Interpolate in float32 even where the device has ``cl_khr_fp64`` (the path of devices without
