@@ -11,7 +11,7 @@ from . import cl
 from ._validate import check_finite
 from .cells import _CellTable, _corner_offsets, _Geometry, _Plan, _SlabMesh, _threshold
 
-__all__ = ["fits", "get_runtime", "march", "march_slabs", "release_buffers", "FLOAT32"]
+__all__ = ["FLOAT32", "IN_PLACE", "device_layers", "fits", "get_runtime", "march", "march_slabs", "release_buffers"]
 
 _CHUNK = 256  # points per work-item of the passes after classification (a multiple of 16)
 _SCAN_BLOCK = 256  # chunks per block of the two-level scan
@@ -245,7 +245,7 @@ class _Engine:
         only with ``want_cells``, else None).
         """
         cl_, q = self.cl, self.queue
-        d, n_dirs = self.d, self.n_dirs
+        d = self.d
         i32 = np.int32
         kv = _kernel_value(slab.dtype, self.fp64)
         if kv is None:

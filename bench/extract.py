@@ -44,26 +44,28 @@ def machine_line() -> tuple[str, float]:
 
     model, flags = platform.processor() or "unknown CPU", set()
     try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-            elif line.startswith("flags"):
-                flags = set(line.split(":", 1)[1].split())
+        with open("/proc/cpuinfo") as info:
+            for line in info:
+                if line.startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                elif line.startswith("flags"):
+                    flags = set(line.split(":", 1)[1].split())
     except OSError:
         pass
     simd = "/".join(x for x in ("avx512f", "avx2", "fma", "sse4_2", "neon") if x in flags) or "?"
     caches = []
     for level in ("L2", "L3"):
         try:
-            out = subprocess.run(["lscpu"], capture_output=True, text=True).stdout
+            out = subprocess.run(["lscpu"], capture_output=True, text=True, check=False).stdout
             row = [r for r in out.splitlines() if r.startswith(f"{level} cache")]
             caches.append(f"{level} {row[0].split(':', 1)[1].strip()}" if row else f"{level} ?")
         except OSError:
             caches.append(f"{level} ?")
     load = os.getloadavg()
     device = cl.describe(cl.get_runtime(warn=False))
-    return (f"machine: {model}, {os.cpu_count()} CPUs, SIMD {simd}, {', '.join(caches)}; OpenCL: "
-            f"{device}; load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}", load[0])
+    line = (f"machine: {model}, {os.cpu_count()} CPUs, SIMD {simd}, {', '.join(caches)}; OpenCL: "
+            f"{device}; load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
+    return line, load[0]
 
 
 def _vtk_runner(values: np.ndarray, backend: str):
