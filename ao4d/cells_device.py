@@ -308,7 +308,11 @@ class _Engine:
                               "indexes in one slab; use thinner slabs (`chunk=`)")
         simplices, vertices = take(n_simp, n_new)
         wide = simplices.dtype == np.int64
-        if self.in_place:  # the final rows themselves (mapped below, which copies only if needed)
+        # the final rows themselves where the device can write them in place: a CPU device and
+        # rows that start on a page (the first slab's; other slabs' would be copied)
+        in_place = self.in_place and simplices.ctypes.data % 4096 == 0 and (
+            n_new == 0 or vertices.ctypes.data % 4096 == 0)
+        if in_place:
             flags = self.mf.WRITE_ONLY | self.mf.USE_HOST_PTR
             out = cl_.Buffer(self.ctx, flags, hostbuf=simplices)
             verts = cl_.Buffer(self.ctx, flags, hostbuf=vertices) if n_new else None
@@ -345,7 +349,7 @@ class _Engine:
                              *(i32(x) for x in perm), *(i32(x) for x in base), *origin, *spacing)
         t = _stage("interpolate", q, t)
         mapped = []
-        if self.in_place:
+        if in_place:
             for buf, rows in ((out, simplices), (verts, vertices)):
                 if buf is not None:
                     view, _ = cl_.enqueue_map_buffer(q, buf, cl_.map_flags.READ, 0, rows.shape,
@@ -366,7 +370,11 @@ class _Engine:
             cl_.enqueue_copy(q, cells, act_p, is_blocking=False)
             cl_.enqueue_copy(q, first[:n_active], act_s, is_blocking=False)
         q.finish()
-        for buf, view in mapped:  # the rows hold the results now
+        if in_place:  # the rows hold the results now; no kernel keeps their buffers
+            placeholder = scratch("placeholder", 64)
+            k["emit64" if wide else "emit32"].set_arg(13, placeholder)
+            k["interpolate"].set_arg(2, placeholder)
+        for buf, view in mapped:
             view.base.release()
             buf.release()
         t = _stage("download", q, t)
