@@ -1,3 +1,59 @@
+"""The marching engine of :mod:`ao4d.cells` on the OpenCL device (``kernels/march.cl``): the
+whole march, from the values as stored to the final arrays.
+
+It gives the arrays the numpy engine gives, vertex for vertex and simplex for simplex, so
+:mod:`ao4d.march` and :mod:`ao4d.blockwise` take either engine. The numpy engine stays the
+reference and the backend where no OpenCL device works.
+
+Per slab, the host uploads the values as they are stored (float16, float32, float64, 8- to
+64-bit integers; anything else as float64) and the device
+
+1. compares every value with the level once (``sign``: one comparison in the values' own type
+   against :func:`ao4d.cells._threshold`, which makes it equal to ``float64(v) >= level``),
+2. classifies every cell (its case) and finds the crossed edges starting at every point that
+   are new in this slab (an edge of the layer shared with the slab below keeps the vertex that
+   slab gave it: the *carry*, kept on the device);
+3. counts simplices, active cells and new vertices per chunk of 256 points and scans the counts
+   (chunks, then blocks of chunks);
+4. numbers the new vertices in the numpy engine's order, compacts their keys, remembers the top
+   layer's in-plane vertices for the next slab, and compacts the active cells with their first
+   simplex;
+5. emits each active cell's simplices (one work-item per active cell), table row by table row,
+   as int32 or int64 (the type of the final array);
+6. interpolates every new vertex with the numpy engine's float64 operations in the same order
+   (``#pragma OPENCL FP_CONTRACT OFF``: no fused multiply-add), so the positions are the
+   reference's bit for bit.
+
+Then the totals come back, and the simplices and vertices are read once, straight into the
+final arrays; a CPU device writes them there in place (``CL_MEM_USE_HOST_PTR`` on page-aligned
+rows, no copy at all). For arrays in memory the slabs are counted first, so the final arrays
+are allocated once at their size; a grid in one device slab needs no count. The host touches
+neither the values (beyond the upload) nor the output. Memory: a device slab holds up to
+:data:`_SLAB_POINTS` points (2^25; :data:`_FIELD_SLAB_POINTS` for fields), with about 13 bytes
+of scratch per point besides the values' copy.
+
+Device slabs are as large as memory allows, not the numpy engine's: the numpy engine's vertex
+order depends on where its slabs of ``layers_per_slab`` (the *period*) meet (the in-plane
+vertices of a layer two slabs share belong to the lower one and come first), and the kernels
+number vertices with that rule at every multiple of the period inside a device slab, so a
+device slab of any multiple of the period gives the same arrays. A ``chunk=`` the user chose
+fixes the device's slabs too.
+
+Devices without ``cl_khr_fp64`` compare exactly all the same (doubles as ordered integers) and
+interpolate in float32: the simplices are the same, and each vertex coordinate is within
+``2^-21 * (|origin| + spacing * (i + 1)) + spacing * dt`` of the float64 one, where ``dt``, the
+error of ``t``, is at most ``2^-22 * (|level| + |f0| + |f1|) / |f1 - f0| + 2^-23`` (float64
+values are truncated to float32 first; ``i`` the grid index). :data:`FLOAT32` forces that path.
+
+Why reading "used" off the signs is exact: every table case uses each of its crossed edges
+(tests/test_cells_device.py checks every case of every table), and every crossed edge of the
+slab lies in one of its cells; so the shared layer's crossed in-plane edges are exactly the
+carried ones.
+
+Kernels are int only apart from ``sign`` and ``interpolate``, with no local memory and
+runtime-chosen work-group sizes, so the same code suits CPUs and GPUs.
+"""
+
 from __future__ import annotations
 
 import threading
