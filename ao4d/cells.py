@@ -5,8 +5,11 @@ edge id. Vectorised numpy with no checks of its own: the callers validate.
 How the core works (all numpy, no Python loop over cells):
 
 1. Per slab of grid layers, classify every cell: bit v of its case is set iff corner v is
-   positive (``f >= level``; DESIGN.md). The bits are combined axis by axis (d passes over the
-   slab instead of 2^d).
+   positive (``f >= level``; DESIGN.md), compared as the user means it: the level in float64
+   against the value widened. :func:`_threshold` turns that into one comparison in the data's
+   own dtype (``f >= thr``, thr the smallest value of the dtype that is >= level), so float16,
+   float32 and integer data are neither widened nor compared with a rounded level. The bits are
+   combined axis by axis (d passes over the slab instead of 2^d).
 2. Look up the simplices of the active cells (case neither 0 nor all ones) in a *cell table*:
    rows of d edge ids, each edge given by its lower corner ``a`` and direction mask ``m``
    (``a & m == 0``). The cube table comes straight from :func:`ao4d.lut.load`; the Kuhn table
@@ -17,8 +20,8 @@ How the core works (all numpy, no Python loop over cells):
    Within a slab a dense key map replaces sorting; across slabs the vertices of the shared
    layer are carried over, so memory stays bounded by the slab size.
 4. Every vertex is interpolated once, from its own edge, with ``t = (level - f0) / (f1 - f0)``
-   where exactly one end is positive: ``t`` lies in [0, 1] in floating point too (the
-   subtraction is monotonic), and every cell sees the same point.
+   in float64 (both ends widened) where exactly one end is positive: ``t`` lies in [0, 1] in
+   floating point too (the subtraction is monotonic), and every cell sees the same point.
 
 The cell tables are expressed in user axes; a slab axis other than axis 0 (fields are evaluated
 along the last axis, Fortran arrays are read transposed) only changes the strides used to turn
@@ -178,6 +181,57 @@ def _cases(positive: np.ndarray, perm: tuple[int, ...]) -> np.ndarray:
     return c
 
 
+@dataclass(frozen=True)
+class _Threshold:
+    """The level as one comparison in the data's dtype: a value ``v`` is positive iff
+    ``v >= value`` (``op == ">="``; ``inside="below"``) or ``v <= value`` (``"<="``; ``"above"``),
+    which equals ``float64(v) >= level`` (``<=``) exactly. ``value`` is ``None`` when no value
+    of the dtype is positive (an integer dtype whose range the level misses)."""
+
+    value: Any  # numpy scalar of the data's dtype, or None
+    op: str  # ">=" or "<="
+
+
+@functools.lru_cache(maxsize=256)
+def _threshold(level: float, dtype: np.dtype, inside: str) -> _Threshold:
+    """The comparison in ``dtype`` that equals comparing the widened values with ``level``.
+
+    Floats: the level rounded into the dtype, moved one step up (``inside="below"``: the
+    smallest value >= level) or down (``"above"``: the largest value <= level) when rounding
+    went the wrong way; a level beyond the dtype's range becomes an infinity, which only an
+    infinite value reaches. Integers: ``ceil(level)`` (``floor``); a level above (below) the
+    dtype's range makes no value positive (``value=None``), one below (above) every value.
+    64-bit integers beyond 2^53, which float64 cannot hold, are compared exactly.
+    """
+    dtype = np.dtype(dtype)
+    below = inside == "below"
+    op = ">=" if below else "<="
+    if dtype.kind == "f":
+        with np.errstate(over="ignore"):
+            x = dtype.type(level)
+        if (float(x) < level) if below else (float(x) > level):
+            x = np.nextafter(x, dtype.type(np.inf if below else -np.inf))
+        return _Threshold(x, op)
+    if dtype.kind in "iu":
+        info = np.iinfo(dtype)
+        c = math.ceil(level) if below else math.floor(level)
+        if (c > info.max) if below else (c < info.min):
+            return _Threshold(None, op)
+        return _Threshold(dtype.type(min(max(c, info.min), info.max)), op)
+    return _threshold(level, np.dtype(np.float64), inside)  # bool and others: as float64
+
+
+def _positive(values: np.ndarray, level: float, inside: str, out: np.ndarray | None = None) -> np.ndarray:
+    """Bool array: which ``values`` are positive (:func:`_threshold`'s exact comparison)."""
+    thr = _threshold(level, values.dtype, inside)
+    if thr.value is None:
+        if out is None:
+            return np.zeros(values.shape, dtype=bool)
+        out.fill(False)
+        return out
+    return (np.greater_equal if thr.op == ">=" else np.less_equal)(values, thr.value, out=out)
+
+
 @dataclass
 class _Plan:
     """Per-grid constants of the core: table edges as key offsets, directions, shared layers."""
@@ -308,7 +362,7 @@ def _march_slabs(
         slab = read(z0, z1 + 1)
         if check_values:
             check_finite(slab, "values")
-        case = _cases(slab >= level if inside == "below" else slab <= level, geom.perm).ravel()
+        case = _cases(_positive(slab, level, inside), geom.perm).ravel()
         n_keys = slab.size * plan.n_dirs
         found = _slab_keys(case, plan, n_keys)
         simplices, new_keys = welder.number(None if found is None else found[0], n_keys, z1 - z0)

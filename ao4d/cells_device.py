@@ -1,35 +1,57 @@
-"""The marching engine of :mod:`ao4d.cells` on the OpenCL device (``kernels/march.cl``).
+"""The marching engine of :mod:`ao4d.cells` on the OpenCL device (``kernels/march.cl``): the
+whole march, from the values as stored to the final arrays.
 
-Same slabs, same welding, same arrays: for every slab it yields the :class:`ao4d.cells._SlabMesh`
-the numpy engine yields, vertex for vertex and simplex for simplex, so :mod:`ao4d.march` and
-:mod:`ao4d.blockwise` take either engine. The numpy engine stays the reference and the backend
-where no OpenCL device works.
+It gives the arrays the numpy engine gives, vertex for vertex and simplex for simplex, so
+:mod:`ao4d.march` and :mod:`ao4d.blockwise` take either engine. The numpy engine stays the
+reference and the backend where no OpenCL device works.
 
-Per slab, the host compares the values with the level (``f >= level``, the exact comparison of
-the reference, in the values' own precision) and sends one byte per point; the device then
+Per slab, the host uploads the values as they are stored (float16, float32, float64, 8- to
+64-bit integers; anything else as float64) and the device
 
-1. classifies every cell (its case) and finds the crossed edges starting at every point that
+1. compares every value with the level once (``sign``: one comparison in the values' own type
+   against :func:`ao4d.cells._threshold`, which makes it equal to ``float64(v) >= level``),
+2. classifies every cell (its case) and finds the crossed edges starting at every point that
    are new in this slab (an edge of the layer shared with the slab below keeps the vertex that
    slab gave it: the *carry*, kept on the device);
-2. counts simplices, new vertices and active cells per chunk of 256 points and scans the
-   counts (chunks, then blocks of chunks);
-3. numbers the new vertices in (point, direction) order — the order of the numpy engine's
-   sorted unique edge keys —, compacts their keys, remembers the top layer's in-plane vertices
-   for the next slab, and compacts the active cells with their first simplex;
-4. emits each active cell's simplices (one work-item per active cell), table row by table row.
+3. counts simplices, active cells and new vertices per chunk of 256 points and scans the counts
+   (chunks, then blocks of chunks);
+4. numbers the new vertices in the numpy engine's order, compacts their keys, remembers the top
+   layer's in-plane vertices for the next slab, and compacts the active cells with their first
+   simplex;
+5. emits each active cell's simplices (one work-item per active cell), table row by table row,
+   as int32 or int64 (the type of the final array);
+6. interpolates every new vertex with the numpy engine's float64 operations in the same order
+   (``#pragma OPENCL FP_CONTRACT OFF``: no fused multiply-add), so the positions are the
+   reference's bit for bit.
 
-Only the totals, the simplices and the new vertices' keys come back (and, for block-wise
-welding, the active cells); the host interpolates
-the new vertices in float64 from its own copy of the slab (:func:`ao4d.cells._interpolate`), so
-the positions are the reference's bit for bit. Why reading "used" off the signs is exact: every
-table case uses each of its crossed edges (tests/test_cells_device.py checks every case of every
-table), and every crossed edge of the slab lies in one of its cells; so the shared layer's
-crossed in-plane edges are exactly the carried ones.
+Then the totals come back, and the simplices and vertices are read once, straight into the
+final arrays; a CPU device writes them there in place (``CL_MEM_USE_HOST_PTR`` on page-aligned
+rows, no copy at all). For arrays in memory the slabs are counted first, so the final arrays
+are allocated once at their size; a grid in one device slab needs no count. The host touches
+neither the values (beyond the upload) nor the output. Memory: a device slab holds up to
+:data:`_SLAB_POINTS` points (2^25; :data:`_FIELD_SLAB_POINTS` for fields), with about 13 bytes
+of scratch per point besides the values' copy.
 
-Kernels are int only, with no local memory and runtime-chosen work-group sizes (classification
-one work-item per point, the chunk passes one per 256 points, emission one per active cell), so
-the same code suits CPUs and GPUs. Slabs are the numpy engine's (``cells._layers_per_slab``):
-the vertex order depends on where slabs meet, so the same slabs give the same order.
+Device slabs are as large as memory allows, not the numpy engine's: the numpy engine's vertex
+order depends on where its slabs of ``layers_per_slab`` (the *period*) meet (the in-plane
+vertices of a layer two slabs share belong to the lower one and come first), and the kernels
+number vertices with that rule at every multiple of the period inside a device slab, so a
+device slab of any multiple of the period gives the same arrays. A ``chunk=`` the user chose
+fixes the device's slabs too.
+
+Devices without ``cl_khr_fp64`` compare exactly all the same (doubles as ordered integers) and
+interpolate in float32: the simplices are the same, and each vertex coordinate is within
+``2^-21 * (|origin| + spacing * (i + 1)) + spacing * dt`` of the float64 one, where ``dt``, the
+error of ``t``, is at most ``2^-22 * (|level| + |f0| + |f1|) / |f1 - f0| + 2^-23`` (float64
+values are truncated to float32 first; ``i`` the grid index). :data:`FLOAT32` forces that path.
+
+Why reading "used" off the signs is exact: every table case uses each of its crossed edges
+(tests/test_cells_device.py checks every case of every table), and every crossed edge of the
+slab lies in one of its cells; so the shared layer's crossed in-plane edges are exactly the
+carried ones.
+
+Kernels are int only apart from ``sign`` and ``interpolate``, with no local memory and
+runtime-chosen work-group sizes, so the same code suits CPUs and GPUs.
 """
 
 from __future__ import annotations
@@ -43,19 +65,37 @@ import numpy as np
 
 from . import cl
 from ._validate import check_finite
-from .cells import _CellTable, _corner_offsets, _Geometry, _Plan, _SlabMesh
+from .cells import _CellTable, _corner_offsets, _Geometry, _Plan, _SlabMesh, _threshold
 
-__all__ = ["fits", "get_runtime", "march", "march_slabs", "release_buffers"]
+__all__ = ["FLOAT32", "IN_PLACE", "device_layers", "fits", "get_runtime", "march", "march_slabs", "release_buffers"]
 
 _CHUNK = 256  # points per work-item of the passes after classification (a multiple of 16)
 _SCAN_BLOCK = 256  # chunks per block of the two-level scan
 _INT_MAX = 2**31 - 1
+# Grid points per device slab: arrays in memory (a 256^3 or 64^4 grid in one slab, which needs
+# no counting pass), and fields sampled slab by slab on the host (whose evaluation holds several
+# float64 temporaries per point). About 13 bytes per point of device scratch plus the values.
+_SLAB_POINTS = 1 << 25
+_FIELD_SLAB_POINTS = 1 << 23
 _lock = threading.Lock()  # pyopencl kernels hold their arguments: one slab at a time per process
+
+#: Interpolate in float32 even where the device has ``cl_khr_fp64`` (the path of devices without
+#: it; tests set it). Read when an extraction starts.
+FLOAT32 = False
+
+#: On a CPU device, let the kernels write the final arrays in place (``CL_MEM_USE_HOST_PTR``)
+#: instead of device buffers read back (what other devices do; tests clear it).
+IN_PLACE = True
 
 #: Seconds per stage, summed over slabs, while :data:`PROFILE` is true (bench/extract.py sets
 #: it; the device queue is then drained after every stage, which costs a little).
 PROFILE = False
 profile: dict[str, float] = {}
+
+# value dtype -> (OpenCL type as stored, VKIND of kernels/march.cl)
+_NATIVE = {"f2": ("half", 1), "f4": ("float", 0), "i1": ("char", 0), "u1": ("uchar", 0),
+           "i2": ("short", 0), "u2": ("ushort", 0), "i4": ("int", 0), "u4": ("uint", 0),
+           "i8": ("long", 0), "u8": ("ulong", 0)}
 
 
 def _stage(name: str, queue: Any, since: float) -> float:
@@ -87,6 +127,26 @@ def fits(geom: _Geometry, layers: int, table: _CellTable) -> bool:
     return points * n_dirs < _INT_MAX
 
 
+def device_layers(geom: _Geometry, period: int, table: _CellTable, points: int | None = None) -> int:
+    """Cell layers per device slab: the largest multiple of the numpy engine's ``period`` whose
+    slab holds about ``points`` grid points (default :data:`_SLAB_POINTS`; at least ``period``
+    layers) and fits 32-bit indices."""
+    points = _SLAB_POINTS if points is None else points
+    n_cells = geom.shape[0] - 1
+    n_dirs = len(np.unique(table.mask))
+    per = max(1, period) * geom.layer  # points of ``period`` layers
+    mult = max(1, points // per)
+    mult = min(mult, -(-n_cells // max(1, period)))  # no more than the grid
+    while mult > 1 and (mult * period + 1) * geom.layer * n_dirs >= _INT_MAX:
+        mult -= 1
+    return mult * period
+
+
+def _n_dirs(table: _CellTable) -> int:
+    """How many edge directions ``table`` uses (d for the cube table, 2^d - 1 for Kuhn's)."""
+    return len(np.unique(table.mask))
+
+
 def _table_arrays(table: _CellTable) -> dict[str, np.ndarray]:
     return {
         "offsets": table.offsets.astype(np.int32),
@@ -96,14 +156,13 @@ def _table_arrays(table: _CellTable) -> dict[str, np.ndarray]:
 
 
 # Scratch buffers that live for one slab, kept from slab to slab and from one extraction to the
-# next (fresh buffers cost a page fault per page on first touch): (context id, name) -> buffer,
-# and the host's sign bytes. At most a few bytes per point of the largest slab so far;
-# release_buffers() drops them.
+# next (fresh buffers cost a page fault per page on first touch): (context id, name) -> buffer.
+# At most a few bytes per point of the largest slab so far; release_buffers() drops them.
 _pool: dict[Any, Any] = {}
 
 
 def release_buffers() -> None:
-    """Drop the scratch buffers kept between extractions (device and host memory)."""
+    """Drop the scratch buffers kept between extractions (device memory)."""
     with _lock:
         _pool.clear()
 
@@ -112,10 +171,29 @@ def release_buffers() -> None:
 _device_tables: dict[tuple[int, int, int], dict[str, Any]] = {}
 
 
+def _aligned_empty(shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+    """``np.empty`` whose data starts on a 4096-byte page: a CPU device writes such an array in
+    place (``CL_MEM_USE_HOST_PTR`` without a copy)."""
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape)) * dtype.itemsize
+    raw = np.empty(nbytes + 4096, dtype=np.uint8)
+    start = (-raw.ctypes.data) % 4096
+    return raw[start : start + nbytes].view(dtype).reshape(shape)
+
+
+def _kernel_value(dtype: np.dtype, fp64: bool) -> tuple[str, int] | None:
+    """(stored OpenCL type, VKIND) for values of ``dtype``, or None: widen to float64 first."""
+    code = f"{dtype.kind}{dtype.itemsize}"
+    if code == "f8":
+        return ("double", 0) if fp64 else ("ulong", 2)
+    return _NATIVE.get(code)
+
+
 class _Engine:
     """Kernels and buffers of one extraction on one device, reused slab after slab."""
 
-    def __init__(self, runtime: cl.Runtime, table: _CellTable, geom: _Geometry, layers: int) -> None:
+    def __init__(self, runtime: cl.Runtime, table: _CellTable, geom: _Geometry, layers: int,
+                 period: int) -> None:
         import pyopencl
 
         self.cl = pyopencl
@@ -124,11 +202,15 @@ class _Engine:
         self.mf = pyopencl.mem_flags
         d = len(geom.shape)
         self.d = d
+        self.geom = geom
         self.plan = plan = _Plan.make(table, geom)
         self.n_dirs = plan.n_dirs
-        self.kernels = cl.build_kernels(runtime, "march.cl",
-                                        {"DIM": d, "NDIRS": plan.n_dirs, "CHUNK": _CHUNK,
-                                         "SCAN_BLOCK": _SCAN_BLOCK})
+        self.period = period
+        self.fp64 = not FLOAT32 and "cl_khr_fp64" in runtime.device.extensions
+        self.real = np.float64 if self.fp64 else np.float32
+        # a CPU device shares the host's memory: the kernels write the final arrays in place
+        self.in_place = IN_PLACE and bool(runtime.device.type & pyopencl.device_type.CPU)
+        self._built: dict[str, dict[str, Any]] = {}
         key = (id(self.ctx), id(table), d)
         if key not in _device_tables:
             arrays = _table_arrays(table)
@@ -144,18 +226,20 @@ class _Engine:
         self.strides = [np.int32(offs[1 << k]) for k in range(d)] + [np.int32(0)] * (4 - d)
         self.user_bits = [np.int32(1 << axis) for axis in geom.perm] + [np.int32(0)] * (4 - d)
         self.edge_off = self._const(offs[table.corner].astype(np.int32))
-        self.edge_dir = self._const(dir_of[table.mask].astype(np.int32))
+        step = (table.corner >> geom.perm[0]) & 1  # the edge's lower corner is one layer up
+        self.edge_dir = self._const((dir_of[table.mask] | (step << 8)).astype(np.int32))
         self.in_plane = int(sum(1 << j for j in range(plan.n_dirs) if plan.in_plane[j]))
         self.layer = geom.layer
         points = (min(layers, geom.shape[0] - 1) + 1) * geom.layer
         chunks = -(-points // _CHUNK)
         padded = chunks * _CHUNK
-        blocks = -(-chunks // _SCAN_BLOCK)
         case_size = 2 if d == 4 else 1
         mask_size = 2 if plan.n_dirs > 8 else 1
         carry = geom.layer * plan.n_dirs * 4
         cl.check_device_memory(runtime, {
-            "the slab's signs, cases, edge masks and first vertices": padded * (1 + case_size + mask_size + 4),
+            "the slab's values": points * 8,
+            "the slab's values, signs, cases, edge masks and vertex numbers":
+                padded * (8 + 1 + case_size + mask_size + 8),
             "the shared layer's vertices (twice)": 2 * carry,
         }, task=f"extracting a grid of shape {geom.shape} on the device", fallback="thinner slabs (`chunk=`)")
         self.case_size, self.mask_size = case_size, mask_size
@@ -164,6 +248,16 @@ class _Engine:
         self.carry = [self._buf(carry), self._buf(carry)]
         self.has_below = False
         self.n_vertices = 0
+        start = [0] * d if geom.offset is None else [int(k) for k in geom.offset]
+        self.start = start
+
+    def kernels(self, vtype: str, vkind: int) -> dict[str, Any]:
+        if vtype not in self._built:
+            self._built[vtype] = cl.build_kernels(
+                self.runtime, "march.cl",
+                {"DIM": self.d, "NDIRS": self.n_dirs, "CHUNK": _CHUNK, "SCAN_BLOCK": _SCAN_BLOCK,
+                 "VTYPE": vtype, "VKIND": vkind, "FP64": int(self.fp64)})
+        return self._built[vtype]
 
     def _const(self, array: np.ndarray):
         return self.cl.Buffer(self.ctx, self.mf.READ_ONLY | self.mf.COPY_HOST_PTR,
@@ -177,78 +271,91 @@ class _Engine:
         key = (id(self.ctx), name)
         buf = _pool.get(key)
         if buf is None or buf.size < nbytes:
+            buf = _pool[key] = None  # drop the old one before allocating
             buf = _pool[key] = self._buf(int(nbytes * 1.25) + 64)
         return buf
 
-    def _host_rows(self, n: int) -> np.ndarray:
-        buf = _pool.get("host rows")
-        if buf is None or buf.size < n:
-            buf = _pool["host rows"] = np.empty(int(n * 1.25) + 64, dtype=np.int32)
-        return buf[:n]
+    def _threshold_arg(self, level: float, dtype: np.dtype, inside: str, vkind: int):
+        """(thr, mode) kernel arguments of ``sign``."""
+        thr = _threshold(level, dtype, inside)
+        if thr.value is None:
+            mode, value = 2, dtype.type(0)
+        else:
+            mode, value = (0 if thr.op == ">=" else 1), thr.value
+        if vkind == 1:
+            return np.float32(value), np.int32(mode)
+        if vkind == 2:  # ordered-integer key of the double; -0.0 so that both zeros pass >= 0
+            x = np.float64(value)
+            if x == 0 and mode == 0:
+                x = np.float64(-0.0)
+            bits = int(x.view(np.int64))
+            return np.int64(bits if bits >= 0 else bits ^ 0x7FFFFFFFFFFFFFFF), np.int32(mode)
+        return dtype.type(value), np.int32(mode)
 
-    def _host_sign(self, n: int) -> np.ndarray:
-        buf = _pool.get("host sign")
-        if buf is None or buf.size < n:
-            buf = _pool["host sign"] = np.empty(int(n * 1.25) + 64, dtype=np.uint8)
-        return buf[:n]
-
-    def slab(self, slab: np.ndarray, level: float, inside: str, want_cells: bool,
+    def slab(self, slab: np.ndarray, z0: int, level: float, inside: str, want_cells: bool,
              take: Callable[[int, int], tuple[np.ndarray, np.ndarray]] | None,
              below: bool | None = None):
-        """March one slab, or None when it has no simplex.
+        """March one slab (its first layer ``z0`` in the grid), or None when it has no simplex.
 
         With ``take=None`` only count: (new vertices, simplices) of the slab, ``below`` saying
         whether a slab lies below it (the engine's own state is left alone).
 
-        ``take(S, K)`` gives the (S, d) int32 or int64 rows the simplices are read into and the (K, d)
-        float64 rows for the new vertices (filled by the caller). Returns (those two arrays, the
-        new vertices' keys (K,) int64, the active cells and their simplex counts, or None).
+        ``take(S, K)`` gives the (S, d) int32 or int64 rows the simplices are read into and the
+        (K, d) float64 rows the new vertices are read into. Returns (those two arrays, the new
+        vertices' keys (K,) int64, the active cells and their simplex counts; the last three
+        only with ``want_cells``, else None).
         """
-        cl_, q, k = self.cl, self.queue, self.kernels
-        d, n_dirs = self.d, self.n_dirs
+        cl_, q = self.cl, self.queue
+        d = self.d
+        i32 = np.int32
+        kv = _kernel_value(slab.dtype, self.fp64)
+        if kv is None:
+            slab, kv = slab.astype(np.float64), _kernel_value(np.dtype(np.float64), self.fp64)
+        k = self.kernels(*kv)
         n = slab.size
         chunks = -(-n // _CHUNK)
         blocks = -(-chunks // _SCAN_BLOCK)
+        n0 = slab.shape[0]
         scratch = self._scratch
-        self.sign = scratch("sign", n)
-        self.cases = scratch("cases", chunks * _CHUNK * self.case_size)
-        self.vmask = scratch("vmask", chunks * _CHUNK * self.mask_size)
-        self.vfirst = scratch("vfirst", n * 4)
-        self.chunk_v, self.chunk_s, self.chunk_a = (scratch(f"chunk {x}", chunks * 4) for x in "vsa")
-        self.blk_v, self.blk_s, self.blk_a = (scratch(f"block {x}", blocks * 4) for x in "vsa")
-        self.totals = scratch("totals", 12)
+        values = scratch("values", slab.nbytes)
+        sign = scratch("sign", n)
+        cases = scratch("cases", chunks * _CHUNK * self.case_size)
+        vmask = scratch("vmask", chunks * _CHUNK * self.mask_size)
+        chunk_vi, chunk_va, chunk_s, chunk_a = (scratch(f"chunk {x}", chunks * 4) for x in ("vi", "va", "s", "a"))
+        blk = scratch("blocks", 4 * blocks * 4)
+        totals_buf = scratch("totals", 16)
         t = time.perf_counter()
-        host_sign = self._host_sign(n)
-        sign = host_sign.view(bool).reshape(slab.shape)
-        (np.greater_equal if inside == "below" else np.less_equal)(slab, level, out=sign)
-        t = _stage("signs (host)", q, t)
-        cl_.enqueue_copy(q, self.sign, host_sign, is_blocking=False)
+        cl_.enqueue_copy(q, values, np.ascontiguousarray(slab), is_blocking=False)
         t = _stage("upload", q, t)
-        top_start = (slab.shape[0] - 1) * self.layer
+        thr, mode = self._threshold_arg(level, slab.dtype, inside, kv[1])
+        k["sign"](q, (n,), None, values, sign, thr, mode)
+        t = _stage("sign", q, t)
+        top_start = (n0 - 1) * self.layer
         cur, nxt = self.carry
         if chunks * _CHUNK > n:  # zero the last chunk's padding
             zero = np.uint8(0)
-            cl_.enqueue_fill_buffer(q, self.cases, zero, n * self.case_size,
+            cl_.enqueue_fill_buffer(q, cases, zero, n * self.case_size,
                                     (chunks * _CHUNK - n) * self.case_size)
-            cl_.enqueue_fill_buffer(q, self.vmask, zero, n * self.mask_size,
+            cl_.enqueue_fill_buffer(q, vmask, zero, n * self.mask_size,
                                     (chunks * _CHUNK - n) * self.mask_size)
-        i32 = np.int32
         e = slab.shape
         grid = (e[-1], e[-2], n // (e[-1] * e[-2]))
         shared = self.in_plane if (self.has_below if below is None else below) else 0
-        k["classify"](q, grid, None, self.sign, self.cases, self.vmask, self.tables["counts"],
+        k["classify"](q, grid, None, sign, cases, vmask, self.tables["counts"],
                       i32(shared), *self.strides, *self.user_bits, i32(e[0]),
                       i32(e[1] if d == 4 else 1))
         t = _stage("classify", q, t)
-        k["count"](q, (chunks,), None, self.cases, self.vmask, self.tables["counts"], self.chunk_v,
-                   self.chunk_s, self.chunk_a)
-        k["scan_chunks"](q, (blocks,), None, self.chunk_v, self.chunk_s, self.chunk_a, self.blk_v,
-                         self.blk_s, self.blk_a, i32(chunks))
-        k["scan_blocks"](q, (1,), None, self.blk_v, self.blk_s, self.blk_a, i32(blocks), self.totals)
-        totals = np.empty(3, dtype=np.int32)
-        cl_.enqueue_copy(q, totals, self.totals)
+        in_plane = i32(self.in_plane)
+        k["count"](q, (chunks,), None, cases, vmask, self.tables["counts"], chunk_vi, chunk_va,
+                   chunk_s, chunk_a, in_plane)
+        k["scan_chunks"](q, (blocks,), None, chunk_vi, chunk_va, chunk_s, chunk_a, blk,
+                         i32(chunks), i32(blocks))
+        k["scan_blocks"](q, (1,), None, blk, i32(blocks), totals_buf)
+        totals = np.empty(4, dtype=np.int32)
+        cl_.enqueue_copy(q, totals, totals_buf)
         t = _stage("count and scan", q, t)
-        n_new, n_simp, n_active = (int(t) for t in totals)
+        n_in, n_ax, n_simp, n_active = (int(x) for x in totals)
+        n_new = n_in + n_ax
         if take is None:
             return n_new, n_simp
         self.has_below = True
@@ -260,42 +367,83 @@ class _Engine:
         if n_simp * d > _INT_MAX:
             raise MemoryError(f"one slab makes {n_simp:,} simplices, more than the device engine "
                               "indexes in one slab; use thinner slabs (`chunk=`)")
-        self.out = scratch("simplices", n_simp * d * 4)
-        self.keys = scratch("keys", n_new * 4)
-        self.act_p, self.act_s = scratch("active points", n_active * 4), scratch("active first", n_active * 4)
-        k["number"](q, (chunks,), None, self.cases, self.vmask, self.tables["counts"],
-                    self.chunk_v, self.blk_v, self.chunk_s, self.blk_s, self.chunk_a, self.blk_a,
-                    self.vfirst, self.keys, nxt, self.act_p, self.act_s, i32(self.n_vertices),
-                    i32(self.in_plane), i32(top_start))
-        t = _stage("number", q, t)
-        k["emit"](q, (n_active,), None, self.cases, self.vmask, self.vfirst, cur, self.act_p,
-                  self.act_s, self.tables["offsets"], self.tables["table"], self.edge_off,
-                  self.edge_dir, self.out)
-        t = _stage("emit", q, t)
         simplices, vertices = take(n_simp, n_new)
-        keys = np.empty(n_new, dtype=np.int32)
-        staged = simplices  # int32 rows are read as they are; wider ones through a staging copy
-        if simplices.dtype != np.int32:
-            staged = self._host_rows(n_simp * d).reshape(n_simp, d)
-        cl_.enqueue_copy(q, staged, self.out, is_blocking=False)
+        wide = simplices.dtype == np.int64
+        # the final rows themselves where the device can write them in place: a CPU device and
+        # rows that start on a page (the first slab's; other slabs' would be copied)
+        in_place = self.in_place and simplices.ctypes.data % 4096 == 0 and (
+            n_new == 0 or vertices.ctypes.data % 4096 == 0)
+        if in_place:
+            flags = self.mf.WRITE_ONLY | self.mf.USE_HOST_PTR
+            out = cl_.Buffer(self.ctx, flags, hostbuf=simplices)
+            verts = cl_.Buffer(self.ctx, flags, hostbuf=vertices) if n_new else None
+        else:
+            out = scratch("simplices", n_simp * d * (8 if wide else 4))
+            verts = scratch("vertices", n_new * d * 8)
+        keys_buf = scratch("keys", n_new * 4)
+        vfirst, vax = scratch("vfirst", n * 4), scratch("vax", n * 4)
+        layer_in, layer_ax = scratch("layer in", (n0 + 1) * 4), scratch("layer ax", (n0 + 1) * 4)
+        act_p, act_s = scratch("active points", n_active * 4), scratch("active first", n_active * 4)
+        act_b = scratch("active flags", n_active)
+        z0_, period = i32(z0), i32(self.period)
+        k["layer_prefix"](q, (n0 + 1,), None, vmask, chunk_vi, chunk_va, blk, totals_buf,
+                          layer_in, layer_ax, i32(self.layer), i32(n), i32(blocks), in_plane)
+        k["number"](q, (chunks,), None, cases, vmask, self.tables["counts"], chunk_vi, chunk_va,
+                    chunk_s, chunk_a, blk, layer_in, layer_ax, vfirst, vax, keys_buf, nxt,
+                    act_p, act_s, act_b, i32(blocks), i32(self.n_vertices), in_plane, i32(top_start),
+                    i32(self.layer), z0_, period)
+        t = _stage("number", q, t)
+        k["emit64" if wide else "emit32"](
+            q, (n_active,), None, cases, vmask, vfirst, vax, cur, act_p, act_s, act_b,
+            self.tables["offsets"], self.tables["table"], self.edge_off, self.edge_dir, in_plane,
+            out)
+        t = _stage("emit", q, t)
         if n_new:
-            cl_.enqueue_copy(q, keys, self.keys, is_blocking=False)
-        cells = counts = None
+            g, real = self.geom, self.real
+            shape = list(e[1:]) + [1] * (4 - d)
+            perm = list(g.perm) + [0] * (4 - d)
+            base = [(z0 if i == 0 else 0) + self.start[perm[i]] for i in range(d)] + [0] * (4 - d)
+            origin = [real(g.origin[perm[i]]) for i in range(d)] + [real(0)] * (4 - d)
+            spacing = [real(g.spacing[perm[i]]) for i in range(d)] + [real(0)] * (4 - d)
+            k["interpolate"](q, (n_new,), None, values, keys_buf, verts, real(level),
+                             *(i32(x) for x in shape[:3]), *self.strides,
+                             *(i32(x) for x in perm), *(i32(x) for x in base), *origin, *spacing)
+        t = _stage("interpolate", q, t)
+        mapped = []
+        if in_place:
+            for buf, rows in ((out, simplices), (verts, vertices)):
+                if buf is not None:
+                    view, _ = cl_.enqueue_map_buffer(q, buf, cl_.map_flags.READ, 0, rows.shape,
+                                                     rows.dtype, is_blocking=False)
+                    mapped.append((buf, view))
+        else:
+            cl_.enqueue_copy(q, simplices, out, is_blocking=False)
+            if n_new:
+                cl_.enqueue_copy(q, vertices, verts, is_blocking=False)
+        keys = cells = counts = None
         if want_cells:
+            keys = np.empty(n_new, dtype=np.int32)
             cells = np.empty(n_active, dtype=np.int32)
             first = np.empty(n_active + 1, dtype=np.int32)
             first[n_active] = n_simp
-            cl_.enqueue_copy(q, cells, self.act_p, is_blocking=False)
-            cl_.enqueue_copy(q, first[:n_active], self.act_s, is_blocking=False)
+            if n_new:
+                cl_.enqueue_copy(q, keys, keys_buf, is_blocking=False)
+            cl_.enqueue_copy(q, cells, act_p, is_blocking=False)
+            cl_.enqueue_copy(q, first[:n_active], act_s, is_blocking=False)
         q.finish()
-        if staged is not simplices:
-            simplices[...] = staged
+        if in_place:  # the rows hold the results now; no kernel keeps their buffers
+            placeholder = scratch("placeholder", 64)
+            k["emit64" if wide else "emit32"].set_arg(13, placeholder)
+            k["interpolate"].set_arg(2, placeholder)
+        for buf, view in mapped:
+            view.base.release()
+            buf.release()
         t = _stage("download", q, t)
         if want_cells:
-            cells, counts = cells.astype(np.int64), np.diff(first).astype(np.int64)
+            keys, cells, counts = keys.astype(np.int64), cells.astype(np.int64), np.diff(first).astype(np.int64)
         self.carry = [nxt, cur]
         self.n_vertices += n_new
-        return simplices, vertices, keys.astype(np.int64), cells, counts
+        return simplices, vertices, keys, cells, counts
 
     def release(self) -> None:
         for buf in self.carry:
@@ -317,75 +465,85 @@ def march_slabs(
     cells: bool = True,
     take: Callable[[int, int, float], tuple[np.ndarray, np.ndarray]] | None = None,
     count_first: Callable[[int, int], None] | None = None,
+    slab_points: int | None = None,
+    grow: bool = True,
 ) -> Iterator[_SlabMesh]:
-    """:func:`ao4d.cells._march_slabs` on the device: the same :class:`_SlabMesh` per slab.
+    """:func:`ao4d.cells._march_slabs` on the device: the same arrays, in device slabs.
+
+    The yielded :class:`_SlabMesh` parts cover device slabs (multiples of ``layers_per_slab``,
+    :func:`device_layers`); concatenated, their arrays are those of the numpy engine's parts.
 
     Parameters
     ----------
     read, geom, level, table, inside, layers_per_slab, check_values, progress
-        As for :func:`ao4d.cells._march_slabs` (the callers validate).
+        As for :func:`ao4d.cells._march_slabs` (the callers validate); ``layers_per_slab`` is
+        the numpy engine's slab, whose vertex order the device keeps.
     runtime : ao4d.cl.Runtime
         The device.
     cells : bool
-        Also report each slab's active cells and their simplex counts (block-wise welding needs
-        them; they cost one read of the slab's cases). When False, ``cells`` and ``counts`` of
-        the yielded meshes are empty.
+        Also report each slab's new vertices' keys, active cells and their simplex counts
+        (block-wise welding needs them). When False, ``keys``, ``cells`` and ``counts`` of the
+        yielded meshes are empty.
     take : callable, optional
         ``take(S, K, done)``: where the next slab's S simplices and K vertices go ((S, d) int32
-        or int64 and (K, d) float64 rows; ``done`` is the fraction of the grid's layers marched
-        after this slab). By default new arrays per slab, int32 like the numpy engine's.
+        or int64 and (K, d) float64 rows, read from the device straight into them; ``done`` is
+        the fraction of the grid's layers marched after this slab). By default new arrays per
+        slab, int32 like the numpy engine's.
     count_first : callable, optional
         Count every slab's simplices and new vertices first (reading each slab twice: for
         arrays in memory) and call ``count_first(S, K)`` with the totals before marching, so
         that the output can be allocated once, at its size.
+    slab_points : int, optional
+        About how many grid points a device slab holds (default :data:`_SLAB_POINTS`).
+    grow : bool
+        Whether device slabs may be larger than ``layers_per_slab`` (False: the user chose the
+        slab size, ``chunk=``, to bound memory).
     """
     if take is None:
         def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
-            return np.empty((n_simp, d), dtype=np.int32), np.empty((n_new, d))
+            return _aligned_empty((n_simp, d), np.int32), _aligned_empty((n_new, d), np.float64)
     d = len(geom.shape)
+    layers = device_layers(geom, layers_per_slab, table, slab_points) if grow else layers_per_slab
     with _lock:
-        engine = _Engine(runtime, table, geom, layers_per_slab)
+        engine = _Engine(runtime, table, geom, layers, layers_per_slab)
     plan = engine.plan
     empty = np.zeros(0, dtype=np.int64)
+
+    def slabs() -> Iterator[tuple[int, int, np.ndarray]]:
+        z0 = 0
+        while z0 < n0 - 1:
+            z1 = min(z0 + layers, n0 - 1)
+            slab = read(z0, z1 + 1)
+            if check_values:
+                check_finite(slab, "values")
+            yield z0, z1, slab
+            z0 = z1
+
     try:
         n0 = geom.shape[0]
         if count_first is not None:
             total_simp = total_new = 0
-            z0 = 0
-            while z0 < n0 - 1:
-                z1 = min(z0 + layers_per_slab, n0 - 1)
-                slab = read(z0, z1 + 1)
-                if check_values:
-                    check_finite(slab, "values")
+            for z0, _, slab in slabs():
                 with _lock:
-                    n_new, n_simp = engine.slab(slab, level, inside, False, None, below=z0 > 0)
+                    n_new, n_simp = engine.slab(slab, z0, level, inside, False, None, below=z0 > 0)
                 total_simp += n_simp
                 total_new += n_new if n_simp else 0
-                z0 = z1
             count_first(total_simp, total_new)
-        z0 = 0
-        while z0 < n0 - 1:
-            z1 = min(z0 + layers_per_slab, n0 - 1)
-            slab = read(z0, z1 + 1)
-            if check_values:
-                check_finite(slab, "values")
+        for z0, z1, slab in slabs():
             done = z1 / (n0 - 1)
             with _lock:
-                found = engine.slab(slab, level, inside, cells,
+                found = engine.slab(slab, z0, level, inside, cells,
                                     lambda n_simp, n_new: take(n_simp, n_new, done))
+            del slab
             if found is not None:
                 simplices, vertices, new_keys, active, counts = found
-                t = time.perf_counter()
-                _interpolate_into(vertices, slab, new_keys, z0, level, plan)
                 shift = z0 * geom.layer
-                part = _SlabMesh(vertices, simplices, new_keys + shift * plan.n_dirs,
-                                 empty if active is None else active + shift,
-                                 empty if counts is None else counts)
-                _stage("interpolate (host)", engine.queue, t)
-                yield part
+                yield _SlabMesh(vertices, simplices,
+                                empty if new_keys is None else new_keys + shift * plan.n_dirs,
+                                empty if active is None else active + shift,
+                                empty if counts is None else counts)
             if progress is not None:
                 progress.update(z1 - z0)
-            z0 = z1
     finally:
         with _lock:
             engine.release()
@@ -403,25 +561,39 @@ def march(
     progress: Any,
     runtime: cl.Runtime,
     reread: bool = False,
+    grow: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`ao4d.cells._march` on the device: (vertices (V, d) float64, simplices (S, d) int64;
     the numpy engine's are int32 while they fit, the same values).
 
-    ``reread``: ``read`` is cheap (an array in memory), so the slabs are counted first and the
-    output is allocated once at its size and filled in place (no slab parts, no concatenation:
-    large fresh allocations are slow to fault in here); otherwise (a field sampled slab by slab)
-    the slab parts are concatenated at the end, as the numpy engine does.
+    ``reread``: ``read`` is cheap (an array in memory): the output is allocated once at its size
+    and each device slab is read straight into it (a grid in one device slab is counted by its
+    own march; more slabs are counted first); otherwise (a field sampled slab by slab, in
+    smaller device slabs) the slab parts are concatenated at the end, as the numpy engine does.
+    ``grow``: as for :func:`march_slabs`.
     """
     d = len(geom.shape)
     kwargs = dict(table=table, inside=inside, layers_per_slab=layers_per_slab,
-                  check_values=check_values, progress=progress, runtime=runtime, cells=False)
-    if not reread:  # slab parts (int32, as the numpy engine keeps them), then one concatenation
+                  check_values=check_values, progress=progress, runtime=runtime, cells=False,
+                  grow=grow)
+    layers = device_layers(geom, layers_per_slab, table) if grow else layers_per_slab
+    one_slab = layers >= geom.shape[0] - 1
+    # several device slabs of an array in memory: count them all first and fill the output in
+    # place where the output outweighs the input (4D Kuhn simplices: counting again costs less
+    # than copying the output), else slab parts and one concatenation (measured: 384^3 and 96^4
+    # cubes 1.3-1.4x faster so, 96^4 simplices 1.2-1.3x slower)
+    count_first = d == 4 and _n_dirs(table) == 15
+    if not reread or (not one_slab and not count_first):
+        # slab parts (int32, as the numpy engine keeps them), then one concatenation
         verts, simps = [], []
-        for part in march_slabs(read, geom, level, **kwargs):
+        points = _SLAB_POINTS if reread else min(_SLAB_POINTS, _FIELD_SLAB_POINTS)
+        for part in march_slabs(read, geom, level, slab_points=points, **kwargs):
             verts.append(part.vertices)
             simps.append(part.simplices)
         if not simps:
             return np.zeros((0, d)), np.zeros((0, d), dtype=np.int64)
+        if len(verts) == 1:
+            return verts[0], simps[0]  # SimplexMesh widens the int32 indices in its own copy
         vertices = np.concatenate(verts)
         del verts
         simplices = np.empty((sum(len(x) for x in simps), d), dtype=np.int64)
@@ -430,13 +602,17 @@ def march(
     rows_s, rows_v = _Rows(d, np.int64), _Rows(d, np.float64)
 
     def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
+        if one_slab:
+            rows_s.reserve(n_simp)
+            rows_v.reserve(n_new)
         return rows_s.take(n_simp), rows_v.take(n_new)
 
     def count_first(n_simp: int, n_new: int) -> None:
         rows_s.reserve(n_simp)
         rows_v.reserve(n_new)
 
-    for part in march_slabs(read, geom, level, take=take, count_first=count_first, **kwargs):
+    for part in march_slabs(read, geom, level, take=take,
+                            count_first=None if one_slab else count_first, **kwargs):
         del part  # views into the rows
     return rows_v.array, rows_s.array
 
@@ -450,7 +626,7 @@ class _Rows:
 
     def reserve(self, n: int) -> None:
         """Room for ``n`` rows in all (before any row is taken)."""
-        self.array = np.empty((n, self.array.shape[1]), dtype=self.array.dtype)
+        self.array = _aligned_empty((n, self.array.shape[1]), self.array.dtype)
 
     def take(self, k: int) -> np.ndarray:
         """The next ``k`` rows (a view)."""
@@ -459,35 +635,3 @@ class _Rows:
             raise RuntimeError("the slabs made more rows than they were counted to make")
         self.n += k
         return rows
-
-
-def _interpolate_into(out: np.ndarray, slab: np.ndarray, keys: np.ndarray, z0: int, level: float,
-                      plan: _Plan) -> None:
-    """:func:`ao4d.cells._interpolate` of the vertices with edge ``keys``, written into ``out``.
-
-    The same float64 operations on every element (so the same bits), column by column without
-    the (K, d) temporaries.
-    """
-    if len(keys) == 0:
-        return
-    geom = plan.geom
-    lin, dir_ = np.divmod(keys, plan.n_dirs)
-    masks = plan.dirs[dir_]
-    flat = slab.reshape(-1)
-    f0 = flat[lin].astype(np.float64, copy=False)
-    f1 = flat[lin + plan.offs[plan.dirs][dir_]].astype(np.float64, copy=False)
-    with np.errstate(invalid="ignore"):
-        t = np.subtract(level, f0)
-        t /= f1 - f0
-    np.clip(t, 0.0, 1.0, out=t)
-    t[np.isnan(t)] = 1.0  # the infinite padding of closed=True (see cells._interpolate)
-    eidx = np.unravel_index(lin, slab.shape)
-    start = [0] * len(geom.shape) if geom.offset is None else [int(k) for k in geom.offset]
-    col = np.empty(len(keys))
-    for e, axis in enumerate(geom.perm):
-        col[:] = eidx[e] + ((z0 if e == 0 else 0) + start[axis])
-        bit = (masks >> axis) & 1
-        col += t * bit  # as the reference's idx += t * mask_bits: t or 0.0, added
-        np.multiply(geom.spacing[axis], col, out=col)
-        np.add(geom.origin[axis], col, out=out[:, axis])
-

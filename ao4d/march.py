@@ -79,7 +79,9 @@ def _run(
     engine: Callable[..., tuple[np.ndarray, np.ndarray]] = _march
     extra: dict[str, Any] = {}
     if runtime is not None and cells_device.fits(geom, layers, table):
-        engine, extra = cells_device.march, {"runtime": runtime, "reread": reread}
+        # device slabs grow past the numpy engine's unless the user chose them (chunk=)
+        engine, extra = cells_device.march, {"runtime": runtime, "reread": reread,
+                                             "grow": chunk is None}
     bar = _progress_bar(progress, math.prod(n - 1 for n in geom.shape), geom.shape[0] - 1)
     try:
         vertices, simplices = engine(
@@ -257,7 +259,10 @@ def extract(
         slab = np.ascontiguousarray(engine[a:b])
         if on_disk and closed:
             check_finite(slab, "values")  # the padded slabs hold infinities: check before
-        return slab if slab.dtype.kind == "f" else slab.astype(np.float64)
+        # integers stay as they are (compared exactly, widened where interpolated), except in
+        # the padding of closed=True, which holds infinities
+        native = "f" if closed else "fiu"
+        return slab if slab.dtype.kind in native else slab.astype(np.float64)
 
     if closed:
         read = _padded_reader(read, engine.shape, outside_value(inside))

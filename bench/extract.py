@@ -1,29 +1,33 @@
-"""Benchmark: ao4d extraction on the OpenCL device against its numpy engine, VTK's flying edges
-and scikit-image, in one run, cases taken in turn.
+"""Benchmark: ao4d extraction on the OpenCL device against VTK's flying edges (3D) and ao4d's own
+numpy engine (4D), in one run, cases taken in turn.
 
-3D: a sphere sampled on 128^3, 256^3 and 384^3 grids: ao4d on the device (``backend="auto"``, what
-``ao4d.extract`` does), ao4d's numpy engine (``backend="numpy"``), ``vtkFlyingEdges3D`` (one
-thread: VTK's SMP backend set to sequential; no normals, gradients or scalars) and
-scikit-image's ``marching_cubes`` (Lorensen). 4D: a hypersphere on 48^4, 64^4 and 96^4 grids,
-both methods, device against numpy. Every case runs once untimed (table loading, kernel
-builds), then ``--repeats`` times in turn; the table shows the best time, cells and output
-simplices (triangles, tetrahedra) per second, and ratios. ao4d's times are what the user waits
-for: ``ao4d.extract`` from the array to the SimplexMesh, checks included.
+3D: a sphere sampled on 256^3 and 384^3 grids: ao4d on the device (``backend="auto"``, what
+``ao4d.extract`` does), ao4d's numpy engine, and ``vtkFlyingEdges3D`` (no normals, gradients or
+scalars) on one thread (``vtkSMPTools`` backend ``Sequential``) and on all threads (the wheel's
+threaded backend, named in the output). 4D: a hypersphere on 64^4 and 96^4 grids, both methods,
+device against the numpy engine. Every case runs once untimed (table loading, kernel builds,
+first-touch pages), then ``--rounds`` times in turn, so that machine load falls on all cases
+alike; the table shows the median with the min-max spread, and ratios of medians. ao4d's times
+are what the user waits for: ``ao4d.extract`` from the array to the SimplexMesh, checks
+included.
 
-Also measured, each in a fresh process: the first call (device discovery, kernel build with an
-empty kernel cache, extraction) and, with ``--torus``, a 128^4 spheritorus extracted slab by
-slab with ``extract_field`` on both backends (time and peak resident memory).
+Also measured, each in a fresh process (once): the first call at 256^3 (device discovery, kernel
+build with an empty and with a warm kernel cache, extraction) and a 128^4 spheritorus extracted
+slab by slab with ``extract_field`` on both backends (time and peak resident memory, VmHWM),
+beside the time the field's evaluation alone takes.
 
-    python bench/extract.py                     # everything, best of 3
-    python bench/extract.py --sizes3 128 256 --sizes4 48 64 --repeats 3 --no-torus
-    python bench/extract.py --profile           # where the device engine's time goes
+    python bench/extract.py                     # everything, 5 rounds (about 7 min, quiet 2 cores)
+    python bench/extract.py --sizes3 256 --sizes4 64 --rounds 3 --torus 0
+    python bench/extract.py --profile           # also the device engine's time per stage
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
+import platform
 import subprocess
 import sys
 import tempfile
@@ -31,15 +35,44 @@ import time
 
 import numpy as np
 
-# the rates the numpy engine reached before the device engine (issue 22's figures, 64^4)
-TODAY_4D = {"cubes": 24.0, "simplices": 3.6}  # Mcells/s
+# this checkout's ao4d, whichever one is installed
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
-def _vtk_runner(values: np.ndarray):
+def machine_line() -> tuple[str, float]:
+    """(a line naming the CPU, its SIMD, caches, the OpenCL device and the load; load average)."""
+    from ao4d import cl
+
+    model, flags = platform.processor() or "unknown CPU", set()
+    try:
+        with open("/proc/cpuinfo") as info:
+            for line in info:
+                if line.startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                elif line.startswith("flags"):
+                    flags = set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    simd = "/".join(x for x in ("avx512f", "avx2", "fma", "sse4_2", "neon") if x in flags) or "?"
+    caches = []
+    for level in ("L2", "L3"):
+        try:
+            out = subprocess.run(["lscpu"], capture_output=True, text=True, check=False).stdout
+            row = [r for r in out.splitlines() if r.startswith(f"{level} cache")]
+            caches.append(f"{level} {row[0].split(':', 1)[1].strip()}" if row else f"{level} ?")
+        except OSError:
+            caches.append(f"{level} ?")
+    load = os.getloadavg()
+    device = cl.describe(cl.get_runtime(warn=False))
+    line = (f"machine: {model}, {os.cpu_count()} CPUs, SIMD {simd}, {', '.join(caches)}; OpenCL: "
+            f"{device}; load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
+    return line, load[0]
+
+
+def _vtk_runner(values: np.ndarray, backend: str):
     import vtk
     from vtk.util import numpy_support
 
-    vtk.vtkSMPTools.SetBackend("Sequential")
     image = vtk.vtkImageData()
     image.SetDimensions(*values.shape)
     # VTK's x runs fastest: the Fortran-order ravel of values[i, j, k] puts i fastest
@@ -52,6 +85,7 @@ def _vtk_runner(values: np.ndarray):
     fe.ComputeScalarsOff()
 
     def run() -> int:
+        vtk.vtkSMPTools.SetBackend(backend)
         fe.Modified()
         fe.Update()
         return fe.GetOutput().GetNumberOfCells()
@@ -59,10 +93,30 @@ def _vtk_runner(values: np.ndarray):
     return run
 
 
-def _cases(sizes3, sizes4):
+def vtk_threaded_backend() -> str:
+    """The wheel's threaded vtkSMPTools backend (TBB, OpenMP or STDThread), or Sequential."""
+    import vtk
+
+    smp = vtk.vtkSMPTools
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with open(os.devnull, "w") as null:  # VTK prints a warning for every backend it lacks
+        os.dup2(null.fileno(), 2)
+        try:
+            for name in ("TBB", "OpenMP", "STDThread"):
+                smp.SetBackend(name)
+                if smp.GetBackend() == name:
+                    return name
+            return "Sequential"
+        finally:
+            smp.SetBackend("Sequential")
+            os.dup2(saved, 2)
+            os.close(saved)
+
+
+def _cases(sizes3, sizes4, threaded: str):
     import ao4d
     from ao4d import fields
-    from skimage import measure
 
     cases = []
     for n in sizes3:
@@ -73,9 +127,8 @@ def _cases(sizes3, sizes4):
              lambda v=sphere: ao4d.extract(v, 0.0, progress=False).n_simplices),
             (group, "ao4d numpy", sphere,
              lambda v=sphere: ao4d.extract(v, 0.0, progress=False, backend="numpy").n_simplices),
-            (group, "VTK flying edges", sphere, _vtk_runner(sphere)),
-            (group, "scikit-image", sphere,
-             lambda v=sphere: len(measure.marching_cubes(v, 0.0, method="lorensen")[1])),
+            (group, "VTK FE 1 thread", sphere, _vtk_runner(sphere, "Sequential")),
+            (group, f"VTK FE {threaded}", sphere, _vtk_runner(sphere, threaded)),
         ]
     for n in sizes4:
         ball = ao4d.sample(fields.hypersphere(1.0), n, (-1.2, 1.2))
@@ -128,69 +181,82 @@ print(json.dumps({"time": t, "simplices": simplices, "peak_mib": int(hwm.split()
 
 
 def _subprocess(code: str, *args: str, env: dict | None = None) -> dict:
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = {**os.environ, **(env or {})}
+    env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")  # this checkout's ao4d
     out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
-                         env={**os.environ, **(env or {})}, check=True)
+                         env=env, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _spread(xs: list[float]) -> str:
+    return f"{np.median(xs):8.3f} ({min(xs):.3f}-{max(xs):.3f})"
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sizes3", type=int, nargs="*", default=[128, 256, 384])
-    parser.add_argument("--sizes4", type=int, nargs="*", default=[48, 64, 96])
-    parser.add_argument("--repeats", type=int, default=3, help="timed runs per case (best)")
+    parser.add_argument("--sizes3", type=int, nargs="*", default=[256, 384])
+    parser.add_argument("--sizes4", type=int, nargs="*", default=[64, 96])
+    parser.add_argument("--rounds", type=int, default=5, help="timed rounds, cases in turn")
     parser.add_argument("--torus", type=int, default=128, help="spheritorus grid (0: skip)")
-    parser.add_argument("--no-torus", action="store_const", const=0, dest="torus")
+    parser.add_argument("--no-first-call", action="store_true", help="skip the fresh processes")
     parser.add_argument("--profile", action="store_true",
                         help="also print the device engine's time per stage (drains the queue "
                              "after every stage)")
     args = parser.parse_args(argv)
+    start = time.perf_counter()
 
-    from ao4d import cells_device, cl
+    from ao4d import cells_device
 
-    print(f"device: {cl.describe(cl.get_runtime(warn=False))}")
-    cases = _cases(args.sizes3, args.sizes4)
+    line, load = machine_line()
+    print(line)
+    if load > 0.5:
+        print(f"WARNING: load average {load:.2f} > 0.5: other work shares the CPUs, times are "
+              "noisy (the rounds run in turn, so ratios suffer less than times)")
+    threaded = vtk_threaded_backend() if args.sizes3 else "Sequential"
+    if args.sizes3:
+        print(f"VTK's vtkSMPTools backends: Sequential (1 thread) and {threaded} (all threads) "
+              "in this wheel")
+    cases = _cases(args.sizes3, args.sizes4, threaded)
     times: dict[tuple[str, str], list[float]] = {(g, n): [] for g, n, _, _ in cases}
     outputs: dict[tuple[str, str], int] = {}
     for group, name, _, run in cases:  # warm-up: tables, kernel builds, first-touch pages
+        gc.collect()
         outputs[(group, name)] = run()
-    for _ in range(args.repeats):  # in turn, so machine load affects all cases alike
+    for _ in range(args.rounds):  # in turn, so machine load affects all cases alike
         for group, name, _, run in cases:
+            gc.collect()  # a mesh sits in a reference cycle: free the last one before timing
             t0 = time.perf_counter()
             outputs[(group, name)] = run()
             times[(group, name)].append(time.perf_counter() - t0)
 
-    print(f"\nbest of {args.repeats} runs (median in brackets); ratios are speeds (higher: ao4d device faster)")
-    print(f"{'case':22s} {'engine':18s} {'time s':>8s} {'(median)':>9s} {'Mcells/s':>9s} "
-          f"{'simplices':>10s} {'Msimp/s':>8s} {'device is':>10s}")
-    groups = list(dict.fromkeys(g for g, _, _, _ in cases))
-    for group in groups:
+    print(f"\nmedian (min-max) of {args.rounds} rounds taken in turn; 'device is': the other's "
+          "median time over the device's (higher: ao4d's device engine faster)")
+    print(f"{'case':20s} {'engine':22s} {'time s (min-max)':>24s} {'Mcells/s':>9s} "
+          f"{'simplices':>10s} {'device is':>10s}")
+    for group in dict.fromkeys(g for g, _, _, _ in cases):
         rows = [(n, v) for g, n, v, _ in cases if g == group]
-        dev = min(times[(group, "ao4d device")])
+        dev = float(np.median(times[(group, "ao4d device")]))
         for name, values in rows:
-            best = min(times[(group, name)])
             med = float(np.median(times[(group, name)]))
             cells = int(np.prod(np.array(values.shape) - 1))
-            ratio = "" if name == "ao4d device" else f"{best / dev:9.2f}x"
-            print(f"{group:22s} {name:18s} {best:8.3f} {med:9.3f} {cells / best / 1e6:9.2f} "
-                  f"{outputs[(group, name)]:10d} {outputs[(group, name)] / best / 1e6:8.2f} {ratio:>10s}")
-        if group.startswith("4D"):
-            method = group.split()[1]
-            rate = cells / dev / 1e6
-            print(f"{'':22s} {'vs issue 22 today':18s} {TODAY_4D[method]:8.1f} Mcells/s -> "
-                  f"{rate:.1f} Mcells/s: {rate / TODAY_4D[method]:.2f}x")
+            ratio = "" if name == "ao4d device" else f"{med / dev:9.2f}x"
+            print(f"{group:20s} {name:22s} {_spread(times[(group, name)]):>24s} "
+                  f"{cells / med / 1e6:9.2f} {outputs[(group, name)]:10d} {ratio:>10s}")
 
-    with tempfile.TemporaryDirectory() as cache:
-        cold = _subprocess(_FIRST_CALL, env={"XDG_CACHE_HOME": cache})
-        warm = _subprocess(_FIRST_CALL, env={"XDG_CACHE_HOME": cache})
-    print(f"\nfirst call in a fresh process, 256^3 sphere ({cold['device']}):")
-    print(f"  empty kernel cache: first {cold['first']:.3f} s (programs compiled: "
-          f"{cold['stats']['compiled']}), second {cold['second']:.3f} s")
-    print(f"  warm kernel cache:  first {warm['first']:.3f} s (programs from cache: "
-          f"{warm['stats']['from_cache']}), second {warm['second']:.3f} s")
+    if not args.no_first_call:
+        with tempfile.TemporaryDirectory() as cache:
+            cold = _subprocess(_FIRST_CALL, env={"XDG_CACHE_HOME": cache})
+            warm = _subprocess(_FIRST_CALL, env={"XDG_CACHE_HOME": cache})
+        print(f"\nfirst call in a fresh process, 256^3 sphere ({cold['device']}), once:")
+        print(f"  empty kernel cache: first {cold['first']:.3f} s (programs compiled: "
+              f"{cold['stats']['compiled']}), second {cold['second']:.3f} s")
+        print(f"  warm kernel cache:  first {warm['first']:.3f} s (programs from cache: "
+              f"{warm['stats']['from_cache']}), second {warm['second']:.3f} s")
 
     if args.torus:
         n = args.torus
-        print(f"\nspheritorus {n}^4, extract_field slab by slab, one fresh process each:")
+        print(f"\nspheritorus {n}^4, extract_field slab by slab, one fresh process each, once:")
         res = {be: _subprocess(_TORUS, str(n), be) for be in ("numpy", "auto", "sample")}
         for be, r in res.items():
             label = {"auto": "device", "numpy": "numpy", "sample": "sampling the field alone"}[be]
@@ -208,20 +274,24 @@ def main(argv: list[str] | None = None) -> int:
 
         print("\ndevice engine stages (seconds, summed over slabs; queue drained after each):")
         cells_device.PROFILE = True
-        for label, values, method in (
-            [(f"3D sphere {n}^3", ao4d.sample(fields.hypersphere(1.0, dim=3), n, (-1.2, 1.2)), "cubes")
-             for n in args.sizes3[len(args.sizes3) // 2:][:1]]
-            + [(f"4D {m} {n}^4", ao4d.sample(fields.hypersphere(1.0), n, (-1.2, 1.2)), m)
-               for n in args.sizes4[len(args.sizes4) // 2:][:1] for m in ("cubes", "simplices")]):
+        profiled = ([(f"3D sphere {n}^3", ao4d.sample(fields.hypersphere(1.0, dim=3), n, (-1.2, 1.2)),
+                      "cubes") for n in args.sizes3]
+                    + [(f"4D {m} {n}^4", ao4d.sample(fields.hypersphere(1.0), n, (-1.2, 1.2)), m)
+                       for n in args.sizes4 for m in ("cubes", "simplices")])
+        for label, values, method in profiled:
+            ao4d.extract(values, 0.0, method=method, progress=False)  # warm
+            gc.collect()
             cells_device.profile.clear()
             t0 = time.perf_counter()
             ao4d.extract(values, 0.0, method=method, progress=False)
             total = time.perf_counter() - t0
             stages = dict(cells_device.profile)
             rest = total - sum(stages.values())
-            print(f"  {label:22s} total {total:6.3f}: " + ", ".join(
+            print(f"  {label:20s} total {total:6.3f}: " + ", ".join(
                 f"{k} {v:.3f}" for k, v in stages.items()) + f", outside the engine {rest:.3f}")
         cells_device.PROFILE = False
+    line, _ = machine_line()
+    print(f"\nafter: {line.split('; ')[-1]}; the whole run took {time.perf_counter() - start:.0f} s")
     return 0
 
 

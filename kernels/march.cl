@@ -1,29 +1,104 @@
-// Marching extraction of one slab of grid layers (ao4d/cells_device.py drives it).
+// Marching extraction of one slab of grid layers (ao4d/cells_device.py drives it): the whole
+// march, from the values as stored to the final vertex positions and simplices.
 //
 // The slab is a C-order engine grid of shape (n0, n1, ..., n_{DIM-1}); n0 = cell layers + 1.
-// classify runs one work-item per point; the other passes one work-item per chunk of CHUNK
-// consecutive points, walked in order 16 points at a time (a vector of 16 cases or masks that
-// are all zero, most of the grid, is skipped at once). Per-chunk counts plus an exclusive scan
-// over chunks give each point and cell its place in the output in the numpy engine's order
-// (ao4d/cells.py):
+// sign, classify and interpolate run one work-item per point (per new vertex); the chunk passes
+// one work-item per chunk of CHUNK consecutive points, walked in order 16 points at a time (a
+// vector of 16 cases or masks that are all zero, most of the grid, is skipped at once).
+// Per-chunk counts plus an exclusive scan over chunks give each point and cell its place in the
+// output in the numpy engine's order (ao4d/cells.py):
 //
+//   sign        per point: 1 where the value is positive (one comparison in the value's own
+//               type against a threshold that makes it exact: ao4d/cells.py's _threshold)
 //   classify    per point: the cell's case (bit v = corner v positive; 0 when no simplex) and
 //               the bit mask of the crossed edges starting here that are new in this slab (not
 //               carried from the slab below)
-//   count       per chunk: simplices and new vertices
-//   scan_chunks   exclusive scan of the chunk counts in blocks of SCAN_BLOCK chunks
+//   count       per chunk: simplices, active cells and new vertices (in-plane and not)
+//   scan_chunks exclusive scan of the chunk counts in blocks of SCAN_BLOCK chunks
 //   scan_blocks exclusive scan of the block totals (one work-item; a few hundred blocks)
-//   number      new vertices numbered in (point, direction) order, their keys compacted, the
-//               top layer's in-plane vertices remembered for the next slab (carry)
+//   layer_prefix  per layer: the new vertices before its first point (in-plane and not)
+//   number      new vertices numbered, their keys compacted, the top layer's in-plane vertices
+//               remembered for the next slab (carry)
 //   emit        the simplices of every active cell, rows of the cell table in order, each edge
 //               replaced by its vertex index
+//   interpolate every new vertex's position, with the numpy engine's float64 operations
+//
+// Vertex order: the numpy engine numbers the new vertices of each of its slabs (PERIOD layers)
+// in (point, direction) order, and the in-plane vertices of the layer two of its slabs share
+// belong to the lower slab. So in a layer z > 0 with z % PERIOD == 0 (a *boundary*), the
+// in-plane vertices come first (point order), then the others; every other layer interleaves
+// them by (point, direction). A device slab of any multiple of PERIOD layers, numbering so,
+// gives the numpy engine's arrays.
 //
 // A crossed edge (ends of different sign) inside the slab is used by every cell case that
 // contains it (checked for every table by tests/test_cells_device.py), so "used" is read off the
-// signs without marking. Work-group sizes are left to the runtime; no local memory; int only.
+// signs without marking. Work-group sizes are left to the runtime; no local memory.
 //
 // Defines: DIM (2, 3, 4), NDIRS (edge directions of the table), CHUNK (a multiple of 16),
-// SCAN_BLOCK.
+// SCAN_BLOCK; VTYPE, the values' stored type, and VKIND: 0 compared as stored, 1 half (stored
+// as half, compared as float), 2 double without cl_khr_fp64 (stored bits compared as ordered
+// integers); FP64: 1 interpolates in double (the numpy engine's bits), 0 in float (written as
+// double bits).
+
+#pragma OPENCL FP_CONTRACT OFF
+
+#if FP64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double real_t;
+#else
+typedef float real_t;
+#endif
+
+#if VKIND == 1
+typedef half value_t;
+typedef float cmp_t;
+#define LOAD_CMP(a, i) vload_half((i), (a))
+#define LOAD_REAL(a, i) ((real_t)vload_half((i), (a)))
+#elif VKIND == 2
+typedef ulong value_t;
+typedef long cmp_t;
+// IEEE doubles, ordered as signed integers (finite values and infinities)
+#define LOAD_CMP(a, i) double_key((a)[i])
+#define LOAD_REAL(a, i) double_to_float((a)[i])
+inline long double_key(ulong b)
+{
+    return (long)b >= 0 ? (long)b : (long)(b ^ 0x7fffffffffffffffUL);
+}
+// truncated to float (results below float's normal range flushed to zero)
+inline float double_to_float(ulong b)
+{
+    const uint hi = (uint)(b >> 32);
+    const uint s = hi & 0x80000000u;
+    const int e = (int)((hi >> 20) & 0x7ff);
+    const uint m = (uint)((b >> 29) & 0x7fffff);
+    if (e == 0x7ff) return as_float(s | 0x7f800000u | (m ? 0x400000u : 0u));
+    const int ef = e - 1023 + 127;
+    if (ef >= 255) return as_float(s | 0x7f800000u);
+    if (ef <= 0) return as_float(s);
+    return as_float(s | ((uint)ef << 23) | m);
+}
+#else
+typedef VTYPE value_t;
+typedef VTYPE cmp_t;
+#define LOAD_CMP(a, i) ((a)[i])
+#define LOAD_REAL(a, i) ((real_t)(a)[i])
+#endif
+
+#if FP64
+typedef double out_t;
+#define STORE_REAL(out, i, x) ((out)[i] = (x))
+#else
+typedef uint2 out_t;  // the float result's double bits (lo, hi)
+inline uint2 float_bits_as_double(float x)
+{
+    const uint b = as_uint(x);
+    const uint s = b & 0x80000000u, e = (b >> 23) & 0xff, m = b & 0x7fffff;
+    if (e == 0) return (uint2)(0u, s);  // zero (float denormals flushed)
+    const uint de = e == 255 ? 0x7ffu : e + 896u;
+    return (uint2)(m << 29, s | (de << 20) | (m >> 3));
+}
+#define STORE_REAL(out, i, x) ((out)[i] = float_bits_as_double(x))
+#endif
 
 #define NCORNERS (1 << DIM)
 
@@ -133,13 +208,23 @@ __kernel void classify(
     vmask[p] = (vmask_t)m;
 }
 
+// 1 where the value is positive: mode 0 `v >= thr`, 1 `v <= thr`, 2 none (a level beyond an
+// integer type's range).
+__kernel void sign(__global const value_t *values, __global uchar *sign, cmp_t thr, int mode)
+{
+    const int p = get_global_id(0);
+    const cmp_t v = LOAD_CMP(values, p);
+    sign[p] = (uchar)(mode == 0 ? v >= thr : (mode == 1 ? v <= thr : 0));
+}
+
 __kernel CHUNK_KERNEL void count(__global const case_t *cases, __global const vmask_t *vmask,
-                    __global const int *counts, __global int *chunk_v, __global int *chunk_s,
-                    __global int *chunk_a)
+                    __global const int *counts, __global int *chunk_vi, __global int *chunk_va,
+                    __global int *chunk_s, __global int *chunk_a,
+                    int in_plane)       // bit j: direction j lies in a layer
 {
     const int g = get_global_id(0);
     const int base = g * CHUNK;
-    int nv = 0, ns = 0, na = 0;
+    int ni = 0, na_ = 0, ns = 0, na = 0;
     for (int i = base; i < base + CHUNK; i += 16) {
         if (!zero16_case(cases, i))
             for (int x = i; x < i + 16; ++x) {
@@ -148,83 +233,139 @@ __kernel CHUNK_KERNEL void count(__global const case_t *cases, __global const vm
                 na += c != 0;
             }
         if (!zero16_mask(vmask, i))
-            for (int x = i; x < i + 16; ++x) nv += popcount((int)vmask[x]);
+            for (int x = i; x < i + 16; ++x) {
+                const int m = vmask[x];
+                ni += popcount(m & in_plane);
+                na_ += popcount(m & ~in_plane);
+            }
     }
-    chunk_v[g] = nv;
+    chunk_vi[g] = ni;
+    chunk_va[g] = na_;
     chunk_s[g] = ns;
     chunk_a[g] = na;
 }
 
-// exclusive scan in place of entries lo .. hi - 1 of three count arrays; their sums to sum[3]
-inline void scan3(__global int *v_, __global int *s_, __global int *a_, const int lo, const int hi,
-                  int *sum)
+// exclusive scan in place of entries lo .. hi - 1 of four count arrays; their sums to sum[4]
+inline void scan4(__global int *a0, __global int *a1, __global int *a2, __global int *a3,
+                  const int lo, const int hi, int *sum)
 {
-    int sv = 0, ss = 0, sa = 0;
+    int s0 = 0, s1 = 0, s2 = 0, s3 = 0;
     for (int i = lo; i < hi; ++i) {
-        const int v = v_[i], s = s_[i], a = a_[i];
-        v_[i] = sv;
-        s_[i] = ss;
-        a_[i] = sa;
-        sv += v;
-        ss += s;
-        sa += a;
+        const int v0 = a0[i], v1 = a1[i], v2 = a2[i], v3 = a3[i];
+        a0[i] = s0;
+        a1[i] = s1;
+        a2[i] = s2;
+        a3[i] = s3;
+        s0 += v0;
+        s1 += v1;
+        s2 += v2;
+        s3 += v3;
     }
-    sum[0] = sv;
-    sum[1] = ss;
-    sum[2] = sa;
+    sum[0] = s0;
+    sum[1] = s1;
+    sum[2] = s2;
+    sum[3] = s3;
 }
 
-// Exclusive scan of three count arrays, blocks of SCAN_BLOCK entries; block totals to blk.
-__kernel CHUNK_KERNEL void scan_chunks(__global int *chunk_v, __global int *chunk_s, __global int *chunk_a,
-                          __global int *blk_v, __global int *blk_s, __global int *blk_a,
-                          int n_chunks)
+// Exclusive scan of the four chunk count arrays, blocks of SCAN_BLOCK entries; block totals to
+// blk (4 arrays of n_blocks, one after the other).
+__kernel CHUNK_KERNEL void scan_chunks(__global int *chunk_vi, __global int *chunk_va,
+                                       __global int *chunk_s, __global int *chunk_a,
+                                       __global int *blk, int n_chunks, int n_blocks)
 {
     const int b = get_global_id(0);
     const int lo = b * SCAN_BLOCK;
-    int sum[3];
-    scan3(chunk_v, chunk_s, chunk_a, lo, min(lo + SCAN_BLOCK, n_chunks), sum);
-    blk_v[b] = sum[0];
-    blk_s[b] = sum[1];
-    blk_a[b] = sum[2];
+    int sum[4];
+    scan4(chunk_vi, chunk_va, chunk_s, chunk_a, lo, min(lo + SCAN_BLOCK, n_chunks), sum);
+    for (int k = 0; k < 4; ++k) blk[k * n_blocks + b] = sum[k];
 }
 
-__kernel void scan_blocks(__global int *blk_v, __global int *blk_s, __global int *blk_a,
-                          int n_blocks, __global int *totals)
+__kernel void scan_blocks(__global int *blk, int n_blocks, __global int *totals)
 {
     if (get_global_id(0) != 0) return;
-    int sum[3];
-    scan3(blk_v, blk_s, blk_a, 0, n_blocks, sum);
-    totals[0] = sum[0];
-    totals[1] = sum[1];
-    totals[2] = sum[2];
+    int sum[4];
+    scan4(blk, blk + n_blocks, blk + 2 * n_blocks, blk + 3 * n_blocks, 0, n_blocks, sum);
+    for (int k = 0; k < 4; ++k) totals[k] = sum[k];
 }
+
+// Per layer z (0 .. n0; n0: the slab's totals), the new in-plane and other vertices before its
+// first point.
+__kernel void layer_prefix(__global const vmask_t *vmask, __global const int *chunk_vi,
+                           __global const int *chunk_va, __global const int *blk,
+                           __global const int *totals, __global int *layer_in,
+                           __global int *layer_ax, int layer, int n_points, int n_blocks,
+                           int in_plane)
+{
+    const int z = get_global_id(0);
+    const int q = z * layer;
+    if (q >= n_points) {
+        layer_in[z] = totals[0];
+        layer_ax[z] = totals[1];
+        return;
+    }
+    const int c = q / CHUNK;
+    int vi = chunk_vi[c] + blk[c / SCAN_BLOCK];
+    int va = chunk_va[c] + blk[n_blocks + c / SCAN_BLOCK];
+    for (int x = c * CHUNK; x < q; ++x) {
+        const int m = vmask[x];
+        vi += popcount(m & in_plane);
+        va += popcount(m & ~in_plane);
+    }
+    layer_in[z] = vi;
+    layer_ax[z] = va;
+}
+
+// Layer z of the slab (z0: the slab's first layer in the grid) is a boundary of the numpy
+// engine's slabs of `period` layers: its in-plane vertices come before its others.
+#define BOUNDARY(z) ((z0 + (z)) > 0 && (z0 + (z)) % period == 0)
+// bit 0: layer z is a boundary; bit 1: layer z + 1 is
+#define FLAGS(z) (BOUNDARY(z) | (BOUNDARY((z) + 1) << 1))
+// Follow consecutive points p upwards: z their layer, next the first point of the layer above,
+// flags FLAGS(z) (no division per point)
+#define TRACK(p, z, next, flags)          \
+    while ((p) >= (next)) {               \
+        ++(z);                            \
+        (next) += layer;                  \
+        (flags) = FLAGS(z);               \
+    }
 
 // New vertices numbered and their keys compacted; active cells compacted with their first
 // simplex.
 __kernel CHUNK_KERNEL void number(
     __global const case_t *cases, __global const vmask_t *vmask, __global const int *counts,
-    __global const int *chunk_v, __global const int *blk_v,
-    __global const int *chunk_s, __global const int *blk_s,
-    __global const int *chunk_a, __global const int *blk_a,
+    __global const int *chunk_vi, __global const int *chunk_va,
+    __global const int *chunk_s, __global const int *chunk_a,
+    __global const int *blk,         // block prefixes of the four counts (scan_chunks)
+    __global const int *layer_in, __global const int *layer_ax,  // layer_prefix
     __global int *vfirst,            // (P,) out: index of the first new vertex at this point
+                                     // (at a boundary: of its first in-plane one)
+    __global int *vax,               // (P,) out, at a boundary: its first other one
     __global int *new_keys,          // (K,) out: point * NDIRS + direction, in index order
     __global int *carry_next,        // (layer * NDIRS,) out: the top layer's in-plane vertices
     __global int *act_p,             // (A,) out: point of each active cell
     __global int *act_s,             // (A,) out: its first simplex
-    int v_base, int in_plane, int top_start)  // top_start: first point of the top layer
+    __global uchar *act_b,           // (A,) out: FLAGS of its layer
+    int n_blocks, int v_base, int in_plane, int top_start, int layer, int z0, int period)
 {
     const int g = get_global_id(0);
-    int k = chunk_v[g] + blk_v[g / SCAN_BLOCK];
-    int s = chunk_s[g] + blk_s[g / SCAN_BLOCK];
-    int a = chunk_a[g] + blk_a[g / SCAN_BLOCK];
+    const int gb = g / SCAN_BLOCK;
+    int ki = chunk_vi[g] + blk[gb];
+    int ka = chunk_va[g] + blk[n_blocks + gb];
+    int s = chunk_s[g] + blk[2 * n_blocks + gb];
+    int a = chunk_a[g] + blk[3 * n_blocks + gb];
     const int base = g * CHUNK;
+    const int z_base = base / layer;
+    int zc = z_base, nc = (z_base + 1) * layer, fc = FLAGS(z_base);  // cells' layer tracker
+    int z = zc, nz = nc, fz = fc;                                  // vertices' layer tracker
     for (int i = base; i < base + CHUNK; i += 16) {
         if (!zero16_case(cases, i)) {
             for (int p = i; p < i + 16; ++p) {
                 const int c = cases[p];
                 if (c == 0) continue;
+                TRACK(p, zc, nc, fc);
                 act_p[a] = p;
                 act_s[a] = s;
+                act_b[a] = (uchar)fc;
                 ++a;
                 s += counts[c];
             }
@@ -233,41 +374,126 @@ __kernel CHUNK_KERNEL void number(
         for (int p = i; p < i + 16; ++p) {
             const int m = vmask[p];
             if (m == 0) continue;
-            vfirst[p] = v_base + k;
+            TRACK(p, z, nz, fz);
+            int bi, ba;  // next index of an in-plane and of another vertex here
+            const int bnd = fz & 1;
+            if (bnd) {
+                const int lt = layer_in[z] + layer_ax[z];
+                bi = lt + ki - layer_in[z];
+                ba = lt + layer_in[z + 1] - layer_in[z] + ka - layer_ax[z];
+                vax[p] = v_base + ba;
+            } else {
+                bi = ba = ki + ka;
+            }
+            vfirst[p] = v_base + bi;
             const int keep = p >= top_start ? in_plane : 0;
             for (int j = 0; j < NDIRS; ++j) {
                 if (!((m >> j) & 1)) continue;
+                const int k = (!bnd || ((in_plane >> j) & 1)) ? bi++ : ba++;
                 new_keys[k] = p * NDIRS + j;
                 if ((keep >> j) & 1) carry_next[(p - top_start) * NDIRS + j] = v_base + k;
-                ++k;
             }
+            ki += popcount(m & in_plane);
+            ka += popcount(m & ~in_plane);
         }
     }
 }
 
-// One work-item per active cell: its simplices, table row by table row.
-__kernel void emit(
-    __global const case_t *cases, __global const vmask_t *vmask, __global const int *vfirst,
-    __global const int *carry, __global const int *act_p, __global const int *act_s,
-    __global const int *offsets,     // (2^NCORNERS + 1,) first table row of each case
-    __global const uchar *table,     // (M, DIM) edge ids
-    __global const int *edge_off,    // (E,) linear offset of edge e's lower corner
-    __global const int *edge_dir,    // (E,) direction index of edge e
-    __global int *out)               // (S, DIM) out: vertex indices
+// One work-item per active cell: its simplices, table row by table row (out_t: int or long,
+// the type of the final array).
+#define EMIT_BODY(out)                                                                      \
+    const int i = get_global_id(0);                                                         \
+    const int p = act_p[i];                                                                 \
+    const int bnd = act_b[i];                                                               \
+    int s = act_s[i];                                                                       \
+    const int c = cases[p];                                                                 \
+    const int t1 = offsets[c + 1];                                                          \
+    for (int t = offsets[c]; t < t1; ++t, ++s) {                                            \
+        for (int k = 0; k < DIM; ++k) {                                                     \
+            const int e = table[t * DIM + k];                                               \
+            const int q = p + edge_off[e];                                                  \
+            const int j = edge_dir[e] & 0xff;                                               \
+            const int m = vmask[q];                                                         \
+            const int below = m & ((1 << j) - 1);                                           \
+            int v;                                                                          \
+            if (!((m >> j) & 1))                                                            \
+                v = carry[q * NDIRS + j];                                                   \
+            else if (!((bnd >> (edge_dir[e] >> 8)) & 1))                                    \
+                v = vfirst[q] + popcount(below);                                            \
+            else if ((in_plane >> j) & 1)                                                   \
+                v = vfirst[q] + popcount(below & in_plane);                                 \
+            else                                                                            \
+                v = vax[q] + popcount(below & ~in_plane);                                   \
+            out[s * DIM + k] = v;                                                           \
+        }                                                                                   \
+    }
+
+#define EMIT_ARGS                                                                           \
+    __global const case_t *cases, __global const vmask_t *vmask, __global const int *vfirst, \
+    __global const int *vax, __global const int *carry, __global const int *act_p,          \
+    __global const int *act_s, __global const uchar *act_b,                                 \
+    __global const int *offsets,     /* (2^NCORNERS + 1,) first table row of each case */   \
+    __global const uchar *table,     /* (M, DIM) edge ids */                                \
+    __global const int *edge_off,    /* (E,) linear offset of edge e's lower corner */      \
+    __global const int *edge_dir,    /* (E,) direction | (layer step of that corner) << 8 */ \
+    int in_plane
+
+// One cell per work-item, each with its own number of rows and scattered reads: compilers that
+// vectorise across work-items (Intel's CPU runtime) run it 2-4x slower in lanes, so the hint
+// says the kernel is vectorised already.
+#define SCALAR_KERNEL __attribute__((vec_type_hint(int4)))
+__kernel SCALAR_KERNEL void emit32(EMIT_ARGS, __global int *out) { EMIT_BODY(out) }
+__kernel SCALAR_KERNEL void emit64(EMIT_ARGS, __global long *out) { EMIT_BODY(out) }
+
+// One work-item per new vertex: its position, with cells.py's _interpolate's operations in the
+// same order (t = (level - f0) / (f1 - f0) clipped to [0, 1], NaN (the infinite padding of
+// closed=True) taken as 1; origin + spacing * (index + t * bit)), so with FP64 the same bits.
+__kernel void interpolate(
+    __global const value_t *values, __global const int *keys, __global out_t *out,
+    real_t level,
+    int n1, int n2, int n3,          // engine axis lengths (1 beyond DIM)
+    int s0, int s1, int s2, int s3,  // linear stride of user axis k
+    int a0, int a1, int a2, int a3,  // user axis of engine axis e
+    int b0, int b1, int b2, int b3,  // grid index of engine coordinate 0 along engine axis e
+    real_t o0, real_t o1, real_t o2, real_t o3,   // origin along engine axis e
+    real_t h0, real_t h1, real_t h2, real_t h3)   // spacing along engine axis e
 {
     const int i = get_global_id(0);
-    const int p = act_p[i];
-    int s = act_s[i];
-    const int c = cases[p];
-    const int t1 = offsets[c + 1];
-    for (int t = offsets[c]; t < t1; ++t, ++s) {
-        for (int k = 0; k < DIM; ++k) {
-            const int e = table[t * DIM + k];
-            const int q = p + edge_off[e];
-            const int j = edge_dir[e];
-            const int m = vmask[q];
-            out[s * DIM + k] = ((m >> j) & 1) ? vfirst[q] + popcount(m & ((1 << j) - 1))
-                                              : carry[q * NDIRS + j];
-        }
+    const int key = keys[i];
+    const int p = key / NDIRS;
+    const int mask = DIR_MASK(key - p * NDIRS);
+    const int q = p + (mask & 1) * s0 + ((mask >> 1) & 1) * s1
+#if DIM > 2
+        + ((mask >> 2) & 1) * s2
+#endif
+#if DIM > 3
+        + ((mask >> 3) & 1) * s3
+#endif
+        ;
+    const real_t f0 = LOAD_REAL(values, p);
+    const real_t f1 = LOAD_REAL(values, q);
+    real_t t = (level - f0) / (f1 - f0);
+    t = isnan(t) ? (real_t)1 : fmin(fmax(t, (real_t)0), (real_t)1);
+    int r = p, c[4];
+#if DIM == 4
+    c[3] = r % n3;
+    r /= n3;
+#endif
+#if DIM >= 3
+    c[2] = r % n2;
+    r /= n2;
+#endif
+    c[1] = r % n1;
+    c[0] = r / n1;
+    const int ax[4] = {a0, a1, a2, a3};
+    const int b[4] = {b0, b1, b2, b3};
+    const real_t o[4] = {o0, o1, o2, o3};
+    const real_t h[4] = {h0, h1, h2, h3};
+#pragma unroll
+    for (int e = 0; e < DIM; ++e) {
+        real_t col = (real_t)(c[e] + b[e]);
+        col = col + t * (real_t)((mask >> ax[e]) & 1);
+        col = h[e] * col;
+        STORE_REAL(out, i * DIM + ax[e], o[e] + col);
     }
 }

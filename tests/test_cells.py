@@ -145,3 +145,55 @@ def test_slab_memory_check_refuses_absurd_grids_before_work():
     assert cells._layers_per_slab(3, _geometry((10, 10)), "cubes") == 3
     with pytest.raises(ValueError, match="`chunk`"):
         cells._layers_per_slab(0, _geometry((10, 10)), "cubes")
+
+
+@pytest.mark.parametrize("dtype", [np.float16, np.float32, np.float64, np.int8, np.uint8,
+                                   np.int16, np.uint16, np.int32, np.int64])
+@pytest.mark.parametrize("inside", ["below", "above"])
+def test_threshold_equals_the_widened_comparison(dtype, inside):
+    """`v op thr` in the data's dtype equals float64(v) op level, for levels on, between and
+    beyond the dtype's values (every value of the small dtypes; neighbours of the level else)."""
+    rng = np.random.default_rng(2900 + np.dtype(dtype).itemsize)
+    dt = np.dtype(dtype)
+    if dt.kind == "f":
+        finite = np.finfo(dt)
+        base = rng.standard_normal(200).astype(dt)
+        levels = [float(x) for x in base[:20]] + [float(np.nextafter(x, dt.type(np.inf))) * 0.5
+                                                  + float(x) * 0.5 for x in base[:20]]
+        levels += [1.0001, 1.00000001, 0.1, -0.0, float(finite.max) * 1.5, -float(finite.max) * 1.5]
+        values = np.concatenate([base, np.array([np.inf, -np.inf, finite.max, finite.min, 0.0, -0.0,
+                                                 1.0], dtype=dt)])
+        with np.errstate(over="ignore"):
+            values = np.concatenate([values, np.nextafter(values, dt.type(np.inf)),
+                                     np.nextafter(values, dt.type(-np.inf))])
+    else:
+        info = np.iinfo(dt)
+        values = np.unique(np.clip(rng.integers(-300, 300, 400), info.min, info.max)).astype(dt)
+        values = np.concatenate([values, np.array([info.min, info.max], dtype=dt)])
+        levels = [-300.5, -1.5, -1.0, -0.5, 0.0, 0.25, 7.0, 7.5, 254.5, 255.0, 255.5, 1e30, -1e30]
+        if dt.itemsize < 8:  # 64-bit integers beyond 2^53 compare exactly, not as float64 does
+            levels += [float(info.max) + 0.5, float(info.min) - 0.5]
+    wide = values.astype(np.float64)
+    for level in levels:
+        got = cells._positive(values, level, inside)
+        expect = wide >= level if inside == "below" else wide <= level
+        np.testing.assert_array_equal(got, expect, err_msg=f"{dt} level {level!r}")
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("dtype,level", [(np.float16, 1.0001), (np.float32, 1.00000001),
+                                         (np.float16, 0.99999), (np.int16, 0.5)])
+def test_narrow_dtypes_are_compared_with_the_level_as_given(d, dtype, level):
+    """float16 data at level 1.0001 with values exactly 1.0: the values are below the level, as
+    in float64 (comparing in float16 rounds the level to 1.0 and puts them above)."""
+    rng = np.random.default_rng(2910 + d)
+    shape = (7, 6, 5, 4)[:d]
+    values = rng.integers(0, 3, shape).astype(dtype)  # many values exactly 1
+    wide = values.astype(np.float64)
+    for method in ("cubes", "simplices"):
+        for inside in ("below", "above"):
+            ref = ao4d.extract(wide, level, method=method, inside=inside, backend="numpy")
+            got = ao4d.extract(values, level, method=method, inside=inside, backend="numpy")
+            assert got.n_simplices == ref.n_simplices > 0
+            np.testing.assert_array_equal(got.simplices, ref.simplices)
+            np.testing.assert_array_equal(got.vertices, ref.vertices)  # t in float64 as well

@@ -20,10 +20,12 @@ METHODS = ("cubes", "simplices")
 SHAPES = {2: (9, 7), 3: (7, 6, 8), 4: (6, 5, 7, 4)}
 
 
-def _engines(values, level, method, inside="below", layers=None, runtime=None):
+def _engines(values, level, method, inside="below", layers=None, runtime=None, reread=False,
+             origin=0.0, spacing=1.0):
     """(numpy engine result, device engine result) for a C-order array."""
     d = values.ndim
-    geom = cells._Geometry(values.shape, tuple(range(d)), np.zeros(d), np.ones(d))
+    geom = cells._Geometry(values.shape, tuple(range(d)), np.full(d, origin, dtype=float),
+                           np.full(d, spacing, dtype=float))
     table = cells._cell_table(d, method)
     layers = layers or cells._layers_per_slab(None, geom, method)
 
@@ -32,7 +34,8 @@ def _engines(values, level, method, inside="below", layers=None, runtime=None):
 
     kw = dict(table=table, inside=inside, layers_per_slab=layers, check_values=False, progress=None)
     return cells._march(read, geom, level, **kw), cells_device.march(read, geom, level,
-                                                                     runtime=runtime, **kw)
+                                                                     runtime=runtime,
+                                                                     reread=reread, **kw)
 
 
 def _assert_same(ref, got):
@@ -161,3 +164,165 @@ def test_bad_backend_is_named():
         ao4d.extract(np.zeros((3, 3)), backend="cuda")
     with pytest.raises(ValueError, match="`backend`"):
         cells_device.get_runtime("gpu-please")
+
+
+def _every_case_grid(d, rng, n_bits=None):
+    """Values whose cells at even indices hold every case of the d-cube once (the cells between
+    them hold other cases), each corner value drawn away from the level 0; with ``n_bits``,
+    2^n_bits cases drawn at random instead."""
+    n_bits = 1 << d if n_bits is None else n_bits
+    bits = [n_bits // d + (k < n_bits % d) for k in range(d)]  # the cases' bits over d axes
+    side = tuple(1 << b for b in bits)
+    values = np.empty(tuple(2 * n for n in side))
+    cases = np.arange(1 << n_bits) if n_bits == 1 << d else rng.permutation(1 << (1 << d))[:1 << n_bits]
+    cases = cases.reshape(side)
+    mag = rng.uniform(0.2, 1.0, values.shape)
+    for v in range(1 << d):
+        corner = tuple(slice((v >> k) & 1, None, 2) for k in range(d))
+        values[corner] = np.where((cases >> v) & 1, mag[corner], -mag[corner])
+    return values
+
+
+@pytest.mark.parametrize("d", (2, 3))
+@pytest.mark.parametrize("method", METHODS)
+def test_every_table_case_gives_the_numpy_engines_arrays(cl_runtime, d, method):
+    rng = np.random.default_rng(2950 + d)
+    values = _every_case_grid(d, rng)
+    for layers in (None, 1, 3):
+        for reread in (False, True):
+            ref, got = _engines(values, 0.0, method, "below", layers, cl_runtime, reread)
+            assert len(ref[1]) >= (1 << (1 << d)) - 2  # every case but the two empty ones
+            _assert_same(ref, got)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_4d_table_cases_give_the_numpy_engines_arrays(cl_runtime, method):
+    """4096 of the 65,536 4D cases, drawn at random (all of them: the slow test below)."""
+    values = _every_case_grid(4, np.random.default_rng(2954), n_bits=12)
+    for layers, reread in ((None, True), (3, False)):
+        _assert_same(*_engines(values, 0.0, method, "below", layers, cl_runtime, reread))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", METHODS)
+def test_every_4d_table_case_gives_the_numpy_engines_arrays(cl_runtime, method):
+    values = _every_case_grid(4, np.random.default_rng(2954))
+    ref, got = _engines(values, 0.0, method, "below", None, cl_runtime, True)
+    assert len(ref[1]) >= (1 << 16) - 2
+    _assert_same(ref, got)
+
+
+@pytest.mark.parametrize("dtype", [np.float16, np.float32, np.float64, np.int8, np.uint8,
+                                   np.int16, np.uint16, np.int32, np.uint32, np.int64])
+def test_every_dtype_is_compared_and_interpolated_as_the_numpy_engine_does(cl_runtime, dtype):
+    """Values in their own dtype on the device (no widening on the host): the same arrays,
+    levels on, between and beyond the values (float16 at 1.0001 with values exactly 1)."""
+    rng = np.random.default_rng(2960 + np.dtype(dtype).itemsize)
+    values = rng.integers(0, 4, SHAPES[4]).astype(dtype)
+    for level, inside in ((1.0001, "below"), (1.0, "above"), (2.5, "below"), (1.00000001, "above")):
+        for method in METHODS:
+            ref, got = _engines(values, level, method, inside, 2, cl_runtime)
+            assert len(ref[1]) > 0
+            _assert_same(ref, got)
+    ref, got = _engines(values, 300.0, "cubes", "below", None, cl_runtime)  # beyond int8's range
+    assert len(ref[1]) == len(got[1]) == 0
+    wide = ao4d.extract(values.astype(np.float64), 1.0001, backend="numpy")
+    _assert_same_mesh(wide, ao4d.extract(values, 1.0001, backend="opencl"))
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("method", METHODS)
+def test_device_slabs_of_every_size_keep_the_numpy_engines_order(cl_runtime, monkeypatch, d, method):
+    """Device slabs of 1, 2, ... numpy slabs (and the whole grid), counted first or not, with
+    carried layers and boundaries of the numpy slabs inside them: the same arrays."""
+    rng = np.random.default_rng(2970 + d)
+    shape = {2: (23, 9), 3: (13, 7, 8), 4: (11, 5, 6, 4)}[d]
+    values = rng.standard_normal(shape)
+    layer = int(np.prod(shape[1:]))
+    for period in (1, 2, 3):
+        for per_slab in (1, 2, 3, 100):  # device slab: this many numpy slabs
+            monkeypatch.setattr(cells_device, "_SLAB_POINTS", per_slab * period * layer)
+            for reread in (False, True):
+                _assert_same(*_engines(values, 0.3, method, "below", period, cl_runtime, reread))
+            geom = cells._Geometry(shape, tuple(range(d)), np.zeros(d), np.ones(d))
+            parts = list(cells_device.march_slabs(
+                lambda a, b: values[a:b], geom, 0.3, table=cells._cell_table(d, method),
+                inside="below", layers_per_slab=period, check_values=False, progress=None,
+                runtime=cl_runtime))
+            ref = list(cells._march_slabs(
+                lambda a, b: values[a:b], geom, 0.3, table=cells._cell_table(d, method),
+                inside="below", layers_per_slab=period, check_values=False, progress=None))
+            for name in ("keys", "cells", "counts"):  # what block-wise welding reads
+                np.testing.assert_array_equal(np.concatenate([getattr(p, name) for p in parts]),
+                                              np.concatenate([getattr(p, name) for p in ref]))
+
+
+def test_small_device_slabs_with_closed_fields_and_dask(cl_runtime, monkeypatch):
+    pytest.importorskip("dask")
+    import dask.array as da
+
+    from ao4d import fields
+
+    values = ao4d.sample(fields.hypersphere(1.0), 11, (-1.3, 1.3)).astype(np.float32)
+    # numpy slabs of one layer without chunk= (which fixes the device's slabs too)
+    monkeypatch.setattr(cells, "_KEYS_PER_SLAB", 2 * 13**3 * 4)
+    for method in METHODS:
+        ref = ao4d.extract(values, method=method, backend="numpy", closed=True)
+        ref_blocks = ao4d.extract(da.from_array(values, chunks=6), method=method, backend="numpy")
+        ref_field = ao4d.extract_field(fields.hypersphere(1.0), 11, (-1.3, 1.3), method=method,
+                                       backend="numpy")
+        for points in (11**3, 3 * 11**3):  # device slabs of 1 and of 3 numpy slabs
+            monkeypatch.setattr(cells_device, "_SLAB_POINTS", points)
+            _assert_same_mesh(ref, ao4d.extract(values, method=method, backend="opencl",
+                                                closed=True))
+            _assert_same_mesh(ref_blocks, ao4d.extract(da.from_array(values, chunks=6),
+                                                       method=method, backend="opencl"))
+            _assert_same_mesh(ref_field, ao4d.extract_field(
+                fields.hypersphere(1.0), 11, (-1.3, 1.3), method=method, backend="opencl"))
+        # chunk= fixes the device's slabs: the user bounds memory with it
+        _assert_same_mesh(ao4d.extract(values, method=method, backend="numpy", chunk=2),
+                          ao4d.extract(values, method=method, backend="opencl", chunk=2))
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32, np.float16])
+@pytest.mark.parametrize("method", METHODS)
+def test_the_float32_path_gives_the_same_simplices_and_close_vertices(cl_runtime, monkeypatch,
+                                                                      dtype, method):
+    """Where the device has no cl_khr_fp64 (forced here): exact comparisons (the same
+    simplices, in order) and vertices within the bound stated in ao4d.cells_device, far from
+    the origin too (the bound grows with |origin|)."""
+    from ao4d import fields
+
+    monkeypatch.setattr(cells_device, "FLOAT32", True)
+    values = ao4d.sample(fields.hypersphere(1.0), 14, (-1.3, 1.3)).astype(dtype)
+    level = 0.0123
+    for origin, spacing in ((-1.3, 0.2), (1000.0, 0.2)):
+        ref, got = _engines(values, level, method, "below", 2, cl_runtime, origin=origin,
+                            spacing=spacing)
+        np.testing.assert_array_equal(got[1], ref[1])
+        assert got[0].shape == ref[0].shape and len(ref[0]) > 0
+        # the stated bound, per vertex: index part and t part
+        f = values.astype(np.float64)
+        index = (ref[0] - origin) / spacing
+        lo = np.floor(index + 1e-9).astype(int)
+        bound_index = 2.0**-21 * (abs(origin) + spacing * (np.abs(lo) + 1))
+        span = 2 * float(np.abs(f).max()) + abs(level)
+        df = np.min(np.abs(np.diff(np.unique(f))))  # the smallest value step: the worst |f1 - f0|
+        bound_t = spacing * (2.0**-22 * span / df + 2.0**-23)
+        err = np.abs(got[0] - ref[0])
+        assert np.all(err <= bound_index + bound_t), float((err - bound_index - bound_t).max())
+        assert float(err.max()) < 1e-4 * (abs(origin) + spacing * 14)
+
+
+@pytest.mark.parametrize("in_place", [True, False])
+def test_output_written_in_place_or_read_back_is_the_same(cl_runtime, monkeypatch, in_place):
+    """CPU devices write the final arrays in place; other devices fill device buffers that are
+    read back (forced here): the same arrays, in one slab and in several."""
+    monkeypatch.setattr(cells_device, "IN_PLACE", in_place)
+    rng = np.random.default_rng(2980)
+    values = rng.standard_normal((9, 6, 5, 7))
+    for method in METHODS:
+        for points in (1 << 20, 2 * 6 * 5 * 7):
+            monkeypatch.setattr(cells_device, "_SLAB_POINTS", points)
+            for reread in (False, True):
+                _assert_same(*_engines(values, 0.1, method, "below", 1, cl_runtime, reread))
