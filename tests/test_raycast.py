@@ -514,3 +514,77 @@ def test_any_hit_traversal_stops_at_its_first_hit(cl_runtime):
     occ = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=16, backend="opencl")
     assert occ.min() > 0.9  # nearly every ray hits the lowest patch
     assert blocks < 2.5, blocks  # a traversal that continues tests at least one block per patch
+
+
+def _reference_chunk(frame, origins, directions, dtype, width):
+    """The kernels' ray inputs by the plain formulas, one column at a time over every ray (the
+    mapping cast_rays used before its block-wise form): the bits the block-wise form must give."""
+    n, d = origins.shape
+    length2, column = np.zeros(n), np.empty(n)
+    for k in range(d):
+        np.multiply(directions[:, k], directions[:, k], out=column, dtype=np.float64)
+        length2 += column
+    inv_length = (1.0 / np.sqrt(length2)).astype(dtype)
+    o = np.zeros((n, width), dtype=dtype)
+    w = np.zeros((n, width), dtype=dtype)
+    for k in range(d):
+        np.subtract(origins[:, k], frame.centre[k], out=column)
+        np.multiply(column, frame.scale, out=o[:, k])
+        np.multiply(directions[:, k], inv_length, out=w[:, k])
+    return o, w
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("in_dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shift", [0.0, 1e6])  # far from the origin: the float64 mapping matters
+def test_ray_mapping_gives_the_plain_formulas_bits(d, in_dtype, shift, monkeypatch):
+    # block-wise (blocks of 1000 rows here, a last one cut short) = column by column over all rays
+    monkeypatch.setattr(raycast, "_ROW_BLOCK", 1000)
+    rng = np.random.default_rng(2800 + d)
+    n = 4321
+    origins = (rng.normal(size=(n, d)) * 3 + shift).astype(in_dtype)
+    directions = (rng.normal(size=(n, d)) * rng.uniform(1e-3, 1e3, (n, 1))).astype(in_dtype)
+    frame = bvh.Frame.fit(origins[:50].astype(np.float64) * 0.5 + shift * 0.5)
+    rays = raycast._Rays(frame, origins, directions)
+    for dtype, width in ((np.float32, 4), (np.float64, d)):
+        for start, stop in ((0, n), (1500, 3999)):
+            got = rays.chunk(start, stop, dtype, width)
+            want = _reference_chunk(frame, origins[start:stop], directions[start:stop], dtype, width)
+            for a, b in zip(got, want):
+                assert a.dtype == dtype
+                np.testing.assert_array_equal(a.view(np.uint8), b.view(np.uint8))
+
+
+@pytest.mark.parametrize("d", (3, 4))
+@pytest.mark.parametrize("shift", [0.0, 1000.0])
+def test_cast_rays_over_many_launches_equals_brute_force(d, shift, cl_runtime, monkeypatch):
+    # launches of 700 rays reuse one launch's mapped buffers: every ray's answer equals the
+    # brute-force answer (and the numpy traversal's hits are those of one launch for all)
+    rng = np.random.default_rng(2900 + d)
+    mesh = soup_scene(rng, d)
+    mesh = ao4d.SimplexMesh(mesh.vertices + shift, mesh.simplices)
+    o, w = random_rays(rng, d, 3000)
+    o = o + shift
+    whole = raycast.cast_rays(mesh, o, w, closest=False, backend="opencl")
+    monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 700)
+    for closest in (False, True):
+        for max_distance in (np.inf, 0.7):
+            fast = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", max_distance=max_distance)
+            slow = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel="brute",
+                                     max_distance=max_distance)
+            np.testing.assert_array_equal(fast.hit, slow.hit)
+            if closest:
+                np.testing.assert_array_equal(fast.t, slow.t)
+    np.testing.assert_array_equal(whole.hit, raycast.cast_rays(mesh, o, w, closest=False, backend="opencl").hit)
+
+
+def test_hit_rays_are_kept_as_they_were_at_the_call(cl_runtime):
+    # t is computed when first read, from the rays as they were when cast_rays was called
+    mesh = ao4d.SimplexMesh([[0, 0, 1], [1, 0, 1], [0, 1, 1]], [[0, 1, 2]])
+    o = np.array([[0.2, 0.2, 0.0]])
+    w = np.array([[0.0, 0.0, 2.0]])
+    hits = raycast.cast_rays(mesh, o, w, backend="opencl")
+    o[:] = 5.0
+    w[:] = 1.0
+    assert hits.t[0] == 1.0 and hits.simplex[0] == 0
+    np.testing.assert_allclose(hits.barycentric[0], [0.6, 0.2, 0.2])
