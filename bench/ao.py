@@ -454,10 +454,15 @@ def main(argv=None) -> int:
         worker.close()
     report(runs, shapes, args.rounds, quiet)
 
+    from ao4d import bvh
+
+    lanes = bvh.block_lanes(runtime)
+    node_bytes, block_bytes = 2 * 4 * bvh.WIDTH * 4 + bvh.WIDTH * 4, 5 * 4 * lanes * 4  # 4D
     print(f"\ntraversal work per AO ray ({args.quality_points:,} random vertices, deterministic): "
-          "wide nodes fetched, leaf blocks fetched; before = per-ray kernel, after = packet kernel")
+          "wide nodes fetched, leaf blocks fetched, and the bytes they hold "
+          f"({node_bytes} B a node, {block_bytes} B a block); before = per-ray kernel, after = packet kernel")
     print(f"{'':<22} {'nodes before':>12} {'after':>7} {'ratio':>6} {'blocks before':>14} {'after':>7} {'ratio':>6}"
-          f" {'SAH':>6} {'wide nodes':>11} {'slots used':>11} {'wide depth':>11}")
+          f" {'B/ray after':>11} {'SAH':>6} {'wide nodes':>11} {'slots used':>11} {'wide depth':>11}")
     for name in shapes:
         qd = quality(*meshes[name], runtime, args.samples, args.quality_points, rng)
         for reach in (0.0, 0.25):
@@ -465,8 +470,9 @@ def main(argv=None) -> int:
             label = name + (", reach d/4" if reach else "")
             tail = (f" {qd['sah']:>6.1f} {qd['wide']:>11,} {qd['used']:>11.0%} {qd['wide_depth']:>11}"
                     if not reach else "")
+            moved = after[0] * node_bytes + after[1] * block_bytes
             print(f"{label:<22} {before[0]:>12.2f} {after[0]:>7.2f} {before[0] / after[0]:>5.1f}x"
-                  f" {before[1]:>14.2f} {after[1]:>7.2f} {before[1] / after[1]:>5.1f}x{tail}")
+                  f" {before[1]:>14.2f} {after[1]:>7.2f} {before[1] / after[1]:>5.1f}x {moved:>11.0f}{tail}")
         assert qd["counts"]["packet", 0.0][2:] == qd["counts"]["rays", 0.0][2:]  # same tests per ray
     numpy_and_brute(args, runtime, rng)
     print(f"\n{protocol.machine_line(runtime, cpu)}")

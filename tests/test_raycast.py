@@ -588,3 +588,38 @@ def test_hit_rays_are_kept_as_they_were_at_the_call(cl_runtime):
     w[:] = 1.0
     assert hits.t[0] == 1.0 and hits.simplex[0] == 0
     np.testing.assert_allclose(hits.barycentric[0], [0.6, 0.2, 0.2])
+
+
+def _dense_4d_surfaces():
+    """Small 4D surfaces with dense mutual occlusion (as bench/ao.py's tori and metaballs):
+    three interlocked torispheres around a ball, and a cluster of six metaballs."""
+    f = ao4d.fields
+    torus = f.torisphere(0.9, 0.28)
+    tori = f.union(f.hypersphere(0.6), torus,
+                   f.rotate(f.rotate(torus, (0, 2), np.pi / 2), (1, 3), np.pi / 2),
+                   f.rotate(f.rotate(torus, (1, 2), np.pi / 2), (0, 3), np.pi / 4))
+    balls = f.metaballs(np.random.default_rng(3).uniform(-0.5, 0.5, size=(6, 4)), 0.35, sharpness=8.0)
+    return {"tori": ao4d.extract_field(tori, (11,) * 4, (-1.3, 1.3)),
+            "metaballs": ao4d.extract_field(balls, (11,) * 4, (-1.0, 1.0))}
+
+
+@pytest.mark.parametrize("lanes", [16, 4])  # the CPU and GPU leaf layouts
+@pytest.mark.parametrize("shift", [0.0, 3e4])  # far from the origin: the tree's float64 frame
+def test_ao_counts_on_dense_shapes_equal_brute_force(lanes, shift, cl_runtime, monkeypatch):
+    # every AO ray's answer, both traversals, equals the any-hit answer over every simplex, with
+    # unlimited reach and a quarter of the diagonal: the counts cannot change while this holds
+    monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime: lanes)
+    for name, base in _dense_4d_surfaces().items():
+        mesh = ao4d.SimplexMesh(base.vertices + shift, base.simplices)
+        normals = mesh.vertex_normals
+        keep = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)[::7]
+        p, n = mesh.vertices[keep], normals[keep]
+        tree = raycast.get_bvh(mesh, runtime=cl_runtime)
+        offset = ao4d.ao.ORIGIN_OFFSET * tree.diagonal
+        for max_distance in (np.inf, 0.25 * tree.diagonal):
+            packet = _ao_counts(mesh, cl_runtime, p, n, 40, offset, max_distance)
+            rays = _ao_counts(mesh, cl_runtime, p, n, 40, offset, max_distance, traversal="rays")
+            brute = _ao_counts(mesh, cl_runtime, p, n, 40, offset, max_distance, accel="brute")
+            np.testing.assert_array_equal(packet, brute, err_msg=name)
+            np.testing.assert_array_equal(rays, brute, err_msg=name)
+            assert 0.03 < packet.mean() / 40 < 0.6, name  # occluded, not closed off
