@@ -184,36 +184,47 @@ def _pad4(a: np.ndarray) -> np.ndarray:
 
 
 def _trace_opencl(mesh, tree, runtime, rays, max_distance, any_hit, accel, bar):
-    """Tree-order simplex or -1 per ray of ``rays`` (:class:`_Rays`), launch by launch: each
-    launch's rays are mapped and rounded on the host just before it, so no full-size float32
-    copy of the rays is ever held."""
+    """The kernels' answer per ray of ``rays`` (:class:`_Rays`), launch by launch: (N,) int32,
+    ``lanes * leaf block + lane`` or -1 (:func:`_tree_order` maps it to tree-order simplices).
+
+    Each launch's rays are mapped and rounded on the host straight into the mapped device
+    buffers just before it (no float32 copy of all the rays, and none copied again on a CPU
+    device), into buffers of one launch's size that every launch reuses."""
     import pyopencl as pcl
 
     n = rays.n
-    cl.check_device_memory(runtime, {"the rays": n * 32, "the ray results": n * 8}, task="ray tracing")
+    size = min(n, RAYS_PER_LAUNCH)
+    cl.check_device_memory(runtime, {"the rays": size * 32, "the ray results": size * 8}, task="ray tracing")
     ctx, queue = runtime.context, runtime.queue
     mf = pcl.mem_flags
-    buf_o = pcl.Buffer(ctx, mf.READ_ONLY, n * 16)
-    buf_w = pcl.Buffer(ctx, mf.READ_ONLY, n * 16)
+    buf_o = pcl.Buffer(ctx, mf.READ_ONLY, size * 16)
+    buf_w = pcl.Buffer(ctx, mf.READ_ONLY, size * 16)
+    buf_t = pcl.Buffer(ctx, mf.WRITE_ONLY, size * 4)
+    buf_h = pcl.Buffer(ctx, mf.WRITE_ONLY, size * 4)
     hit = np.empty(n, dtype=np.int32)
-    buf_t = pcl.Buffer(ctx, mf.WRITE_ONLY, n * 4)
-    buf_h = pcl.Buffer(ctx, mf.WRITE_ONLY, hit.nbytes)
     dev = _bvh.device_tree(mesh, tree, runtime)
     kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast", accel)
     args = head + [buf_o, buf_w, np.float32(max_distance), np.int32(any_hit), buf_t, buf_h]
+    write = pcl.map_flags.WRITE_INVALIDATE_REGION
     for start in range(0, n, RAYS_PER_LAUNCH):
         stop = min(n, start + RAYS_PER_LAUNCH)
-        o, w = rays.chunk(start, stop, np.float32, 4)
-        pcl.enqueue_copy(queue, buf_o, o, dst_offset=start * 16)
-        pcl.enqueue_copy(queue, buf_w, w, dst_offset=start * 16)
-        kernel(queue, (stop - start,), None, *args, global_offset=(start,)).wait()
-        bar.update(stop - start)
-    pcl.enqueue_copy(queue, hit, buf_h)
+        count = stop - start
+        o, _ = pcl.enqueue_map_buffer(queue, buf_o, write, 0, (count, 4), np.float32)
+        w, _ = pcl.enqueue_map_buffer(queue, buf_w, write, 0, (count, 4), np.float32)
+        rays.chunk(start, stop, np.float32, 4, out=(o, w))
+        o.base.release(queue)
+        w.base.release(queue)
+        kernel(queue, (count,), None, *args).wait()
+        pcl.enqueue_copy(queue, hit[start:stop], buf_h, is_blocking=True)
+        bar.update(count)
     queue.finish()
-    # kernels report LANES * leaf block + lane: map to tree-order simplices
-    safe = np.maximum(hit, 0)
+    return hit
+
+
+def _tree_order(dev: dict, hit: np.ndarray) -> np.ndarray:
+    """Tree-order simplices of kernel answers ``lanes * leaf block + lane`` (>= 0)."""
     lanes = dev["lanes"]
-    return np.where(hit >= 0, dev["block_first"][safe // lanes] + safe % lanes, -1)
+    return dev["block_first"][hit // lanes] + hit % lanes
 
 
 def _traversal_kernel(runtime, dim: int, dev: dict, name: str, accel: str, count_visits: bool = False,
@@ -498,10 +509,15 @@ def cast_rays(
             hit = _trace_numpy(tree, rays, reach, not closest, accel, bar)
     rows = np.flatnonzero(hit >= 0)
     p = hit[rows].astype(np.int64)
+    if runtime is not None:  # the kernels answer lanes * leaf block + lane
+        p = _tree_order(_bvh.device_tree(mesh, tree, runtime), p)
     simplex = np.full(n, -1, dtype=np.int64)
     simplex[rows] = tree.prim[p]
-    o, w = rays.rows(rows)
-    return RayHits(None, simplex, None, pending=lambda: _refine_hits(tree, n, rows, p, o, w))
+    # the hit rays as they are now (the caller may change the arrays); mapped when t is read
+    o, w = np.take(rays.origins, rows, axis=0), np.take(rays.directions, rows, axis=0)  # faster than [rows]
+    inv_length = rays.inv_length[rows]
+    return RayHits(None, simplex, None, pending=lambda: _refine_hits(
+        tree, n, rows, p, tree.frame.points(o), w.astype(np.float64) * inv_length[:, None]))
 
 
 def _float_rows(value: Any, name: str, d: int) -> np.ndarray:
@@ -511,46 +527,60 @@ def _float_rows(value: Any, name: str, d: int) -> np.ndarray:
     return as_array(value, name, ndim=2, shape_tail=(d,), dtype=dtype, finite=True)
 
 
+_ROW_BLOCK = 1 << 14  # rows per step of the host's ray mapping: its float64 temporaries stay in L2
+
+
 class _Rays:
     """The rays of one :func:`cast_rays` call, handed out launch by launch in the tree's frame.
 
     Directions are normalised and origins mapped into the frame (``tree.frame``) in float64,
-    chunk by chunk, then rounded to the kernels' float32: the whole call never holds more
-    than one launch's float64 or float32 copies besides the inputs.
+    block by block of ``_ROW_BLOCK`` rows (the temporaries stay in cache), then rounded to the
+    kernels' float32: the whole call never holds more than one launch's float32 copies besides
+    the inputs. Every value is the same bits as the plain formulas over all rays give: origins
+    ``float32((o - centre) * scale)``, directions ``w * float32(1 / sqrt(sum of float64 squares))``.
     """
 
     def __init__(self, frame, origins: np.ndarray, directions: np.ndarray) -> None:
         self.frame, self.origins, self.directions = frame, origins, directions
         self.n, self.d = origins.shape
-        # column by column: numpy's loops over rows of 3 or 4 values run several times slower
-        length2, column = np.zeros(self.n), np.empty(self.n)
-        for k in range(self.d):
-            np.multiply(directions[:, k], directions[:, k], out=column, dtype=np.float64)
-            length2 += column
-        bad = np.flatnonzero(~(length2 > 0))
+        self.inv_length = np.empty(self.n)
+        for start in range(0, self.n, _ROW_BLOCK):
+            stop = min(self.n, start + _ROW_BLOCK)
+            square = directions[start:stop].astype(np.float64)
+            square *= square
+            length2 = square[:, 0].copy()
+            for k in range(1, self.d):  # summed in column order: the same bits as one column at a time
+                length2 += square[:, k]
+            self.inv_length[start:stop] = length2
+        bad = np.flatnonzero(~(self.inv_length > 0))
         if bad.size:
             raise ValueError(f"`directions` has {bad.size} zero-length row(s), first at index {bad[0]}")
-        self.inv_length = 1.0 / np.sqrt(length2)
+        np.sqrt(self.inv_length, out=self.inv_length)
+        np.divide(1.0, self.inv_length, out=self.inv_length)
 
-    def chunk(self, start: int, stop: int, dtype, width: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def chunk(self, start: int, stop: int, dtype, width: int | None = None, *,
+              out: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Origins and unit directions of rays ``start:stop`` in ``dtype``, zero-padded to
-        ``width`` columns (the kernels' float4)."""
+        ``width`` columns (the kernels' float4); written into ``out`` (two arrays of that
+        shape and type, such as mapped device buffers) when given."""
         width = self.d if width is None else width
-        o = np.empty((stop - start, width), dtype=dtype)
-        w = np.empty((stop - start, width), dtype=dtype)
+        if out is None:
+            out = (np.empty((stop - start, width), dtype=dtype), np.empty((stop - start, width), dtype=dtype))
+        o, w = out
         o[:, self.d :] = w[:, self.d :] = 0
-        column, inv_length = np.empty(stop - start), self.inv_length[start:stop].astype(dtype)
         centre, scale = self.frame.centre, self.frame.scale
-        for k in range(self.d):  # column by column (see __init__); origins mapped in float64
-            np.subtract(self.origins[start:stop, k], centre[k], out=column)
-            np.multiply(column, scale, out=o[:, k])
-            np.multiply(self.directions[start:stop, k], inv_length, out=w[:, k])
+        column = np.empty(min(_ROW_BLOCK, stop - start))
+        for a in range(start, stop, _ROW_BLOCK):
+            b = min(stop, a + _ROW_BLOCK)
+            col, rows = column[: b - a], slice(a - start, b - start)
+            inv_length = self.inv_length[a:b].astype(dtype)
+            # column by column (numpy's loops over rows of 3 or 4 values run several times
+            # slower), origins mapped in float64
+            for k in range(self.d):
+                np.subtract(self.origins[a:b, k], centre[k], out=col)
+                np.multiply(col, scale, out=o[rows, k])
+                np.multiply(self.directions[a:b, k], inv_length, out=w[rows, k])
         return o, w
-
-    def rows(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """float64 origins (in the frame) and unit directions of the rays ``rows``."""
-        return (self.frame.points(self.origins[rows]),
-                self.directions[rows].astype(np.float64) * self.inv_length[rows, None])
 
 
 def _refine_hits(tree, n: int, rows: np.ndarray, p: np.ndarray, o: np.ndarray, w: np.ndarray):

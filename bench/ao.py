@@ -1,13 +1,17 @@
 """Benchmark: ambient occlusion rays per second, BVH build included, against Embree.
 
-Run ``python bench/ao.py`` (``--quick`` for small meshes, ``--help`` for sizes). Each
-``--repeat`` round takes every measurement once, in turn, so that all see the same machine load;
-the tables show medians.
+Run ``python bench/ao.py`` (``--quick`` for small meshes, ``--help`` for sizes). Each of the
+``--rounds`` rounds (5) takes every measurement once, in turn, so that all see the same machine
+load; the tables show medians, and every ratio its median with the minimum and maximum over the
+rounds (each round's ao4d figure against the same round's Open3D figure). The machine line (CPU,
+SIMD width, L2, L3, OpenCL device and driver) comes first; a round that starts on a busy machine
+is flagged loudly (``bench/_protocol.py``).
 
 * ao4d OpenCL, every vertex of a 4D mesh of about ``--tets`` tetrahedra, ``--samples`` rays per
-  vertex (cosine-weighted, any hit), on four 4D shapes (``--shapes``): the spheritorus, the
-  tiger, the ditorus and a CSG of tesseracts (a tesseract with four tesseract-shaped pockets,
-  deep concavities). "first call" is a first ``ambient_occlusion(mesh, samples=64)`` on a fresh
+  vertex (cosine-weighted, any hit), on six 4D shapes (``--shapes``): the spheritorus, the
+  tiger, the ditorus, a CSG of tesseracts (a tesseract with four tesseract-shaped pockets,
+  deep concavities), and two with dense mutual occlusion: three interlocked 4D tori around a
+  ball (``tori``) and a cluster of 40 4D metaballs (``metaballs``), mean AO 0.17-0.18. "first call" is a first ``ambient_occlusion(mesh, samples=64)`` on a fresh
   mesh (the device builder runs inside it: build + trace); "trace" is the second call on the
   same mesh, "build" the difference; "reach d/4" a call with ``max_distance`` a quarter of the
   bounding box's diagonal. Traced by the packet kernel (``ao_bvh``: a point's rays together) and,
@@ -17,11 +21,13 @@ the tables show medians.
   many triangles as the shape has tetrahedra and as many AO rays of the same kind (64 per point,
   ao4d's directions, from as many points spread evenly over the torus), once with unlimited
   reach and once with ``tfar`` a quarter of the torus's bounding-box diagonal. Build is the scene
-  construction and the first query. ``--embreex`` adds trimesh's ``intersects_any`` (embreex:
+  construction and the first query. The worker runs under ``AO4D_BENCH_OPEN3D_PYTHON`` when set
+  (a virtual environment with Open3D, made with ``--system-site-packages``), else this Python. ``--embreex`` adds trimesh's ``intersects_any`` (embreex:
   Embree from one Python thread) and ``--host-tree`` ao4d with the numpy-built tree.
 * Traversal work per AO ray on ``--quality-points`` vertices (``ao4d.raycast.traversal_counts``,
   deterministic, unlike the timings): wide nodes fetched and leaf blocks fetched, per-ray kernel
   (before) and packet kernel (after); SAH cost and the 8-wide tree's nodes, slot use and depth.
+* Bytes per tetrahedron of the traversed tree: wide nodes and leaf blocks, beside L2 and L3.
 * The numpy backend on a smaller 4D mesh, and the BVH kernel against the brute-force kernel.
 
 Rates count rays per wall-clock second; the machine's load average is printed before and after.
@@ -41,7 +47,13 @@ import time
 
 import numpy as np
 
-SHAPES = ("spheritorus", "tiger", "ditorus", "csg")
+_BENCH = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, _BENCH)
+import _protocol as protocol  # noqa: E402  (bench/_protocol.py)
+
+protocol.use_checkout(_BENCH)  # the ao4d of this checkout, not another one installed
+
+SHAPES = ("spheritorus", "tiger", "ditorus", "csg", "tori", "metaballs")
 
 
 def csg_field():
@@ -60,6 +72,31 @@ def csg_field():
     return fields.difference(fields.tesseract(1.0, 0.05), fields.union(*pockets))
 
 
+def tori_field():
+    """Three interlocked 4D tori around a ball: torispheres (a circle of radius 0.9 swept by a
+    3-ball of radius 0.28) whose core circles lie in the xy plane, the zw plane and a plane
+    turned between them, united with a hypersphere of radius 0.6 at their common centre."""
+    import ao4d
+
+    fields = ao4d.fields
+
+    def torus():
+        return fields.torisphere(0.9, 0.28)
+
+    second = fields.rotate(fields.rotate(torus(), (0, 2), math.pi / 2), (1, 3), math.pi / 2)
+    third = fields.rotate(fields.rotate(torus(), (1, 2), math.pi / 2), (0, 3), math.pi / 4)
+    return fields.union(fields.hypersphere(0.6), torus(), second, third)
+
+
+def metaballs_field():
+    """A cluster of 40 4D metaballs of radius 0.3 (sharpness 8) at random centres in
+    [-0.8, 0.8]^4 (seed 3): narrow crevices between the balls."""
+    import ao4d
+
+    centres = np.random.default_rng(3).uniform(-0.8, 0.8, size=(40, 4))
+    return ao4d.fields.metaballs(centres, 0.3, sharpness=8.0)
+
+
 def shape_mesh(name: str, tets: float):
     """A 4D shape extracted with about ``tets`` tetrahedra (grid spacing from a first estimate)."""
     import ao4d
@@ -73,7 +110,8 @@ def shape_mesh(name: str, tets: float):
     if name == "csg":
         field, lo, hi = csg_field(), np.full(4, -1.0), np.full(4, 1.0)
     else:
-        field = {"tiger": ao4d.fields.tiger, "ditorus": ao4d.fields.ditorus}[name]()
+        field = {"tiger": ao4d.fields.tiger, "ditorus": ao4d.fields.ditorus, "tori": tori_field,
+                 "metaballs": metaballs_field}[name]()
         lo, hi = np.asarray(field.extent[0], float), np.asarray(field.extent[1], float)
     pad = 0.1 * float((hi - lo).max())
     lo, hi = lo - pad, hi + pad
@@ -124,10 +162,8 @@ class Clock:
 
 
 def load() -> str:
-    try:
-        return ", ".join(f"{x:.2f}" for x in os.getloadavg())
-    except OSError:
-        return "unknown"
+    """The load averages (``bench/_protocol.py``)."""
+    return protocol.load_average()
 
 
 # -- peers --------------------------------------------------------------------------------------
@@ -167,12 +203,18 @@ def open3d_worker() -> int:
     return 0
 
 
+def open3d_python() -> str:
+    """The Python that runs the Open3D worker: ``AO4D_BENCH_OPEN3D_PYTHON`` (an environment
+    holding Open3D beside this one's packages), else this one."""
+    return os.environ.get("AO4D_BENCH_OPEN3D_PYTHON") or sys.executable
+
+
 class Open3D:
     """The worker process, started once (its setup is not timed)."""
 
     def __init__(self):
         env = dict(os.environ, AO4D_PRELOAD_TBB="0")  # the worker never uses OpenCL
-        self.proc = subprocess.Popen([sys.executable, __file__, "--open3d-worker"],
+        self.proc = subprocess.Popen([open3d_python(), os.path.abspath(__file__), "--open3d-worker"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
         self.info = json.loads(self.proc.stdout.readline())
 
@@ -189,7 +231,7 @@ class Open3D:
 
 def have_open3d() -> str | None:
     """None when Open3D imports in a fresh process, else why not."""
-    run = subprocess.run([sys.executable, "-c", "import open3d"], capture_output=True, text=True,
+    run = subprocess.run([open3d_python(), "-c", "import open3d"], capture_output=True, text=True,
                          env=dict(os.environ, AO4D_PRELOAD_TBB="0"), check=False)
     return None if run.returncode == 0 else (run.stderr.strip().splitlines() or ["import failed"])[-1]
 
@@ -289,49 +331,83 @@ def med(runs, key, k=0):
     return statistics.median(r[key][k] for r in runs)
 
 
+def tree_bytes(vertices, simplices, runtime) -> dict:
+    """Bytes of the traversed tree (the 8-wide nodes and the leaf blocks the kernels fetch) of
+    the mesh, in all and per tetrahedron, and the leaf blocks' lane occupancy."""
+    import ao4d
+    from ao4d import bvh, raycast
+
+    mesh = ao4d.SimplexMesh(vertices, simplices)
+    tree = raycast.get_bvh(mesh, builder="device", runtime=runtime)
+    lanes = bvh.block_lanes(runtime)
+    d = tree.dim
+    _, children, _, _, _ = bvh.widen_topology(tree, lanes)
+    n_blocks = len(bvh.block_ranges(tree, lanes)[0])
+    nodes = len(children) * (2 * d * bvh.WIDTH * 4 + bvh.WIDTH * 4)
+    blocks = n_blocks * (d + 1) * d * lanes * 4
+    tets = len(simplices)
+    return {"tets": tets, "nodes": nodes, "blocks": blocks, "node_per_tet": nodes / tets,
+            "block_per_tet": blocks / tets, "occupancy": tree.n_prims / (n_blocks * lanes)}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true",
-                        help="small sizes: --tets 1.5e5 --quality-points 3000 --numpy-tets 3e4")
+                        help="small sizes: --tets 1.5e5 --quality-points 3000 --numpy-tets 3e4 --rounds 2")
     parser.add_argument("--tets", type=float, default=None, help="4D mesh size (1.05e6)")
     parser.add_argument("--samples", type=int, default=64, help="rays per point (64)")
-    parser.add_argument("--repeat", type=int, default=3, help="rounds of measurements (3)")
+    parser.add_argument("--rounds", "--repeat", dest="rounds", type=int, default=None,
+                        help="rounds of measurements taken in turn (5; --quick: 2)")
     parser.add_argument("--shapes", default=",".join(SHAPES), help=f"4D shapes, of {', '.join(SHAPES)}")
     parser.add_argument("--quality-points", type=int, default=None, help="points for node-visit counts (20000)")
     parser.add_argument("--numpy-tets", type=float, default=None, help="mesh for the numpy rate (1.5e5)")
     parser.add_argument("--numpy-points", type=int, default=500)
+    parser.add_argument("--no-per-ray", dest="per_ray", action="store_false",
+                        help="leave out the per-ray kernel (the packets' reference)")
     parser.add_argument("--host-tree", action="store_true", help="also ao4d with the numpy-built tree")
     parser.add_argument("--embreex", action="store_true", help="also trimesh + embreex (one thread)")
     parser.add_argument("--open3d-worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.open3d_worker:
         return open3d_worker()
-    quick = {"tets": 1.5e5, "quality_points": 3000, "numpy_tets": 3e4}
-    full = {"tets": 1.05e6, "quality_points": 20000, "numpy_tets": 1.5e5}
+    quick = {"tets": 1.5e5, "quality_points": 3000, "numpy_tets": 3e4, "rounds": 2}
+    full = {"tets": 1.05e6, "quality_points": 20000, "numpy_tets": 1.5e5, "rounds": 5}
     for key, value in (quick if args.quick else full).items():
         if getattr(args, key) is None:
             setattr(args, key, value)
+    if args.rounds < 1:
+        parser.error(f"--rounds must be at least 1, got {args.rounds}")
     shapes = [s.strip() for s in args.shapes.split(",") if s.strip()]
     unknown = sorted(set(shapes) - set(SHAPES))
     if unknown:
         parser.error(f"--shapes: unknown {unknown}; choose from {', '.join(SHAPES)}")
 
     import ao4d
-    from ao4d import _progress, cl, raycast
+    from ao4d import _progress, cl
 
     _progress.set_enabled(False)  # no progress lines from the host builder in the table
+    began = time.perf_counter()
     rng = np.random.default_rng(0)
     runtime = cl.get_runtime(warn=False)
     if runtime is None:
         print("no OpenCL device: nothing to benchmark", file=sys.stderr)
         return 1
-    print(f"device: {cl.describe(runtime)}; load average before: {load()}")
+    cpu = protocol.cpu_info()
+    print(protocol.machine_line(runtime, cpu))
+    print(f"device: {cl.describe(runtime)}; load average before: {protocol.load_average()}")
     meshes, points = {}, {}
     for name in shapes:
         mesh = shape_mesh(name, args.tets)
         meshes[name] = (np.asarray(mesh.vertices), np.asarray(mesh.simplices))
         points[name] = int((np.linalg.norm(mesh.vertex_normals, axis=1) > 0.5).sum())
-        print(f"{name}: {mesh.n_simplices:,} tetrahedra, {mesh.n_vertices:,} vertices")
+        print(f"{name}: {mesh.n_simplices:,} tetrahedra, {mesh.n_vertices:,} vertices", flush=True)
+    print(f"\nbytes the traversal reads (8-wide nodes and leaf blocks), against L2 {protocol.format_bytes(cpu['l2'])}"
+          f" and L3 {protocol.format_bytes(cpu['l3'])}:")
+    for name in shapes:
+        b = tree_bytes(*meshes[name], runtime)
+        print(f"  {name:<12} wide nodes {b['node_per_tet']:5.1f} B/tet ({protocol.format_bytes(b['nodes'])}), "
+              f"leaf blocks {b['block_per_tet']:5.1f} B/tet ({protocol.format_bytes(b['blocks'])}, lanes "
+              f"{b['occupancy']:.0%} used); {b['tets']:,} tets: {protocol.format_bytes(b['nodes'] + b['blocks'])}")
     # warm up: kernels loaded (4D and 3D, both traversals), sampling tables ready
     v0, s0 = meshes[shapes[0]]
     small = ao4d.SimplexMesh(v0, s0[:1000])
@@ -353,15 +429,18 @@ def main(argv=None) -> int:
         except ImportError as exc:
             print(f"trimesh+Embree comparison skipped: {exc}")
     runs: dict[tuple[str, str], list] = {}
-    for _ in range(args.repeat):
+    quiet = []
+    for index in range(args.rounds):
+        quiet.append(protocol.check_round(index, args.rounds))
         for name in shapes:
             v, s = meshes[name]
             todo = {
                 "ao4d": lambda: ao4d_run(v, s, "device", runtime, args.samples),
                 "ao4d d/4": lambda: ao4d_run(v, s, "device", runtime, args.samples, 0.25),
-                "per-ray": lambda: per_ray_run(v, s, runtime, args.samples),
-                "per-ray d/4": lambda: per_ray_run(v, s, runtime, args.samples, 0.25),
             }
+            if args.per_ray:
+                todo["per-ray"] = lambda: per_ray_run(v, s, runtime, args.samples)
+                todo["per-ray d/4"] = lambda: per_ray_run(v, s, runtime, args.samples, 0.25)
             if args.host_tree:
                 todo["ao4d host tree"] = lambda: ao4d_run(v, s, "host", runtime, args.samples)
             if worker is not None:
@@ -373,12 +452,17 @@ def main(argv=None) -> int:
                 runs.setdefault((name, label), []).append(fn())
     if worker is not None:
         worker.close()
-    report(runs, shapes, args.repeat)
+    report(runs, shapes, args.rounds, quiet)
 
+    from ao4d import bvh
+
+    lanes = bvh.block_lanes(runtime)
+    node_bytes, block_bytes = 2 * 4 * bvh.WIDTH * 4 + bvh.WIDTH * 4, 5 * 4 * lanes * 4  # 4D
     print(f"\ntraversal work per AO ray ({args.quality_points:,} random vertices, deterministic): "
-          "wide nodes fetched, leaf blocks fetched; before = per-ray kernel, after = packet kernel")
+          "wide nodes fetched, leaf blocks fetched, and the bytes they hold "
+          f"({node_bytes} B a node, {block_bytes} B a block); before = per-ray kernel, after = packet kernel")
     print(f"{'':<22} {'nodes before':>12} {'after':>7} {'ratio':>6} {'blocks before':>14} {'after':>7} {'ratio':>6}"
-          f" {'SAH':>6} {'wide nodes':>11} {'slots used':>11} {'wide depth':>11}")
+          f" {'B/ray after':>11} {'SAH':>6} {'wide nodes':>11} {'slots used':>11} {'wide depth':>11}")
     for name in shapes:
         qd = quality(*meshes[name], runtime, args.samples, args.quality_points, rng)
         for reach in (0.0, 0.25):
@@ -386,39 +470,59 @@ def main(argv=None) -> int:
             label = name + (", reach d/4" if reach else "")
             tail = (f" {qd['sah']:>6.1f} {qd['wide']:>11,} {qd['used']:>11.0%} {qd['wide_depth']:>11}"
                     if not reach else "")
+            moved = after[0] * node_bytes + after[1] * block_bytes
             print(f"{label:<22} {before[0]:>12.2f} {after[0]:>7.2f} {before[0] / after[0]:>5.1f}x"
-                  f" {before[1]:>14.2f} {after[1]:>7.2f} {before[1] / after[1]:>5.1f}x{tail}")
+                  f" {before[1]:>14.2f} {after[1]:>7.2f} {before[1] / after[1]:>5.1f}x {moved:>11.0f}{tail}")
         assert qd["counts"]["packet", 0.0][2:] == qd["counts"]["rays", 0.0][2:]  # same tests per ray
     numpy_and_brute(args, runtime, rng)
+    print(f"\n{protocol.machine_line(runtime, cpu)}")
+    print(f"bench run time {time.perf_counter() - began:.0f} s; load average after: {protocol.load_average()}")
     return 0
 
 
-def report(runs, shapes, repeat) -> None:
-    """The speed table and the ratios against Open3D."""
-    print(f"\nmedians of {repeat} rounds taken in turn (wall clock; CPU time of all threads in brackets); "
-          f"load average after: {load()}")
+def _rates(run: dict, rays: int) -> dict:
+    """Trace and first-call rates (rays per wall second, per CPU second) of one round's run."""
+    return {key: (rays / run[key][0], rays / run[key][1]) for key in ("trace", "first")}
+
+
+def report(runs, shapes, rounds, quiet=None) -> None:
+    """The speed table (medians) and, per shape, every ratio against Open3D as its median and
+    min–max over the rounds."""
+    quiet = [True] * rounds if quiet is None else quiet
+    noisy = [i + 1 for i, q in enumerate(quiet) if not q]
+    print(f"\nmedians of {rounds} rounds taken in turn (wall clock; CPU time of all threads in brackets); "
+          f"load average after: {protocol.load_average()}")
+    if noisy:
+        print(f"!!! WARNING: rounds {noisy} started on a busy machine: these are not quiet figures !!!")
     print(f"{'':<34} {'rays':>11} {'build s':>8} {'trace Mrays/s':>14} {'first call Mrays/s':>19} {'hit/AO':>7}")
-    rate = {}
     for (name, label), rs in runs.items():
         rays = rs[0]["rays"]
         row = [rays / med(rs, "trace", k) for k in (0, 1)]
         first = [rays / med(rs, "first", k) for k in (0, 1)]
-        rate[name, label] = row, first
         build = med(rs, "build")
         hit = statistics.median(r["hit"] for r in rs)
         print(f"{name + ', ' + label:<34} {rays:>11,} {build:>8.2f} {row[0] / 1e6:>6.2f} ({row[1] / 1e6:>5.2f})"
               f" {first[0] / 1e6:>10.2f} ({first[1] / 1e6:>5.2f}) {hit:>7.3f}")
     if not any(label == "Open3D" for _, label in runs):
         return
-    print("\nratios (> 1: ao4d faster; wall clock, CPU time in brackets); targets: trace and first call >= 1.0x Open3D")
+    print(f"\nratios, median (min–max) over {rounds} rounds, each round's ao4d against the same round's "
+          "Open3D (> 1: ao4d faster; wall clock); targets: trace and first call >= 1.0x Open3D")
+    print(f"  {'shape':<18} {'trace':>20} {'trace (CPU time)':>20} {'first call':>20} {'packets / per-ray':>20}")
     for name in shapes:
         for reach in ("", " d/4"):
-            (t, f), (pt, pf) = rate[name, "ao4d" + reach], rate[name, "Open3D" + reach]
-            (bt, _) = rate[name, "per-ray" + reach]
-            verdict = "met" if min(t[0] / pt[0], f[0] / pf[0]) >= 1.0 else "missed"
-            print(f"  {name + reach + ':':<18} trace {t[0] / pt[0]:.2f}x ({t[1] / pt[1]:.2f}x), first call "
-                  f"{f[0] / pf[0]:.2f}x ({f[1] / pf[1]:.2f}x); packets / per-ray kernel {t[0] / bt[0]:.2f}x "
-                  f"({t[1] / bt[1]:.2f}x): {verdict}")
+            ours, peer = runs[name, "ao4d" + reach], runs[name, "Open3D" + reach]
+            per_ray = runs.get((name, "per-ray" + reach))
+            ratio = {}
+            for key, k in (("trace", 0), ("trace cpu", 1), ("first", 0)):
+                part = key.split()[0]
+                ratio[key] = [_rates(a, a["rays"])[part][k] / _rates(b, b["rays"])[part][k]
+                              for a, b in zip(ours, peer)]
+            packets = ("–" if per_ray is None else protocol.format_ratio(
+                _rates(a, a["rays"])["trace"][0] / _rates(b, b["rays"])["trace"][0] for a, b in zip(ours, per_ray)))
+            verdict = "met" if min(statistics.median(ratio["trace"]), statistics.median(ratio["first"])) >= 1.0 else "missed"
+            print(f"  {name + reach + ':':<18} {protocol.format_ratio(ratio['trace']):>20} "
+                  f"{protocol.format_ratio(ratio['trace cpu']):>20} {protocol.format_ratio(ratio['first']):>20} "
+                  f"{packets:>20}  {verdict}")
 
 
 def numpy_and_brute(args, runtime, rng) -> None:
@@ -442,7 +546,7 @@ def numpy_and_brute(args, runtime, rng) -> None:
     pick4 = rng.choice(ok, size=min(20000, ok.size), replace=False)
     t_bvh, _ = timed(lambda: ao4d.ambient_occlusion(small, points=small.vertices[pick4],
                                                     normals=small.vertex_normals[pick4], samples=samples2,
-                                                    backend="opencl"), args.repeat)
+                                                    backend="opencl"), args.rounds)
     per_ray_bvh = t_bvh / (len(pick4) * samples2)
     print(f"\nao4d numpy backend, 4D, {small_tree.n_prims:,} tets: {len(p2) * samples2 / t_np / 1e6:.3f} M rays/s")
     print(f"BVH speed-up over brute force ({small_tree.n_prims:,} tets, per ray): "

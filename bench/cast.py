@@ -1,7 +1,9 @@
 """Benchmark: ``ao4d.raycast.cast_rays`` (render's primary and shadow rays) against Embree.
 
-Run ``python bench/cast.py`` (``--help`` for sizes; ``--quick`` for a small run). Each
-``--repeat`` round takes every measurement once, in turn; the table shows medians.
+Run ``python bench/cast.py`` (``--help`` for sizes; ``--quick`` for a small run). Each of the
+``--rounds`` rounds (5) takes every measurement once, in turn; the table shows medians, the
+ratio its median and min–max over the rounds. The machine line comes first, and a round that
+starts on a busy machine is flagged loudly (``bench/_protocol.py``).
 
 * 3D: any-hit rays against a torus of ``--triangles`` triangles: the AO rays of ``bench/ao.py``
   (64 cosine-weighted directions per point, from points spread over the torus), identical on both
@@ -10,9 +12,9 @@ Run ``python bench/cast.py`` (``--help`` for sizes; ``--quick`` for a small run)
   ``bench/ao.py``'s subject). Closest hits (``closest=True``, reading ``t`` and the barycentrics)
   are timed too.
 * 4D: the same kind of rays from the vertices of a spheritorus, through ``cast_rays``.
-* Host share: the part of a ``cast_rays`` call outside its kernel launches (input checks, the
-  float64 mapping into the tree's frame, float32 copies, hit refinement), measured by timing
-  each launch's wait.
+* Host share: the part of a ``cast_rays`` call's wall time when no kernel launch runs (input
+  checks, the float64 mapping into the tree's frame, float32 copies, hit refinement), from each
+  launch's enqueue and completion times (an OpenCL event callback).
 """
 
 from __future__ import annotations
@@ -26,18 +28,33 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _protocol as protocol  # noqa: E402  (bench/_protocol.py)
 import ao as ao_bench  # noqa: E402  (bench/ao.py: the torus, its rays and the Open3D worker)
 
 
 class KernelClock:
-    """Wall seconds spent waiting for cast kernels, by wrapping the kernels ``cast_rays`` gets."""
+    """Wall seconds the device spends on ``cast_rays``' launches, from the moment each launch
+    can start (enqueued, and the previous one complete) to its completion, which the OpenCL
+    runtime reports through an event callback: the launches are left to overlap with the
+    host's work as they do in ``cast_rays``; the rest of the call's wall time is host time."""
 
     def __init__(self, raycast):
-        self.seconds = 0.0
         self._raycast = raycast
         self._original = raycast._traversal_kernel
+        self._launches: list[list[float]] = []  # [enqueued, completed]
+
+    @property
+    def seconds(self) -> float:
+        busy, previous = 0.0, -float("inf")
+        for enqueued, completed in sorted(self._launches):
+            begin = max(enqueued, previous)
+            busy += max(0.0, completed - begin)
+            previous = completed
+        return busy
 
     def __enter__(self):
+        import pyopencl as pcl
+
         clock = self
 
         class Timed:
@@ -45,10 +62,14 @@ class KernelClock:
                 self.kernel = kernel
 
             def __call__(self, *args, **kwargs):
+                times = [time.perf_counter(), float("nan")]
                 event = self.kernel(*args, **kwargs)
-                start = time.perf_counter()
-                event.wait()
-                clock.seconds += time.perf_counter() - start
+
+                def done(status, times=times):
+                    times[1] = time.perf_counter()
+
+                event.set_callback(pcl.command_execution_status.COMPLETE, done)
+                clock._launches.append(times)
                 return event
 
         def wrapped(*args, **kwargs):
@@ -92,24 +113,30 @@ def rays_4d(tets: float, samples: int):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="example: python bench/cast.py --repeat 3")
+                                     epilog="example: python bench/cast.py --rounds 5")
     parser.add_argument("--triangles", type=float, default=1e6, help="3D torus size (default 1e6)")
     parser.add_argument("--tets", type=float, default=1.1e6, help="4D spheritorus size (default 1.1e6)")
     parser.add_argument("--points", type=int, default=160_000, help="AO points (default 160000: 10.2 M rays)")
     parser.add_argument("--samples", type=int, default=64)
-    parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--quick", action="store_true", help="small sizes, one round (seconds)")
+    parser.add_argument("--rounds", "--repeat", dest="rounds", type=int, default=5,
+                        help="rounds taken in turn (default 5)")
+    parser.add_argument("--quick", action="store_true", help="small sizes, two rounds (seconds)")
     args = parser.parse_args(argv)
     if args.quick:
-        args.triangles, args.tets, args.points, args.repeat = 5e4, 5e4, 8000, 1
+        args.triangles, args.tets, args.points, args.rounds = 5e4, 5e4, 8000, 2
+    if args.rounds < 1:
+        parser.error(f"--rounds must be at least 1, got {args.rounds}")
     import ao4d
-    from ao4d import cl, raycast
+    from ao4d import _progress, cl, raycast
 
+    _progress.set_enabled(False)  # no progress lines in the table
+    began = time.perf_counter()
     runtime = cl.get_runtime()
     if runtime is None:
         print("no OpenCL device: nothing to measure")
         return 1
-    print(f"device: {runtime.name}; load average {ao_bench.load()}")
+    print(protocol.machine_line(runtime))
+    print(f"device: {runtime.name}; load average {protocol.load_average()}")
     tm, _, _, o3, w3 = ao_bench.torus_rays(int(args.triangles), args.points, args.samples)
     torus = ao4d.SimplexMesh(tm.vertices, tm.faces)
     raycast.get_bvh(torus, runtime=runtime)
@@ -122,7 +149,9 @@ def main(argv=None) -> int:
     print(f"3D torus: {len(tm.faces):,} triangles, {len(o3):,} rays; 4D spheritorus: "
           f"{len(mesh4.simplices):,} tets, {len(o4):,} rays")
     runs: dict[str, list[dict]] = {}
-    for _ in range(args.repeat):
+    quiet = []
+    for index in range(args.rounds):
+        quiet.append(protocol.check_round(index, args.rounds))
         if peer is not None:
             runs.setdefault("Open3D test_occlusions (3D)", []).append(peer.run(int(args.triangles), args.points, args.samples))
         runs.setdefault("ao4d cast_rays any hit (3D)", []).append(ao4d_cast(torus, o3, w3, False))
@@ -131,23 +160,33 @@ def main(argv=None) -> int:
         runs.setdefault("ao4d cast_rays closest (4D)", []).append(ao4d_cast(mesh4, o4, w4, True))
     if peer is not None:
         peer.close()
-    print(f"load average after: {ao_bench.load()}")
+    print(f"load average after: {protocol.load_average()}")
+    noisy = [i + 1 for i, q in enumerate(quiet) if not q]
+    if noisy:
+        print(f"!!! WARNING: rounds {noisy} started on a busy machine: these are not quiet figures !!!")
+    print(f"\nmedians of {args.rounds} rounds (wall clock); host share: the part of the call outside "
+          "its kernel launches, median (min–max)")
     print("\n| | M rays/s | host share of the call | hits |\n|---|---|---|---|")
     rates = {}
     for name, rs in runs.items():
         n = len(o4) if "(4D)" in name else len(o3)
         # the Open3D worker reports (wall, CPU) seconds
-        trace = statistics.median(r["trace"][0] if isinstance(r["trace"], list) else r["trace"] for r in rs)
-        rates[name] = n / trace / 1e6
-        host = statistics.median(1 - r["kernel"] / r["trace"] for r in rs) if "kernel" in rs[0] else None
-        host_s = "–" if host is None else f"{100 * host:.0f} %"
-        print(f"| {name} | {rates[name]:.2f} | {host_s} | {rs[0]['hit']:.3f} |")
+        rates[name] = [n / (r["trace"][0] if isinstance(r["trace"], list) else r["trace"]) / 1e6 for r in rs]
+        if "kernel" in rs[0]:
+            m, lo, hi = protocol.spread(100 * (1 - r["kernel"] / r["trace"]) for r in rs)
+            host_s = f"{m:.0f} % ({lo:.0f}–{hi:.0f})"
+        else:
+            host_s = "–"
+        print(f"| {name} | {statistics.median(rates[name]):.2f} | {host_s} | {rs[0]['hit']:.3f} |")
     if peer is not None:
         base = rates["Open3D test_occlusions (3D)"]
-        print(f"\nao4d any-hit cast_rays / Open3D test_occlusions (identical rays): "
-              f"{rates['ao4d cast_rays any hit (3D)'] / base:.2f}x")
+        ours = rates["ao4d cast_rays any hit (3D)"]
+        print(f"\nao4d any-hit cast_rays / Open3D test_occlusions (identical rays), median (min–max) over "
+              f"{args.rounds} rounds: {protocol.format_ratio(a / b for a, b in zip(ours, base))}")
     else:
         print(f"\nOpen3D not measured: {why_not}")
+    print(f"\n{protocol.machine_line(runtime)}")
+    print(f"bench run time {time.perf_counter() - began:.0f} s")
     return 0
 
 

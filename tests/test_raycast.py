@@ -514,3 +514,112 @@ def test_any_hit_traversal_stops_at_its_first_hit(cl_runtime):
     occ = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=16, backend="opencl")
     assert occ.min() > 0.9  # nearly every ray hits the lowest patch
     assert blocks < 2.5, blocks  # a traversal that continues tests at least one block per patch
+
+
+def _reference_chunk(frame, origins, directions, dtype, width):
+    """The kernels' ray inputs by the plain formulas, one column at a time over every ray (the
+    mapping cast_rays used before its block-wise form): the bits the block-wise form must give."""
+    n, d = origins.shape
+    length2, column = np.zeros(n), np.empty(n)
+    for k in range(d):
+        np.multiply(directions[:, k], directions[:, k], out=column, dtype=np.float64)
+        length2 += column
+    inv_length = (1.0 / np.sqrt(length2)).astype(dtype)
+    o = np.zeros((n, width), dtype=dtype)
+    w = np.zeros((n, width), dtype=dtype)
+    for k in range(d):
+        np.subtract(origins[:, k], frame.centre[k], out=column)
+        np.multiply(column, frame.scale, out=o[:, k])
+        np.multiply(directions[:, k], inv_length, out=w[:, k])
+    return o, w
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("in_dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shift", [0.0, 1e6])  # far from the origin: the float64 mapping matters
+def test_ray_mapping_gives_the_plain_formulas_bits(d, in_dtype, shift, monkeypatch):
+    # block-wise (blocks of 1000 rows here, a last one cut short) = column by column over all rays
+    monkeypatch.setattr(raycast, "_ROW_BLOCK", 1000)
+    rng = np.random.default_rng(2800 + d)
+    n = 4321
+    origins = (rng.normal(size=(n, d)) * 3 + shift).astype(in_dtype)
+    directions = (rng.normal(size=(n, d)) * rng.uniform(1e-3, 1e3, (n, 1))).astype(in_dtype)
+    frame = bvh.Frame.fit(origins[:50].astype(np.float64) * 0.5 + shift * 0.5)
+    rays = raycast._Rays(frame, origins, directions)
+    for dtype, width in ((np.float32, 4), (np.float64, d)):
+        for start, stop in ((0, n), (1500, 3999)):
+            got = rays.chunk(start, stop, dtype, width)
+            want = _reference_chunk(frame, origins[start:stop], directions[start:stop], dtype, width)
+            for a, b in zip(got, want):
+                assert a.dtype == dtype
+                np.testing.assert_array_equal(a.view(np.uint8), b.view(np.uint8))
+
+
+@pytest.mark.parametrize("d", (3, 4))
+@pytest.mark.parametrize("shift", [0.0, 1000.0])
+def test_cast_rays_over_many_launches_equals_brute_force(d, shift, cl_runtime, monkeypatch):
+    # launches of 700 rays reuse one launch's mapped buffers: every ray's answer equals the
+    # brute-force answer (and the numpy traversal's hits are those of one launch for all)
+    rng = np.random.default_rng(2900 + d)
+    mesh = soup_scene(rng, d)
+    mesh = ao4d.SimplexMesh(mesh.vertices + shift, mesh.simplices)
+    o, w = random_rays(rng, d, 3000)
+    o = o + shift
+    whole = raycast.cast_rays(mesh, o, w, closest=False, backend="opencl")
+    monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 700)
+    for closest in (False, True):
+        for max_distance in (np.inf, 0.7):
+            fast = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", max_distance=max_distance)
+            slow = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel="brute",
+                                     max_distance=max_distance)
+            np.testing.assert_array_equal(fast.hit, slow.hit)
+            if closest:
+                np.testing.assert_array_equal(fast.t, slow.t)
+    np.testing.assert_array_equal(whole.hit, raycast.cast_rays(mesh, o, w, closest=False, backend="opencl").hit)
+
+
+def test_hit_rays_are_kept_as_they_were_at_the_call(cl_runtime):
+    # t is computed when first read, from the rays as they were when cast_rays was called
+    mesh = ao4d.SimplexMesh([[0, 0, 1], [1, 0, 1], [0, 1, 1]], [[0, 1, 2]])
+    o = np.array([[0.2, 0.2, 0.0]])
+    w = np.array([[0.0, 0.0, 2.0]])
+    hits = raycast.cast_rays(mesh, o, w, backend="opencl")
+    o[:] = 5.0
+    w[:] = 1.0
+    assert hits.t[0] == 1.0 and hits.simplex[0] == 0
+    np.testing.assert_allclose(hits.barycentric[0], [0.6, 0.2, 0.2])
+
+
+def _dense_4d_surfaces():
+    """Small 4D surfaces with dense mutual occlusion (as bench/ao.py's tori and metaballs):
+    three interlocked torispheres around a ball, and a cluster of six metaballs."""
+    f = ao4d.fields
+    torus = f.torisphere(0.9, 0.28)
+    tori = f.union(f.hypersphere(0.6), torus,
+                   f.rotate(f.rotate(torus, (0, 2), np.pi / 2), (1, 3), np.pi / 2),
+                   f.rotate(f.rotate(torus, (1, 2), np.pi / 2), (0, 3), np.pi / 4))
+    balls = f.metaballs(np.random.default_rng(3).uniform(-0.5, 0.5, size=(6, 4)), 0.35, sharpness=8.0)
+    return {"tori": ao4d.extract_field(tori, (11,) * 4, (-1.3, 1.3)),
+            "metaballs": ao4d.extract_field(balls, (11,) * 4, (-1.0, 1.0))}
+
+
+@pytest.mark.parametrize("lanes", [16, 4])  # the CPU and GPU leaf layouts
+@pytest.mark.parametrize("shift", [0.0, 3e4])  # far from the origin: the tree's float64 frame
+def test_ao_counts_on_dense_shapes_equal_brute_force(lanes, shift, cl_runtime, monkeypatch):
+    # every AO ray's answer, both traversals, equals the any-hit answer over every simplex, with
+    # unlimited reach and a quarter of the diagonal: the counts cannot change while this holds
+    monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime: lanes)
+    for name, base in _dense_4d_surfaces().items():
+        mesh = ao4d.SimplexMesh(base.vertices + shift, base.simplices)
+        normals = mesh.vertex_normals
+        keep = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)[::7]
+        p, n = mesh.vertices[keep], normals[keep]
+        tree = raycast.get_bvh(mesh, runtime=cl_runtime)
+        offset = ao4d.ao.ORIGIN_OFFSET * tree.diagonal
+        for max_distance in (np.inf, 0.25 * tree.diagonal):
+            packet = _ao_counts(mesh, cl_runtime, p, n, 40, offset, max_distance)
+            rays = _ao_counts(mesh, cl_runtime, p, n, 40, offset, max_distance, traversal="rays")
+            brute = _ao_counts(mesh, cl_runtime, p, n, 40, offset, max_distance, accel="brute")
+            np.testing.assert_array_equal(packet, brute, err_msg=name)
+            np.testing.assert_array_equal(rays, brute, err_msg=name)
+            assert 0.03 < packet.mean() / 40 < 0.6, name  # occluded, not closed off

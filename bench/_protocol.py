@@ -1,0 +1,189 @@
+"""The benchmarks' protocol: the machine line, the machine's load, spreads over rounds.
+
+Shared by ``bench/ao.py`` and ``bench/cast.py``. A figure without the machine it was measured on
+is not worth much for a traversal bound by memory traffic: the machine line names the CPU, its
+widest SIMD registers, its L2 and L3 (from ``lscpu``, else sysfs) and the OpenCL device and
+driver. Every ratio is printed as the median over rounds with its minimum and maximum.
+
+The 1-minute load average counts the benchmark's own work (the meshes it extracts, its previous
+round: it runs on every core), so it is printed, but before each round :func:`others_load`
+pauses and measures how many CPUs other processes keep busy (``/proc/stat`` less this process
+tree's own CPU time); a round that starts with that figure above :data:`LOAD_LIMIT` is flagged
+loudly.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Iterable
+
+LOAD_LIMIT = 0.5  # CPUs busy with other work before a round above which the round is flagged
+
+_UNITS = {"": 1, "B": 1, "K": 1 << 10, "KB": 1 << 10, "KIB": 1 << 10, "M": 1 << 20, "MB": 1 << 20,
+          "MIB": 1 << 20, "G": 1 << 30, "GB": 1 << 30, "GIB": 1 << 30}
+
+
+def use_checkout(bench_dir: str) -> None:
+    """Import ``ao4d`` from the checkout that holds ``bench_dir``, before any installed copy
+    (``python bench/ao.py`` puts only ``bench/`` on ``sys.path``)."""
+    root = Path(bench_dir).resolve().parent
+    if (root / "ao4d" / "__init__.py").is_file() and str(root) not in sys.path:
+        sys.path.insert(1, str(root))
+
+
+def parse_size(text: str) -> int | None:
+    """Bytes of a cache size as lscpu or sysfs write it ("105 MiB (1 instance)", "2048K")."""
+    match = re.match(r"\s*([\d.]+)\s*([KMG]?i?B?)", text, re.IGNORECASE)
+    if not match:
+        return None
+    unit = _UNITS.get(match.group(2).upper())
+    return None if unit is None else int(float(match.group(1)) * unit)
+
+
+def parse_lscpu(text: str) -> dict[str, str]:
+    """``lscpu``'s "Key: value" lines as a dict (keys stripped)."""
+    out = {}
+    for line in text.splitlines():
+        key, sep, value = line.partition(":")
+        if sep and key.strip() and key.strip() not in out:
+            out[key.strip()] = value.strip()
+    return out
+
+
+def simd_width(flags: Iterable[str]) -> int:
+    """Widest SIMD register in bits from x86 CPU flags (AVX-512 512, AVX 256, SSE 128; else 0)."""
+    flags = set(flags)
+    if "avx512f" in flags:
+        return 512
+    if "avx" in flags or "avx2" in flags:
+        return 256
+    if flags & {"sse2", "sse", "neon", "asimd"}:
+        return 128
+    return 0
+
+
+def format_bytes(n: int | float | None) -> str:
+    """A size in KiB / MiB ("?" when unknown)."""
+    if n is None:
+        return "?"
+    if n >= 1 << 20:
+        return f"{n / (1 << 20):.3g} MiB"
+    return f"{n / (1 << 10):.3g} KiB"
+
+
+def _sysfs_caches() -> dict[int, int]:
+    """Per level, the size of one instance of the unified or data cache (sysfs, cpu0)."""
+    out = {}
+    for index in sorted(Path("/sys/devices/system/cpu/cpu0/cache").glob("index*")):
+        try:
+            level = int((index / "level").read_text())
+            kind = (index / "type").read_text().strip()
+            size = parse_size((index / "size").read_text())
+        except (OSError, ValueError):
+            continue
+        if kind in ("Unified", "Data") and size:
+            out[level] = size
+    return out
+
+
+def cpu_info() -> dict:
+    """CPU model, SIMD width (bits), L2 and L3 in bytes (totals as lscpu reports them; else one
+    instance from sysfs), logical CPUs."""
+    try:
+        lscpu = parse_lscpu(subprocess.run(["lscpu"], capture_output=True, text=True, check=False,
+                                           env=dict(os.environ, LC_ALL="C")).stdout)
+    except OSError:
+        lscpu = {}
+    flags = lscpu.get("Flags", "").split()
+    if not flags:
+        try:
+            text = Path("/proc/cpuinfo").read_text()
+            flags = next((ln.split(":", 1)[1].split() for ln in text.splitlines()
+                          if ln.startswith(("flags", "Features"))), [])
+        except OSError:
+            pass
+    sysfs = _sysfs_caches()
+    l2 = parse_size(lscpu["L2 cache"]) if "L2 cache" in lscpu else sysfs.get(2)
+    l3 = parse_size(lscpu["L3 cache"]) if "L3 cache" in lscpu else sysfs.get(3)
+    return {"model": lscpu.get("Model name", "unknown CPU"), "simd": simd_width(flags),
+            "l2": l2, "l3": l3, "cpus": os.cpu_count() or 0}
+
+
+def machine_line(runtime=None, info: dict | None = None) -> str:
+    """One line naming the machine: CPU, SIMD width, L2, L3, OpenCL device and driver."""
+    info = cpu_info() if info is None else info
+    line = (f"machine: {info['model']}, {info['cpus']} CPUs, SIMD {info['simd']} bit, "
+            f"L2 {format_bytes(info['l2'])}, L3 {format_bytes(info['l3'])}")
+    if runtime is not None:
+        device = runtime.device
+        line += (f"; OpenCL: {device.name.strip()} ({device.platform.name.strip()}, "
+                 f"driver {device.driver_version.strip()})")
+    return line
+
+
+def load_average() -> str:
+    """The 1, 5 and 15-minute load averages ("unknown" where the OS has none)."""
+    try:
+        return ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    except OSError:
+        return "unknown"
+
+
+def _busy_jiffies() -> tuple[int, int] | None:
+    try:
+        fields = Path("/proc/stat").read_text().splitlines()[0].split()[1:]
+    except (OSError, IndexError):
+        return None
+    values = [int(x) for x in fields]
+    idle = values[3] + (values[4] if len(values) > 4 else 0)  # idle + iowait
+    return sum(values[:8]) - idle, sum(values[:8])
+
+
+def _own_seconds() -> float:
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def others_load(pause: float = 1.0) -> float | None:
+    """CPUs kept busy by other processes during a ``pause`` of this one (None without /proc)."""
+    a, own_a, wall_a = _busy_jiffies(), _own_seconds(), time.perf_counter()
+    time.sleep(pause)
+    b, own_b, wall_b = _busy_jiffies(), _own_seconds(), time.perf_counter()
+    if a is None or b is None:
+        return None
+    tick = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    busy = (b[0] - a[0]) / tick - (own_b - own_a)
+    return max(0.0, busy / (wall_b - wall_a))
+
+
+def check_round(index: int, rounds: int, limit: float = LOAD_LIMIT, pause: float = 2.0) -> bool:
+    """Before round ``index`` (0-based): print the load averages and the CPUs other processes
+    keep busy during a ``pause``; warn loudly when that exceeds ``limit``. Returns whether the
+    round starts quiet."""
+    others = others_load(pause)
+    loud = others is not None and others > limit
+    what = f"other processes keep {others:.2f} CPUs busy" if others is not None else "others' load unknown"
+    print(f"round {index + 1}/{rounds}: load average {load_average()} (includes this benchmark); {what}",
+          flush=True)
+    if loud:
+        print(f"!!! WARNING: round {index + 1} starts on a busy machine ({others:.2f} CPUs busy with other "
+              f"work, above {limit}): its figures are not quiet figures !!!", flush=True)
+    return not loud
+
+
+def spread(values: Iterable[float]) -> tuple[float, float, float]:
+    """Median, minimum and maximum of ``values``."""
+    values = list(values)
+    return statistics.median(values), min(values), max(values)
+
+
+def format_ratio(values: Iterable[float]) -> str:
+    """``median x (min–max)`` of ratios over rounds, e.g. ``1.23x (1.10–1.40)``."""
+    m, lo, hi = spread(values)
+    return f"{m:.2f}x ({lo:.2f}–{hi:.2f})"

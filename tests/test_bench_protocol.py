@@ -1,0 +1,76 @@
+"""Tests for the benchmarks' protocol helpers (bench/_protocol.py): the machine line's parsing,
+the spreads over rounds and the loud warning of a busy round."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
+import _protocol as protocol  # noqa: E402
+
+LSCPU = """Architecture:                            x86_64
+Model name:                              AMD EPYC 7B13
+Flags:                                   fpu sse sse2 avx avx2 fma
+L1d cache:                               64 KiB (2 instances)
+L2 cache:                                1 MiB (2 instances)
+L3 cache:                                32 MiB (1 instance)
+"""
+
+
+@pytest.mark.parametrize("text, size", [
+    ("105 MiB (1 instance)", 105 << 20), ("1 MiB (2 instances)", 1 << 20), ("2048K", 2048 << 10),
+    ("48K\n", 48 << 10), ("512 KiB", 512 << 10), ("1.5 MiB", 3 << 19), ("8 GB", 8 << 30), ("none", None),
+])
+def test_cache_sizes_parse_as_lscpu_and_sysfs_write_them(text, size):
+    assert protocol.parse_size(text) == size
+
+
+def test_lscpu_lines_become_a_dict():
+    info = protocol.parse_lscpu(LSCPU)
+    assert info["Model name"] == "AMD EPYC 7B13"
+    assert protocol.parse_size(info["L3 cache"]) == 32 << 20
+    assert protocol.simd_width(info["Flags"].split()) == 256
+
+
+@pytest.mark.parametrize("flags, bits", [
+    (["sse2", "avx", "avx2", "avx512f"], 512), (["sse2", "avx2"], 256), (["sse", "sse2"], 128),
+    (["asimd"], 128), ([], 0),
+])
+def test_simd_width_is_the_widest_register(flags, bits):
+    assert protocol.simd_width(flags) == bits
+
+
+def test_machine_line_names_cpu_simd_and_caches():
+    info = {"model": "AMD EPYC 7B13", "simd": 256, "l2": 1 << 20, "l3": 32 << 20, "cpus": 2}
+    line = protocol.machine_line(None, info)
+    assert line == "machine: AMD EPYC 7B13, 2 CPUs, SIMD 256 bit, L2 1 MiB, L3 32 MiB"
+    assert "L3 ?" in protocol.machine_line(None, dict(info, l3=None))
+
+
+def test_this_machine_has_a_line():
+    info = protocol.cpu_info()
+    assert info["cpus"] >= 1 and info["simd"] in (0, 128, 256, 512)
+    assert protocol.machine_line(None, info).startswith("machine: ")
+
+
+def test_ratios_print_median_and_range():
+    assert protocol.spread([1.0, 3.0, 2.0, 5.0, 4.0]) == (3.0, 1.0, 5.0)
+    assert protocol.format_ratio([0.9, 1.2, 1.1]) == "1.10x (0.90–1.20)"
+    assert protocol.format_ratio(iter([2.0])) == "2.00x (2.00–2.00)"
+
+
+def test_a_busy_round_is_flagged_loudly(capsys):
+    # a limit below zero makes any machine busy; a huge one makes it quiet
+    assert protocol.check_round(0, 5, limit=-1.0, pause=0.05) is False
+    out = capsys.readouterr().out
+    assert "round 1/5: load average" in out and "!!! WARNING: round 1" in out
+    assert protocol.check_round(1, 5, limit=1e9, pause=0.05) is True
+    assert "WARNING" not in capsys.readouterr().out
+
+
+def test_others_load_is_a_cpu_count():
+    load = protocol.others_load(0.05)
+    assert load is None or 0.0 <= load <= 64
