@@ -150,7 +150,6 @@ class _Engine:
         points = (min(layers, geom.shape[0] - 1) + 1) * geom.layer
         chunks = -(-points // _CHUNK)
         padded = chunks * _CHUNK
-        blocks = -(-chunks // _SCAN_BLOCK)
         case_size = 2 if d == 4 else 1
         mask_size = 2 if plan.n_dirs > 8 else 1
         carry = geom.layer * plan.n_dirs * 4
@@ -205,7 +204,7 @@ class _Engine:
         new vertices' keys (K,) int64, the active cells and their simplex counts, or None).
         """
         cl_, q, k = self.cl, self.queue, self.kernels
-        d, n_dirs = self.d, self.n_dirs
+        d = self.d
         n = slab.size
         chunks = -(-n // _CHUNK)
         blocks = -(-chunks // _SCAN_BLOCK)
@@ -372,7 +371,7 @@ def march_slabs(
             done = z1 / (n0 - 1)
             with _lock:
                 found = engine.slab(slab, level, inside, cells,
-                                    lambda n_simp, n_new: take(n_simp, n_new, done))
+                                    lambda n_simp, n_new, done=done: take(n_simp, n_new, done))
             if found is not None:
                 simplices, vertices, new_keys, active, counts = found
                 t = time.perf_counter()

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import all_or_nothing, atomic_open, atomic_path
+from ._atomic import all_or_nothing, atomic_open
 from ._validate import as_array, as_vector, check_choice
 
 __all__ = ["Volume", "write_mhd", "read_mhd", "write_vti", "read_vti", "write_volume", "read_volume",

@@ -317,7 +317,7 @@ def main(argv=None) -> int:
         parser.error(f"--shapes: unknown {unknown}; choose from {', '.join(SHAPES)}")
 
     import ao4d
-    from ao4d import _progress, cl, raycast
+    from ao4d import _progress, cl
 
     _progress.set_enabled(False)  # no progress lines from the host builder in the table
     rng = np.random.default_rng(0)
