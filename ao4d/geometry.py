@@ -97,7 +97,7 @@ def cross(*vectors: Any) -> np.ndarray:
 
 
 def simplex_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
-    """Unnormalised simplex normals ``n`` with ``n . x = det[p1 - p0; ...; p_{d-1} - p0; x]``.
+    """Unnormalised simplex normals ``n`` with ``n·x = det[p1 - p0; ...; p_{d-1} - p0; x]``.
 
     Parameters
     ----------

@@ -245,7 +245,7 @@ def cosine_hemisphere(
 
 
 def cosine_moments(d: int) -> tuple[float, float]:
-    """Exact ``E[w . n]`` and ``E[(w . n)^2]`` under the cosine-weighted hemisphere density in R^d.
+    """Exact ``E[w·n]`` and ``E[(w·n)^2]`` under the cosine-weighted hemisphere density in R^d.
 
     With ``t = w . n = sqrt(1 - r^2)`` and ``r^(d-1)`` uniform on (0, 1) (Malley):
     ``E[t] = (d-1) * integral_0^1 r^(d-2) sqrt(1 - r^2) dr = (d-1)/2 * B((d-1)/2, 3/2)`` and
