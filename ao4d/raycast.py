@@ -156,20 +156,7 @@ def mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 def unit_rows(values: np.ndarray, name: str) -> np.ndarray:
-    """Rows of ``values`` scaled to unit length; zero-length rows are an error naming ``name``.
-
-    Parameters
-    ----------
-    values : (N, d) float64 numpy.ndarray
-        The rows.
-    name : str
-        The parameter named in the error.
-
-    Returns
-    -------
-    (N, d) float64 numpy.ndarray
-        The unit rows.
-    """
+    """Rows of ``values`` scaled to unit length; zero-length rows are an error naming ``name``."""
     length = np.linalg.norm(values, axis=1)
     bad = np.flatnonzero(~(length > 0))
     if bad.size:
@@ -178,22 +165,7 @@ def unit_rows(values: np.ndarray, name: str) -> np.ndarray:
 
 
 def progress_bar(progress: bool | None, total: int, desc: str):
-    """Progress over ``total`` rays, shown by default only for large work.
-
-    Parameters
-    ----------
-    progress : bool or None
-        True or False: show or not; None: only for large work on a terminal.
-    total : int
-        Rays to trace.
-    desc : str
-        The bar's label.
-
-    Returns
-    -------
-    tqdm-like
-        A bar to ``update`` with rays traced and to ``close``.
-    """
+    """Progress over ``total`` rays (:mod:`ao4d._progress`), shown by default only for large work."""
     show = total >= _PROGRESS_MIN_RAYS if progress is None else bool(progress)
     return _progress.bar(total, desc, unit="ray", unit_scale=True, show=show)
 

@@ -98,6 +98,8 @@ numpydoc_validation_exclude = {
     # from this list once its docstrings pass).
     r"^ao4d\.(ao|blockwise|bvh|cl|geometry|image_viewer|march|mesh|mesh_files|pages|pictures"
     r"|rendering|sampling|scenes|screen_ao|slicing|topology|viewer|volumes)\.",
+    # helpers the other stages import from raycast (in its __all__ for them, not for users)
+    r"^ao4d\.raycast\.(unit_rows|progress_bar)$",
 }
 # Records (dataclasses, named tuples) document their fields under Attributes, which is also
 # their constructor's signature: PR01 would ask for every field twice.
