@@ -139,8 +139,8 @@ for _name, (_url, _) in list(intersphinx_mapping.items()):
         print(f"ao4d docs: no inventory for {_name} ({_url}): its references stay plain text")
 _EXTERNAL = {
     "python": r"(builtins\.)?[A-Za-z]*(Error|Warning|Exception|Interrupt)|int|float|str|bool|bytes|dict|list"
-              r"|tuple|set|object|type|callable|None|os\..*|pathlib\..*|collections\..*|typing\..*"
-              r"|concurrent\..*|argparse\..*|io\..*|contextlib\..*|dataclasses\..*|Path",
+    r"|tuple|set|object|type|callable|None|os\..*|pathlib\..*|collections\..*|typing\..*"
+    r"|concurrent\..*|argparse\..*|io\..*|contextlib\..*|dataclasses\..*|Path",
     "numpy": r"(numpy|np)\..*",
     "scipy": r"scipy\..*",
     "trimesh": r"trimesh\..*",
@@ -149,10 +149,19 @@ _EXTERNAL = {
 }
 for _name, _pattern in _EXTERNAL.items():
     if _name not in intersphinx_mapping:
-        nitpick_ignore_regex += [(_role, _pattern) for _role in
-                                 ("py:class", "py:exc", "py:func", "py:meth", "py:obj", "py:data",
-                                  "py:attr", "py:mod")]
-
+        nitpick_ignore_regex += [
+            (_role, _pattern)
+            for _role in (
+                "py:class",
+                "py:exc",
+                "py:func",
+                "py:meth",
+                "py:obj",
+                "py:data",
+                "py:attr",
+                "py:mod",
+            )
+        ]
 
 
 def _resolve_short_names(app, env, node, contnode):
@@ -176,11 +185,9 @@ def _resolve_short_names(app, env, node, contnode):
             wanted = ".".join(parts[: len(parts) - drop]) if drop else name
             if not wanted:
                 continue
-            found = sorted((n for n in domain.objects if n == wanted or n.endswith("." + wanted)),
-                           key=len)
+            found = sorted((n for n in domain.objects if n == wanted or n.endswith("." + wanted)), key=len)
             if found and (len(found) == 1 or len(found[0]) < len(found[1])):
-                resolved = domain.resolve_any_xref(env, node["refdoc"], app.builder, found[0],
-                                                   node, contnode)
+                resolved = domain.resolve_any_xref(env, node["refdoc"], app.builder, found[0], node, contnode)
                 if resolved:
                     return resolved[0][1]
     return None

@@ -19,8 +19,9 @@ from ao4d.ao import ORIGIN_OFFSET
 # %%
 # Two blobs over a floor, as one 3D signed-distance field on a 48³ grid.
 x, y, z = np.meshgrid(*[np.linspace(-1.2, 1.2, 48)] * 3, indexing="ij")
-blobs = np.minimum(np.sqrt((x + 0.35) ** 2 + y**2 + z**2) - 0.45,
-                   np.sqrt((x - 0.45) ** 2 + (y + 0.2) ** 2 + z**2) - 0.35)
+blobs = np.minimum(
+    np.sqrt((x + 0.35) ** 2 + y**2 + z**2) - 0.45, np.sqrt((x - 0.45) ** 2 + (y + 0.2) ** 2 + z**2) - 0.35
+)
 floor = np.maximum.reduce([np.abs(z + 0.65) - 0.1, np.abs(x) - 1.0, np.abs(y) - 1.0])
 field = np.minimum(blobs, floor)
 spacing = (2.4 / 47,) * 3
@@ -51,8 +52,10 @@ if RayMeshIntersector is not None:
     scene = trimesh.Trimesh(mesh.vertices, mesh.simplices, process=False)
     theirs = RayMeshIntersector(scene).intersects_any(origins, directions)
     theirs = theirs.reshape(-1, 64).mean(axis=1)
-    print(f"largest difference per point: {np.abs(ours - theirs).max():.4f} "
-          f"(one ray of 64 is {1 / 64:.4f}); mean {ours.mean():.4f} vs {theirs.mean():.4f}")
+    print(
+        f"largest difference per point: {np.abs(ours - theirs).max():.4f} "
+        f"(one ray of 64 is {1 / 64:.4f}); mean {ours.mean():.4f} vs {theirs.mean():.4f}"
+    )
 else:
     theirs = None
     print("embreex is not installed: Embree's side is left out")

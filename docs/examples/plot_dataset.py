@@ -23,7 +23,7 @@ import datasets_gen
 # %%
 # A configuration names shape families and the distributions of their parameters.
 folder = Path(tempfile.mkdtemp())
-(folder / "tiny.toml").write_text('''
+(folder / "tiny.toml").write_text("""
 name = "tiny"
 seed = 7
 
@@ -41,7 +41,7 @@ params = { R = { uniform = [0.6, 0.8] }, r = { uniform = [0.25, 0.35] } }
 kind = "hypersphere"
 count = 2
 params = { radius = { uniform = [0.5, 0.9] } }
-''')
+""")
 
 # %%
 # Make it (``python -m datasets_gen tiny.toml --out DIR`` does the same).
@@ -55,14 +55,15 @@ if hasattr(datasets_gen, "load"):
     items = [dataset[i] for i in range(len(dataset))]
     records = [item["record"] for item in items]
 else:
-    records = [json.loads(p.read_text())
-               for p in sorted((folder / "data" / "items").glob("*/record.json"))]
+    records = [json.loads(p.read_text()) for p in sorted((folder / "data" / "items").glob("*/record.json"))]
 items_dir = folder / "data" / "items"
 meshes = [ao4d.SimplexMesh.load(p) for p in sorted(items_dir.glob("*/mesh.npz"))]
 aos = [np.load(p)["occlusion"] for p in sorted(items_dir.glob("*/ao.npz"))]
 for record, mesh in zip(records, meshes):
-    print(f"item {record['index']}: {record['kind']}, {mesh.n_simplices} tetrahedra, "
-          f"closed: {mesh.check().closed}")
+    print(
+        f"item {record['index']}: {record['kind']}, {mesh.n_simplices} tetrahedra, "
+        f"closed: {mesh.check().closed}"
+    )
 manifest = json.loads((folder / "data" / "manifest.json").read_text())
 print(f"manifest: {manifest['n_items']} items, {len(manifest['files'])} files hashed")
 

@@ -18,9 +18,11 @@ from ao4d import lut
 for dim in (3, 4):
     table = lut.load(dim)
     s = lut.stats(table)
-    print(f"{dim}D: {s.entries} cases, {s.classes} classes under the {s.group_order} symmetries "
-          f"of the cube ({s.classes_with_complement} with complementation), {s.simplices} "
-          f"simplices, at most {s.max_per_entry} and {s.mean_per_entry:.2f} on average per case")
+    print(
+        f"{dim}D: {s.entries} cases, {s.classes} classes under the {s.group_order} symmetries "
+        f"of the cube ({s.classes_with_complement} with complementation), {s.simplices} "
+        f"simplices, at most {s.max_per_entry} and {s.mean_per_entry:.2f} on average per case"
+    )
 
 # %%
 # One entry: case ``c`` lists the simplices ``simplices[offsets[c]:offsets[c + 1]]``, each as
@@ -28,7 +30,7 @@ for dim in (3, 4):
 # positive: a single tetrahedron cutting off that corner of the tesseract.
 table = lut.load(4)
 case = 0b1
-tets = table.simplices[table.offsets[case]:table.offsets[case + 1]]
+tets = table.simplices[table.offsets[case] : table.offsets[case + 1]]
 print("edges of the tetrahedron:", table.edges[tets[0]].tolist())
 print("corner 0 is at", table.vertices[0].tolist())
 

@@ -28,8 +28,20 @@ mesh.save(folder / "torus.npz")
 
 # %%
 # The command line writes the series (the same as running ``ao4d slice`` in a shell).
-ao4d_command(["slice", str(folder / "torus.npz"), "--w-range", "-0.3", "0.3", "--count", "5",
-              "--out", str(folder / "series"), "--no-progress"])
+ao4d_command(
+    [
+        "slice",
+        str(folder / "torus.npz"),
+        "--w-range",
+        "-0.3",
+        "0.3",
+        "--count",
+        "5",
+        "--out",
+        str(folder / "series"),
+        "--no-progress",
+    ]
+)
 print(sorted(p.name for p in (folder / "series").iterdir()))
 print((folder / "series" / "series.pvd").read_text())
 
