@@ -20,7 +20,7 @@ from ao4d.cli import main as ao4d_command
 
 # %%
 # A 4D torus (torisphere: a 3-ball swept around a circle) with AO, saved as ao4d's mesh file.
-# Its cuts by w = const are ordinary tori whose tube thins as |w| grows.
+# Its cuts by w = const are ordinary tori whose tube thins as w moves away from 0.
 mesh = ao4d.extract_field(ao4d.fields.torisphere(0.8, 0.4), 22, (-1.3, 1.3))
 mesh.point_data["ao"] = ao4d.ambient_occlusion(mesh, samples=16)
 folder = Path(tempfile.mkdtemp())
