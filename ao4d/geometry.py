@@ -32,10 +32,12 @@ def cross_components(rows: Sequence[Any]) -> np.ndarray:
     Parameters
     ----------
     rows : sequence of d-1 arrays of shape (d, ...)
+        The vectors, component-major.
 
     Returns
     -------
     X : (d, ...) array, dtype of the inputs' products
+        The generalised cross product, component-major.
     """
     d = len(rows) + 1
     if d == 2:

@@ -182,8 +182,21 @@ class RenderResult:
 
 
 def default_weights(ambient: float | None, diffuse: float | None, lit: bool) -> tuple[float, float]:
-    """``(ambient, diffuse)`` with the defaults filled in: ``ambient`` 1 without a light and 0.7
-    with one, ``diffuse`` 0.3 (their sum stays at most 1 for one light of intensity 1)."""
+    """``(ambient, diffuse)`` with the defaults filled in.
+
+    Parameters
+    ----------
+    ambient, diffuse : float or None
+        The weights given, None for the default.
+    lit : bool
+        Whether there is a light.
+
+    Returns
+    -------
+    tuple of float
+        ``ambient`` (default 1 without a light and 0.7 with one) and ``diffuse`` (default 0.3):
+        their sum stays at most 1 for one light of intensity 1.
+    """
     ambient = (AMBIENT_LIT if lit else AMBIENT) if ambient is None else as_real(ambient, "ambient", ge=0)
     diffuse = DIFFUSE if diffuse is None else as_real(diffuse, "diffuse", ge=0)
     return ambient, diffuse
@@ -230,7 +243,9 @@ def prepare_scene(meshes) -> tuple[Any, np.ndarray]:
     Returns
     -------
     scene : SimplexMesh
+        The joined mesh.
     object_id : (S,) int32
+        The object id of each simplex.
     """
     if isinstance(meshes, SimplexMesh):
         items = [meshes]

@@ -93,11 +93,11 @@ numpydoc_validation_exclude = {
     r"\.[A-Z][A-Z0-9_]+$",  # module constants, documented where they are listed
     r"\.__.*__$",
     # Validated: the top-level names (ao4d.extract, ao4d.SimplexMesh, ...), fields, lut, lift,
-    # raycast, camera, lighting, readers and datasets_gen. The inner stages below have pages
+    # raycast, camera, lighting, readers, datasets_gen, ao, march, blockwise, mesh, geometry,
+    # slicing, sampling, rendering and scenes. The inner stages below have pages
     # too, but their docstrings are not yet all in numpydoc form (a follow-up: remove a module
     # from this list once its docstrings pass).
-    r"^ao4d\.(ao|blockwise|bvh|cl|geometry|image_viewer|march|mesh|mesh_files|pages|pictures"
-    r"|rendering|sampling|scenes|screen_ao|slicing|topology|viewer|volumes)\.",
+    r"^ao4d\.(bvh|cl|image_viewer|mesh_files|pages|pictures|screen_ao|topology|viewer|volumes)\.",
     # helpers the other stages import from raycast (in its __all__ for them, not for users)
     r"^ao4d\.raycast\.(unit_rows|progress_bar)$",
 }
@@ -138,9 +138,9 @@ for _name, (_url, _) in list(intersphinx_mapping.items()):
         del intersphinx_mapping[_name]
         print(f"ao4d docs: no inventory for {_name} ({_url}): its references stay plain text")
 _EXTERNAL = {
-    "python": r"(builtins\.)?[A-Za-z]*(Error|Warning|Exception|Interrupt)|int|float|str|bool|bytes|dict|list"
-    r"|tuple|set|object|type|callable|None|os\..*|pathlib\..*|collections\..*|typing\..*"
-    r"|concurrent\..*|argparse\..*|io\..*|contextlib\..*|dataclasses\..*|Path",
+    "python": r"(builtins\.)?[A-Za-z]*(Error|Warning|Exception|Interrupt)|int|float|str|bool|bytes"
+    r"|dict|list|tuple|set|object|type|callable|None|Path|"
+    + r"|".join(rf"{m}\..*" for m in sorted(sys.stdlib_module_names)),
     "numpy": r"(numpy|np)\..*",
     "scipy": r"scipy\..*",
     "trimesh": r"trimesh\..*",
