@@ -107,6 +107,11 @@ def worker_environment() -> Iterator[None]:
     ``distributed: {nanny: {pre-spawn-environ: {MALLOC_TRIM_THRESHOLD_: null}}}`` into their
     dask configuration (``~/.config/dask/distributed.yaml``), or start them with
     ``--no-nanny``.
+
+    Yields
+    ------
+    None
+        Start the workers inside the ``with`` block.
     """
     import os
 
@@ -161,7 +166,18 @@ def _check_workers(client: Any) -> None:
 
 
 def is_dask_array(value: Any) -> bool:
-    """True when ``value`` is a dask array (checked without importing dask)."""
+    """Whether ``value`` is a dask array (checked without importing dask).
+
+    Parameters
+    ----------
+    value : object
+        Anything.
+
+    Returns
+    -------
+    bool
+        True for a dask array.
+    """
     module = sys.modules.get("dask.array")
     return module is not None and isinstance(value, module.Array)
 
@@ -525,12 +541,19 @@ def extract_field_blocks(
     axes : list of (n_k,) float64 ndarray
         Grid coordinates per axis (:func:`ao4d.fields.grid_axes`).
     level : float
+        The isovalue.
     origin, spacing : (d,) float64 ndarray
         First grid point and step per axis, as :func:`ao4d.extract_field` derives them.
-    method, inside, chunk, progress, backend
+    method, inside : str
+        As in :func:`ao4d.extract_field`.
+    chunk : int or None
         As in :func:`ao4d.extract_field`.
     chunks : int, sequence of int, dask block sizes or "auto"
         Grid points per block along each axis (dask's ``normalize_chunks`` rules).
+    progress : bool or None
+        As in :func:`ao4d.extract_field`.
+    backend : str
+        As in :func:`ao4d.extract_field`.
 
     Returns
     -------

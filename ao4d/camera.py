@@ -41,6 +41,15 @@ class ImageGeometry:
     Coordinate k of voxel ``(i, j, l)`` along image axis k is ``origin[k] + spacing * index_k``,
     measured from ``target`` along the basis vectors ``a``, ``b``, ``c`` (world units at the
     target distance). These are what volume files store as Offset/ElementSpacing.
+
+    Attributes
+    ----------
+    shape : (3,) tuple of int
+        Voxels along the image axes x, y, z.
+    spacing : float
+        Edge of the (cubic) voxels.
+    origin : (3,) tuple of float
+        Coordinates of voxel (0, 0, 0).
     """
 
     shape: tuple[int, int, int]
@@ -151,7 +160,11 @@ class Camera4D:
             ``(lo, hi)`` of what must be seen, e.g. ``mesh.bounds``.
         view : (4,) array_like
             View direction.
-        up, over, fov, projection
+        up, over : (4,) array_like
+            As in :class:`Camera4D`.
+        fov : float
+            As in :class:`Camera4D`.
+        projection : {"perspective", "orthographic"}
             As in :class:`Camera4D`.
         margin : float
             Extra room around the object (>= 1).
@@ -159,6 +172,7 @@ class Camera4D:
         Returns
         -------
         Camera4D
+            The camera.
         """
         box = as_array(bounds, "bounds", shape_tail=(2, 4), ndim=2, dtype=np.float64, finite=True)
         if (box[1] < box[0]).any():
@@ -208,6 +222,7 @@ class Camera4D:
         Returns
         -------
         ImageGeometry
+            Spacing and origin of the voxels.
         """
         shape = _image_shape(shape)
         spacing = 2.0 * self.half_width / max(shape)
@@ -220,6 +235,7 @@ class Camera4D:
         Parameters
         ----------
         shape : (3,) tuple of int
+            Voxels along the image axes x, y, z.
 
         Returns
         -------

@@ -533,7 +533,7 @@ def march_slabs(
             done = z1 / (n0 - 1)
             with _lock:
                 found = engine.slab(slab, z0, level, inside, cells,
-                                    lambda n_simp, n_new: take(n_simp, n_new, done))
+                                    lambda n_simp, n_new, done=done: take(n_simp, n_new, done))
             del slab
             if found is not None:
                 simplices, vertices, new_keys, active, counts = found

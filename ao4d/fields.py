@@ -4,7 +4,8 @@ A field is a callable taking an ``(..., d)`` array of points and returning an ``
 The fields built here are :class:`Field` objects: besides being callable they carry their
 dimension, a bounding box of the solid (``extent``) and, where a closed form exists, the enclosed
 d-volume (``volume``) and the boundary (d-1)-volume (``boundary_measure``), which the tests use to
-check extraction accuracy.
+check extraction accuracy. Fields are signed distances, or bounds on them, in the sense of
+sphere tracing [1]_; on four-space shapes and how to see them: [2]_.
 
 Why this file is long: it is one module because it is one catalogue (each shape is a short
 function with its closed-form volume and boundary measure, plus the combinators and ``sample``);
@@ -215,7 +216,7 @@ def spheritorus(R: float = 1.0, r: float = 0.4) -> Field:
 
     Notes
     -----
-    In coordinates (rho = |(x, y, z)|, w) the solid is the disk (rho - R)^2 + w^2 <= r^2 swept
+    In coordinates (rho = \\|(x, y, z)\\|, w) the solid is the disk (rho - R)^2 + w^2 <= r^2 swept
     by 2-spheres of area 4 pi rho^2. With rho = R + u the 4-volume is
     ``4 pi * int_disk (R + u)^2 = 4 pi (pi R^2 r^2 + pi r^4 / 4) = 4 pi^2 R^2 r^2 + pi^2 r^4``
     and the boundary 3-volume ``4 pi * int_0^2pi (R + r cos t)^2 r dt = 8 pi^2 R^2 r + 4 pi^2 r^3``.
@@ -249,7 +250,7 @@ def torisphere(R: float = 1.0, r: float = 0.4) -> Field:
 
     Notes
     -----
-    In (rho = |(x, y)|, z, w) the solid is a 3-ball of radius r centred at rho = R, swept by
+    In (rho = \\|(x, y)\\|, z, w) the solid is a 3-ball of radius r centred at rho = R, swept by
     circles of length 2 pi rho. Pappus (centroid at rho = R): 4-volume
     ``2 pi R * 4/3 pi r^3 = 8/3 pi^2 R r^3``, boundary 3-volume ``2 pi R * 4 pi r^2 = 8 pi^2 R r^2``.
     """
@@ -283,7 +284,7 @@ def ditorus(R: float = 1.0, r1: float = 0.45, r2: float = 0.2) -> Field:
 
     Notes
     -----
-    With rho = |(x, y)|, (rho - R, z) = q (cos phi, sin phi), the volume element is
+    With rho = \\|(x, y)\\|, (rho - R, z) = q (cos phi, sin phi), the volume element is
     ``2 pi rho q dq dphi dw`` with rho = R + q cos phi; the cos phi term integrates to 0.
     The solid is the disk (q - r1)^2 + w^2 <= r2^2, so the 4-volume is
     ``4 pi^2 R * int_disk q = 4 pi^2 R * r1 * pi r2^2 = 4 pi^3 R r1 r2^2`` and the boundary
@@ -520,7 +521,7 @@ def gyroid(period: float = 1.0, thickness: float = 0.3) -> Field:
     period : float
         Spatial period along each axis.
     thickness : float
-        Half-thickness of the sheet in units of g (a sum of four products, so |g| <= 4).
+        Half-thickness of the sheet in units of g (a sum of four products, so \\|g\\| <= 4).
 
     Returns
     -------
@@ -582,7 +583,18 @@ def _check_fields(fields: Sequence[Any], name: str) -> None:
 
 
 def union(*fields: Callable) -> Field:
-    """Union of solids: pointwise ``min`` (exact distance outside, a bound inside)."""
+    """Union of solids: pointwise ``min`` (exact distance outside, a bound inside).
+
+    Parameters
+    ----------
+    *fields : Field or callable
+        The solids' fields, all of one dimension.
+
+    Returns
+    -------
+    Field
+        The union's field.
+    """
     _check_fields(fields, "fields")
     dim = _common_dim(fields)
     return Field(
@@ -594,7 +606,18 @@ def union(*fields: Callable) -> Field:
 
 
 def intersection(*fields: Callable) -> Field:
-    """Intersection of solids: pointwise ``max``."""
+    """Intersection of solids: pointwise ``max``.
+
+    Parameters
+    ----------
+    *fields : Field or callable
+        The solids' fields, all of one dimension.
+
+    Returns
+    -------
+    Field
+        The intersection's field.
+    """
     _check_fields(fields, "fields")
     dim = _common_dim(fields)
     boxes = [_extent_of(f) for f in fields if _extent_of(f) is not None]
@@ -610,7 +633,18 @@ def intersection(*fields: Callable) -> Field:
 
 
 def difference(a: Callable, b: Callable) -> Field:
-    """Solid ``a`` minus solid ``b``: ``max(a, -b)``."""
+    """Solid ``a`` minus solid ``b``: ``max(a, -b)``.
+
+    Parameters
+    ----------
+    a, b : Field or callable
+        The solid to cut from and the solid cut away.
+
+    Returns
+    -------
+    Field
+        The difference's field.
+    """
     _check_fields((a, b), "a, b")
     return Field(
         lambda p: np.maximum(a(p), -np.asarray(b(p), dtype=float)),
@@ -625,6 +659,18 @@ def smooth_union(a: Callable, b: Callable, k: float = 0.2) -> Field:
 
     ``h = clip(0.5 + 0.5 (b - a) / k, 0, 1)``; ``f = b (1 - h) + a h - k h (1 - h)``.
     Equals ``min(a, b)`` where ``|a - b| >= k``, is smooth elsewhere and never above min.
+
+    Parameters
+    ----------
+    a, b : Field or callable
+        The two solids' fields.
+    k : float
+        Width of the fillet, > 0.
+
+    Returns
+    -------
+    Field
+        The smooth union's field.
     """
     _check_fields((a, b), "a, b")
     k = as_real(k, "k", gt=0)
@@ -645,7 +691,20 @@ def smooth_union(a: Callable, b: Callable, k: float = 0.2) -> Field:
 
 
 def translate(field: Callable, offset: Any) -> Field:
-    """Move the solid by ``offset`` ((d,) array_like): ``f(x - offset)``."""
+    """Move the solid by ``offset``: ``f(x - offset)``.
+
+    Parameters
+    ----------
+    field : Field or callable
+        The solid's field.
+    offset : (d,) array_like
+        The translation.
+
+    Returns
+    -------
+    Field
+        The moved solid's field.
+    """
     _check_fields((field,), "field")
     off = as_array(offset, "offset", ndim=1, dtype=np.float64, finite=True, min_size=1)
     dim = _dim_of(field)
@@ -666,6 +725,18 @@ def scale(field: Callable, factor: float) -> Field:
     """Scale the solid uniformly by ``factor`` > 0 about the origin: ``factor * f(x / factor)``.
 
     Distances stay distances; the volume scales by factor^d and the boundary by factor^(d-1).
+
+    Parameters
+    ----------
+    field : Field or callable
+        The solid's field.
+    factor : float
+        Scale factor, > 0.
+
+    Returns
+    -------
+    Field
+        The scaled solid's field.
     """
     _check_fields((field,), "field")
     s = as_real(factor, "factor", gt=0)
@@ -754,7 +825,23 @@ PRESETS: dict[str, Callable[[], Field]] = {
 
 
 def preset(name: str) -> Field:
-    """One of the named shapes in :data:`PRESETS` with default parameters."""
+    """One of the named shapes in ``PRESETS`` with default parameters.
+
+    Parameters
+    ----------
+    name : str
+        A key of ``PRESETS`` (``"hypersphere"``, ``"tiger"``, ...).
+
+    Returns
+    -------
+    Field
+        The shape's field.
+
+    Raises
+    ------
+    ValueError
+        If ``name`` is not a preset.
+    """
     if name not in PRESETS:
         raise ValueError(f"`shape` must be one of {', '.join(PRESETS)}; got {name!r}")
     return PRESETS[name]()
@@ -775,6 +862,7 @@ def grid_axes(shape: Any, bounds: Any, *, dim: int | None = None) -> list[np.nda
     Returns
     -------
     list of (n_k,) float64 arrays
+        The coordinates along axis k, from lo to hi.
     """
     if isinstance(shape, (int, np.integer)) and not isinstance(shape, bool):
         if dim is None:

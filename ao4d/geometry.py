@@ -32,10 +32,12 @@ def cross_components(rows: Sequence[Any]) -> np.ndarray:
     Parameters
     ----------
     rows : sequence of d-1 arrays of shape (d, ...)
+        The vectors, component-major.
 
     Returns
     -------
     X : (d, ...) array, dtype of the inputs' products
+        The generalised cross product, component-major.
     """
     d = len(rows) + 1
     if d == 2:
@@ -97,7 +99,7 @@ def cross(*vectors: Any) -> np.ndarray:
 
 
 def simplex_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
-    """Unnormalised simplex normals ``n`` with ``n . x = det[p1 - p0; ...; p_{d-1} - p0; x]``.
+    """Unnormalised simplex normals ``n`` with ``n·x = det[p1 - p0; ...; p_{d-1} - p0; x]``.
 
     Parameters
     ----------

@@ -74,6 +74,18 @@ class TetSolid:
     def from_arrays(cls, points: np.ndarray, tets: np.ndarray) -> TetSolid:
         """Validate ``points`` (P, 3) and ``tets`` (T, 4), orient tetrahedra positively.
 
+        Parameters
+        ----------
+        points : (P, 3) array_like of float
+            The vertices.
+        tets : (T, 4) array_like of int
+            The tetrahedra, as vertex indices.
+
+        Returns
+        -------
+        TetSolid
+            The solid, every tetrahedron positively oriented.
+
         Raises
         ------
         ValueError

@@ -105,6 +105,7 @@ class Light:
         Parameters
         ----------
         points : (H, 4) float64
+            The lit points.
 
         Returns
         -------
@@ -141,6 +142,7 @@ def as_lights(light: Any, name: str = "light") -> tuple[Light, ...]:
     Returns
     -------
     tuple of Light
+        The lights, none for ``None``.
     """
     if light is None:
         return ()
@@ -166,7 +168,7 @@ def _dot(normals: np.ndarray, to_light: np.ndarray) -> np.ndarray:
 
 
 def lambert(normals: np.ndarray, to_light: np.ndarray) -> np.ndarray:
-    """Lambert term ``max(0, n . l)``.
+    """Lambert term ``max(0, n·l)``.
 
     Parameters
     ----------
@@ -178,6 +180,7 @@ def lambert(normals: np.ndarray, to_light: np.ndarray) -> np.ndarray:
     Returns
     -------
     (H,) float64 in [0, 1]
+        The Lambert term.
 
     Examples
     --------
@@ -193,12 +196,14 @@ def half_vectors(to_light: np.ndarray, to_eye: np.ndarray) -> np.ndarray:
     Parameters
     ----------
     to_light : (4,) or (H, 4) float64
+        Unit directions towards the light.
     to_eye : (H, 4) float64
         Unit directions from the points towards the eye (``-`` the ray direction).
 
     Returns
     -------
     (H, 4) float64
+        The half-vectors.
     """
     h = to_eye + to_light
     length = np.linalg.norm(h, axis=1, keepdims=True)
@@ -207,7 +212,7 @@ def half_vectors(to_light: np.ndarray, to_eye: np.ndarray) -> np.ndarray:
 
 def blinn_phong(normals: np.ndarray, to_light: np.ndarray, to_eye: np.ndarray,
                 shininess) -> np.ndarray:
-    """Blinn-Phong specular term ``max(0, n . h)^shininess`` where ``n . l > 0``, else 0.
+    """Blinn-Phong specular term ``max(0, n·h)^shininess`` where ``n·l > 0``, else 0.
 
     Parameters
     ----------
@@ -241,6 +246,21 @@ def check_depth_cue(depth_cue: Any) -> tuple[float, float, float] | None:
     """``depth_cue`` as ``(near, far, strength)`` floats, ``None`` unchanged, else an error.
 
     ``0 <= near < far`` (``far`` finite) and ``0 <= strength <= 1``.
+
+    Parameters
+    ----------
+    depth_cue : None or (3,) sequence of float
+        ``(near, far, strength)``.
+
+    Returns
+    -------
+    tuple of float or None
+        ``(near, far, strength)``, or None.
+
+    Raises
+    ------
+    ValueError
+        If the values are out of range.
     """
     if depth_cue is None:
         return None
@@ -266,10 +286,12 @@ def depth_cue(depth: np.ndarray, near: float, far: float, strength: float) -> np
     depth : (H,) float64
         Distances along the view rays.
     near, far, strength : float
+        Where the fading starts and ends, and how much it takes away.
 
     Returns
     -------
     (H,) float64 in [1 - strength, 1]
+        The factor.
 
     Examples
     --------

@@ -1,6 +1,6 @@
 """Marching lookup tables for d-cubes and Kuhn simplices, d = 2, 3, 4.
 
-The cube table follows Bhaniramka, Wenger & Crawfis: for every sign configuration of the cell's
+The cube table follows Bhaniramka, Wenger & Crawfis [1]_: for every sign configuration of the cell's
 corners, the isosurface patch is the part of the boundary of
 
     conv(positive corners  U  midpoints of bipolar edges)
@@ -17,6 +17,8 @@ Hulls are computed once per class of the hyperoctahedral group (2^d d! symmetrie
 recovered from Qhull by grouping its triangulated output by hyperplane on exact small-integer
 coordinates (corners 0/2, midpoints 1), mapped as vertex sets to every other entry of the class,
 and split there with that entry's own labels.
+
+The simplex tables split the cube into Kuhn's d! simplices [2]_.
 
 Tables ship in ``lut/`` (see ``lut/README.md``); ``load`` reads them, ``build`` regenerates them,
 ``verify`` checks checksums and compares a rebuild.
@@ -148,20 +150,49 @@ class Table:
         return np.diff(self.offsets)
 
     def entry(self, case: int) -> np.ndarray:
-        """Return the (k, d) edge indices of entry ``case`` (bit v set iff corner v positive)."""
+        """The simplices of one entry.
+
+        Parameters
+        ----------
+        case : int
+            The case: bit v set iff corner v is positive.
+
+        Returns
+        -------
+        (k, d) numpy.ndarray
+            Edge indices of the entry's k simplices.
+        """
         if not 0 <= int(case) < self.n_entries:
             raise ValueError(f"`case` must be in [0, {self.n_entries}), got {case}")
         return self.simplices[self.offsets[case] : self.offsets[case + 1]]
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """The table's arrays by name (``cells`` and ``cell_parity`` only for simplex tables)."""
+        """The table's arrays by name.
+
+        Returns
+        -------
+        dict of str to numpy.ndarray
+            ``vertices``, ``edges``, ``offsets``, ``simplices``; ``cells`` and ``cell_parity``
+            only for simplex tables.
+        """
         names = ["vertices", "edges", "offsets", "simplices"]
         if self.kind == "simplex":
             names += ["cells", "cell_parity"]
         return {name: getattr(self, name) for name in names}
 
     def equals(self, other: Table) -> bool:
-        """True if ``other`` has the same dim, kind and identical arrays."""
+        """Whether ``other`` is the same table.
+
+        Parameters
+        ----------
+        other : Table
+            The table to compare with.
+
+        Returns
+        -------
+        bool
+            True if ``other`` has the same dim, kind and identical arrays.
+        """
         if (self.dim, self.kind) != (other.dim, other.kind):
             return False
         mine, theirs = self.arrays(), other.arrays()
@@ -172,7 +203,29 @@ class Table:
 
 @dataclass(frozen=True)
 class TableStats:
-    """Size and symmetry figures of one table (``ao4d lut stats``)."""
+    """Size and symmetry figures of one table (``ao4d lut stats``).
+
+    Attributes
+    ----------
+    dim : int
+        Dimension of the cell.
+    kind : str
+        ``"cube"`` or ``"simplex"``.
+    entries : int
+        Number of cases, 2 to the number of corners.
+    classes : int
+        Classes of cases under the cell's symmetries.
+    classes_with_complement : int
+        Classes when complementing the signs is a symmetry too.
+    group_order : int
+        Number of symmetries.
+    simplices : int
+        Simplices over all entries.
+    max_per_entry : int
+        Most simplices in one entry.
+    mean_per_entry : float
+        Mean simplices per entry.
+    """
 
     dim: int
     kind: str
@@ -187,7 +240,15 @@ class TableStats:
 
 @dataclass
 class VerifyReport:
-    """Result of :func:`verify`: one line per checked file and whether everything matched."""
+    """Result of :func:`verify`: one line per checked file and whether everything matched.
+
+    Attributes
+    ----------
+    lines : list of str
+        One line per checked file; mismatches start with ``MISMATCH``.
+    ok : bool
+        True when every file matched.
+    """
 
     lines: list[str] = field(default_factory=list)
     ok: bool = True
@@ -608,7 +669,20 @@ _MEMORY_DTYPES = {
     "cell_parity": np.int8,
 }
 def table_filename(dim: int, kind: str) -> str:
-    """File name of a table in ``lut/``, e.g. ``"cube_4d.npz"``."""
+    """File name of a table in ``lut/``.
+
+    Parameters
+    ----------
+    dim : int
+        Dimension, one of ``DIMS``.
+    kind : {"cube", "simplex"}
+        The cell the table is for.
+
+    Returns
+    -------
+    str
+        The file name, e.g. ``"cube_4d.npz"``.
+    """
     return f"{kind}_{dim}d.npz"
 
 
@@ -646,7 +720,20 @@ def read(path: str | os.PathLike) -> Table:
 
 
 def save(table: Table, folder: str | os.PathLike) -> Path:
-    """Write ``table`` atomically into ``folder`` as :func:`table_filename`; return the path."""
+    """Write ``table`` atomically into ``folder`` under the name :func:`table_filename` gives.
+
+    Parameters
+    ----------
+    table : Table
+        The table to write.
+    folder : str or path-like
+        The folder to write into.
+
+    Returns
+    -------
+    pathlib.Path
+        The written file.
+    """
     from ._atomic import atomic_open
 
     path = Path(folder) / table_filename(table.dim, table.kind)
@@ -663,6 +750,17 @@ def write_tables(
     progress: bool | None = None,
 ) -> dict[str, float]:
     """Build tables, write them and update ``manifest.json`` in ``folder`` (atomic writes).
+
+    Parameters
+    ----------
+    folder : str or path-like
+        The folder to write into (``lut/`` in the repository).
+    dims : sequence of int
+        Dimensions to build.
+    kinds : sequence of {"cube", "simplex"}
+        Kinds of table to build.
+    progress : bool, optional
+        Show progress; None: only on a terminal.
 
     Returns
     -------
@@ -811,6 +909,23 @@ def stats(table: Table) -> TableStats:
     Classes are counted under the cube's hyperoctahedral group (2^d d! symmetries) for cubes and
     under all permutations of the corners for the simplex (the hull's symmetries; the split of a
     non-simplicial facet then depends on labels), without and with complementation.
+
+    Parameters
+    ----------
+    table : Table
+        A loaded or built table.
+
+    Returns
+    -------
+    TableStats
+        The counts.
+
+    Examples
+    --------
+    >>> from ao4d import lut
+    >>> s = lut.stats(lut.load(3))
+    >>> s.entries, s.classes, s.simplices
+    (256, 22, 836)
     """
     group, classes, with_complement = _class_counts(table.dim, table.kind)
     counts = table.counts

@@ -278,7 +278,13 @@ class SimplexMesh:
         )
 
     def copy(self) -> SimplexMesh:
-        """An independent copy (arrays and data copied; caches not shared)."""
+        """An independent copy (arrays and data copied; caches not shared).
+
+        Returns
+        -------
+        SimplexMesh
+            The copy.
+        """
         return SimplexMesh(
             self._vertices.copy(),
             self._simplices.copy(),
@@ -401,7 +407,13 @@ class SimplexMesh:
         return self._component_labels.copy()
 
     def split(self) -> list[SimplexMesh]:
-        """One mesh per connected component (see :meth:`components`), unused vertices dropped."""
+        """One mesh per connected component (see :meth:`components`), unused vertices dropped.
+
+        Returns
+        -------
+        list of SimplexMesh
+            The components.
+        """
         labels = self._component_labels
         return [self.submesh(labels == c) for c in range(int(labels.max(initial=-1)) + 1)]
 
@@ -440,11 +452,16 @@ class SimplexMesh:
         )
 
     def boundary_faces(self) -> np.ndarray:
-        """(B, d-1) int64: vertex indices of the (d-2)-faces used by only one simplex.
+        """The (d-2)-faces used by only one simplex.
 
         Each face is listed in the orientation its simplex induces on it (the boundary operator),
         so the boundary of an oriented open mesh comes out oriented (in 2D a face is one vertex
         and its sign is not represented); empty for a closed mesh.
+
+        Returns
+        -------
+        (B, d-1) int64 numpy.ndarray
+            Vertex indices of the boundary faces.
         """
         return topology.boundary_faces(self._simplices, self._faces)
 
@@ -500,7 +517,13 @@ class SimplexMesh:
 
     # ---------------------------------------------------------------- transforms
     def flipped(self) -> SimplexMesh:
-        """The same mesh with every simplex's orientation reversed (last two vertices swapped)."""
+        """The same mesh with every simplex's orientation reversed (last two vertices swapped).
+
+        Returns
+        -------
+        SimplexMesh
+            The reversed mesh.
+        """
         simplices = self._simplices.copy()
         simplices[:, [-2, -1]] = simplices[:, [-1, -2]]
         return SimplexMesh(
@@ -519,6 +542,11 @@ class SimplexMesh:
             Linear part; must be invertible.
         offset : (d,) array_like or float
             Translation.
+
+        Returns
+        -------
+        SimplexMesh
+            The transformed mesh, outward oriented like this one.
         """
         d = self.dim
         m = as_array(matrix, "matrix", ndim=2, shape_tail=(d, d), dtype=np.float64, finite=True)
@@ -590,7 +618,13 @@ class SimplexMesh:
 
     # ---------------------------------------------------------------- conversions and I/O
     def to_trimesh(self) -> trimesh.Trimesh:
-        """A 3D mesh as ``trimesh.Trimesh`` (no processing, vertex order kept); 3D only."""
+        """A 3D mesh as ``trimesh.Trimesh`` (no processing, vertex order kept); 3D only.
+
+        Returns
+        -------
+        trimesh.Trimesh
+            The triangles.
+        """
         import trimesh
 
         if self.dim != 3:
@@ -599,7 +633,18 @@ class SimplexMesh:
 
     @classmethod
     def from_trimesh(cls, mesh: trimesh.Trimesh) -> SimplexMesh:
-        """Wrap a ``trimesh.Trimesh`` (its face winding gives the orientation)."""
+        """Wrap a ``trimesh.Trimesh`` (its face winding gives the orientation).
+
+        Parameters
+        ----------
+        mesh : trimesh.Trimesh
+            A 3D triangle mesh.
+
+        Returns
+        -------
+        SimplexMesh
+            The same triangles as a 3D simplex mesh.
+        """
         return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces))
 
     def _arrays(self) -> mesh_files.MeshArrays:
@@ -612,16 +657,32 @@ class SimplexMesh:
         unstructured grid for ParaView (4D: x, y, z as points, w as point array ``"w"``); any
         other suffix (``.txt``): plain text, geometry only. See :mod:`ao4d.mesh_files`.
 
+        Parameters
+        ----------
+        path : str or path-like
+            The file to write.
+
         Returns
         -------
-        Path
+        pathlib.Path
             ``path``.
         """
         return mesh_files.write(path, self._arrays())
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> SimplexMesh:
-        """Read a mesh written by :meth:`save` (format by suffix: ``.npz``, ``.vtu``, else text)."""
+        """Read a mesh written by :meth:`save` (format by suffix: ``.npz``, ``.vtu``, else text).
+
+        Parameters
+        ----------
+        path : str or path-like
+            The file.
+
+        Returns
+        -------
+        SimplexMesh
+            The mesh, with its point and cell data.
+        """
         vertices, simplices, point_data, cell_data = mesh_files.read(path)
         try:
             return cls(vertices, simplices, point_data=point_data, cell_data=cell_data)
@@ -629,13 +690,30 @@ class SimplexMesh:
             raise ValueError(f"`path` {str(path)!r} does not hold a valid mesh: {exc}") from None
 
     def to_vtu(self, path: str | os.PathLike) -> Path:
-        """Write a VTK ``.vtu`` for ParaView: :meth:`save` with a path that must end in ``.vtu``."""
+        """Write a VTK ``.vtu`` for ParaView: :meth:`save` with a path that must end in ``.vtu``.
+
+        Parameters
+        ----------
+        path : str or path-like
+            The file to write, ending in ``.vtu``.
+
+        Returns
+        -------
+        pathlib.Path
+            ``path``.
+        """
         if Path(path).suffix.lower() != ".vtu":
             raise ValueError(f"`path` must end in .vtu, got {str(path)!r}")
         return self.save(path)
 
     def to_pyvista(self):
-        """The mesh as a ``pyvista.UnstructuredGrid`` (the ``.vtu`` layout)."""
+        """The mesh as a ``pyvista.UnstructuredGrid`` (the ``.vtu`` layout).
+
+        Returns
+        -------
+        pyvista.UnstructuredGrid
+            The grid; in 4D x, y, z as points and w as the point array ``"w"``.
+        """
         return mesh_files.to_pyvista(self._arrays())
 
 

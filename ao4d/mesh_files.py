@@ -60,7 +60,17 @@ _TEXT_MAGIC = "ao4d-mesh"
 
 
 class MeshArrays(NamedTuple):
-    """What a mesh file holds: the arguments of :class:`~ao4d.mesh.SimplexMesh`."""
+    """What a mesh file holds: the arguments of :class:`ao4d.SimplexMesh`.
+
+    Attributes
+    ----------
+    vertices : (V, d) numpy.ndarray
+        The vertices.
+    simplices : (S, d) numpy.ndarray
+        The simplices, as vertex indices.
+    point_data, cell_data : mapping of str to numpy.ndarray
+        Arrays per vertex and per simplex.
+    """
 
     vertices: np.ndarray
     simplices: np.ndarray
@@ -84,6 +94,20 @@ def write(path: str | os.PathLike, mesh: MeshArrays, *,
     ``field_data`` (``.npz`` only): small arrays or strings about the whole mesh (how it was
     made: the grid's spacing, the w scale), stored as ``field_data/<name>`` and read back by
     :func:`read_field_data`; other formats leave it out.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file.
+    mesh : MeshArrays
+        The mesh.
+    field_data : mapping of str to array_like or str, optional
+        Data about the whole mesh.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
     """
     if not isinstance(mesh, MeshArrays):
         raise TypeError(f"`mesh` must be a MeshArrays (see SimplexMesh.save), got {type(mesh).__name__}")
@@ -95,7 +119,18 @@ def write(path: str | os.PathLike, mesh: MeshArrays, *,
 
 
 def read_field_data(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """The ``field_data`` a ``.npz`` mesh file holds (:func:`write`); empty for other formats."""
+    """The ``field_data`` a ``.npz`` mesh file holds (:func:`write`); empty for other formats.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        The arrays by name.
+    """
     if _format(path) != "npz":
         return {}
     p = _existing(path)
@@ -107,7 +142,18 @@ def read_field_data(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 
 def read(path: str | os.PathLike) -> MeshArrays:
-    """Read a mesh file in the format its suffix names (``.npz``, ``.vtu``, else text)."""
+    """Read a mesh file in the format its suffix names (``.npz``, ``.vtu``, else text).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file.
+
+    Returns
+    -------
+    MeshArrays
+        What the file holds.
+    """
     reader = {"npz": _load_npz, "vtu": _load_vtu, "text": _load_text}[_format(path)]
     return reader(path)
 
@@ -189,7 +235,18 @@ def _vtk_cell_type(dim: int) -> int:
 
 
 def to_pyvista(mesh: MeshArrays):
-    """The mesh as a ``pyvista.UnstructuredGrid`` (layout as in the module docstring)."""
+    """The mesh as a ``pyvista.UnstructuredGrid`` (layout as in the module docstring).
+
+    Parameters
+    ----------
+    mesh : MeshArrays
+        The mesh.
+
+    Returns
+    -------
+    pyvista.UnstructuredGrid
+        The grid.
+    """
     import pyvista as pv
 
     points = np.zeros((len(mesh.vertices), 3))
@@ -341,10 +398,12 @@ def save_slice_mesh(path: str | os.PathLike, tri, *, occlusion=None, cmap: str =
         Per-vertex occlusion in [0, 1], or the name of one of ``tri.vertex_attributes``.
         Colours show ``1 - occlusion`` with ``cmap``.
     cmap : str
+        A matplotlib colour map.
 
     Returns
     -------
-    Path
+    pathlib.Path
+        ``path``.
     """
     path = Path(path)
     suffix = check_choice(path.suffix.lower(), "path extension", SLICE_SUFFIXES)

@@ -128,7 +128,20 @@ def check_distance(max_distance: Any) -> float:
 
 
 def mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
-    """``mesh``'s vertices (V, d) and simplices (S, d), else an error naming `mesh`."""
+    """``mesh``'s vertex and simplex arrays, else an error naming ``mesh``.
+
+    Parameters
+    ----------
+    mesh : SimplexMesh or any object with ``vertices`` and ``simplices``
+        The mesh.
+
+    Returns
+    -------
+    vertices : (V, d) float64 numpy.ndarray
+        The vertices.
+    simplices : (S, d) int64 numpy.ndarray
+        The simplices, as vertex indices.
+    """
     try:
         vertices, simplices = np.asarray(mesh.vertices), np.asarray(mesh.simplices)
     except AttributeError:
@@ -299,11 +312,27 @@ def _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_
 
 def sample_directions(runtime, normals: np.ndarray, samples: int, seed: int, *,
                       eight: bool = False) -> np.ndarray:
-    """The directions the AO kernel traces, computed on the device: (N, samples, d) float64.
+    """The directions the AO kernel traces, computed on the device.
 
     For tests: they must equal :func:`ao4d.sampling.cosine_hemisphere` on the host. With
     ``eight``, generated eight at a time on vector lanes as the packet AO kernel does
     (``cosine_directions8``); they must be the same bits as one at a time.
+
+    Parameters
+    ----------
+    runtime : ao4d.cl.Runtime
+        The OpenCL device.
+    normals : (N, d) float64
+        Unit normals.
+    samples, seed : int
+        Directions per normal, and the seed of their random shifts.
+    eight : bool
+        Generate them eight at a time.
+
+    Returns
+    -------
+    (N, samples, d) float64 numpy.ndarray
+        The directions.
     """
     import pyopencl as pcl
 
@@ -454,6 +483,7 @@ def cast_rays(
     mesh : SimplexMesh
         A mesh in R^d, d in {2, 3, 4}. Its BVH is built on first use and cached on it.
     origins : (N, d) array_like of float
+        Where the rays start.
     directions : (N, d) array_like of float
         Normalised here; zero-length directions are an error.
     max_distance : float
@@ -620,19 +650,24 @@ def count_occluded(
     Parameters
     ----------
     mesh : SimplexMesh
+        The occluding geometry.
     points, normals : (N, d) float64
-        Unit normals.
+        Query points and their unit normals.
     samples, seed : int
+        Rays per point, and the seed of the directions' random shifts.
     offset, max_distance : float
+        How far above the point the rays start, and their reach (world units).
     runtime : ao4d.cl.Runtime or None
         The OpenCL device, or None for the numpy traversal.
     accel : {"bvh", "brute"}
+        Traverse the BVH, or test every simplex.
     bar : tqdm-like, optional
         Updated with the number of rays traced.
 
     Returns
     -------
     counts : (N,) int64
+        Rays of each point that hit.
     """
     tree = get_bvh(mesh, runtime=runtime)
     bar = _NullBar() if bar is None else bar
@@ -666,12 +701,19 @@ def traversal_counts(
 
     Parameters
     ----------
+    mesh, points, normals, samples, offset, runtime, seed, max_distance : see count_occluded
+        As in :func:`count_occluded`.
     traversal : {"rays", "packet"}
         ``"rays"``: one ray at a time (every visit is one ray's); ``"packet"``: the rays of a
         point together, where a node fetched once serves every ray of the packet.
     detail : bool
         Also return the box tests (ray, wide node) and block tests (ray, block) per ray:
         ``(nodes, blocks, node tests, block tests)``; for ``"rays"`` these equal the first two.
+
+    Returns
+    -------
+    tuple of float
+        ``(nodes per ray, blocks per ray)``, or the four figures with ``detail``.
     """
     check_choice(traversal, "traversal", AO_TRAVERSALS)
     detail = check_bool(detail, "detail")

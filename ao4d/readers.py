@@ -124,7 +124,18 @@ class Grid:
 
 
 def natural_key(text: str) -> list:
-    """Sort key that orders digit runs by value: ``f2`` before ``f10``."""
+    """Sort key that orders digit runs by value: ``f2`` before ``f10``.
+
+    Parameters
+    ----------
+    text : str
+        A file name.
+
+    Returns
+    -------
+    list of str and int
+        The key: text in lower case, digit runs as numbers.
+    """
     return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", text)]
 
 

@@ -2,7 +2,7 @@
 
 One primary ray per voxel (closest hit through :func:`ao4d.raycast.cast_rays`). At a hit with
 ambient occlusion ``A`` (DESIGN.md definition), normal ``n`` turned towards the viewer and, per
-light k, unit direction ``l_k`` towards it, shadow visibility ``V_k`` and intensity ``I_k``:
+light k, unit direction ``l_k`` towards it, shadow visibility ``V_k`` and intensity ``I_k``::
 
     shade = [ambient * (1 - A)
              + sum_k I_k V_k (diffuse * max(0, n . l_k) + specular * max(0, n . h_k)^shininess)]
@@ -12,7 +12,7 @@ with ``h_k`` the 4D Blinn-Phong half-vector of ``l_k`` and the direction to the 
 specular term only where ``n . l_k > 0``, and ``cue`` the depth cue (:mod:`ao4d.lighting`; 1
 without ``depth_cue``). ``V_k`` is 1, or with ``shadows=True`` 0 where an any-hit 4D shadow ray
 from the hit finds the light blocked (with transparent objects: the product of ``1 - opacity``
-over the surfaces the shadow ray crosses). The colour of a hit on an object of RGB colour ``c`` is
+over the surfaces the shadow ray crosses). The colour of a hit on an object of RGB colour ``c`` is::
 
     rgb = [c * (ambient * (1 - A) + sum_k I_k V_k C_k diffuse max(0, n . l_k))
            + sum_k I_k V_k C_k specular max(0, n . h_k)^shininess] * cue(depth)
@@ -160,6 +160,16 @@ class RenderResult:
         rendering also untick *Map Scalars*, and the 4th component sets opacity). Background
         depth and occlusion are stored as NaN (ParaView and ITK leave NaN out of colour ranges;
         inf would stretch them).
+
+        Parameters
+        ----------
+        path : str or path-like
+            The file to write, ending in ``.vti`` or ``.mhd``.
+
+        Returns
+        -------
+        pathlib.Path
+            ``path``.
         """
         path = Path(path)
         spacing, origin = self.geometry.spacing, self.geometry.origin
@@ -173,8 +183,21 @@ class RenderResult:
 
 
 def default_weights(ambient: float | None, diffuse: float | None, lit: bool) -> tuple[float, float]:
-    """``(ambient, diffuse)`` with the defaults filled in: ``ambient`` 1 without a light and 0.7
-    with one, ``diffuse`` 0.3 (their sum stays at most 1 for one light of intensity 1)."""
+    """``(ambient, diffuse)`` with the defaults filled in.
+
+    Parameters
+    ----------
+    ambient, diffuse : float or None
+        The weights given, None for the default.
+    lit : bool
+        Whether there is a light.
+
+    Returns
+    -------
+    tuple of float
+        ``ambient`` (default 1 without a light and 0.7 with one) and ``diffuse`` (default 0.3):
+        their sum stays at most 1 for one light of intensity 1.
+    """
     ambient = (AMBIENT_LIT if lit else AMBIENT) if ambient is None else as_real(ambient, "ambient", ge=0)
     diffuse = DIFFUSE if diffuse is None else as_real(diffuse, "diffuse", ge=0)
     return ambient, diffuse
@@ -221,7 +244,9 @@ def prepare_scene(meshes) -> tuple[Any, np.ndarray]:
     Returns
     -------
     scene : SimplexMesh
+        The joined mesh.
     object_id : (S,) int32
+        The object id of each simplex.
     """
     if isinstance(meshes, SimplexMesh):
         items = [meshes]
@@ -275,6 +300,7 @@ def render(
         4D meshes (closed surfaces or raw open tetrahedra). Lists are joined; the result's
         ``object_id`` is the list position (a single mesh keeps its ``cell_data["object_id"]``).
     camera : Camera4D
+        The 4D camera; its image hyperplane holds the 3D image.
     shape : (3,) tuple of int
         Image size ``(nx, ny, nz)`` along the camera's image axes.
     ao : {"vertices", "hits", "screen", "none"}

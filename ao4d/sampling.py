@@ -55,6 +55,12 @@ def hash32(x: np.ndarray) -> np.ndarray:
     Parameters
     ----------
     x : (...) uint32
+        The values.
+
+    Returns
+    -------
+    (...) uint32
+        Their hashes.
     """
     x = np.asarray(x, dtype=np.uint32).copy()
     x ^= x >> np.uint32(16)
@@ -73,6 +79,7 @@ def point_shifts(index: np.ndarray, seed: int, ndim: int) -> np.ndarray:
     index : (N,) int
         Global point indices (the counter of the hash).
     seed : int
+        The seed of the hash.
     ndim : int
         Number of coordinates per offset (d - 1).
 
@@ -145,6 +152,15 @@ def _read_table(path: Path, samples: int, ndim: int) -> np.ndarray | None:
 def sobol_table(samples: int, ndim: int, *, seed: int = 0) -> np.ndarray:
     """The shared scrambled Sobol points as 24-bit integers.
 
+    Parameters
+    ----------
+    samples : int
+        Number of points.
+    ndim : int
+        Coordinates per point.
+    seed : int
+        Seed of the scrambling.
+
     Returns
     -------
     table : (samples, ndim) uint32, read-only
@@ -183,6 +199,16 @@ def ball_points(u: np.ndarray) -> np.ndarray:
 
     Radius ``u0^(1/k)``; the direction on S^(k-1) from the remaining coordinates (the sign for
     k = 1, an angle for k = 2, Archimedes' z = 1 - 2 u1 and an angle for k = 3).
+
+    Parameters
+    ----------
+    u : (N, k) float64 numpy.ndarray
+        Points of the open unit cube.
+
+    Returns
+    -------
+    (N, k) float64 numpy.ndarray
+        Points of the unit k-ball.
     """
     u = np.asarray(u, dtype=np.float64)
     k = u.shape[-1]
@@ -245,11 +271,21 @@ def cosine_hemisphere(
 
 
 def cosine_moments(d: int) -> tuple[float, float]:
-    """Exact ``E[w . n]`` and ``E[(w . n)^2]`` under the cosine-weighted hemisphere density in R^d.
+    """Exact ``E[w·n]`` and ``E[(w·n)^2]`` under the cosine-weighted hemisphere density in R^d.
 
     With ``t = w . n = sqrt(1 - r^2)`` and ``r^(d-1)`` uniform on (0, 1) (Malley):
     ``E[t] = (d-1) * integral_0^1 r^(d-2) sqrt(1 - r^2) dr = (d-1)/2 * B((d-1)/2, 3/2)`` and
     ``E[t^2] = 1 - E[r^2] = 1 - (d-1)/(d+1) = 2/(d+1)``. In 3D: 2/3 and 1/2; in 4D: 3 pi/16 and 2/5.
+
+    Parameters
+    ----------
+    d : int
+        The dimension.
+
+    Returns
+    -------
+    tuple of float
+        ``E[w·n]`` and ``E[(w·n)^2]``.
     """
     k = d - 1
     mean = k / 2 * math.gamma(k / 2) * math.gamma(1.5) / math.gamma(k / 2 + 1.5)

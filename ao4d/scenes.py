@@ -37,6 +37,25 @@ class SceneObject:
     """One object: a field (negative inside) and the box ``(lo, hi)`` it is extracted in.
 
     The box must contain the solid with a margin, so that the extracted surface is closed.
+
+    Attributes
+    ----------
+    name : str
+        The object's name.
+    field : callable
+        ``(..., 4) -> (...)`` signed distance, negative inside.
+    lo, hi : tuple of float
+        The box the object is extracted in.
+    coarseness : float
+        Grid cell as a multiple of the scene's cell (flat objects need few).
+    min_points : tuple of int
+        Grid points per axis at least.
+    min_step : float
+        Never a finer grid than this.
+    color : tuple of float
+        RGB in [0, 1] (:func:`ao4d.render`'s ``color``).
+    specular : float
+        Blinn-Phong weight (:func:`ao4d.render`'s ``specular``).
     """
 
     name: str
@@ -52,7 +71,25 @@ class SceneObject:
 
 @dataclass(frozen=True)
 class Scene:
-    """Objects (with colours and specular weights), a camera and a light (direction towards it)."""
+    """Objects (with colours and specular weights), a camera and a light (direction towards it).
+
+    Attributes
+    ----------
+    name : str
+        The scene's name.
+    objects : tuple of SceneObject
+        The objects, in object-id order.
+    camera : Camera4D
+        The view.
+    light : (4,) float64 numpy.ndarray or None
+        Unit direction towards the light.
+    max_distance : float
+        Reach of the AO rays.
+    notes : dict
+        Free-form notes.
+    shininess : float
+        Blinn-Phong exponent of every object.
+    """
 
     name: str
     objects: tuple[SceneObject, ...]
@@ -79,6 +116,7 @@ def box(lo, hi) -> Callable[[np.ndarray], np.ndarray]:
     Parameters
     ----------
     lo, hi : (d,) array_like
+        The box's corners.
 
     Returns
     -------
@@ -176,6 +214,7 @@ def extract_scene(
     Parameters
     ----------
     scene : Scene
+        The scene, e.g. :func:`default_scene`.
     cell : float
         Target grid spacing; each object's box gets ``ceil(extent / step) + 1`` points per
         axis with ``step = max(cell * coarseness, min_step)`` (at least the object's

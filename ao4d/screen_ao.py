@@ -128,11 +128,18 @@ class DepthVolume:
         Parameters
         ----------
         camera : Camera4D
+            The camera that cast the rays.
         shape : (3,) tuple of int
+            The image's voxels along x, y, z.
         depth : (nx * ny * nz,) or (nx, ny, nz) array_like
             inf (or NaN) where no ray hit.
         normals : (nx * ny * nz, 4) or (nx, ny, nz, 4) array_like
             Viewer-facing normals (normalised here); ignored on background.
+
+        Returns
+        -------
+        DepthVolume
+            The volume.
         """
         if not isinstance(camera, Camera4D):
             raise TypeError(f"`camera` must be an ao4d.Camera4D, got {type(camera).__name__}")
@@ -166,8 +173,16 @@ class DepthVolume:
         mesh : SimplexMesh
             A 4D mesh (join several with :func:`ao4d.mesh.concatenate`).
         camera : Camera4D
+            The view.
         shape : (3,) tuple of int
+            The image's voxels along x, y, z.
         backend : {"auto", "opencl", "numpy"}
+            Where the rays are cast.
+
+        Returns
+        -------
+        DepthVolume
+            The volume.
         """
         from .raycast import cast_rays
 
@@ -194,7 +209,13 @@ class DepthVolume:
         return np.isfinite(self.depth)
 
     def hit_points(self) -> np.ndarray:
-        """(V, 4) float64: the visible points of the hit voxels (C order)."""
+        """The visible points of the hit voxels (C order).
+
+        Returns
+        -------
+        (V, 4) float64 numpy.ndarray
+            The points.
+        """
         origins, directions = (a[self.hit] for a in self.camera.rays(self.shape))
         return origins + self.depth[self.hit][:, None] * directions
 
@@ -216,8 +237,13 @@ class DepthVolume:
         return np.ascontiguousarray(self.gbuffer, dtype=np.float32)
 
     def default_reach(self) -> float:
-        """The reach used for ``max_distance=inf``, and the most any reach marches: the
-        diagonal of the visible points' box (the image's extent)."""
+        """The reach used for ``max_distance=inf``, and the most any reach marches.
+
+        Returns
+        -------
+        float
+            The diagonal of the visible points' box (the image's extent), in world units.
+        """
         return self._extent
 
     @cached_property
@@ -354,6 +380,18 @@ def default_steps(volume: DepthVolume, max_distance: float) -> int:
     """March points per direction by default: ``ceil(L / (STEP_VOXELS voxel sizes))`` clipped to
     ``[MIN_STEPS, MAX_STEPS]``, with ``L`` the reach (``inf``: the visible points' diagonal) and
     the voxel size at the target's distance.
+
+    Parameters
+    ----------
+    volume : DepthVolume
+        The depth volume.
+    max_distance : float
+        The reach.
+
+    Returns
+    -------
+    int
+        March points per direction.
 
     Examples
     --------
@@ -493,7 +531,18 @@ def _opencl_denoise(runtime, volume, occ, f, radius, tolerance, normal_min) -> n
 
 
 def viewer_side(normals: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    """(H,) +1 where a normal faces against its ray (its front is seen), -1 where along it."""
+    """+1 where a normal faces against its ray (its front is seen), -1 where along it.
+
+    Parameters
+    ----------
+    normals, directions : (H, 4) float64 numpy.ndarray
+        Normals and ray directions.
+
+    Returns
+    -------
+    (H,) numpy.ndarray
+        The signs.
+    """
     return np.where(np.einsum("hd,hd->h", normals, directions) > 0, -1.0, 1.0)
 
 

@@ -57,7 +57,20 @@ def hyperplane_basis(normal: Any) -> np.ndarray:
 
 
 def unit_normal(normal: Any, d: int) -> np.ndarray:
-    """``normal`` as a unit (d,) float64 vector; an error naming `normal` if it is zero or not finite."""
+    """``normal`` as a unit vector; an error naming ``normal`` if it is zero or not finite.
+
+    Parameters
+    ----------
+    normal : (d,) array_like
+        The normal.
+    d : int
+        The dimension.
+
+    Returns
+    -------
+    (d,) float64 numpy.ndarray
+        The unit normal.
+    """
     n = as_array(normal, "normal", ndim=1, shape_tail=(d,), dtype=np.float64, finite=True)
     length = float(np.linalg.norm(n))
     if not length > 0.0:
@@ -113,7 +126,23 @@ SLICE_CASES = _slice_cases()
 def slice_mesh(mesh: Any, origin: np.ndarray, normal: np.ndarray, names: list[str]):
     """The cut of ``mesh`` (a 4D SimplexMesh) by the plane through ``origin`` with unit ``normal``.
 
-    See :meth:`ao4d.mesh.SimplexMesh.slice` for the conventions; no validation here.
+    See :meth:`ao4d.SimplexMesh.slice` for the conventions; no validation here.
+
+    Parameters
+    ----------
+    mesh : SimplexMesh
+        A 4D mesh.
+    origin : (4,) float64 numpy.ndarray
+        A point of the hyperplane.
+    normal : (4,) float64 numpy.ndarray
+        The hyperplane's unit normal.
+    names : list of str
+        Point data arrays of ``mesh`` to interpolate onto the cut.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        The cut in the hyperplane's 3D coordinates, the named arrays as vertex attributes.
     """
     import trimesh
 

@@ -416,7 +416,15 @@ def warn_if_inside_out(mesh: Any, consequence: str, *, stacklevel: int = 3) -> N
     """Warn when ``mesh`` is closed but encloses a negative volume (normals point inwards).
 
     The volume is cheap and cached; the closedness check runs only when it is negative.
-    ``consequence`` says what the caller's result will look like (e.g. "AO will be 1 everywhere").
+
+    Parameters
+    ----------
+    mesh : SimplexMesh
+        The mesh to check.
+    consequence : str
+        What the caller's result will look like (e.g. "AO will be 1 everywhere").
+    stacklevel : int
+        Passed to :func:`warnings.warn`.
     """
     if getattr(mesh, "check", None) is None or mesh.n_simplices == 0 or mesh.volume >= 0:
         return

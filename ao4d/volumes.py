@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from ._atomic import all_or_nothing, atomic_open, atomic_path
+from ._atomic import all_or_nothing, atomic_open
 from ._validate import as_array, as_vector, check_choice
 
 __all__ = ["Volume", "write_mhd", "read_mhd", "write_vti", "read_vti", "write_volume", "read_volume",
@@ -81,7 +81,20 @@ class Volume:
 
 
 def volume_array(data, name: str = "data") -> np.ndarray:
-    """``data`` as a 3D numeric array (booleans as uint8), else an error naming ``name``."""
+    """``data`` as a 3D numeric array (booleans as uint8), else an error naming ``name``.
+
+    Parameters
+    ----------
+    data : array_like
+        The voxels.
+    name : str
+        The parameter named in the error.
+
+    Returns
+    -------
+    (nx, ny, nz) numpy.ndarray
+        The array.
+    """
     arr = as_array(data, name, ndim=3, min_size=1)
     if arr.dtype == bool:
         arr = arr.astype(np.uint8)
@@ -160,6 +173,18 @@ def check_mhd_path(path: str | os.PathLike, name: str = "path") -> Path:
     The header must end in ``.mhd``, and the data file it names (the same name with ``.raw``)
     must be ASCII: MetaIO headers are ASCII text, and ITK and VTK read the name as bytes. Checked
     before any work, so no file is written for a name the header cannot hold.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The header's path.
+    name : str
+        The parameter named in the error.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
     """
     path = Path(path)
     if path.suffix.lower() != ".mhd":
@@ -222,7 +247,13 @@ def read_mhd(path: str | os.PathLike) -> Volume:
 
 
 def pyvista_offscreen():
-    """Import pyvista for off-screen use, silencing VTK's harmless missing-X-server warning."""
+    """Import pyvista for off-screen use, silencing VTK's harmless missing-X-server warning.
+
+    Returns
+    -------
+    module
+        ``pyvista``.
+    """
     import pyvista as pv
     import vtk
 
@@ -301,7 +332,8 @@ def write_vti(path: str | os.PathLike, arrays, *, spacing=1.0, origin=0.0) -> Pa
 
     Returns
     -------
-    Path
+    pathlib.Path
+        ``path``.
 
     Examples
     --------
@@ -399,12 +431,14 @@ def read_vti(path: str | os.PathLike, *, array: str | None = None) -> Volume:
     Parameters
     ----------
     path : path-like
+        The ``.vti`` file.
     array : str, optional
         Array name; default the active scalars (the first array :func:`write_vti` wrote).
 
     Returns
     -------
     Volume
+        The array with its grid.
     """
     path = Path(path)
     if not path.is_file():
@@ -426,7 +460,22 @@ def read_vti(path: str | os.PathLike, *, array: str | None = None) -> Volume:
 
 
 def write_volume(path: str | os.PathLike, data, *, spacing=1.0, origin=0.0) -> Path:
-    """Write a 3D array as ``.mhd`` (+ ``.raw``) or ``.vti``, chosen by the file extension."""
+    """Write a 3D array as ``.mhd`` (+ ``.raw``) or ``.vti``, chosen by the file extension.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file, ending in ``.mhd`` or ``.vti``.
+    data : (nx, ny, nz) array_like
+        The voxels.
+    spacing, origin : float or (3,) array_like
+        Voxel size and the position of voxel (0, 0, 0).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     suffix = Path(path).suffix.lower()
     check_choice(suffix, "path extension", (".mhd", ".vti"))
     if suffix == ".mhd":
@@ -435,7 +484,20 @@ def write_volume(path: str | os.PathLike, data, *, spacing=1.0, origin=0.0) -> P
 
 
 def read_volume(path: str | os.PathLike, *, array: str | None = None) -> Volume:
-    """Read a ``.mhd`` or ``.vti`` volume (``array`` picks a ``.vti`` array)."""
+    """Read a ``.mhd`` or ``.vti`` volume.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file.
+    array : str, optional
+        The ``.vti`` array to read; default the active one.
+
+    Returns
+    -------
+    Volume
+        The array with its grid.
+    """
     suffix = Path(path).suffix.lower()
     check_choice(suffix, "path extension", (".mhd", ".vti"))
     return read_mhd(path) if suffix == ".mhd" else read_vti(path, array=array)

@@ -133,7 +133,13 @@ class Config:
         return hashlib.sha256(self.text.encode("utf-8")).hexdigest()
 
     def items(self) -> list[ItemSpec]:
-        """Every item of the run, in index order."""
+        """Every item of the run, in index order.
+
+        Returns
+        -------
+        list of ItemSpec
+            The items' families, parameters and indices.
+        """
         out: list[ItemSpec] = []
         for fam in self.families:
             base = len(out)
@@ -142,13 +148,29 @@ class Config:
 
 
 def shipped_configs() -> list[str]:
-    """Names of the configurations shipped in ``datasets_gen/configs``."""
+    """Names of the configurations shipped in ``datasets_gen/configs``.
+
+    Returns
+    -------
+    list of str
+        The names, sorted.
+    """
     folder = resources.files("datasets_gen").joinpath("configs")
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
 def load_config(config: str | Path) -> Config:
     """Read and validate a configuration by path or by shipped name (``"smoke"``, ``"tori"``...).
+
+    Parameters
+    ----------
+    config : str or pathlib.Path
+        A TOML file, or the name of a shipped configuration (:func:`shipped_configs`).
+
+    Returns
+    -------
+    Config
+        The validated configuration.
 
     Raises
     ------

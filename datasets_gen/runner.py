@@ -103,13 +103,25 @@ class RunSummary:
     made_items: set[int] = field(default_factory=set, repr=False)
 
     def add_timing(self, seconds: dict[str, float]) -> None:
-        """Add one made item's stage seconds."""
+        """Add one made item's stage seconds.
+
+        Parameters
+        ----------
+        seconds : dict of str to float
+            Seconds per stage of one item.
+        """
         for name, value in seconds.items():
             self.stages[name] = self.stages.get(name, 0.0) + float(value)
 
     def stage_table(self) -> str:
-        """Per-stage seconds summed over the items made, per item and as a share of the
-        items' total (renders and pictures grouped: ``render_*``, ``picture_*``)."""
+        """Per-stage seconds summed over the items made, per item and as a share of the total.
+
+        Returns
+        -------
+        str
+            The table, one line per stage (renders and pictures grouped: ``render_*``,
+            ``picture_*``).
+        """
         grouped: dict[str, float] = {}
         for name, value in self.stages.items():
             key = name.split("_")[0] + "_*" if name.startswith(("render_", "picture_")) else name
@@ -143,7 +155,20 @@ class RunSummary:
 
 
 def item_seed(seed: int, index: int) -> np.random.SeedSequence:
-    """The seed sequence of item ``index`` of a run with ``seed``."""
+    """The seed sequence of item ``index`` of a run with ``seed``.
+
+    Parameters
+    ----------
+    seed : int
+        The run's seed.
+    index : int
+        The item's index.
+
+    Returns
+    -------
+    numpy.random.SeedSequence
+        ``SeedSequence([seed, index])``: everything random about the item is drawn from it.
+    """
     return np.random.SeedSequence([int(seed), int(index)])
 
 
@@ -501,6 +526,7 @@ def run(
     Returns
     -------
     RunSummary
+        What was made and skipped, and the time per stage.
 
     Raises
     ------

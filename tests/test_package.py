@@ -144,3 +144,70 @@ def test_long_files_say_why():
         if text.count("\n") > 720:
             head = "\n".join(text.splitlines()[:40]).lower()
             assert "one module" in head or "why this file is long" in head, path.name
+
+
+# -- the project's files: licence, citation, changelog, version, typing marker ----------------
+
+ROOT = PACKAGE.parent
+
+
+def _pyproject() -> dict:
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover
+        import tomli as tomllib
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())
+
+
+def test_version_is_written_once_and_shown_by_the_command_line():
+    project = _pyproject()
+    assert "version" not in project["project"] and "version" in project["project"]["dynamic"]
+    assert project["tool"]["hatch"]["version"]["path"] == "ao4d/__init__.py"
+    out = subprocess.run([sys.executable, "-m", "ao4d", "--version"], capture_output=True, text=True,
+                         check=True, timeout=120, cwd=ROOT).stdout
+    assert out.strip() == f"ao4d {ao4d.__version__}"
+
+
+def test_extras_for_tests_docs_and_lint():
+    extras = _pyproject()["project"]["optional-dependencies"]
+    assert {"test", "docs", "lint"} <= set(extras)
+    assert any(req.startswith("sphinx") for req in extras["docs"])
+    assert any(req.startswith("ruff") for req in extras["lint"])
+    rules = set(_pyproject()["tool"]["ruff"]["lint"]["select"])
+    assert {"F", "E", "W", "I", "NPY", "B"} <= rules
+
+
+def test_py_typed_ships_with_the_package():
+    assert (PACKAGE / "py.typed").is_file()
+
+
+def test_license_is_the_bsd_3_clause_text():
+    text = (ROOT / "LICENSE").read_text()
+    assert text.startswith("BSD 3-Clause License")
+    assert "the ao4d developers" in text
+    assert "Neither the name of the copyright holder nor the names of its" in text
+
+
+def test_citation_cff_has_the_required_keys_and_references():
+    yaml = pytest.importorskip("yaml")
+    cff = yaml.safe_load((ROOT / "CITATION.cff").read_text())
+    assert cff["cff-version"] == "1.2.0"
+    for key in ("message", "title", "authors"):
+        assert cff[key], key
+    assert str(cff["version"]) == ao4d.__version__
+    titles = {ref["title"]: ref for ref in cff["references"]}
+    paper = titles["Isosurfacing in higher dimensions"]
+    assert paper["year"] == 2000 and [a["family-names"] for a in paper["authors"]] == [
+        "Bhaniramka", "Wenger", "Crawfis"]
+    thesis = titles["Ambient Occlusion in 4D"]
+    assert thesis["type"] == "thesis" and thesis["year"] == 2021
+    assert "Heidelberg" in thesis["institution"]["name"]
+    for ref in cff["references"]:
+        assert ref["authors"] and ref["type"] and ref["title"]
+
+
+def test_changelog_starts_with_this_version():
+    text = (ROOT / "CHANGELOG.md").read_text()
+    assert "Keep a Changelog" in text
+    releases = [line for line in text.splitlines() if line.startswith("## [") and "Unreleased" not in line]
+    assert releases[0].startswith(f"## [{ao4d.__version__}]")

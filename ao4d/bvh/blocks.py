@@ -68,7 +68,7 @@ def _levels(meta: np.ndarray) -> list[np.ndarray]:
 def block_ranges(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarray]:
     """First tree-order simplex and simplex count (B,) int64 of every leaf block: each binary
     leaf, in simplex order, becomes ``ceil(count / lanes)`` consecutive blocks, block k holding
-    its simplices ``k * lanes .. (k + 1) * lanes - 1``. The collapse does not change them, so
+    its simplices ``k * lanes`` to ``(k + 1) * lanes - 1``. The collapse does not change them, so
     :mod:`ao4d.bvh.device` fills the blocks on the device while the host collapses."""
     leaves, per_leaf, first_block = _leaf_blocks(tree, lanes)
     start = -tree.meta[leaves, 0].astype(np.int64) - 1

@@ -63,10 +63,11 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
     Parameters
     ----------
     mesh : SimplexMesh or any object with ``vertices`` and ``simplices``
+        The mesh whose tree is wanted.
     leaf_size : int
         Most simplices per leaf.
     builder : {"auto", "host", "device"}
-        ``"host"``: :func:`ao4d.bvh.host.build` (numpy); ``"device"``: :func:`ao4d.bvh.device.build` on
+        ``"host"``: ``ao4d.bvh.host.build`` (numpy); ``"device"``: ``ao4d.bvh.device.build`` on
         ``runtime`` (default: the device :func:`ao4d.cl.get_runtime` chooses). ``"auto"``: a
         tree already cached for the mesh, whichever built it; else the device builder when
         ``runtime`` is given (the ray-casting functions pass theirs), the host builder otherwise.
@@ -76,9 +77,11 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
     Returns
     -------
     ao4d.bvh.BVH
-        A :class:`ao4d.bvh.device.DeviceBVH` when built on the device. Its geometry is in the
+        A ``DeviceBVH`` (``ao4d.bvh.device``) when built on the device. Its geometry is in the
         tree's coordinates, ``tree.frame.points(mesh.vertices)``: rays must be mapped likewise.
 
+    Notes
+    -----
     Uses the mesh's ``cache`` dict when it has one (dropped when the mesh changes); otherwise a
     weak-keyed cache checked against a hash of the vertex and simplex arrays.
     """

@@ -289,8 +289,8 @@ class _Job:
 
     def read(self, *pairs) -> None:
         """Copy each (host array, device buffer) pair to the host."""
-        for host, dev in pairs:
-            self.cl.enqueue_copy(self.queue, host, dev)
+        for array, dev in pairs:
+            self.cl.enqueue_copy(self.queue, array, dev)
 
 
 @dataclass
