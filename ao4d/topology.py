@@ -10,7 +10,6 @@ arrays and do no validation.
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 from typing import Any
 

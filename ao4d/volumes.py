@@ -300,7 +300,7 @@ def read_vtk_image(path: str | os.PathLike, name: str = "path") -> Any:
         vtk.vtkObject.SetGlobalWarningDisplay(shown)
     why = None
     if grid is None or caught:
-        why = " ".join(str(w.message).split())[:300] if caught else "VTK read nothing"
+        why = " ".join(" ".join(str(m.message) for m in caught).split())[:300] if caught else "VTK read nothing"
     elif not list(grid.point_data.keys()):
         why = "VTK read no point-data arrays (it reads a damaged or cut-short file as an empty grid)"
     else:

@@ -303,7 +303,7 @@ def parse_size(text: str) -> int:
     """``"1GB"``, ``"250MB"``, ``"64kB"`` or a plain byte count -> bytes (decimal units)."""
     units = {"kb": 10**3, "mb": 10**6, "gb": 10**9, "tb": 10**12, "b": 1}
     t = str(text).strip().lower()
-    for suffix, factor in units.items():
+    for suffix, factor in units.items():  # noqa: B007 (factor is used after the break)
         if t.endswith(suffix) and t[: -len(suffix)].strip():
             number = t[: -len(suffix)].strip()
             break

@@ -137,6 +137,16 @@ def test_truncated_vti_is_named_unreadable(tmp_path):
             io.read_vti(tmp_path / "t.vti")
 
 
+def test_vtk_reader_failure_is_quoted(tmp_path, monkeypatch):
+    # pyvista raising (some damage does) is reported with VTK's own words, whitespace folded
+    path = io.write_vti(tmp_path / "a.vti", _ramp())
+
+    def broken(_path):
+        raise RuntimeError("bad\n   header   line")
+
+    monkeypatch.setattr(io.pyvista_offscreen(), "read", broken)
+    with pytest.raises(ValueError, match=r"unreadable or truncated .*bad header line"):
+        io.read_vti(path)
 
 
 def _vtk_read_arrays(path):
