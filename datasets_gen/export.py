@@ -145,7 +145,11 @@ def _check_out(out: Path, marker: dict) -> None:
         for stray in out.iterdir():  # temporary files of a killed write
             if stray.name.startswith(".") and ".tmp" in stray.name:
                 stray.unlink()
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"cannot create the folder `out` {str(out)!r}: "
+                         f"{exc.strerror or exc}") from None
 
 
 def _sha256(path: Path) -> str:

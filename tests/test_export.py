@@ -144,6 +144,9 @@ def test_refuses_a_non_empty_folder_and_bad_arguments(tmp_path, dataset):
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
     with pytest.raises(ValueError, match="`format`"):
         export(dataset, tmp_path / "x", format="zip")
+    (tmp_path / "file").write_text("not a folder")
+    with pytest.raises(ValueError, match="cannot create the folder `out`"):
+        export(dataset, tmp_path / "file" / "shards", format="parquet")
     with pytest.raises(ValueError, match="`shard_size`"):
         export(dataset, tmp_path / "x", format="parquet", shard_size=10)
     assert parse_size("1GB") == 10**9 and parse_size("64kB") == 64_000 and parse_size("5000") == 5000
