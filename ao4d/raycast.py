@@ -18,7 +18,8 @@ The trees and their device copies come from :func:`ao4d.bvh.get_bvh` and
 before they are rounded for the kernels.
 
 Work is split into launches of at most ``RAYS_PER_LAUNCH`` rays with a tqdm bar; Ctrl-C stops
-between launches.
+between launches. It stays one module: the three traversals share the ray checks, the frame
+mapping and the launch loop.
 """
 
 from __future__ import annotations
