@@ -9,7 +9,7 @@
 // output in the numpy engine's order (ao4d/cells.py):
 //
 //   sign        per point: 1 where the value is positive (one comparison in the value's own
-//               type against a threshold that makes it exact: ao4d/cells.py's _threshold)
+//               type against a threshold that makes it exact: ao4d/cells.py's threshold)
 //   classify    per point: the cell's case (bit v = corner v positive; 0 when no simplex) and
 //               the bit mask of the crossed edges starting here that are new in this slab (not
 //               carried from the slab below)
@@ -446,7 +446,7 @@ __kernel CHUNK_KERNEL void number(
 __kernel SCALAR_KERNEL void emit32(EMIT_ARGS, __global int *out) { EMIT_BODY(out) }
 __kernel SCALAR_KERNEL void emit64(EMIT_ARGS, __global long *out) { EMIT_BODY(out) }
 
-// One work-item per new vertex: its position, with cells.py's _interpolate's operations in the
+// One work-item per new vertex: its position, with cells.py's interpolate's operations in the
 // same order (t = (level - f0) / (f1 - f0) clipped to [0, 1], NaN (the infinite padding of
 // closed=True) taken as 1; origin + spacing * (index + t * bit)), so with FP64 the same bits.
 __kernel void interpolate(

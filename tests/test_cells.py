@@ -197,3 +197,63 @@ def test_narrow_dtypes_are_compared_with_the_level_as_given(d, dtype, level):
             assert got.n_simplices == ref.n_simplices > 0
             np.testing.assert_array_equal(got.simplices, ref.simplices)
             np.testing.assert_array_equal(got.vertices, ref.vertices)  # t in float64 as well
+
+
+class _Bar:
+    def __init__(self):
+        self.done = 0
+
+    def update(self, n):
+        self.done += n
+
+
+@pytest.mark.parametrize("layers", [1, 2, 3, 7, 100])
+def test_the_slab_loop_covers_the_grid_with_shared_layers(layers):
+    """Job.slabs, the loop of both engines: consecutive slabs share their boundary layer, the
+    last one ends at the grid's last layer, progress counts every cell layer once, and the
+    values are checked when asked."""
+    values = np.arange(8 * 3 * 2, dtype=float).reshape(8, 3, 2)
+    reads = []
+
+    def read(a, b):
+        reads.append((a, b))
+        return values[a:b]
+
+    bar = _Bar()
+    job = cells.Job(read, _geometry(values.shape), 0.0, cells.cell_table(3, "cubes"), "below",
+                    layers, check_values=True, progress=bar)
+    got = [(z0, z1, slab) for z0, z1, slab in job.slabs()]
+    ranges = [(z0, z1) for z0, z1, _ in got]
+    want = [(z, min(z + layers, 7)) for z in range(0, 7, layers)]
+    assert ranges == want and reads == [(a, b + 1) for a, b in want] and bar.done == 7
+    for z0, z1, slab in got:
+        np.testing.assert_array_equal(slab, values[z0:z1 + 1])
+    assert [z for z, _, _ in job.slabs(3, report=False)] == [0, 3, 6] and bar.done == 7
+    values[5, 1, 1] = np.nan
+    with pytest.raises(ValueError, match="values"):
+        list(job.slabs())
+
+
+def test_frame_gives_each_engine_axis_its_index_origin_and_spacing():
+    """What cells.interpolate adds and scales and the device kernel receives: per engine axis
+    (engine axis e holds user axis perm[e]) the slab's first grid index, with a block's offset,
+    the origin and the spacing."""
+    geom = cells.Geometry((4, 5, 6), (2, 0, 1), np.array([0.5, -1.0, 2.0]), np.array([0.1, 0.2, 0.3]),
+                          np.array([10, 20, 30]))
+    index, origin, spacing = geom.frame(3)
+    assert index == [3 + 30, 10, 20] and origin == [2.0, 0.5, -1.0] and spacing == [0.3, 0.1, 0.2]
+    assert _geometry((4, 5)).frame(2)[0] == [2, 0]
+
+
+def test_join_concatenates_parts_in_their_index_type_or_widened():
+    d = 3
+    parts = [cells.SlabMesh(np.full((k, d), float(k)), np.full((k + 1, d), k, dtype=np.int32),
+                            np.zeros(0), np.zeros(0), np.zeros(0)) for k in (1, 2)]
+    v, s = cells.join(parts, d)
+    assert v.shape == (3, d) and s.dtype == np.int32 and s.shape == (5, d)
+    v, s = cells.join(parts, d, widen=True)
+    assert s.dtype == np.int64 and s[:2].tolist() == [[1] * d] * 2 and s[2:].tolist() == [[2] * d] * 3
+    v, s = cells.join(parts[:1], d, widen=True)
+    assert s is parts[0].simplices and v is parts[0].vertices  # one part: no copy
+    v, s = cells.join([], d)
+    assert v.shape == (0, d) and s.shape == (0, d) and s.dtype == np.int64

@@ -270,6 +270,22 @@ def test_reference_catches_a_broken_face_grouping(monkeypatch, d, broken):
     assert caught == len(meshes)
 
 
+@pytest.mark.parametrize("d", DIMS, ids=lambda d: f"{d}D")
+def test_face_multiplicity_counts_the_simplices_of_each_face(d):
+    """Faces.multiplicity (what lift.TetSolid.boundary reads): entry (i, k) is how many
+    simplices have simplex i's face opposite its local vertex k, as the reference counts."""
+    from _topology_reference import face_table
+
+    rng = np.random.default_rng([d, 9])
+    for defect in ("holes", "duplicated", "glued"):
+        mesh = _defective(d, defect, rng)
+        rows = mesh.simplices.tolist()
+        table = face_table(rows)
+        want = [[len(table[tuple(sorted(r[:k] + r[k + 1:]))]) for k in range(d)] for r in rows]
+        got = topology.face_structure(mesh.simplices, mesh.n_vertices).multiplicity
+        assert got.tolist() == want
+
+
 @pytest.mark.parametrize("path", ["mixed-keys", "row-sort"])
 @pytest.mark.parametrize("d", DIMS, ids=lambda d: f"{d}D")
 def test_face_grouping_paths_agree(monkeypatch, d, path):
