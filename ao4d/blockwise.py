@@ -67,13 +67,14 @@ from typing import Any
 import numpy as np
 
 from .cells import (
-    _PROGRESS_CELLS,
-    _cell_table,
-    _check_slab_memory,
-    _Geometry,
-    _layers_per_slab,
-    _march_slabs,
-    _Plan,
+    PROGRESS_CELLS,
+    Geometry,
+    Job,
+    Plan,
+    cell_table,
+    check_slab_memory,
+    layers_per_slab,
+    march_slabs,
     outside_value,
 )
 from . import cells_device
@@ -241,25 +242,24 @@ def _block_mesh(values: np.ndarray, offset: tuple[int, ...], spec: _Spec) -> _Bl
                       for o, m, n in zip(offset, values.shape, spec.shape))
         check_finite(values[inner], "values")
     shift = 1 if spec.padded else 0
-    geom = _Geometry(tuple(values.shape), spec.perm, np.asarray(spec.origin),
+    geom = Geometry(tuple(values.shape), spec.perm, np.asarray(spec.origin),
                      np.asarray(spec.spacing), np.asarray(offset, dtype=np.int64) - shift)
-    table = _cell_table(d, spec.method)
+    table = cell_table(d, spec.method)
 
     def read(a: int, b: int) -> np.ndarray:  # as ao4d.extract reads its slabs
         slab = values[a:b]
         return slab if slab.dtype.kind == "f" else slab.astype(np.float64)
 
-    layers = _layers_per_slab(spec.chunk, geom, spec.method)
+    layers = layers_per_slab(spec.chunk, geom, spec.method)
     runtime = cells_device.get_runtime(spec.backend)  # the worker's own device, if any
-    kwargs = dict(table=table, inside=spec.inside, layers_per_slab=layers,
-                  check_values=not spec.padded, progress=None)
+    job = Job(read, geom, spec.level, table, spec.inside, layers, check_values=not spec.padded)
     if runtime is not None and cells_device.fits(geom, layers, table):
-        parts = list(cells_device.march_slabs(read, geom, spec.level, runtime=runtime, **kwargs))
+        parts = list(cells_device.march_slabs(job, runtime=runtime))
     else:
-        parts = list(_march_slabs(read, geom, spec.level, **kwargs))
+        parts = list(march_slabs(job))
     if not parts:
         return _empty_block(d)
-    n_dirs = _Plan.make(table, geom).n_dirs
+    n_dirs = table.n_dirs
     start = [int(offset[axis]) for axis in spec.perm]
     grid = tuple(spec.shape[axis] for axis in spec.perm)
     keys = _to_global(np.concatenate([p.keys for p in parts]), geom.shape, start, grid, n_dirs)
@@ -309,9 +309,9 @@ def _check_blocks(ranges: list, spec: _Spec, itemsize: int, what: str) -> None:
     # the largest block must fit one worker's slab working set (checked before any work)
     biggest = tuple(max(r[k][1] - r[k][0] for r in ranges) for k in range(len(spec.shape)))
     engine = tuple(biggest[axis] for axis in spec.perm)
-    geom = _Geometry(engine, spec.perm, np.zeros(len(engine)), np.ones(len(engine)))
-    layers = _layers_per_slab(spec.chunk, geom, spec.method)
-    _check_slab_memory(geom, min(layers, engine[0] - 1), spec.method, itemsize)
+    geom = Geometry(engine, spec.perm, np.zeros(len(engine)), np.ones(len(engine)))
+    layers = layers_per_slab(spec.chunk, geom, spec.method)
+    check_slab_memory(geom, min(layers, engine[0] - 1), spec.method, itemsize)
 
 
 def _distributed_client(tasks: list) -> Any:
@@ -367,10 +367,10 @@ def _weld(blocks: list[_BlockMesh], spec: _Spec, d: int) -> SimplexMesh:
     # The slab path numbers vertices slab by slab, in key order within a slab; an edge lying in
     # a slab-boundary layer is numbered by the slab below. Reproduce that order.
     engine = tuple(spec.shape[axis] for axis in spec.perm)
-    geom = _Geometry(engine, spec.perm, np.zeros(d), np.ones(d))
-    table = _cell_table(d, spec.method)
-    plan = _Plan.make(table, geom)
-    layers = _layers_per_slab(spec.chunk, geom, spec.method)
+    geom = Geometry(engine, spec.perm, np.zeros(d), np.ones(d))
+    table = cell_table(d, spec.method)
+    plan = Plan.make(table, geom)
+    layers = layers_per_slab(spec.chunk, geom, spec.method)
     point, direction = np.divmod(unique, plan.n_dirs)
     z = point // geom.layer
     slab = np.where(plan.in_plane[direction] & (z > 0), (z - 1) // layers, z // layers)
@@ -401,7 +401,7 @@ def _run(func: Callable, block_args: list[tuple], spec: _Spec, progress: bool | 
              for n, args in enumerate(block_args)]
     n_cells = math.prod(n - 1 for n in spec.shape)
     bar = None
-    if (n_cells >= _PROGRESS_CELLS) if progress is None else progress:
+    if (n_cells >= PROGRESS_CELLS) if progress is None else progress:
         from . import _progress
 
         bar = _progress.bar(len(tasks), "extract", unit="block")

@@ -6,7 +6,7 @@ How the core works (all numpy, no Python loop over cells):
 
 1. Per slab of grid layers, classify every cell: bit v of its case is set iff corner v is
    positive (``f >= level``; DESIGN.md), compared as the user means it: the level in float64
-   against the value widened. :func:`_threshold` turns that into one comparison in the data's
+   against the value widened. :func:`threshold` turns that into one comparison in the data's
    own dtype (``f >= thr``, thr the smallest value of the dtype that is >= level), so float16,
    float32 and integer data are neither widened nor compared with a rounded level. The bits are
    combined axis by axis (d passes over the slab instead of 2^d).
@@ -27,11 +27,13 @@ The cell tables are expressed in user axes; a slab axis other than axis 0 (field
 along the last axis, Fortran arrays are read transposed) only changes the strides used to turn
 corners into memory offsets, so the mesh never depends on the memory layout.
 
-The engine marches any grid that a ``read(a, b)`` callable serves slab by slab; a grid that is a
-block of a larger one carries its index ``offset`` (:class:`_Geometry`), and
-:func:`_march_slabs` reports each slab's vertices with their edge keys and active cells, which
-is what block-wise welding needs. The names are private to the package (imported by march and
-blockwise only).
+The engine marches any grid that a ``read(a, b)`` callable serves slab by slab (a :class:`Job`,
+whose :meth:`Job.slabs` is the slab loop of both engines); a grid that is a block of a larger
+one carries its index ``offset`` (:class:`Geometry`), and :func:`march_slabs` reports each
+slab's vertices with their edge keys and active cells, which is what block-wise welding needs.
+The device engine (:mod:`ao4d.cells_device`) takes the same :class:`Job` and gives the same
+arrays. The names without an underscore are shared inside the package (march, cells_device and
+blockwise import them); none is part of the public API.
 
 References
 ----------
@@ -48,7 +50,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -60,7 +62,7 @@ from ._validate import check_finite, check_memory, check_positive_int
 # (key map, mark array, case array, values) near 100 MB in 4D.
 _KEYS_PER_SLAB = 1 << 23
 # Show a progress bar by default from this many cells on (about a 40^4 grid).
-_PROGRESS_CELLS = 1 << 21
+PROGRESS_CELLS = 1 << 21
 
 
 # --------------------------------------------------------------------------------------------
@@ -69,7 +71,7 @@ _PROGRESS_CELLS = 1 << 21
 
 
 @dataclass(frozen=True)
-class _CellTable:
+class CellTable:
     """Simplices of every cube case as rows of edge ids; edge e runs from corner ``corner[e]``
     to ``corner[e] | mask[e]``."""
 
@@ -80,6 +82,11 @@ class _CellTable:
     corner: np.ndarray  # (E,) int64
     mask: np.ndarray  # (E,) int64
 
+    @property
+    def n_dirs(self) -> int:
+        """How many edge directions the table uses (d for cubes, 2^d - 1 for the Kuhn split)."""
+        return len(np.unique(self.mask))
+
 
 def _load_table(dim: int, kind: str):
     from . import lut
@@ -88,17 +95,17 @@ def _load_table(dim: int, kind: str):
 
 
 @functools.lru_cache(maxsize=None)
-def _cube_table(dim: int) -> _CellTable:
+def cube_table(dim: int) -> CellTable:
     table = _load_table(dim, "cube")
     u, v = table.edges[:, 0].astype(np.int64), table.edges[:, 1].astype(np.int64)
     offsets = table.offsets.astype(np.int64)
-    return _CellTable(
+    return CellTable(
         dim, offsets, np.diff(offsets), table.simplices.astype(np.uint8), u & v, u ^ v
     )
 
 
 @functools.lru_cache(maxsize=None)
-def _kuhn_table(dim: int) -> _CellTable:
+def kuhn_table(dim: int) -> CellTable:
     """Cube-level table of the Kuhn split: per cube case, the simplices of all d! cells."""
     table = _load_table(dim, "simplex")
     n = 1 << dim
@@ -128,11 +135,11 @@ def _kuhn_table(dim: int) -> _CellTable:
     counts = sub_counts.reshape(len(cases), len(cells)).sum(axis=1)
     offsets = np.concatenate([[0], np.cumsum(counts)])
     pairs_arr = np.array(pairs, dtype=np.int64)
-    return _CellTable(dim, offsets, counts, simplices.astype(np.uint8), pairs_arr[:, 0], pairs_arr[:, 1])
+    return CellTable(dim, offsets, counts, simplices.astype(np.uint8), pairs_arr[:, 0], pairs_arr[:, 1])
 
 
-def _cell_table(dim: int, method: str) -> _CellTable:
-    return _cube_table(dim) if method == "cubes" else _kuhn_table(dim)
+def cell_table(dim: int, method: str) -> CellTable:
+    return cube_table(dim) if method == "cubes" else kuhn_table(dim)
 
 
 # --------------------------------------------------------------------------------------------
@@ -141,7 +148,7 @@ def _cell_table(dim: int, method: str) -> _CellTable:
 
 
 @dataclass
-class _Geometry:
+class Geometry:
     """Engine layout: engine axis e holds user axis ``perm[e]``; slabs run along engine axis 0."""
 
     shape: tuple[int, ...]  # engine grid shape
@@ -157,8 +164,19 @@ class _Geometry:
         """Points per layer (engine axis 0 stride)."""
         return math.prod(self.shape[1:])
 
+    def frame(self, z0: int) -> tuple[list[int], list[float], list[float]]:
+        """Per engine axis, for the slab starting at layer ``z0``: the grid index of the slab's
+        first point (in the larger grid, with :attr:`offset`), the origin and the spacing. The
+        vertex of slab point ``i`` (engine index), ``t`` along direction ``m`` lies at
+        ``origin + spacing * ((i + index) + t * m)`` on each axis, integers added first: the
+        same float in every slab and block, and on the device (kernels/march.cl)."""
+        start = [0] * len(self.shape) if self.offset is None else [int(k) for k in self.offset]
+        index = [(z0 if e == 0 else 0) + start[axis] for e, axis in enumerate(self.perm)]
+        return (index, [float(self.origin[axis]) for axis in self.perm],
+                [float(self.spacing[axis]) for axis in self.perm])
 
-def _corner_offsets(geom: _Geometry, d: int) -> np.ndarray:
+
+def corner_offsets(geom: Geometry, d: int) -> np.ndarray:
     """(2^d,) engine linear offset of the corner (or mask) with user bits v."""
     strides = np.cumprod((1,) + geom.shape[:0:-1])[::-1]  # engine C-order strides
     user_stride = np.empty(d, dtype=np.int64)
@@ -182,7 +200,7 @@ def _cases(positive: np.ndarray, perm: tuple[int, ...]) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class _Threshold:
+class Threshold:
     """The level as one comparison in the data's dtype: a value ``v`` is positive iff
     ``v >= value`` (``op == ">="``; ``inside="below"``) or ``v <= value`` (``"<="``; ``"above"``),
     which equals ``float64(v) >= level`` (``<=``) exactly. ``value`` is ``None`` when no value
@@ -193,7 +211,7 @@ class _Threshold:
 
 
 @functools.lru_cache(maxsize=256)
-def _threshold(level: float, dtype: np.dtype, inside: str) -> _Threshold:
+def threshold(level: float, dtype: np.dtype, inside: str) -> Threshold:
     """The comparison in ``dtype`` that equals comparing the widened values with ``level``.
 
     Floats: the level rounded into the dtype, moved one step up (``inside="below"``: the
@@ -211,19 +229,19 @@ def _threshold(level: float, dtype: np.dtype, inside: str) -> _Threshold:
             x = dtype.type(level)
         if (float(x) < level) if below else (float(x) > level):
             x = np.nextafter(x, dtype.type(np.inf if below else -np.inf))
-        return _Threshold(x, op)
+        return Threshold(x, op)
     if dtype.kind in "iu":
         info = np.iinfo(dtype)
         c = math.ceil(level) if below else math.floor(level)
         if (c > info.max) if below else (c < info.min):
-            return _Threshold(None, op)
-        return _Threshold(dtype.type(min(max(c, info.min), info.max)), op)
-    return _threshold(level, np.dtype(np.float64), inside)  # bool and others: as float64
+            return Threshold(None, op)
+        return Threshold(dtype.type(min(max(c, info.min), info.max)), op)
+    return threshold(level, np.dtype(np.float64), inside)  # bool and others: as float64
 
 
 def _positive(values: np.ndarray, level: float, inside: str, out: np.ndarray | None = None) -> np.ndarray:
-    """Bool array: which ``values`` are positive (:func:`_threshold`'s exact comparison)."""
-    thr = _threshold(level, values.dtype, inside)
+    """Bool array: which ``values`` are positive (:func:`threshold`'s exact comparison)."""
+    thr = threshold(level, values.dtype, inside)
     if thr.value is None:
         if out is None:
             return np.zeros(values.shape, dtype=bool)
@@ -233,28 +251,29 @@ def _positive(values: np.ndarray, level: float, inside: str, out: np.ndarray | N
 
 
 @dataclass
-class _Plan:
+class Plan:
     """Per-grid constants of the core: table edges as key offsets, directions, shared layers."""
 
-    table: _CellTable
-    geom: _Geometry
+    table: CellTable
+    geom: Geometry
     offs: np.ndarray  # (2^d,) engine offset of each user corner / mask
     dirs: np.ndarray  # (n_dirs,) edge direction masks used by the table
+    dir_of: np.ndarray  # (2^d,) direction number of each mask the table uses
     key_off: np.ndarray  # (E,) key offset of each table edge from its cell's lowest corner
     in_plane: np.ndarray  # (n_dirs,) direction lies inside a layer (no slab-axis bit)
     mask_bits: np.ndarray  # (2^d, d) float: user bits of each mask
 
     @classmethod
-    def make(cls, table: _CellTable, geom: _Geometry) -> _Plan:
+    def make(cls, table: CellTable, geom: Geometry) -> Plan:
         d = len(geom.shape)
-        offs = _corner_offsets(geom, d)
+        offs = corner_offsets(geom, d)
         dirs = np.unique(table.mask)
         dir_of = np.zeros(1 << d, dtype=np.int64)
         dir_of[dirs] = np.arange(len(dirs))
         key_off = offs[table.corner] * len(dirs) + dir_of[table.mask]
         in_plane = (dirs & (1 << geom.perm[0])) == 0
         mask_bits = ((np.arange(1 << d)[:, None] >> np.arange(d)) & 1).astype(np.float64)
-        return cls(table, geom, offs, dirs, key_off, in_plane, mask_bits)
+        return cls(table, geom, offs, dirs, dir_of, key_off, in_plane, mask_bits)
 
     @property
     def n_dirs(self) -> int:
@@ -262,7 +281,7 @@ class _Plan:
 
 
 def _slab_keys(
-    case: np.ndarray, plan: _Plan, n_keys: int
+    case: np.ndarray, plan: Plan, n_keys: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Edge keys of the simplices of all active cells of one slab, or None if empty.
 
@@ -290,7 +309,7 @@ class _Welder:
     """Numbers the crossed edges (vertices) of successive slabs, sharing the layer between two
     slabs: keys of the top layer are remembered (``carry``) and reused by the next slab."""
 
-    def __init__(self, plan: _Plan) -> None:
+    def __init__(self, plan: Plan) -> None:
         self.plan = plan
         self.carry = np.full(plan.geom.layer * plan.n_dirs, -1, dtype=np.int64)
         self.n_vertices = 0
@@ -328,7 +347,7 @@ class _Welder:
 
 
 @dataclass
-class _SlabMesh:
+class SlabMesh:
     """What one slab adds: its new vertices, its simplices (indices into all vertices so far)
     and, for block-wise welding (:mod:`ao4d.blockwise`), the engine keys of those vertices
     (``point * n_dirs + dir``, point = engine linear index in this grid) and the engine linear
@@ -341,73 +360,97 @@ class _SlabMesh:
     counts: np.ndarray  # (A,) int64, sum M
 
 
-def _march_slabs(
-    read: Callable[[int, int], np.ndarray],
-    geom: _Geometry,
-    level: float,
-    *,
-    table: _CellTable,
-    inside: str,
-    layers_per_slab: int,
-    check_values: bool,
-    progress: Any,
-) -> Iterator[_SlabMesh]:
-    """March slab by slab, yielding each non-empty slab's :class:`_SlabMesh`."""
-    plan = _Plan.make(table, geom)
-    welder = _Welder(plan)
-    n0 = geom.shape[0]
-    z0 = 0
-    while z0 < n0 - 1:
-        z1 = min(z0 + layers_per_slab, n0 - 1)
-        slab = read(z0, z1 + 1)
-        if check_values:
+@dataclass(frozen=True)
+class Job:
+    """One extraction as both engines take it (validated by the callers): the slab reader,
+    the grid, the level and how to march it.
+
+    ``read(a, b)`` returns the values of engine layers ``a`` to ``b - 1`` (engine layout,
+    C order); ``layers_per_slab`` is the numpy engine's slab, whose vertex order the device
+    engine keeps too; ``progress`` is a bar (``update(n)``) or None.
+    """
+
+    read: Callable[[int, int], np.ndarray]
+    geom: Geometry
+    level: float
+    table: CellTable
+    inside: str
+    layers_per_slab: int
+    check_values: bool
+    progress: Any = None
+
+    def slabs(self, layers: int | None = None, *, report: bool = True) -> Iterator[tuple[int, int, np.ndarray]]:
+        """The slab loop of both engines: ``(z0, z1, values of layers z0..z1)`` for slabs of
+        ``layers`` cell layers (default :attr:`layers_per_slab`) that share their boundary
+        layer, read and checked when asked for. ``report``: advance :attr:`progress` by each
+        slab's layers once the caller is done with it."""
+        layers = self.layers_per_slab if layers is None else layers
+        n0 = self.geom.shape[0]
+        z0 = 0
+        while z0 < n0 - 1:
+            z1 = min(z0 + layers, n0 - 1)
+            yield z0, z1, self._read(z0, z1 + 1)  # no reference kept here while the caller works
+            if report and self.progress is not None:
+                self.progress.update(z1 - z0)
+            z0 = z1
+
+    def _read(self, a: int, b: int) -> np.ndarray:
+        slab = self.read(a, b)
+        if self.check_values:
             check_finite(slab, "values")
-        case = _cases(_positive(slab, level, inside), geom.perm).ravel()
+        return slab
+
+
+def march_slabs(job: Job) -> Iterator[SlabMesh]:
+    """March slab by slab, yielding each non-empty slab's :class:`SlabMesh`."""
+    geom, level = job.geom, job.level
+    plan = Plan.make(job.table, geom)
+    welder = _Welder(plan)
+    for z0, z1, slab in job.slabs():
+        case = _cases(_positive(slab, level, job.inside), geom.perm).ravel()
         n_keys = slab.size * plan.n_dirs
         found = _slab_keys(case, plan, n_keys)
         simplices, new_keys = welder.number(None if found is None else found[0], n_keys, z1 - z0)
         if simplices is not None:
             lin, dir_ = np.divmod(new_keys, plan.n_dirs)
             shift = z0 * geom.layer  # slab -> grid linear index
-            yield _SlabMesh(_interpolate(slab, lin, plan.dirs[dir_], z0, level, plan), simplices,
-                            new_keys + shift * plan.n_dirs, found[1] + shift, found[2])
-        if progress is not None:
-            progress.update(z1 - z0)
-        z0 = z1
+            yield SlabMesh(interpolate(slab, lin, plan.dirs[dir_], z0, level, plan), simplices,
+                           new_keys + shift * plan.n_dirs, found[1] + shift, found[2])
 
 
-def _march(
-    read: Callable[[int, int], np.ndarray],
-    geom: _Geometry,
-    level: float,
-    *,
-    table: _CellTable,
-    inside: str,
-    layers_per_slab: int,
-    check_values: bool,
-    progress: Any,
-) -> tuple[np.ndarray, np.ndarray]:
+def march(job: Job) -> tuple[np.ndarray, np.ndarray]:
     """Extract the mesh slab by slab: (vertices (V, d) float64, simplices (S, d) int32|int64)."""
-    d = len(geom.shape)
+    # kept int32 when it fits: SimplexMesh converts to int64 in its own (unavoidable) copy
+    return join(march_slabs(job), len(job.geom.shape))
+
+
+def join(parts: Iterable[SlabMesh], d: int, *, widen: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices and simplices of slab ``parts``, concatenated: (V, d) float64 and (S, d)
+    in the parts' index type, or int64 with ``widen`` (then a single part is returned as it
+    is, without a copy)."""
     verts: list[np.ndarray] = []
     simps: list[np.ndarray] = []
-    for part in _march_slabs(read, geom, level, table=table, inside=inside,
-                             layers_per_slab=layers_per_slab, check_values=check_values,
-                             progress=progress):
+    for part in parts:
         verts.append(part.vertices)
         simps.append(part.simplices)
     if not simps:
         return np.zeros((0, d)), np.zeros((0, d), dtype=np.int64)
+    if widen and len(simps) == 1:
+        return verts[0], simps[0]
     vertices = np.concatenate(verts)
     del verts
-    # kept int32 when it fits: SimplexMesh converts to int64 in its own (unavoidable) copy
-    return vertices, np.concatenate(simps)
+    if not widen:
+        return vertices, np.concatenate(simps)
+    simplices = np.empty((sum(len(x) for x in simps), d), dtype=np.int64)
+    np.concatenate(simps, out=simplices)  # widened while concatenated
+    return vertices, simplices
 
 
-def _interpolate(
-    slab: np.ndarray, lin: np.ndarray, masks: np.ndarray, z0: int, level: float, plan: _Plan
+def interpolate(
+    slab: np.ndarray, lin: np.ndarray, masks: np.ndarray, z0: int, level: float, plan: Plan
 ) -> np.ndarray:
-    """Positions (K, d) of the crossings on edges (slab point ``lin``, direction ``masks``)."""
+    """Positions (K, d) of the crossings on edges (slab point ``lin``, direction ``masks``):
+    the reference whose float64 operations the device's ``interpolate`` kernel repeats."""
     geom = plan.geom
     flat = slab.reshape(-1)
     f0 = flat[lin].astype(np.float64)
@@ -420,9 +463,9 @@ def _interpolate(
     t[np.isnan(t)] = 1.0
     eidx = np.unravel_index(lin, slab.shape)
     idx = np.empty((len(lin), len(geom.shape)))
-    start = [0] * len(geom.shape) if geom.offset is None else [int(k) for k in geom.offset]
+    index = geom.frame(z0)[0]
     for e, axis in enumerate(geom.perm):  # integer index first: the same float in every block
-        idx[:, axis] = eidx[e] + ((z0 if e == 0 else 0) + start[axis])
+        idx[:, axis] = eidx[e] + index[e]
     idx += t[:, None] * plan.mask_bits[masks]
     return geom.origin + geom.spacing * idx
 
@@ -433,19 +476,21 @@ def outside_value(inside: str) -> float:
     Infinite, so that a vertex on an edge that leaves the grid sits on the grid's boundary
     face (the limit of ever larger outside values: ``t`` is 0 at the grid end, and the
     undefined ``inf / inf`` at the far end is taken as that limit, 1; see
-    :func:`_interpolate`).
+    :func:`interpolate`).
     """
     return math.inf if inside == "below" else -math.inf
 
 
-def _layers_per_slab(chunk: Any, geom: _Geometry, method: str) -> int:
-    n_dirs = len(np.unique(_cell_table(len(geom.shape), method).mask))
+def layers_per_slab(chunk: Any, geom: Geometry, method: str) -> int:
+    """The numpy engine's cell layers per slab: ``chunk`` when given, else as many as keep a
+    slab's dense key map near :data:`_KEYS_PER_SLAB` entries."""
+    n_dirs = cell_table(len(geom.shape), method).n_dirs
     if chunk is None:
         return max(1, _KEYS_PER_SLAB // max(1, geom.layer * n_dirs) - 1)
     return check_positive_int(chunk, "chunk")
 
 
-def _check_slab_memory(geom: _Geometry, layers: int, method: str, itemsize: int) -> None:
+def check_slab_memory(geom: Geometry, layers: int, method: str, itemsize: int) -> None:
     d = len(geom.shape)
     n_dirs = d if method == "cubes" else (1 << d) - 1
     points = (layers + 1) * geom.layer

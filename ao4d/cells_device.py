@@ -9,7 +9,7 @@ Per slab, the host uploads the values as they are stored (float16, float32, floa
 64-bit integers; anything else as float64) and the device
 
 1. compares every value with the level once (``sign``: one comparison in the values' own type
-   against :func:`ao4d.cells._threshold`, which makes it equal to ``float64(v) >= level``),
+   against :func:`ao4d.cells.threshold`, which makes it equal to ``float64(v) >= level``),
 2. classifies every cell (its case) and finds the crossed edges starting at every point that
    are new in this slab (an edge of the layer shared with the slab below keeps the vertex that
    slab gave it: the *carry*, kept on the device);
@@ -64,8 +64,7 @@ from typing import Any
 import numpy as np
 
 from . import cl
-from ._validate import check_finite
-from .cells import _CellTable, _corner_offsets, _Geometry, _Plan, _SlabMesh, _threshold
+from .cells import CellTable, Geometry, Job, Plan, SlabMesh, join, threshold
 
 __all__ = ["FLOAT32", "IN_PLACE", "device_layers", "fits", "get_runtime", "march", "march_slabs", "release_buffers"]
 
@@ -120,20 +119,19 @@ def get_runtime(backend: str = "auto") -> cl.Runtime | None:
     return cl.resolve_backend(backend, warn=False)
 
 
-def fits(geom: _Geometry, layers: int, table: _CellTable) -> bool:
+def fits(geom: Geometry, layers: int, table: CellTable) -> bool:
     """Whether one slab's 32-bit indices (points times directions) fit the kernels."""
-    n_dirs = len(np.unique(table.mask))
     points = (min(layers, geom.shape[0] - 1) + 1) * geom.layer
-    return points * n_dirs < _INT_MAX
+    return points * table.n_dirs < _INT_MAX
 
 
-def device_layers(geom: _Geometry, period: int, table: _CellTable, points: int | None = None) -> int:
+def device_layers(geom: Geometry, period: int, table: CellTable, points: int | None = None) -> int:
     """Cell layers per device slab: the largest multiple of the numpy engine's ``period`` whose
     slab holds about ``points`` grid points (default :data:`_SLAB_POINTS`; at least ``period``
     layers) and fits 32-bit indices."""
     points = _SLAB_POINTS if points is None else points
     n_cells = geom.shape[0] - 1
-    n_dirs = len(np.unique(table.mask))
+    n_dirs = table.n_dirs
     per = max(1, period) * geom.layer  # points of ``period`` layers
     mult = max(1, points // per)
     mult = min(mult, -(-n_cells // max(1, period)))  # no more than the grid
@@ -142,12 +140,7 @@ def device_layers(geom: _Geometry, period: int, table: _CellTable, points: int |
     return mult * period
 
 
-def _n_dirs(table: _CellTable) -> int:
-    """How many edge directions ``table`` uses (d for the cube table, 2^d - 1 for Kuhn's)."""
-    return len(np.unique(table.mask))
-
-
-def _table_arrays(table: _CellTable) -> dict[str, np.ndarray]:
+def _table_arrays(table: CellTable) -> dict[str, np.ndarray]:
     return {
         "offsets": table.offsets.astype(np.int32),
         "counts": table.counts.astype(np.int32),
@@ -192,7 +185,7 @@ def _kernel_value(dtype: np.dtype, fp64: bool) -> tuple[str, int] | None:
 class _Engine:
     """Kernels and buffers of one extraction on one device, reused slab after slab."""
 
-    def __init__(self, runtime: cl.Runtime, table: _CellTable, geom: _Geometry, layers: int,
+    def __init__(self, runtime: cl.Runtime, table: CellTable, geom: Geometry, layers: int,
                  period: int) -> None:
         import pyopencl
 
@@ -203,7 +196,7 @@ class _Engine:
         d = len(geom.shape)
         self.d = d
         self.geom = geom
-        self.plan = plan = _Plan.make(table, geom)
+        self.plan = plan = Plan.make(table, geom)
         self.n_dirs = plan.n_dirs
         self.period = period
         self.fp64 = not FLOAT32 and "cl_khr_fp64" in runtime.device.extensions
@@ -216,9 +209,7 @@ class _Engine:
             arrays = _table_arrays(table)
             _device_tables[key] = {k: self._const(v) for k, v in arrays.items()}
         self.tables = _device_tables[key]
-        offs = _corner_offsets(geom, d)
-        dir_of = np.zeros(1 << d, dtype=np.int64)
-        dir_of[plan.dirs] = np.arange(plan.n_dirs)
+        offs, dir_of = plan.offs, plan.dir_of
         masks = np.arange(1 << d)
         expect = 1 << np.arange(d) if plan.n_dirs == d else masks[1:]
         if not np.array_equal(plan.dirs, expect):  # the kernels' DIR_MASK
@@ -248,8 +239,6 @@ class _Engine:
         self.carry = [self._buf(carry), self._buf(carry)]
         self.has_below = False
         self.n_vertices = 0
-        start = [0] * d if geom.offset is None else [int(k) for k in geom.offset]
-        self.start = start
 
     def kernels(self, vtype: str, vkind: int) -> dict[str, Any]:
         if vtype not in self._built:
@@ -277,7 +266,7 @@ class _Engine:
 
     def _threshold_arg(self, level: float, dtype: np.dtype, inside: str, vkind: int):
         """(thr, mode) kernel arguments of ``sign``."""
-        thr = _threshold(level, dtype, inside)
+        thr = threshold(level, dtype, inside)
         if thr.value is None:
             mode, value = 2, dtype.type(0)
         else:
@@ -399,12 +388,13 @@ class _Engine:
             out)
         t = _stage("emit", q, t)
         if n_new:
-            g, real = self.geom, self.real
+            real, pad = self.real, [0] * (4 - d)
+            index, origin, spacing = self.geom.frame(z0)  # what cells.interpolate adds and scales
             shape = list(e[1:]) + [1] * (4 - d)
-            perm = list(g.perm) + [0] * (4 - d)
-            base = [(z0 if i == 0 else 0) + self.start[perm[i]] for i in range(d)] + [0] * (4 - d)
-            origin = [real(g.origin[perm[i]]) for i in range(d)] + [real(0)] * (4 - d)
-            spacing = [real(g.spacing[perm[i]]) for i in range(d)] + [real(0)] * (4 - d)
+            perm = list(self.geom.perm) + pad
+            base = index + pad
+            origin = [real(x) for x in origin + pad]
+            spacing = [real(x) for x in spacing + pad]
             k["interpolate"](q, (n_new,), None, values, keys_buf, verts, real(level),
                              *(i32(x) for x in shape[:3]), *self.strides,
                              *(i32(x) for x in perm), *(i32(x) for x in base), *origin, *spacing)
@@ -452,32 +442,25 @@ class _Engine:
 
 
 def march_slabs(
-    read: Callable[[int, int], np.ndarray],
-    geom: _Geometry,
-    level: float,
+    job: Job,
     *,
-    table: _CellTable,
-    inside: str,
-    layers_per_slab: int,
-    check_values: bool,
-    progress: Any,
     runtime: cl.Runtime,
     cells: bool = True,
     take: Callable[[int, int, float], tuple[np.ndarray, np.ndarray]] | None = None,
     count_first: Callable[[int, int], None] | None = None,
     slab_points: int | None = None,
     grow: bool = True,
-) -> Iterator[_SlabMesh]:
-    """:func:`ao4d.cells._march_slabs` on the device: the same arrays, in device slabs.
+) -> Iterator[SlabMesh]:
+    """:func:`ao4d.cells.march_slabs` on the device: the same arrays, in device slabs.
 
-    The yielded :class:`_SlabMesh` parts cover device slabs (multiples of ``layers_per_slab``,
+    The yielded :class:`SlabMesh` parts cover device slabs (multiples of ``layers_per_slab``,
     :func:`device_layers`); concatenated, their arrays are those of the numpy engine's parts.
 
     Parameters
     ----------
-    read, geom, level, table, inside, layers_per_slab, check_values, progress
-        As for :func:`ao4d.cells._march_slabs` (the callers validate); ``layers_per_slab`` is
-        the numpy engine's slab, whose vertex order the device keeps.
+    job : ao4d.cells.Job
+        The extraction, as for :func:`ao4d.cells.march_slabs` (the callers validate); its
+        ``layers_per_slab`` is the numpy engine's slab, whose vertex order the device keeps.
     runtime : ao4d.cl.Runtime
         The device.
     cells : bool
@@ -499,37 +482,27 @@ def march_slabs(
         Whether device slabs may be larger than ``layers_per_slab`` (False: the user chose the
         slab size, ``chunk=``, to bound memory).
     """
+    geom, level, inside, layers_per_slab = job.geom, job.level, job.inside, job.layers_per_slab
     if take is None:
         def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
             return _aligned_empty((n_simp, d), np.int32), _aligned_empty((n_new, d), np.float64)
     d = len(geom.shape)
-    layers = device_layers(geom, layers_per_slab, table, slab_points) if grow else layers_per_slab
+    layers = device_layers(geom, layers_per_slab, job.table, slab_points) if grow else layers_per_slab
     with _lock:
-        engine = _Engine(runtime, table, geom, layers, layers_per_slab)
+        engine = _Engine(runtime, job.table, geom, layers, layers_per_slab)
     plan = engine.plan
     empty = np.zeros(0, dtype=np.int64)
-
-    def slabs() -> Iterator[tuple[int, int, np.ndarray]]:
-        z0 = 0
-        while z0 < n0 - 1:
-            z1 = min(z0 + layers, n0 - 1)
-            slab = read(z0, z1 + 1)
-            if check_values:
-                check_finite(slab, "values")
-            yield z0, z1, slab
-            z0 = z1
-
     try:
         n0 = geom.shape[0]
         if count_first is not None:
             total_simp = total_new = 0
-            for z0, _, slab in slabs():
+            for z0, _, slab in job.slabs(layers, report=False):
                 with _lock:
                     n_new, n_simp = engine.slab(slab, z0, level, inside, False, None, below=z0 > 0)
                 total_simp += n_simp
                 total_new += n_new if n_simp else 0
             count_first(total_simp, total_new)
-        for z0, z1, slab in slabs():
+        for z0, z1, slab in job.slabs(layers):
             done = z1 / (n0 - 1)
             with _lock:
                 found = engine.slab(slab, z0, level, inside, cells,
@@ -538,32 +511,23 @@ def march_slabs(
             if found is not None:
                 simplices, vertices, new_keys, active, counts = found
                 shift = z0 * geom.layer
-                yield _SlabMesh(vertices, simplices,
-                                empty if new_keys is None else new_keys + shift * plan.n_dirs,
-                                empty if active is None else active + shift,
-                                empty if counts is None else counts)
-            if progress is not None:
-                progress.update(z1 - z0)
+                yield SlabMesh(vertices, simplices,
+                               empty if new_keys is None else new_keys + shift * plan.n_dirs,
+                               empty if active is None else active + shift,
+                               empty if counts is None else counts)
     finally:
         with _lock:
             engine.release()
 
 
 def march(
-    read: Callable[[int, int], np.ndarray],
-    geom: _Geometry,
-    level: float,
+    job: Job,
     *,
-    table: _CellTable,
-    inside: str,
-    layers_per_slab: int,
-    check_values: bool,
-    progress: Any,
     runtime: cl.Runtime,
     reread: bool = False,
     grow: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`ao4d.cells._march` on the device: (vertices (V, d) float64, simplices (S, d) int64;
+    """:func:`ao4d.cells.march` on the device: (vertices (V, d) float64, simplices (S, d) int64;
     the numpy engine's are int32 while they fit, the same values).
 
     ``reread``: ``read`` is cheap (an array in memory): the output is allocated once at its size
@@ -572,33 +536,22 @@ def march(
     smaller device slabs) the slab parts are concatenated at the end, as the numpy engine does.
     ``grow``: as for :func:`march_slabs`.
     """
+    geom, table = job.geom, job.table
     d = len(geom.shape)
-    kwargs = dict(table=table, inside=inside, layers_per_slab=layers_per_slab,
-                  check_values=check_values, progress=progress, runtime=runtime, cells=False,
-                  grow=grow)
-    layers = device_layers(geom, layers_per_slab, table) if grow else layers_per_slab
+    kwargs = dict(runtime=runtime, cells=False, grow=grow)
+    layers = device_layers(geom, job.layers_per_slab, table) if grow else job.layers_per_slab
     one_slab = layers >= geom.shape[0] - 1
     # several device slabs of an array in memory: count them all first and fill the output in
     # place where the output outweighs the input (4D Kuhn simplices: counting again costs less
     # than copying the output), else slab parts and one concatenation (measured: 384^3 and 96^4
     # cubes 1.3-1.4x faster so, 96^4 simplices 1.2-1.3x slower)
-    count_first = d == 4 and _n_dirs(table) == 15
+    count_first = d == 4 and table.n_dirs == 15
     if not reread or (not one_slab and not count_first):
-        # slab parts (int32, as the numpy engine keeps them), then one concatenation
-        verts, simps = [], []
+        # slab parts (int32, as the numpy engine keeps them), then one concatenation, widened
+        # to int64 while concatenated (one part is returned as it is: SimplexMesh widens it in
+        # its own copy)
         points = _SLAB_POINTS if reread else min(_SLAB_POINTS, _FIELD_SLAB_POINTS)
-        for part in march_slabs(read, geom, level, slab_points=points, **kwargs):
-            verts.append(part.vertices)
-            simps.append(part.simplices)
-        if not simps:
-            return np.zeros((0, d)), np.zeros((0, d), dtype=np.int64)
-        if len(verts) == 1:
-            return verts[0], simps[0]  # SimplexMesh widens the int32 indices in its own copy
-        vertices = np.concatenate(verts)
-        del verts
-        simplices = np.empty((sum(len(x) for x in simps), d), dtype=np.int64)
-        np.concatenate(simps, out=simplices)  # widened while concatenated
-        return vertices, simplices
+        return join(march_slabs(job, slab_points=points, **kwargs), d, widen=True)
     rows_s, rows_v = _Rows(d, np.int64), _Rows(d, np.float64)
 
     def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
@@ -611,8 +564,7 @@ def march(
         rows_s.reserve(n_simp)
         rows_v.reserve(n_new)
 
-    for part in march_slabs(read, geom, level, take=take,
-                            count_first=None if one_slab else count_first, **kwargs):
+    for part in march_slabs(job, take=take, count_first=None if one_slab else count_first, **kwargs):
         del part  # views into the rows
     return rows_v.array, rows_s.array
 

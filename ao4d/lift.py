@@ -42,6 +42,7 @@ from typing import TYPE_CHECKING, Literal, Union
 import numpy as np
 
 from ._validate import as_array, as_real, check_choice, check_positive_int
+from .topology import face_structure
 
 if TYPE_CHECKING:
     import trimesh
@@ -125,13 +126,11 @@ class TetSolid:
     def boundary(self) -> np.ndarray:
         """(F, 3) int64 boundary triangles, oriented with outward normals.
 
-        A face lies on the boundary when exactly one tetrahedron has it.
+        A face lies on the boundary when exactly one tetrahedron has it
+        (:func:`ao4d.topology.face_structure` groups them).
         """
-        faces = self.tets[:, _TET_FACES_OUT].reshape(-1, 3)
-        keys = np.sort(faces, axis=1)
-        _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-        once = counts[inverse.ravel()] == 1
-        tris = faces[once]
+        once = face_structure(self.tets, len(self.points)).multiplicity == 1  # (T, 4)
+        tris = self.tets[:, _TET_FACES_OUT][once]
         tris.setflags(write=False)
         return tris
 

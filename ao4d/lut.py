@@ -826,9 +826,9 @@ def load(dim: int, kind: str = "cube") -> Table:
     Parameters
     ----------
     dim : {2, 3, 4}
-        Dimension of the cell.
+        The cell's dimension: the square's, cube's or tesseract's table (or its Kuhn simplex's).
     kind : {"cube", "simplex"}
-        Cell type.
+        The table of the whole d-cube, or of the reference Kuhn d-simplex.
 
     Returns
     -------

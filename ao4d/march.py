@@ -3,7 +3,7 @@
 The public wrappers (:func:`extract`, :func:`extract_field`) validate and normalise their input
 and hand a slab reader to one core with no checks of its own: :func:`ao4d.cells_device.march`
 on the OpenCL device where one works, else the vectorised numpy engine
-:func:`ao4d.cells._march`; both give the same arrays. Dask arrays and ``chunks=`` go to
+:func:`ao4d.cells.march`; both give the same arrays. Dask arrays and ``chunks=`` go to
 :mod:`ao4d.blockwise`, which runs the same cores on blocks as dask tasks.
 
 How the core works, and the papers it follows, are described in :mod:`ao4d.cells`.
@@ -19,16 +19,14 @@ import numpy as np
 
 from ._validate import (as_array, as_real, as_vector, check_bool, check_choice, check_finite, check_grid_lengths,
                         check_positive_int)
-from .cells import (  # noqa: F401  (_kuhn_table: tests reach it through ao4d.march)
-    _PROGRESS_CELLS,
-    _cell_table,
-    _check_slab_memory,
-    _Geometry,
-    _kuhn_table,
-    _layers_per_slab,
-    _march,
-    outside_value,
-)
+from .cells import PROGRESS_CELLS as _PROGRESS_CELLS
+from .cells import Geometry as _Geometry
+from .cells import Job as _Job
+from .cells import cell_table as _cell_table
+from .cells import check_slab_memory as _check_slab_memory
+from .cells import layers_per_slab as _layers_per_slab
+from .cells import march as _march
+from .cells import outside_value
 from . import cells_device
 from .cl import BACKENDS
 from .mesh import SimplexMesh
@@ -84,17 +82,8 @@ def _run(
                                              "grow": chunk is None}
     bar = _progress_bar(progress, math.prod(n - 1 for n in geom.shape), geom.shape[0] - 1)
     try:
-        vertices, simplices = engine(
-            read,
-            geom,
-            level,
-            table=table,
-            inside=inside,
-            layers_per_slab=layers,
-            check_values=check_values,
-            progress=bar,
-            **extra,
-        )
+        vertices, simplices = engine(_Job(read, geom, level, table, inside, layers, check_values, bar),
+                                     **extra)
     finally:
         if bar is not None:
             bar.close()

@@ -53,6 +53,17 @@ class Faces:
         d = self.perm.shape[1]
         return self.perm[:, _opposite(d)].reshape(-1, d - 1)
 
+    @property
+    def multiplicity(self) -> np.ndarray:
+        """(S, d) int64: how many simplices have the face of simplex i opposite its local
+        vertex k (1 on the boundary)."""
+        s, d = self.perm.shape
+        per_entry = np.empty(s * d, dtype=np.int64)
+        per_entry[self.order] = np.repeat(self.counts, self.counts)
+        out = np.empty((s, d), dtype=np.int64)
+        np.put_along_axis(out, self.perm.astype(np.intp), per_entry.reshape(s, d), axis=1)
+        return out
+
 
 # the compare-exchange networks that sort d = 1..4 values (Knuth, TAOCP 5.3.4)
 _NETWORKS = {1: [], 2: [(0, 1)], 3: [(0, 1), (1, 2), (0, 1)], 4: [(0, 1), (2, 3), (0, 2), (1, 3), (1, 2)]}
@@ -71,7 +82,8 @@ def _opposite(d: int) -> np.ndarray:
 def face_structure(simplices: np.ndarray, n_vertices: int) -> Faces:
     s, d = simplices.shape
     check_memory(s * d * 8 * 6.0, "the face table of this mesh")
-    columns, perm, odd = _sort_simplices(simplices)
+    cols, locs, odd = _sort_simplices(simplices)
+    columns, perm = np.stack(cols), np.stack(locs, axis=1)
     # Boundary operator: [q0..q_{d-1}] = parity * [p0..p_{d-1}], and the face omitting q_k
     # carries (-1)^k in its sorted vertex order.
     alternating = ((-1) ** np.arange(d)).astype(np.int8)
@@ -80,24 +92,38 @@ def face_structure(simplices: np.ndarray, n_vertices: int) -> Faces:
     return Faces(order=order, starts=starts, sign=sign, columns=columns, perm=perm)
 
 
-def _sort_simplices(simplices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each row sorted by a compare-exchange network: (d, S) int64 sorted vertex indices (one
-    row per rank), (S, d) int8 their local indices, (S,) bool the odd parity of the sort."""
+def _sort_simplices(simplices: np.ndarray, local: bool = True
+                    ) -> tuple[list[np.ndarray], list[np.ndarray] | None, np.ndarray]:
+    """Each row sorted by a compare-exchange network: d contiguous (S,) int64 columns of the
+    sorted vertex indices (one per rank), d (S,) int8 columns of their local indices (None
+    unless ``local``), and (S,) bool the odd parity of each row's sorting permutation."""
     s, d = simplices.shape
     cols = [np.ascontiguousarray(simplices[:, i], dtype=np.int64) for i in range(d)]
-    locs = [np.full(s, i, dtype=np.int8) for i in range(d)]
+    locs = [np.full(s, i, dtype=np.int8) for i in range(d)] if local else None
     odd = np.zeros(s, dtype=bool)
     for i, j in _NETWORKS[d]:
         swap = cols[i] > cols[j]
         cols[i], cols[j] = np.minimum(cols[i], cols[j]), np.maximum(cols[i], cols[j])
-        locs[i], locs[j] = np.where(swap, locs[j], locs[i]), np.where(swap, locs[i], locs[j])
+        if locs is not None:
+            locs[i], locs[j] = np.where(swap, locs[j], locs[i]), np.where(swap, locs[i], locs[j])
         odd ^= swap
-    return np.stack(cols), np.stack(locs, axis=1), odd
+    return cols, locs, odd
 
 
 def _bits(n: int) -> int:
     """Bits that hold the integers 0 .. n - 1 (at least one)."""
     return max(1, (int(n) - 1).bit_length())
+
+
+def _pack_face(cols: Any, kept: np.ndarray, b: int, out: np.ndarray) -> np.ndarray:
+    """The face key of every simplex into ``out`` (S,) uint64 and returned: the sorted vertex
+    indices of ranks ``kept`` (``cols``: one contiguous int64 column per rank), ``b`` bits
+    each, the first in the highest bits. The one packing of faces (grouping and counting)."""
+    np.copyto(out, cols[kept[0]].view(np.uint64))
+    for j in kept[1:]:
+        out <<= np.uint64(b)
+        out |= cols[j].view(np.uint64)
+    return out
 
 
 def _face_keys(columns: np.ndarray, n_vertices: int) -> np.ndarray | None:
@@ -107,14 +133,9 @@ def _face_keys(columns: np.ndarray, n_vertices: int) -> np.ndarray | None:
     b = _bits(n_vertices)
     if b * (d - 1) > _WORD_BITS:
         return None
-    packed = columns.astype(np.uint64)
     keys = np.empty((s, d), dtype=np.uint64)
     for k, kept in enumerate(_opposite(d)):
-        key = packed[kept[0]].copy()
-        for j in kept[1:]:
-            key <<= np.uint64(b)
-            key |= packed[j]
-        keys[:, k] = key
+        keys[:, k] = _pack_face(columns, kept, b, np.empty(s, dtype=np.uint64))
     return keys.ravel()
 
 
@@ -206,31 +227,13 @@ def _face_sign_words(simplices: np.ndarray, n_vertices: int) -> np.ndarray:
     """(S*d,) uint64, rank-major: each face's packed sorted vertices, shifted left by one and
     holding 1 in the lowest bit where the simplex induces the negative orientation on it."""
     s, d = simplices.shape
-    b = np.uint64(_bits(n_vertices))
-    cols, odd = _sorted_columns(simplices)
+    cols, _, odd = _sort_simplices(simplices, local=False)
     words = np.empty(s * d, dtype=np.uint64)
     for k, kept in enumerate(_opposite(d)):
-        view = words[k * s:(k + 1) * s]
-        np.copyto(view, cols[kept[0]].view(np.uint64))
-        for j in kept[1:]:
-            view <<= b
-            view |= cols[j].view(np.uint64)
+        view = _pack_face(cols, kept, _bits(n_vertices), words[k * s:(k + 1) * s])
         view <<= np.uint64(1)
         view |= (odd ^ bool(k % 2)).view(np.uint8)  # sign (-1)^k * parity negative
     return words
-
-
-def _sorted_columns(simplices: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
-    """The rows of ``simplices`` sorted by a compare-exchange network, as d contiguous int64
-    columns, and the odd parity (S,) bool of each row's sorting permutation."""
-    s, d = simplices.shape
-    cols = [np.ascontiguousarray(simplices[:, i], dtype=np.int64) for i in range(d)]
-    odd = np.zeros(s, dtype=bool)
-    for i, j in _NETWORKS[d]:
-        swap = cols[i] > cols[j]
-        cols[i], cols[j] = np.minimum(cols[i], cols[j]), np.maximum(cols[i], cols[j])
-        odd ^= swap
-    return cols, odd
 
 
 def _unique_ints(values: np.ndarray) -> np.ndarray:

@@ -9,7 +9,7 @@
 // output in the numpy engine's order (ao4d/cells.py):
 //
 //   sign        per point: 1 where the value is positive (one comparison in the value's own
-//               type against a threshold that makes it exact: ao4d/cells.py's _threshold)
+//               type against a threshold that makes it exact: ao4d/cells.py's threshold)
 //   classify    per point: the cell's case (bit v = corner v positive; 0 when no simplex) and
 //               the bit mask of the crossed edges starting here that are new in this slab (not
 //               carried from the slab below)
@@ -119,27 +119,44 @@ typedef uchar vmask_t;
 // vectorise across work-items (Intel's CPU runtime) that the kernel is vectorised already.
 #define CHUNK_KERNEL __attribute__((vec_type_hint(uchar16)))
 
-// The 16 values at chunk position i are all zero.
-inline int zero16_case(__global const case_t *a, int i)
+// Offset of the corner (or edge direction) with user bits v from a point: s0 .. s3 are the
+// strides of user axes 0 .. 3 (ao4d/cells.py's corner_offsets).
+inline int corner_offset(const int v, const int s0, const int s1, const int s2, const int s3)
 {
-#if DIM == 4
-    ulong4 u = as_ulong4(vload16(0, a + i));
-    return (u.s0 | u.s1 | u.s2 | u.s3) == 0;
-#else
-    ulong2 u = as_ulong2(vload16(0, a + i));
-    return (u.s0 | u.s1) == 0;
+    return (v & 1) * s0 + ((v >> 1) & 1) * s1
+#if DIM > 2
+        + ((v >> 2) & 1) * s2
 #endif
+#if DIM > 3
+        + ((v >> 3) & 1) * s3
+#endif
+        ;
 }
 
-inline int zero16_mask(__global const vmask_t *a, int i)
+// The 16 values of `size` bytes (1 or 2, a compile-time constant) from byte a are all zero.
+inline int zero16(__global const uchar *a, const int size)
 {
-#if NDIRS > 8
-    ulong4 u = as_ulong4(vload16(0, a + i));
-    return (u.s0 | u.s1 | u.s2 | u.s3) == 0;
-#else
-    ulong2 u = as_ulong2(vload16(0, a + i));
-    return (u.s0 | u.s1) == 0;
-#endif
+    ulong2 u = as_ulong2(vload16(0, a));
+    ulong any = u.s0 | u.s1;
+    if (size == 2) {
+        ulong2 w = as_ulong2(vload16(1, a));
+        any |= w.s0 | w.s1;
+    }
+    return any == 0;
+}
+
+// The 16 values (cases or vertex masks) at chunk position i of array a are all zero.
+#define ZERO16(a, i) zero16((__global const uchar *)((a) + (i)), sizeof(*(a)))
+
+// Add the new in-plane (*vi) and other (*va) vertices at points x0 .. x1 - 1 (vertex masks).
+inline void count_vertices(__global const vmask_t *vmask, const int x0, const int x1,
+                           const int in_plane, int *vi, int *va)
+{
+    for (int x = x0; x < x1; ++x) {
+        const int m = vmask[x];
+        *vi += popcount(m & in_plane);
+        *va += popcount(m & ~in_plane);
+    }
 }
 
 // Direction j's mask (cube corner): the cube table has the d axis directions, the Kuhn table
@@ -187,15 +204,7 @@ __kernel void classify(
     int c = 0;
 #pragma unroll
     for (int v = 0; v < NCORNERS; ++v) {
-        const int off = (v & 1) * s0 + ((v >> 1) & 1) * s1
-#if DIM > 2
-            + ((v >> 2) & 1) * s2
-#endif
-#if DIM > 3
-            + ((v >> 3) & 1) * s3
-#endif
-            ;
-        c |= ((v & f) == 0 ? (int)sign[p + off] : v0) << v;
+        c |= ((v & f) == 0 ? (int)sign[p + corner_offset(v, s0, s1, s2, s3)] : v0) << v;
     }
     int m = 0;
 #pragma unroll
@@ -226,18 +235,14 @@ __kernel CHUNK_KERNEL void count(__global const case_t *cases, __global const vm
     const int base = g * CHUNK;
     int ni = 0, na_ = 0, ns = 0, na = 0;
     for (int i = base; i < base + CHUNK; i += 16) {
-        if (!zero16_case(cases, i))
+        if (!ZERO16(cases, i))
             for (int x = i; x < i + 16; ++x) {
                 const int c = cases[x];
                 ns += counts[c];
                 na += c != 0;
             }
-        if (!zero16_mask(vmask, i))
-            for (int x = i; x < i + 16; ++x) {
-                const int m = vmask[x];
-                ni += popcount(m & in_plane);
-                na_ += popcount(m & ~in_plane);
-            }
+        if (!ZERO16(vmask, i))
+            count_vertices(vmask, i, i + 16, in_plane, &ni, &na_);
     }
     chunk_vi[g] = ni;
     chunk_va[g] = na_;
@@ -306,11 +311,7 @@ __kernel void layer_prefix(__global const vmask_t *vmask, __global const int *ch
     const int c = q / CHUNK;
     int vi = chunk_vi[c] + blk[c / SCAN_BLOCK];
     int va = chunk_va[c] + blk[n_blocks + c / SCAN_BLOCK];
-    for (int x = c * CHUNK; x < q; ++x) {
-        const int m = vmask[x];
-        vi += popcount(m & in_plane);
-        va += popcount(m & ~in_plane);
-    }
+    count_vertices(vmask, c * CHUNK, q, in_plane, &vi, &va);
     layer_in[z] = vi;
     layer_ax[z] = va;
 }
@@ -358,7 +359,7 @@ __kernel CHUNK_KERNEL void number(
     int zc = z_base, nc = (z_base + 1) * layer, fc = FLAGS(z_base);  // cells' layer tracker
     int z = zc, nz = nc, fz = fc;                                  // vertices' layer tracker
     for (int i = base; i < base + CHUNK; i += 16) {
-        if (!zero16_case(cases, i)) {
+        if (!ZERO16(cases, i)) {
             for (int p = i; p < i + 16; ++p) {
                 const int c = cases[p];
                 if (c == 0) continue;
@@ -370,7 +371,7 @@ __kernel CHUNK_KERNEL void number(
                 s += counts[c];
             }
         }
-        if (zero16_mask(vmask, i)) continue;
+        if (ZERO16(vmask, i)) continue;
         for (int p = i; p < i + 16; ++p) {
             const int m = vmask[p];
             if (m == 0) continue;
@@ -445,7 +446,7 @@ __kernel CHUNK_KERNEL void number(
 __kernel SCALAR_KERNEL void emit32(EMIT_ARGS, __global int *out) { EMIT_BODY(out) }
 __kernel SCALAR_KERNEL void emit64(EMIT_ARGS, __global long *out) { EMIT_BODY(out) }
 
-// One work-item per new vertex: its position, with cells.py's _interpolate's operations in the
+// One work-item per new vertex: its position, with cells.py's interpolate's operations in the
 // same order (t = (level - f0) / (f1 - f0) clipped to [0, 1], NaN (the infinite padding of
 // closed=True) taken as 1; origin + spacing * (index + t * bit)), so with FP64 the same bits.
 __kernel void interpolate(
@@ -462,14 +463,7 @@ __kernel void interpolate(
     const int key = keys[i];
     const int p = key / NDIRS;
     const int mask = DIR_MASK(key - p * NDIRS);
-    const int q = p + (mask & 1) * s0 + ((mask >> 1) & 1) * s1
-#if DIM > 2
-        + ((mask >> 2) & 1) * s2
-#endif
-#if DIM > 3
-        + ((mask >> 3) & 1) * s3
-#endif
-        ;
+    const int q = p + corner_offset(mask, s0, s1, s2, s3);
     const real_t f0 = LOAD_REAL(values, p);
     const real_t f1 = LOAD_REAL(values, q);
     real_t t = (level - f0) / (f1 - f0);

@@ -19,7 +19,7 @@ DIMS = (2, 3, 4)
 def _geometry(shape, perm=None):
     d = len(shape)
     perm = tuple(range(d)) if perm is None else perm
-    return cells._Geometry(tuple(shape), perm, np.zeros(d), np.ones(d))
+    return cells.Geometry(tuple(shape), perm, np.zeros(d), np.ones(d))
 
 
 @pytest.mark.parametrize("d", DIMS)
@@ -50,7 +50,7 @@ def test_cases_do_not_depend_on_the_slab_axis(d):
 
 @pytest.mark.parametrize("d", DIMS)
 def test_cube_table_edges_and_rows_follow_lut(d):
-    table = cells._cube_table(d)
+    table = cells.cube_table(d)
     source = lut.load(d, "cube")
     np.testing.assert_array_equal(table.corner & table.mask, 0)  # lower corner, direction
     np.testing.assert_array_equal(table.corner | table.mask, source.edges.max(axis=1))
@@ -61,7 +61,7 @@ def test_cube_table_edges_and_rows_follow_lut(d):
 
 @pytest.mark.parametrize("d", DIMS)
 def test_kuhn_table_splits_each_cube_into_d_factorial_simplices(d):
-    table = cells._kuhn_table(d)
+    table = cells.kuhn_table(d)
     simplex = lut.load(d, "simplex")
     assert len(simplex.cells) == math.factorial(d)
     # per cube case, the Kuhn simplices' own cases add up to the rows listed for it
@@ -96,13 +96,13 @@ def test_values_equal_to_the_level_are_positive(d, inside, toward):
 def test_interpolation_stays_on_its_edge_and_takes_the_padding_limit():
     d = 2
     geom = _geometry((2, 3))
-    plan = cells._Plan.make(cells._cube_table(d), geom)
+    plan = cells.Plan.make(cells.cube_table(d), geom)
     slab = np.array([[0.0, 1e-300, np.inf], [1.0, -np.inf, 3.0]])
     # edges: (0,0)-(0,1) along axis 1, (0,1)-(0,2) along axis 1 into +inf, (1,1)-(1,2) from -inf
     lin = np.array([0, 1, 4])
     masks = np.array([2, 2, 2])
     level = 0.5
-    p = cells._interpolate(slab, lin, masks, 0, level, plan)
+    p = cells.interpolate(slab, lin, masks, 0, level, plan)
     # 0 -> 1e-300 does not cross 0.5 in exact arithmetic, but the engine only interpolates edges
     # it found crossed; t = 0.5 / 1e-300 is clipped to the edge, never beyond its end
     assert p[0].tolist() == [0.0, 1.0]
@@ -129,7 +129,7 @@ def test_corner_offsets_follow_the_user_axes_under_any_slab_axis():
     shape = (4, 5, 6)
     for perm in itertools.permutations(range(3)):
         engine = tuple(shape[a] for a in perm)
-        offs = cells._corner_offsets(_geometry(engine, perm), 3)
+        offs = cells.corner_offsets(_geometry(engine, perm), 3)
         strides = np.cumprod((1,) + engine[:0:-1])[::-1]  # engine C-order strides
         for v in range(8):
             user = [(v >> k) & 1 for k in range(3)]
@@ -139,12 +139,12 @@ def test_corner_offsets_follow_the_user_axes_under_any_slab_axis():
 def test_slab_memory_check_refuses_absurd_grids_before_work():
     geom = _geometry((10**6, 10**6, 10**6, 10**6))
     with pytest.raises(MemoryError, match="use thinner slabs"):
-        cells._check_slab_memory(geom, 1, "cubes", 8)
-    layers = cells._layers_per_slab(None, _geometry((100, 100, 100, 100)), "cubes")
+        cells.check_slab_memory(geom, 1, "cubes", 8)
+    layers = cells.layers_per_slab(None, _geometry((100, 100, 100, 100)), "cubes")
     assert layers >= 1 and (layers + 1) * 100**3 * 4 <= 2 * cells._KEYS_PER_SLAB
-    assert cells._layers_per_slab(3, _geometry((10, 10)), "cubes") == 3
+    assert cells.layers_per_slab(3, _geometry((10, 10)), "cubes") == 3
     with pytest.raises(ValueError, match="`chunk`"):
-        cells._layers_per_slab(0, _geometry((10, 10)), "cubes")
+        cells.layers_per_slab(0, _geometry((10, 10)), "cubes")
 
 
 @pytest.mark.parametrize("dtype", [np.float16, np.float32, np.float64, np.int8, np.uint8,
@@ -197,3 +197,63 @@ def test_narrow_dtypes_are_compared_with_the_level_as_given(d, dtype, level):
             assert got.n_simplices == ref.n_simplices > 0
             np.testing.assert_array_equal(got.simplices, ref.simplices)
             np.testing.assert_array_equal(got.vertices, ref.vertices)  # t in float64 as well
+
+
+class _Bar:
+    def __init__(self):
+        self.done = 0
+
+    def update(self, n):
+        self.done += n
+
+
+@pytest.mark.parametrize("layers", [1, 2, 3, 7, 100])
+def test_the_slab_loop_covers_the_grid_with_shared_layers(layers):
+    """Job.slabs, the loop of both engines: consecutive slabs share their boundary layer, the
+    last one ends at the grid's last layer, progress counts every cell layer once, and the
+    values are checked when asked."""
+    values = np.arange(8 * 3 * 2, dtype=float).reshape(8, 3, 2)
+    reads = []
+
+    def read(a, b):
+        reads.append((a, b))
+        return values[a:b]
+
+    bar = _Bar()
+    job = cells.Job(read, _geometry(values.shape), 0.0, cells.cell_table(3, "cubes"), "below",
+                    layers, check_values=True, progress=bar)
+    got = [(z0, z1, slab) for z0, z1, slab in job.slabs()]
+    ranges = [(z0, z1) for z0, z1, _ in got]
+    want = [(z, min(z + layers, 7)) for z in range(0, 7, layers)]
+    assert ranges == want and reads == [(a, b + 1) for a, b in want] and bar.done == 7
+    for z0, z1, slab in got:
+        np.testing.assert_array_equal(slab, values[z0:z1 + 1])
+    assert [z for z, _, _ in job.slabs(3, report=False)] == [0, 3, 6] and bar.done == 7
+    values[5, 1, 1] = np.nan
+    with pytest.raises(ValueError, match="values"):
+        list(job.slabs())
+
+
+def test_frame_gives_each_engine_axis_its_index_origin_and_spacing():
+    """What cells.interpolate adds and scales and the device kernel receives: per engine axis
+    (engine axis e holds user axis perm[e]) the slab's first grid index, with a block's offset,
+    the origin and the spacing."""
+    geom = cells.Geometry((4, 5, 6), (2, 0, 1), np.array([0.5, -1.0, 2.0]), np.array([0.1, 0.2, 0.3]),
+                          np.array([10, 20, 30]))
+    index, origin, spacing = geom.frame(3)
+    assert index == [3 + 30, 10, 20] and origin == [2.0, 0.5, -1.0] and spacing == [0.3, 0.1, 0.2]
+    assert _geometry((4, 5)).frame(2)[0] == [2, 0]
+
+
+def test_join_concatenates_parts_in_their_index_type_or_widened():
+    d = 3
+    parts = [cells.SlabMesh(np.full((k, d), float(k)), np.full((k + 1, d), k, dtype=np.int32),
+                            np.zeros(0), np.zeros(0), np.zeros(0)) for k in (1, 2)]
+    v, s = cells.join(parts, d)
+    assert v.shape == (3, d) and s.dtype == np.int32 and s.shape == (5, d)
+    v, s = cells.join(parts, d, widen=True)
+    assert s.dtype == np.int64 and s[:2].tolist() == [[1] * d] * 2 and s[2:].tolist() == [[2] * d] * 3
+    v, s = cells.join(parts[:1], d, widen=True)
+    assert s is parts[0].simplices and v is parts[0].vertices  # one part: no copy
+    v, s = cells.join([], d)
+    assert v.shape == (0, d) and s.shape == (0, d) and s.dtype == np.int64

@@ -24,18 +24,16 @@ def _engines(values, level, method, inside="below", layers=None, runtime=None, r
              origin=0.0, spacing=1.0):
     """(numpy engine result, device engine result) for a C-order array."""
     d = values.ndim
-    geom = cells._Geometry(values.shape, tuple(range(d)), np.full(d, origin, dtype=float),
+    geom = cells.Geometry(values.shape, tuple(range(d)), np.full(d, origin, dtype=float),
                            np.full(d, spacing, dtype=float))
-    table = cells._cell_table(d, method)
-    layers = layers or cells._layers_per_slab(None, geom, method)
+    table = cells.cell_table(d, method)
+    layers = layers or cells.layers_per_slab(None, geom, method)
 
     def read(a, b):
         return np.ascontiguousarray(values[a:b])
 
-    kw = dict(table=table, inside=inside, layers_per_slab=layers, check_values=False, progress=None)
-    return cells._march(read, geom, level, **kw), cells_device.march(read, geom, level,
-                                                                     runtime=runtime,
-                                                                     reread=reread, **kw)
+    job = cells.Job(read, geom, level, table, inside, layers, check_values=False)
+    return cells.march(job), cells_device.march(job, runtime=runtime, reread=reread)
 
 
 def _assert_same(ref, got):
@@ -55,7 +53,7 @@ def _assert_same_mesh(a, b):
 @pytest.mark.parametrize("method", METHODS)
 def test_every_case_uses_exactly_its_crossed_edges(d, method):
     """What lets the kernels read the used edges off the signs instead of marking them."""
-    table = cells._cell_table(d, method)
+    table = cells.cell_table(d, method)
     n_cases, n_edges = len(table.counts), len(table.corner)
     case_of_row = np.repeat(np.arange(n_cases), table.counts)
     used = np.zeros((n_cases, n_edges), dtype=bool)
@@ -244,14 +242,11 @@ def test_device_slabs_of_every_size_keep_the_numpy_engines_order(cl_runtime, mon
             monkeypatch.setattr(cells_device, "_SLAB_POINTS", per_slab * period * layer)
             for reread in (False, True):
                 _assert_same(*_engines(values, 0.3, method, "below", period, cl_runtime, reread))
-            geom = cells._Geometry(shape, tuple(range(d)), np.zeros(d), np.ones(d))
-            parts = list(cells_device.march_slabs(
-                lambda a, b: values[a:b], geom, 0.3, table=cells._cell_table(d, method),
-                inside="below", layers_per_slab=period, check_values=False, progress=None,
-                runtime=cl_runtime))
-            ref = list(cells._march_slabs(
-                lambda a, b: values[a:b], geom, 0.3, table=cells._cell_table(d, method),
-                inside="below", layers_per_slab=period, check_values=False, progress=None))
+            geom = cells.Geometry(shape, tuple(range(d)), np.zeros(d), np.ones(d))
+            job = cells.Job(lambda a, b: values[a:b], geom, 0.3, cells.cell_table(d, method),
+                            "below", period, check_values=False)
+            parts = list(cells_device.march_slabs(job, runtime=cl_runtime))
+            ref = list(cells.march_slabs(job))
             for name in ("keys", "cells", "counts"):  # what block-wise welding reads
                 np.testing.assert_array_equal(np.concatenate([getattr(p, name) for p in parts]),
                                               np.concatenate([getattr(p, name) for p in ref]))

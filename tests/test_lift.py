@@ -319,3 +319,31 @@ def test_tetwild_leaves_the_working_directory_clean(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     lift.tetrahedralize(trimesh.creation.box(extents=(1, 1, 1)), method="tetwild", edge_length=0.5)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_boundary_is_the_faces_of_one_tet_outward():
+    """TetSolid.boundary (the grouping of ao4d.topology): on a Kuhn-split 2x2x2 block of cubes
+    the triangles used by one tetrahedron (counted by brute force), oriented outwards."""
+    import itertools
+
+    idx = np.arange(27).reshape(3, 3, 3)
+    points = np.stack(np.meshgrid(*[np.arange(3.0)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    tets = []
+    for corner in itertools.product(range(2), repeat=3):
+        for order in itertools.permutations(range(3)):
+            c = list(corner)
+            path = [idx[tuple(c)]]
+            for axis in order:
+                c[axis] += 1
+                path.append(idx[tuple(c)])
+            tets.append(path)
+    solid = lift.TetSolid.from_arrays(points, np.array(tets))
+    uses: dict[tuple, int] = {}
+    for tet in solid.tets.tolist():
+        for k in range(4):
+            key = tuple(sorted(tet[:k] + tet[k + 1:]))
+            uses[key] = uses.get(key, 0) + 1
+    once = {face for face, n in uses.items() if n == 1}
+    assert len(once) == 48 and sorted(tuple(sorted(f)) for f in solid.boundary.tolist()) == sorted(once)
+    surface = trimesh.Trimesh(solid.points, solid.boundary, process=False)
+    assert surface.is_watertight and surface.volume == pytest.approx(8.0, rel=1e-12)

@@ -11,8 +11,8 @@ from scipy.ndimage import gaussian_filter
 from scipy.spatial import cKDTree
 
 import ao4d
+from ao4d import cells, march
 from ao4d import fields as F
-from ao4d import march
 from ao4d.topology import GRID_EDGE_KEY
 
 METHODS = ("cubes", "simplices")
@@ -400,7 +400,7 @@ def test_level_outside_the_data_gives_an_empty_mesh():
 
 
 def test_kuhn_table_orientation_and_size():
-    table = march._kuhn_table(3)
+    table = cells.kuhn_table(3)
     # the all-positive and all-negative cube cases are empty; a single negative corner at the
     # origin is cut by the 6 Kuhn cells that contain it: 6 triangles
     assert table.counts[0] == table.counts[-1] == 0
