@@ -15,7 +15,7 @@
 //   np_hypot  glibc's hypot (2.35 and later, the path without FMA), which numpy's hypot calls
 //   np_min, np_max, np_clip01  numpy's NaN-propagating minimum, maximum and clip
 //
-// exp, sin and cos (metaballs, gyroid) are the device's, within a few ulp of numpy's.
+// exp, sin and cos (metaballs, gyroid) are the device's: not required to be numpy's bits.
 //
 // Defines (written by ao4d/fields_device.py above this file): DIM (2, 3, 4), SUMSQ_LANES.
 // The slab is laid out as ao4d.fields.evaluate_layers lays it: the grid's last axis first, then
