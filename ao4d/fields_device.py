@@ -297,12 +297,14 @@ class _Sampler:
         queue = runtime.queue
         kernel, axes, prm, bad = self._buffers(runtime)
         shape = self.shape(a, b)
-        n = math.prod(shape)
-        dims = [np.int32(x) for x in (list(self.inner) + [1] * 3)[:3]]
+        inner = self.inner
+        grid = ((inner[0], b - a, 1) if self.dim == 2 else
+                (inner[1], inner[0], b - a) if self.dim == 3 else
+                (inner[2], inner[1], (b - a) * inner[0]))
         offs = [np.int32(x) for x in (list(self.offsets) + [0] * 4)[:4]]
         flag = np.zeros(1, dtype=np.int32)
         clmod.enqueue_copy(queue, bad, flag, is_blocking=False)
-        kernel(queue, (n,), None, buffer, axes, prm, *dims, *offs, np.int32(a), bad)
+        kernel(queue, grid, None, buffer, axes, prm, np.int32(inner[0]), *offs, np.int32(a), bad)
         clmod.enqueue_copy(queue, flag, bad, is_blocking=True)
         if flag[0] and self.check is not None:
             values = np.empty(shape, dtype=np.float64)

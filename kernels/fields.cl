@@ -181,23 +181,30 @@ inline double f_ground(const double *p, __constant const double *q)
 
 double field_value(const double *p, __constant const double *prm);
 
-// One work-item per grid point of the slab (shape (layers, n_0, .., n_{DIM-2}), C order): the
-// point's coordinates read from the grid's axes (`axes`: axis k's coordinates from offset o_k),
-// its last coordinate from layer z0 + k. `bad` gets 1 where a value is not finite.
+// One work-item per grid point of the slab (shape (layers, n_0, .., n_{DIM-2}), C order), on a
+// grid of work-items (n_{DIM-2}, n_{DIM-3}, the rest) with no division in 2D and 3D and one in
+// 4D: the point's coordinates read from the grid's axes (`axes`: axis k's coordinates from
+// offset o_k), its last coordinate from layer z0 + k. `bad` gets 1 where a value is not finite.
 __kernel void sample(__global double *out, __global const double *axes,
-                     __constant const double *prm, int n0, int n1, int n2,
-                     int o0, int o1, int o2, int o3, int z0, __global int *bad)
+                     __constant const double *prm, int n0, int o0, int o1, int o2, int o3,
+                     int z0, __global int *bad)
 {
-    const int g = (int)get_global_id(0);
-    const int n[3] = {n0, n1, n2};
-    const int o[4] = {o0, o1, o2, o3};
+    const int g0 = (int)get_global_id(0), g1 = (int)get_global_id(1), g2 = (int)get_global_id(2);
+    const int g = (g2 * (int)get_global_size(1) + g1) * (int)get_global_size(0) + g0;
     double p[DIM];
-    int rest = g;
-    for (int j = DIM - 2; j >= 0; --j) {
-        p[j] = axes[o[j] + rest % n[j]];
-        rest /= n[j];
-    }
-    p[DIM - 1] = axes[o[DIM - 1] + z0 + rest];
+#if DIM == 2
+    p[0] = axes[o0 + g0];
+    p[1] = axes[o1 + z0 + g1];
+#elif DIM == 3
+    p[0] = axes[o0 + g1];
+    p[1] = axes[o1 + g0];
+    p[2] = axes[o2 + z0 + g2];
+#else
+    p[0] = axes[o0 + g2 % n0];
+    p[1] = axes[o1 + g1];
+    p[2] = axes[o2 + g0];
+    p[3] = axes[o3 + z0 + g2 / n0];
+#endif
     const double v = field_value(p, prm);
     out[g] = v;
     if (!isfinite(v)) atomic_or(bad, 1);
