@@ -229,7 +229,7 @@ def device_source(field: Any, dim: int) -> tuple[str, np.ndarray] | None:
 
 
 def _kernel(runtime: cl.Runtime, generated: str, dim: int) -> Any:
-    """The ``sample`` kernel of ``kernels/fields.cl`` with ``generated`` appended, built once
+    """The ``sample_field`` kernel of ``kernels/fields.cl`` with ``generated`` appended, built once
     per context and source (and kept in the binary cache across processes)."""
     from . import _kernel_binaries
     from ._resources import data_dir
@@ -249,7 +249,7 @@ def _kernel(runtime: cl.Runtime, generated: str, dim: int) -> Any:
                 raise RuntimeError(
                     f"building OpenCL kernels fields.cl for {runtime.name} failed; compiler log:\n"
                     f"{_kernel_binaries.build_log(exc, runtime.report.platform)}") from None
-            _built[key] = program.sample
+            _built[key] = program.sample_field
         return _built[key]
 
 

@@ -185,7 +185,7 @@ double field_value(const double *p, __constant const double *prm);
 // grid of work-items (n_{DIM-2}, n_{DIM-3}, the rest) with no division in 2D and 3D and one in
 // 4D: the point's coordinates read from the grid's axes (`axes`: axis k's coordinates from
 // offset o_k), its last coordinate from layer z0 + k. `bad` gets 1 where a value is not finite.
-__kernel void sample(__global double *out, __global const double *axes,
+__kernel void sample_field(__global double *out, __global const double *axes,
                      __constant const double *prm, int n0, int o0, int o1, int o2, int o3,
                      int z0, __global int *bad)
 {
