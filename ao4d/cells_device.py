@@ -314,7 +314,11 @@ class _Engine:
         blk = scratch("blocks", 4 * blocks * 4)
         totals_buf = scratch("totals", 16)
         t = time.perf_counter()
-        cl_.enqueue_copy(q, values, np.ascontiguousarray(slab), is_blocking=False)
+        fill = getattr(slab, "fill_device", None)  # a field sampled on the device: ao4d.fields_device
+        if fill is not None:
+            fill(self.runtime, values)
+        else:
+            cl_.enqueue_copy(q, values, np.ascontiguousarray(slab), is_blocking=False)
         t = _stage("upload", q, t)
         thr, mode = self._threshold_arg(level, slab.dtype, inside, kv[1])
         k["sign"](q, (n,), None, values, sign, thr, mode)

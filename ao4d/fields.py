@@ -90,9 +90,13 @@ class Field:
         Analytic enclosed d-volume and boundary (d-1)-volume of the solid ``{f < 0}``.
     extent : (2, d) array_like, optional
         A box ``(lo, hi)`` containing the solid; ``None`` when unbounded or unknown.
+    program : tuple, optional
+        The same field as a small expression tree ``(op, params, children)`` that
+        ``ao4d.fields_device`` evaluates in an OpenCL kernel with ``func``'s operations;
+        ``None`` (any other callable): sampled on the host only.
     """
 
-    __slots__ = ("_func", "dim", "name", "volume", "boundary_measure", "extent")
+    __slots__ = ("_func", "dim", "name", "volume", "boundary_measure", "extent", "program")
 
     def __init__(
         self,
@@ -103,8 +107,10 @@ class Field:
         volume: float | None = None,
         boundary_measure: float | None = None,
         extent: Any = None,
+        program: tuple | None = None,
     ) -> None:
         self._func = func
+        self.program = program
         self.dim = dim
         self.name = name
         self.volume = None if volume is None else float(volume)
@@ -144,6 +150,15 @@ def _common_dim(fields: Sequence[Any]) -> int | None:
 
 def _extent_of(field: Any) -> np.ndarray | None:
     return getattr(field, "extent", None)
+
+
+def _program(op: str, params: Sequence[float], *children: Any) -> tuple | None:
+    """A field's expression tree for ``ao4d.fields_device``: ``(op, params, children)``, the
+    children being the operands' trees; ``None`` when an operand has none (a plain callable)."""
+    kids = tuple(getattr(c, "program", None) for c in children)
+    if any(k is None for k in kids):
+        return None
+    return (op, tuple(float(x) for x in params), kids)
 
 
 def _ball_volume(dim: int, radius: float) -> float:
@@ -198,6 +213,7 @@ def hypersphere(radius: float = 1.0, center: Any = 0.0, *, dim: int | None = Non
         volume=vol,
         boundary_measure=dim * vol / r,
         extent=(c - r, c + r),
+        program=_program("hypersphere", (r, *c)),
     )
 
 
@@ -232,6 +248,7 @@ def spheritorus(R: float = 1.0, r: float = 0.4) -> Field:
         volume=4 * math.pi**2 * R**2 * r**2 + math.pi**2 * r**4,
         boundary_measure=8 * math.pi**2 * R**2 * r + 4 * math.pi**2 * r**3,
         extent=([-a, -a, -a, -r], [a, a, a, r]),
+        program=_program("spheritorus", (R, r)),
     )
 
 
@@ -265,6 +282,7 @@ def torisphere(R: float = 1.0, r: float = 0.4) -> Field:
         volume=8 / 3 * math.pi**2 * R * r**3,
         boundary_measure=8 * math.pi**2 * R * r**2,
         extent=([-a, -a, -r, -r], [a, a, r, r]),
+        program=_program("torisphere", (R, r)),
     )
 
 
@@ -306,6 +324,7 @@ def ditorus(R: float = 1.0, r1: float = 0.45, r2: float = 0.2) -> Field:
         volume=4 * math.pi**3 * R * r1 * r2**2,
         boundary_measure=8 * math.pi**3 * R * r1 * r2,
         extent=([-a, -a, -b, -r2], [a, a, b, r2]),
+        program=_program("ditorus", (R, r1, r2)),
     )
 
 
@@ -341,6 +360,7 @@ def tiger(R1: float = 0.8, R2: float = 0.8, r: float = 0.35) -> Field:
         volume=4 * math.pi**3 * R1 * R2 * r**2,
         boundary_measure=8 * math.pi**3 * R1 * R2 * r,
         extent=([-a, -a, -b, -b], [a, a, b, b]),
+        program=_program("tiger", (R1, R2, r)),
     )
 
 
@@ -373,6 +393,7 @@ def duocylinder(r1: float = 1.0, r2: float = 1.0) -> Field:
         volume=math.pi**2 * r1**2 * r2**2,
         boundary_measure=2 * math.pi**2 * r1 * r2 * (r1 + r2),
         extent=([-r1, -r1, -r2, -r2], [r1, r1, r2, r2]),
+        program=_program("duocylinder", (r1, r2)),
     )
 
 
@@ -418,6 +439,7 @@ def tesseract(half: float = 1.0, rounding: float = 0.0, *, dim: int = 4) -> Fiel
         volume=vol,
         boundary_measure=area,
         extent=(np.full(dim, -h), np.full(dim, h)),
+        program=_program("tesseract", (a, rho, dim)),
     )
 
 
@@ -462,6 +484,7 @@ def indented_cube(half: float = 1.0, indent: float = 0.6, *, axis: int = 3) -> F
         volume=16 * h**4 - math.pi**2 * rho**4 / 4,
         boundary_measure=64 * h**3 - 4 / 3 * math.pi * rho**3 + math.pi**2 * rho**3,
         extent=cube.extent,
+        program=_program("difference", (), cube, ball),  # the same operations
     )
 
 
@@ -507,6 +530,7 @@ def metaballs(centers: Any, radii: Any = 0.5, *, sharpness: float = 2.0) -> Fiel
         dim=dim,
         name=f"metaballs(k={k})",
         extent=((c - reach[:, None]).min(axis=0), (c + reach[:, None]).max(axis=0)),
+        program=_program("metaballs", (-s, dim, *np.column_stack([c, inv_r2]).ravel())),
     )
 
 
@@ -536,7 +560,8 @@ def gyroid(period: float = 1.0, thickness: float = 0.3) -> Field:
         g = sum(s[..., i] * c[..., (i + 1) % 4] for i in range(4))
         return np.abs(g) - t
 
-    return Field(f, dim=4, name=f"gyroid(period={period:g}, thickness={t:g})")
+    return Field(f, dim=4, name=f"gyroid(period={period:g}, thickness={t:g})",
+                 program=_program("gyroid", (k, t)))
 
 
 def ground(height: float = 0.0, axis: int = 1, *, dim: int = 4) -> Field:
@@ -560,7 +585,8 @@ def ground(height: float = 0.0, axis: int = 1, *, dim: int = 4) -> Field:
     dim = check_positive_int(dim, "dim")
     if axis not in range(dim):
         raise ValueError(f"`axis` must be in 0..{dim - 1}, got {axis!r}")
-    return Field(lambda p: p[..., axis] - h, dim=dim, name=f"ground(height={h:g}, axis={axis})")
+    return Field(lambda p: p[..., axis] - h, dim=dim, name=f"ground(height={h:g}, axis={axis})",
+                 program=_program("ground", (h, axis, dim)))
 
 
 # --------------------------------------------------------------------------------------------
@@ -602,6 +628,7 @@ def union(*fields: Callable) -> Field:
         dim=dim,
         name="union(" + ", ".join(map(repr, fields)) + ")",
         extent=_hull([_extent_of(f) for f in fields]),
+        program=_program("union", (), *fields),
     )
 
 
@@ -629,6 +656,7 @@ def intersection(*fields: Callable) -> Field:
         dim=dim,
         name="intersection(" + ", ".join(map(repr, fields)) + ")",
         extent=extent,
+        program=_program("intersection", (), *fields),
     )
 
 
@@ -651,6 +679,7 @@ def difference(a: Callable, b: Callable) -> Field:
         dim=_common_dim((a, b)),
         name=f"difference({a!r}, {b!r})",
         extent=_extent_of(a),
+        program=_program("difference", (), a, b),
     )
 
 
@@ -687,6 +716,7 @@ def smooth_union(a: Callable, b: Callable, k: float = 0.2) -> Field:
         dim=_common_dim((a, b)),
         name=f"smooth_union({a!r}, {b!r}, k={k:g})",
         extent=None if hull is None else hull + np.array([[-k / 4], [k / 4]]),
+        program=_program("smooth_union", (k,), a, b),
     )
 
 
@@ -718,6 +748,7 @@ def translate(field: Callable, offset: Any) -> Field:
         volume=getattr(field, "volume", None),
         boundary_measure=getattr(field, "boundary_measure", None),
         extent=None if ext is None else ext + off,
+        program=_program("translate", off, field),
     )
 
 
@@ -750,6 +781,7 @@ def scale(field: Callable, factor: float) -> Field:
         volume=None if vol is None or dim is None else vol * s**dim,
         boundary_measure=None if area is None or dim is None else area * s ** (dim - 1),
         extent=None if ext is None else ext * s,
+        program=_program("scale", (s,), field),
     )
 
 
@@ -803,6 +835,7 @@ def rotate(field: Callable, plane: tuple[int, int] = (0, 3), angle: float = 0.0)
         volume=getattr(field, "volume", None),
         boundary_measure=getattr(field, "boundary_measure", None),
         extent=ext,
+        program=_program("rotate", (i, j, c, s, -s), field),
     )
 
 

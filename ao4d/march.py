@@ -80,6 +80,8 @@ def _run(
         # device slabs grow past the numpy engine's unless the user chose them (chunk=)
         engine, extra = cells_device.march, {"runtime": runtime, "reread": reread,
                                              "grow": chunk is None}
+    else:  # slabs of fields sampled on the device, as host arrays (ao4d.fields_device)
+        read = getattr(read, "host", read)
     bar = _progress_bar(progress, math.prod(n - 1 for n in geom.shape), geom.shape[0] - 1)
     try:
         vertices, simplices = engine(_Job(read, geom, level, table, inside, layers, check_values, bar),
@@ -459,6 +461,10 @@ def extract_field(
             first.append(float(slab[(0,) * slab.ndim]))  # the value at the grid's first corner
         return slab
 
+    from . import fields_device  # the shape library's fields: sampled on the device
+
+    read = fields_device.reader(field, axes, backend, read, first=first,
+                                check=lambda slab, a: _check_field_values(slab, field, axes, a))
     return _checked(_run(read, geom, level, method, inside, chunk, progress, False, 8, backend), level,
                     inside, None, lambda: first[0])
 

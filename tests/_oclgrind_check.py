@@ -13,7 +13,7 @@ import numpy as np
 import pyopencl as pcl
 
 import ao4d
-from ao4d import bvh, cl, raycast
+from ao4d import bvh, cl, fields_device, raycast
 from ao4d.bvh import device
 
 ran: set[str] = set()
@@ -104,6 +104,12 @@ def main() -> int:
             got = ao4d.extract(values, 0.1, method=method, chunk=2, backend="opencl")
             check(f"{d}D extraction ({method}) equals the numpy engine",
                   np.array_equal(ref.vertices, got.vertices) and np.array_equal(ref.simplices, got.simplices))
+        # the shape library's fields sampled on the device (kernels/fields.cl): numpy's values
+        field = ao4d.fields.spheritorus() if d == 4 else ao4d.fields.hypersphere(0.7, [0.1] * d)
+        axes = ao4d.fields.grid_axes((5, 4, 6, 3)[:d], (-1.2, 1.1))
+        check(f"{d}D field sampled on the device equals numpy", np.array_equal(
+            fields_device.sample_layers(field, axes, 0, len(axes[-1]), runtime),
+            ao4d.fields.evaluate_layers(field, axes, 0, len(axes[-1]))))
     # screen-space AO and its filter on a tiny image (9 directions: a cut group of eight)
     from ao4d.screen_ao import DepthVolume, denoise, screen_space_occlusion
 

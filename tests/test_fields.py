@@ -223,3 +223,27 @@ def test_sample_matches_direct_evaluation_across_blocks(monkeypatch):
 def test_bad_input_is_named(call, error, match):
     with pytest.raises(error, match=match):
         call()
+
+
+def test_fields_carry_their_expression_tree_and_plain_callables_none():
+    """Field.program (what ao4d.fields_device evaluates on the device): every preset and
+    combinator has one, with its parameters; any plain callable inside makes it None."""
+    for name in F.PRESETS:
+        prog = F.preset(name).program
+        assert prog is not None and isinstance(prog[0], str), name
+    assert F.spheritorus(1.0, 0.4).program == ("spheritorus", (1.0, 0.4), ())
+    assert F.hypersphere(2.0, [1, 2, 3]).program == ("hypersphere", (2.0, 1.0, 2.0, 3.0), ())
+    ball = F.hypersphere(1.0).program
+    assert F.translate(F.hypersphere(1.0), [1, 0, 0, 0]).program == ("translate", (1.0, 0, 0, 0), (ball,))
+    assert F.scale(F.hypersphere(1.0), 2.0).program == ("scale", (2.0,), (ball,))
+    assert F.union(F.hypersphere(1.0), F.hypersphere(1.0)).program == ("union", (), (ball, ball))
+    cube = F.indented_cube(1.0, 0.6)
+    assert cube.program[0] == "difference" and cube.program[2][0][0] == "tesseract"
+
+    def plain(p):
+        return p[..., 0]
+
+    assert F.Field(plain, dim=4, name="plain").program is None
+    assert F.union(F.hypersphere(1.0), plain).program is None
+    assert F.smooth_union(plain, F.hypersphere(1.0)).program is None
+    assert F.rotate(plain, (0, 1), 0.3).program is None
