@@ -18,15 +18,19 @@ from ao4d import bvh, cl, raycast
 DIMS = (2, 3, 4)
 
 
+def _shifted_soup(seed, d, shift):
+    """A random simplex soup and 3000 random rays, both moved by ``shift`` along every axis."""
+    rng = np.random.default_rng(seed)
+    mesh = soup_scene(rng, d)
+    o, w = random_rays(rng, d, 3000)
+    return ao4d.SimplexMesh(mesh.vertices + shift, mesh.simplices), o + shift, w
+
+
 @pytest.mark.parametrize("d", DIMS)
 @pytest.mark.parametrize("closest", [True, False])
 @pytest.mark.parametrize("shift", [0.0, 1000.0])  # far from the coordinate origin: float32 slabs
 def test_bvh_equals_brute_force(d, closest, shift, backend):
-    rng = np.random.default_rng(900 + d)
-    mesh = soup_scene(rng, d)
-    mesh = ao4d.SimplexMesh(mesh.vertices + shift, mesh.simplices)
-    o, w = random_rays(rng, d, 3000)
-    o = o + shift
+    mesh, o, w = _shifted_soup(900 + d, d, shift)
     for max_distance in (np.inf, 0.7):
         fast = raycast.cast_rays(mesh, o, w, closest=closest, backend=backend, max_distance=max_distance)
         slow = raycast.cast_rays(mesh, o, w, closest=closest, backend=backend, accel="brute", max_distance=max_distance)
@@ -560,11 +564,7 @@ def test_ray_mapping_gives_the_plain_formulas_bits(d, in_dtype, shift, monkeypat
 def test_cast_rays_over_many_launches_equals_brute_force(d, shift, cl_runtime, monkeypatch):
     # launches of 700 rays reuse one launch's mapped buffers: every ray's answer equals the
     # brute-force answer (and the numpy traversal's hits are those of one launch for all)
-    rng = np.random.default_rng(2900 + d)
-    mesh = soup_scene(rng, d)
-    mesh = ao4d.SimplexMesh(mesh.vertices + shift, mesh.simplices)
-    o, w = random_rays(rng, d, 3000)
-    o = o + shift
+    mesh, o, w = _shifted_soup(2900 + d, d, shift)
     whole = raycast.cast_rays(mesh, o, w, closest=False, backend="opencl")
     monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 700)
     for closest in (False, True):
