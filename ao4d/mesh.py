@@ -842,7 +842,8 @@ def as_meshes(meshes: Any, name: str = "meshes") -> list[SimplexMesh]:
     ValueError
         ``meshes`` is empty, or a pair's arrays do not make a mesh.
     """
-    if isinstance(meshes, SimplexMesh) or _is_trimesh(meshes) or _as_pair(meshes) is not None:
+    if (isinstance(meshes, SimplexMesh) or _is_trimesh(meshes) or _as_pair(meshes) is not None
+            or (hasattr(meshes, "vertices") and hasattr(meshes, "simplices"))):
         return [as_mesh(meshes, name)]
     if isinstance(meshes, (str, bytes)) or not isinstance(meshes, Iterable):
         raise TypeError(f"`{name}` must be {_MESH_FORMS}, or a sequence of them, got {type(meshes).__name__}")

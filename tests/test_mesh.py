@@ -254,6 +254,9 @@ def test_as_mesh_takes_a_mesh_a_trimesh_a_pair_and_a_plain_object():
         vertices, simplices = mesh.vertices, mesh.simplices
 
     np.testing.assert_array_equal(as_mesh(Plain()).simplices, mesh.simplices)
+    from ao4d.mesh import as_meshes
+
+    assert [m.n_simplices for m in as_meshes(Plain())] == [mesh.n_simplices]
 
 
 @pytest.mark.parametrize(
