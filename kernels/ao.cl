@@ -139,11 +139,14 @@ __kernel __attribute__((vec_type_hint(float4))) void cast_brute(__global const f
     t_out[i] = t;
 }
 
+// the parameters of the two direction kernels below (tests call them alike)
+#define DIRECTIONS_PARAMS                                                                           \
+    __global const float4 *normals, __global const uint *index, __global const uint *table,        \
+    const int samples, const uint seed, __global float4 *out
+
 // the directions of sample_directions, generated eight at a time (cosine_directions8) as the
 // packet kernel does: for tests, which check that they are the same bits
-__kernel void sample_directions8(__global const float4 *normals, __global const uint *index,
-                                 __global const uint *table, const int samples, const uint seed,
-                                 __global float4 *out)
+__kernel void sample_directions8(DIRECTIONS_PARAMS)
 {
     const size_t i = get_global_id(0);
     uint shift[DIM - 1];
@@ -160,9 +163,7 @@ __kernel void sample_directions8(__global const float4 *normals, __global const 
 }
 
 // the directions ao_* trace for each point (for tests: must equal ao4d.sampling.cosine_hemisphere)
-__kernel void sample_directions(__global const float4 *normals, __global const uint *index,
-                                __global const uint *table, const int samples, const uint seed,
-                                __global float4 *out)
+__kernel void sample_directions(DIRECTIONS_PARAMS)
 {
     const size_t i = get_global_id(0);
     uint shift[DIM - 1];
