@@ -16,7 +16,6 @@ import numpy as np
 
 from .. import cl
 from .._validate import check_choice, check_positive_int
-from ..mesh import as_mesh
 from . import device, host
 from . import blocks
 from .blocks import device_wide_tree
@@ -89,7 +88,9 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
     """
     check_choice(builder, "builder", BUILDERS)
     leaf_size = check_positive_int(leaf_size, "leaf_size")
-    if not hasattr(mesh, "simplices"):
+    if not hasattr(mesh, "simplices"):  # a trimesh.Trimesh or a pair: read on demand, so that
+        from ..mesh import as_mesh  # the tree's modules do not import the mesh's (files, pictures)
+
         mesh = as_mesh(mesh)
     if runtime is not None and leaf_size > MAX_LEAF_BLOCKS * block_lanes(runtime):
         lanes = block_lanes(runtime)
