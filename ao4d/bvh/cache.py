@@ -88,8 +88,9 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
     """
     check_choice(builder, "builder", BUILDERS)
     leaf_size = check_positive_int(leaf_size, "leaf_size")
-    if not hasattr(mesh, "simplices"):  # a trimesh.Trimesh or a pair: read on demand, so that
-        from ..mesh import as_mesh  # the tree's modules do not import the mesh's (files, pictures)
+    if not hasattr(mesh, "simplices"):  # a trimesh.Trimesh or a (vertices, simplices) pair
+        # imported here: importing the tree need not import the mesh's files and pictures
+        from ..mesh import as_mesh
 
         mesh = as_mesh(mesh)
     if runtime is not None and leaf_size > MAX_LEAF_BLOCKS * block_lanes(runtime):
