@@ -154,7 +154,7 @@ def read_grid(
     chunks: Any = None,
     w_scale: float | None = None,
     keep_affine: bool = False,
-    affine: Any = DEPRECATED,
+    affine: Any = DEPRECATED,  # the old spelling of keep_affine
 ) -> Grid:
     """Open a 2D/3D/4D grid of values from a file, lazily.
 
