@@ -386,7 +386,7 @@ def extract_field(
     blocks: Any = None,
     progress: bool | None = None,
     backend: str = "auto",
-    chunks: Any = DEPRECATED,
+    chunks: Any = DEPRECATED,  # the old spelling of blocks
 ) -> SimplexMesh:
     """Sample ``field`` and extract its level set slab by slab, never holding the whole grid.
 
