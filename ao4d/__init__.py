@@ -1,6 +1,8 @@
 """ao4d: true 4D surfaces, 4D ambient occlusion in OpenCL, and renders into 3D image volumes.
 
-Submodules are loaded lazily so that ``import ao4d`` is cheap and never touches OpenCL.
+The package's names (``__all__``) are its functions and classes; the stages' modules are
+reachable as attributes (``ao4d.fields``, ``ao4d.lut``, ...). Everything loads lazily on first
+use, so that ``import ao4d`` is cheap and never touches OpenCL.
 
 Example
 -------
@@ -22,62 +24,46 @@ _preload_runtime_tbb()
 
 __version__ = "0.1.0"
 
-# public name -> "module:attribute" (module relative to this package)
-_LAZY = {
-    "lut": "lut:",
-    "fields": "fields:",
-    "cl": "cl:",
-    "geometry": "geometry:",
-    "topology": "topology:",
-    "slicing": "slicing:",
-    "mesh": "mesh:",
-    "mesh_files": "mesh_files:",
-    "march": "march:",
-    "blockwise": "blockwise:",
-    "readers": "readers:",
-    "bvh": "bvh:",
-    "raycast": "raycast:",
-    "sampling": "sampling:",
-    "ao": "ao:",
-    "camera": "camera:",
-    "lighting": "lighting:",
-    "rendering": "rendering:",
-    "screen_ao": "screen_ao:",
-    "volumes": "volumes:",
-    "pictures": "pictures:",
-    "lift": "lift:",
-    "scenes": "scenes:",
-    "SimplexMesh": "mesh:SimplexMesh",
+# the functions and classes: ``__all__``, ``from ao4d import *`` and ``dir(ao4d)``
+# (public name -> "module:attribute", the module relative to this package)
+_EXPORTS = {
     "sample": "fields:sample",
     "extract": "march:extract",
     "extract_field": "march:extract_field",
     "read_grid": "readers:read_grid",
+    "SimplexMesh": "mesh:SimplexMesh",
     "ambient_occlusion": "ao:ambient_occlusion",
     "cast_rays": "raycast:cast_rays",
-    "render": "rendering:render",
-    "RenderResult": "rendering:RenderResult",
     "Camera4D": "camera:Camera4D",
     "Light": "lighting:Light",
-    "viewer": "viewer:",
-    "image_viewer": "image_viewer:",
-    "pages": "pages:",
+    "render": "rendering:render",
+    "RenderResult": "rendering:RenderResult",
     "view": "pages:view",
 }
 
-__all__ = sorted(_LAZY) + ["__version__"]
+# the stages' modules: reachable as ``ao4d.<name>`` (loaded on first use), kept out of
+# ``__all__`` and ``dir`` so that ``ao`` stands apart from ``ambient_occlusion``, ``sampling``
+# from ``sample``, ``viewer`` from ``view``
+_MODULES = (
+    "lut", "fields", "cl", "geometry", "topology", "slicing", "mesh", "mesh_files", "march",
+    "blockwise", "readers", "bvh", "raycast", "sampling", "ao", "camera", "lighting", "rendering",
+    "screen_ao", "volumes", "pictures", "lift", "scenes", "viewer", "image_viewer", "pages",
+)
+
+__all__ = sorted(_EXPORTS)
 
 
 def __getattr__(name: str) -> Any:
-    try:
-        target = _LAZY[name]
-    except KeyError:
-        raise AttributeError(f"module 'ao4d' has no attribute {name!r}") from None
-    module_name, _, attr = target.partition(":")
-    module = importlib.import_module(f".{module_name}", __name__)
-    value = getattr(module, attr) if attr else module
+    if name in _EXPORTS:
+        module_name, _, attr = _EXPORTS[name].partition(":")
+        value = getattr(importlib.import_module(f".{module_name}", __name__), attr)
+    elif name in _MODULES:
+        value = importlib.import_module(f".{name}", __name__)
+    else:
+        raise AttributeError(f"module 'ao4d' has no attribute {name!r}")
     globals()[name] = value
     return value
 
 
 def __dir__() -> list[str]:
-    return __all__
+    return [*__all__, "__version__"]

@@ -14,8 +14,7 @@ loaded (two copies of TBB in one process would be worse) and :func:`foreign_tbb`
 that discovery can say why the platform is missing and what to do.
 
 Costs at import: one ``stat`` when the runtime is absent; otherwise importing ``ctypes`` and
-mapping the library: ``python -X importtime -c "import ao4d"`` went from 11.9 to 15.6 ms on the
-project's 2-core machine when idle (medians of 20 runs under load: 19 -> 31 ms). It imports
+mapping the library, a few milliseconds (the benchmarks guide has the figures). It imports
 neither pyopencl nor anything that touches a device. ``AO4D_PRELOAD_TBB=0`` turns it off.
 """
 

@@ -23,7 +23,7 @@ from . import cl
 from ._validate import as_array, check_choice, check_int, check_memory, check_positive_int
 from .bvh.host import nondegenerate
 from .geometry import simplex_normals
-from .mesh import warn_if_inside_out
+from .mesh import as_mesh, warn_if_inside_out
 from .topology import GRID_EDGE_KEY
 from .raycast import (ACCELS, check_distance, check_rays, count_occluded, get_bvh, mesh_arrays, progress_bar,
                       unit_rows)
@@ -118,7 +118,7 @@ def _unit(normals: np.ndarray) -> np.ndarray:
 def ambient_occlusion(
     mesh: Any,
     *,
-    samples: int = 256,
+    samples: int = 64,
     max_distance: float = math.inf,
     at: str = "vertices",
     points: Any = None,
@@ -137,10 +137,11 @@ def ambient_occlusion(
 
     Parameters
     ----------
-    mesh : SimplexMesh
-        Occluding geometry, (d-1)-simplices in R^d, d in {2, 3, 4}.
+    mesh : SimplexMesh, trimesh.Trimesh or (vertices, simplices)
+        Occluding geometry, (d-1)-simplices in R^d, d in {2, 3, 4}, in any form
+        :func:`ao4d.mesh.as_mesh` takes (a ``SimplexMesh`` keeps its BVH between calls).
     samples : int
-        Rays per point (>= 1).
+        Rays per point (>= 1); 64 by default, as in :func:`ao4d.render` and ``ao4d ao``.
     max_distance : float
         Only hits within this distance occlude (``inf``: any hit).
     at : {"vertices", "simplices"}
@@ -206,6 +207,7 @@ def ambient_occlusion(
     >>> abs(float(a[0]) - 0.5) < 0.03
     True
     """
+    mesh = as_mesh(mesh)
     vertices, _ = mesh_arrays(mesh)
     d = vertices.shape[1]
     samples = check_positive_int(samples, "samples")

@@ -413,9 +413,21 @@ def _run(func: Callable, block_args: list[tuple], spec: _Spec, progress: bool | 
     return _weld(blocks, spec, len(spec.shape))
 
 
-def _chunks(chunks: Any, shape: tuple[int, ...]) -> tuple[tuple[int, ...], ...]:
-    """``chunks`` (points per block: int, per-axis ints, dask block sizes or "auto") for a grid
-    of ``shape``, as dask's per-axis block sizes."""
+def block_sizes(chunks: Any, shape: tuple[int, ...]) -> tuple[tuple[int, ...], ...]:
+    """Dask's per-axis block sizes for ``chunks`` on a grid of ``shape``, else an error naming ``chunks``.
+
+    Parameters
+    ----------
+    chunks : int, sequence of int, dask block sizes or "auto"
+        Points per block (dask's ``normalize_chunks`` rules).
+    shape : tuple of int
+        Grid points per axis.
+
+    Returns
+    -------
+    tuple of tuple of int
+        The sizes of the blocks along each axis.
+    """
     from dask.array.core import normalize_chunks
 
     if isinstance(chunks, bool) or (isinstance(chunks, (int, np.integer)) and chunks < 1):
@@ -427,6 +439,9 @@ def _chunks(chunks: Any, shape: tuple[int, ...]) -> tuple[tuple[int, ...], ...]:
     if any(c < 1 for sizes in out for c in sizes):
         raise ValueError(f"`chunks` must be positive, got {chunks!r}")
     return out
+
+
+_chunks = block_sizes  # the private name, for callers on other branches until they merge
 
 
 # --------------------------------------------------------------------------------------------
@@ -566,7 +581,7 @@ def extract_field_blocks(
     shape = tuple(len(a) for a in axes)
     spec = _Spec(float(level), method, inside, (d - 1, *range(d - 1)), shape,
                  tuple(map(float, origin)), tuple(map(float, spacing)), chunk, backend=backend)
-    ranges = _block_ranges(_chunks(chunks, shape))
+    ranges = _block_ranges(block_sizes(chunks, shape))
     _check_blocks(ranges, spec, 8, f"`chunks={chunks!r}` on a grid of shape {shape}")
     args = [(field, [a[lo:hi] for a, (lo, hi) in zip(axes, box)], tuple(lo for lo, _ in box), spec)
             for box in ranges]
@@ -618,5 +633,5 @@ def field_array(field: Callable, shape: Any, bounds: Any, *, chunks: Any = "auto
         raise TypeError(f"`field` must be callable on (..., d) points, got {type(field).__name__}")
     axes = grid_axes(shape, bounds, dim=getattr(field, "dim", None))
     n = tuple(len(a) for a in axes)
-    return da.map_blocks(_sample_block, field, axes, chunks=_chunks(chunks, n), dtype=np.float64,
+    return da.map_blocks(_sample_block, field, axes, chunks=block_sizes(chunks, n), dtype=np.float64,
                          meta=np.empty((0,) * len(n)))

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from ._deprecation import DEPRECATED, renamed
 from ._validate import (as_array, as_real, as_vector, check_bool, check_choice, check_finite, check_grid_lengths,
                         check_positive_int)
 from .cells import PROGRESS_CELLS as _PROGRESS_CELLS
@@ -373,9 +374,10 @@ def extract_field(
     method: str = "cubes",
     inside: str = "below",
     chunk: int | None = None,
-    chunks: Any = None,
+    blocks: Any = None,
     progress: bool | None = None,
     backend: str = "auto",
+    chunks: Any = DEPRECATED,  # the old spelling of blocks
 ) -> SimplexMesh:
     """Sample ``field`` and extract its level set slab by slab, never holding the whole grid.
 
@@ -396,14 +398,17 @@ def extract_field(
     chunk : int, optional
         Cell layers per slab along the last axis (slabs share one layer of grid points, whose
         vertices are welded by global edge key). By default about 100 MB of working memory.
-    chunks : int, sequence of int, dask block sizes or "auto", optional
-        Sample and extract block by block instead, each block (this many grid points per axis)
-        a task on the active dask scheduler (threads, or a ``distributed.Client`` when one
-        exists; see :mod:`ao4d.blockwise` for worker and client memory). Same result.
+    blocks : int, sequence of int, dask chunk sizes or "auto", optional
+        Sample and extract block by block instead, each block (this many grid points per axis,
+        dask's ``chunks`` rules) a task on the active dask scheduler (threads, or a
+        ``distributed.Client`` when one exists; see :mod:`ao4d.blockwise` for worker and client
+        memory). Same result.
     progress : bool, optional
         tqdm bar; by default from 2^21 cells on.
     backend : {"auto", "opencl", "numpy"}
         As in :func:`extract`.
+    chunks : int, sequence of int, dask chunk sizes or "auto", optional
+        The old spelling of ``blocks`` (a ``DeprecationWarning``), too close to ``chunk``.
 
     Returns
     -------
@@ -420,6 +425,7 @@ def extract_field(
     """
     from .fields import evaluate_layers, grid_axes
 
+    blocks = renamed("extract_field", "chunks", chunks, "blocks", blocks, None)
     if not callable(field):
         raise TypeError(f"`field` must be callable on (..., d) points, got {type(field).__name__}")
     axes = grid_axes(shape, bounds, dim=getattr(field, "dim", None))
@@ -434,14 +440,14 @@ def extract_field(
     lo = np.array([a[0] for a in axes])
     spacing = np.array([(a[-1] - a[0]) / (len(a) - 1) for a in axes])
     _check_lengths(spacing, lo, n, "bounds")
-    if chunks is not None:
+    if blocks is not None:
         from .blockwise import extract_field_blocks
 
         if progress is not None and not isinstance(progress, bool):
             raise TypeError(f"`progress` must be True, False or None, got {progress!r}")
         return _checked(extract_field_blocks(
             field, axes, level, origin=lo, spacing=spacing, method=method, inside=inside,
-            chunk=None if chunk is None else check_positive_int(chunk, "chunk"), chunks=chunks,
+            chunk=None if chunk is None else check_positive_int(chunk, "chunk"), chunks=blocks,
             progress=progress, backend=backend), level, inside, None, None)
     # engine axis 0 is the user's last axis, so each evaluated layer is one engine layer
     geom = _Geometry((n[-1], *n[:-1]), (d - 1, *range(d - 1)), lo, spacing)

@@ -23,6 +23,7 @@ topology, slicing and mesh_files).
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -39,7 +40,8 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
     import trimesh
 
-__all__ = ["SimplexMesh", "MeshReport", "concatenate", "InsideOutWarning", "warn_if_inside_out"]
+__all__ = ["SimplexMesh", "MeshReport", "as_mesh", "as_meshes", "concatenate", "InsideOutWarning",
+           "warn_if_inside_out"]
 
 DIMS = (2, 3, 4)
 
@@ -338,8 +340,8 @@ class SimplexMesh:
         """
         raw = self._raw_normals  # |raw| is proportional to the measure: the weighting we want
         total = np.zeros((self.n_vertices, self.dim))
-        # one bincount per (corner, coordinate) on contiguous columns, no repeated copy of the
-        # weights (1.2 M tets: 0.11-0.15 s of CPU, against 0.13-0.38 s over the raveled simplices)
+        # one bincount per (corner, coordinate) on contiguous columns: no copy of the weights
+        # per corner, as one bincount over the raveled simplices would need (benchmarks guide)
         corners = [np.ascontiguousarray(self._simplices[:, i]) for i in range(self.dim)]
         for j in range(self.dim):
             weights = np.ascontiguousarray(raw[:, j])
@@ -676,7 +678,7 @@ class SimplexMesh:
         Parameters
         ----------
         path : str or path-like
-            The file.
+            A mesh file.
 
         Returns
         -------
@@ -769,15 +771,111 @@ def _check_indices(simplices: np.ndarray, n_vertices: int) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def _mesh_list(meshes: Iterable) -> list[SimplexMesh]:
-    """``meshes`` as a non-empty list of SimplexMesh, else an error naming the bad entry."""
-    meshes = list(meshes)
-    if not meshes:
-        raise ValueError("`meshes` must contain at least one SimplexMesh")
-    for i, m in enumerate(meshes):
-        if not isinstance(m, SimplexMesh):
-            raise TypeError(f"`meshes[{i}]` must be a SimplexMesh, got {type(m).__name__}")
-    return meshes
+_MESH_FORMS = ("a SimplexMesh, a trimesh.Trimesh, a (vertices, simplices) pair or an object with "
+               "`vertices` and `simplices`")
+
+
+def as_mesh(mesh: Any, name: str = "mesh") -> SimplexMesh:
+    """``mesh`` as a :class:`SimplexMesh`: the one way every function that takes a mesh reads it.
+
+    Parameters
+    ----------
+    mesh : SimplexMesh, trimesh.Trimesh or (vertices, simplices)
+        A :class:`SimplexMesh` (returned as it is, so its cached values are reused); a 3D
+        ``trimesh.Trimesh`` (its vertices and faces, :meth:`SimplexMesh.from_trimesh`); a pair
+        of a (V, d) vertex array and an (S, d) simplex array; or any object with ``vertices``
+        and ``simplices`` arrays. The last three are copied into a new mesh on every call.
+    name : str
+        The parameter's name in error messages.
+
+    Returns
+    -------
+    SimplexMesh
+        The mesh.
+
+    Raises
+    ------
+    TypeError
+        ``mesh`` is none of these, naming ``name``.
+    ValueError
+        The pair's arrays do not make a mesh (the reason, naming ``name``).
+
+    Examples
+    --------
+    >>> as_mesh(([[0, 0], [1, 0], [0, 1]], [[0, 2], [2, 1], [1, 0]])).n_simplices
+    3
+    """
+    if isinstance(mesh, SimplexMesh):
+        return mesh
+    if _is_trimesh(mesh):
+        return SimplexMesh.from_trimesh(mesh)
+    pair = _as_pair(mesh)
+    if pair is None and hasattr(mesh, "vertices") and hasattr(mesh, "simplices"):
+        pair = mesh.vertices, mesh.simplices
+    if pair is None:
+        raise TypeError(f"`{name}` must be {_MESH_FORMS}, got {type(mesh).__name__}")
+    try:
+        return SimplexMesh(*pair)
+    except (TypeError, ValueError) as exc:
+        raise type(exc)(f"`{name}` holds no valid mesh: {exc}") from None
+
+
+def as_meshes(meshes: Any, name: str = "meshes") -> list[SimplexMesh]:
+    """``meshes``, one mesh or a sequence of them, as a non-empty list of :class:`SimplexMesh`.
+
+    Parameters
+    ----------
+    meshes : mesh or sequence of meshes
+        One mesh in any form :func:`as_mesh` takes, or a list or tuple of them.
+    name : str
+        The parameter's name in error messages (an entry is ``name[i]``).
+
+    Returns
+    -------
+    list of SimplexMesh
+        At least one mesh.
+
+    Raises
+    ------
+    TypeError
+        ``meshes`` or an entry is not a mesh, naming it.
+    ValueError
+        ``meshes`` is empty, or a pair's arrays do not make a mesh.
+    """
+    if (isinstance(meshes, SimplexMesh) or _is_trimesh(meshes) or _as_pair(meshes) is not None
+            or (hasattr(meshes, "vertices") and hasattr(meshes, "simplices"))):
+        return [as_mesh(meshes, name)]
+    if isinstance(meshes, (str, bytes)) or not isinstance(meshes, Iterable):
+        raise TypeError(f"`{name}` must be {_MESH_FORMS}, or a sequence of them, got {type(meshes).__name__}")
+    items = [as_mesh(m, f"{name}[{i}]") for i, m in enumerate(meshes)]
+    if not items:
+        raise ValueError(f"`{name}` must contain at least one mesh")
+    return items
+
+
+_mesh_list = as_meshes  # the name rendering.py imports until it calls as_meshes
+
+
+def _is_trimesh(value: Any) -> bool:
+    module = sys.modules.get("trimesh")  # a Trimesh exists only once trimesh is imported
+    return module is not None and isinstance(value, module.Trimesh)
+
+
+def _as_pair(value: Any) -> tuple[np.ndarray, Any] | None:
+    """(vertices as an array, simplices) when ``value`` is a 2-sequence whose first entry is a
+    2D array of numbers (so a list of two meshes is not a pair), else None."""
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        return None
+    first = value[0]
+    if isinstance(first, SimplexMesh) or _is_trimesh(first):
+        return None
+    try:
+        vertices = np.asarray(first)
+    except (TypeError, ValueError):  # ragged: a sequence of meshes or pairs
+        return None
+    if vertices.ndim != 2 or vertices.dtype.kind not in "iuf":
+        return None
+    return vertices, value[1]
 
 
 def concatenate(meshes: Iterable[SimplexMesh]) -> SimplexMesh:
@@ -785,8 +883,8 @@ def concatenate(meshes: Iterable[SimplexMesh]) -> SimplexMesh:
 
     Parameters
     ----------
-    meshes : iterable of SimplexMesh
-        At least one; all of the same dimension and with the same point_data / cell_data names.
+    meshes : iterable of meshes
+        At least one, each in any form :func:`as_mesh` takes; all of the same dimension and with the same point_data / cell_data names.
 
     Returns
     -------
@@ -802,7 +900,7 @@ def concatenate(meshes: Iterable[SimplexMesh]) -> SimplexMesh:
     >>> float(both.volume), both.cell_data["object_id"].tolist()
     (1.0, [0, 0, 0, 1, 1, 1])
     """
-    meshes = _mesh_list(meshes)
+    meshes = as_meshes(meshes)
     dims = {m.dim for m in meshes}
     if len(dims) > 1:
         raise ValueError(f"`meshes` must all have the same dimension, got {sorted(dims)}")

@@ -124,7 +124,7 @@ def read_field_data(path: str | os.PathLike) -> dict[str, np.ndarray]:
     Parameters
     ----------
     path : str or path-like
-        The file.
+        A mesh file (any format: only ``.npz`` files hold field data).
 
     Returns
     -------

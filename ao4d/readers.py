@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from ._deprecation import DEPRECATED, renamed
 from ._validate import as_real, as_vector, check_bool, check_grid_lengths, check_memory
 
 __all__ = ["Grid", "read_grid", "ObliqueAffineWarning", "natural_key", "FRAME_SUFFIXES"]
@@ -88,7 +89,7 @@ class Grid:
         Length units per time unit used for a NIfTI time axis (w step = ``pixdim[4] * w_scale``),
         or None where no time axis was scaled.
     affine : (d + 1, d + 1) float64 ndarray or None
-        With ``read_grid(..., affine=True)``: grid index to coordinates (the file's affine, e.g.
+        With ``read_grid(..., keep_affine=True)``: grid index to coordinates (the file's affine, e.g.
         oblique scanner axes); pass it to ``ao4d.extract(values, level, affine=grid.affine)``.
         None otherwise (``spacing`` and ``origin`` place the grid).
     """
@@ -152,7 +153,8 @@ def read_grid(
     ndim: int | tuple[int, ...] | None = None,
     chunks: Any = None,
     w_scale: float | None = None,
-    affine: bool = False,
+    keep_affine: bool = False,
+    affine: Any = DEPRECATED,  # the old spelling of keep_affine
 ) -> Grid:
     """Open a 2D/3D/4D grid of values from a file, lazily.
 
@@ -177,11 +179,14 @@ def read_grid(
         time (``pixdim[4] = 2000`` ms with ``w_scale=0.001`` gives a w step of 2). Without it a
         time axis is not taken as a length: one frame is one mean x/y/z step (noted in
         ``notes``). A w step in ``spacing`` wins over both.
-    affine : bool
+    keep_affine : bool
         Keep the file's full index-to-coordinates affine in :attr:`Grid.affine` (NIfTI: oblique
         scanner axes and negative steps as they are, no flips, no warning) for
         ``ao4d.extract(..., affine=grid.affine)``; formats without one get the diagonal affine
         of their spacing and origin.
+    affine : bool
+        The old spelling of ``keep_affine`` (a ``DeprecationWarning``): in :func:`ao4d.extract`
+        ``affine`` is the matrix itself.
 
     Returns
     -------
@@ -214,12 +219,13 @@ def read_grid(
         raise TypeError(f"`ndim` must be an int or a tuple of ints (2, 3, 4), got {ndim!r}")
     if w_scale is not None:
         w_scale = as_real(w_scale, "w_scale", gt=0)
-    affine = check_bool(affine, "affine")
+    keep_affine = check_bool(renamed("read_grid", "affine", affine, "keep_affine", keep_affine, False),
+                             "keep_affine")
     if text.endswith(("/", os.sep)) and text.rstrip("/" + os.sep).lower().endswith(".zarr"):
         text = text.rstrip("/" + os.sep)
     inner = _split_inner(text, _H5_SUFFIXES + (".zarr",))
     pattern = text if inner is None else inner[0]
-    scale = {"w_scale": w_scale, "affine": affine, "w_step": _w_override(spacing)}
+    scale = {"w_scale": w_scale, "affine": keep_affine, "w_step": _w_override(spacing)}
     if any(ch in pattern for ch in "*?[") and not Path(pattern).exists():
         values, step, start, notes = _read_frames(text)
     else:
@@ -256,7 +262,7 @@ def read_grid(
         check_grid_lengths(step, extent, "spacing", hint=f" (the grid steps of {text!r}: {step.tolist()}; "
                            "`spacing=` overrides them)")
     matrix = None
-    if affine:
+    if keep_affine:
         matrix = scale.get("affine_matrix")
         if matrix is None:
             matrix = np.eye(d + 1)
@@ -361,9 +367,9 @@ def _as_dask(values: Any, chunks: Any, text: str) -> Any:
     import dask.array as da
     import dask.base
 
-    from .blockwise import _chunks, is_dask_array
+    from .blockwise import block_sizes, is_dask_array
 
-    sizes = _chunks(chunks, tuple(int(n) for n in values.shape))
+    sizes = block_sizes(chunks, tuple(int(n) for n in values.shape))
     if is_dask_array(values):
         return values.rechunk(sizes)
     if isinstance(values, np.memmap) and values.filename:
@@ -682,7 +688,7 @@ def _nifti_grid(img: Any, shape: tuple[int, ...], path: str, warn: bool, scale: 
             warnings.warn(f"{path!r}: the affine is oblique (not axis-aligned):\n{affine[:3, :3]}\n"
                           "using the voxel axes with the header's zooms as spacing and the "
                           "affine's translation as origin; the mesh is not in scanner coordinates (read "
-                          "it with affine=True, command line --affine, to place it there)",
+                          "it with keep_affine=True, command line --affine, to place it there)",
                           ObliqueAffineWarning, stacklevel=5)
     try:
         space_unit, time_unit = (_NIFTI_UNITS.get(u, "unknown") for u in img.header.get_xyzt_units())

@@ -2,7 +2,7 @@
 
 1. Extraction of a lazy field on a large grid (default 192^4 = 1.36 G points, 10.9 GB as
    float64, never held anywhere): the in-process slab path (``extract_field``) against
-   ``extract_field(..., chunks=)`` on a ``LocalCluster`` of 2 worker processes (1 thread each),
+   ``extract_field(..., blocks=)`` on a ``LocalCluster`` of 2 worker processes (1 thread each),
    started with dask's default worker environment and inside
    ``ao4d.blockwise.worker_environment()`` (no ``MALLOC_TRIM_THRESHOLD_``).
    Wall time, cells per second, peak resident memory of the client process (taken when the
@@ -102,7 +102,7 @@ def _case(kind: str, grid: int, chunks: int) -> dict:
         with cluster, Client(cluster) as client:
             client.run(lambda: __import__("ao4d.blockwise"))  # warm the workers' imports
             t0 = time.perf_counter()
-            mesh = ao4d.extract_field(field, grid, bounds, chunks=chunks, progress=False)
+            mesh = ao4d.extract_field(field, grid, bounds, blocks=chunks, progress=False)
             result["seconds"] = time.perf_counter() - t0
             result["client_mib"] = _maxrss_mib()
             peaks = client.run(_maxrss_mib)

@@ -1,8 +1,9 @@
 // Ambient occlusion and ray casting on simplex meshes in R^DIM (DIM = 2, 3 or 4).
 // Host side: ao4d/ao.py. Vectors are float4 with zeros beyond DIM.
 // vec_type_hint(float4) keeps CPU runtimes (Intel's) from vectorising across work-items: rays
-// traverse the tree divergently, and 16 masked lanes ran 8x slower than scalar work-items that
-// use float4/float8 within one ray. GPUs ignore the hint.
+// traverse the tree divergently, so masked lanes across rays run far slower than scalar
+// work-items that use float4/float8 within one ray (figures: the benchmarks guide). GPUs ignore
+// the hint.
 #include "bvh.h"
 #include "sampling.h"
 
@@ -22,11 +23,10 @@ inline int occlusion_count(const int use_bvh, __global const floatW *boxes,
                            const float offset, const float max_distance VISITS_PARAM)
 {
     uint shift[DIM - 1];
-    for (int k = 0; k < DIM - 1; ++k) shift[k] = point_shift(index, seed, (uint)k);
+    float4 frame[DIM - 1];
+    point_sampling(n, index, seed, shift, frame);
     // start above the surface: a ray must not hit the simplices the point lies on
     const float4 o = p + offset * n;
-    float4 frame[DIM - 1];
-    tangent_frame(n, frame);
     int hits = 0;
     for (int s = 0; s < samples; ++s) {
         const float4 w = cosine_direction(n, frame, table, s, shift);
@@ -44,12 +44,11 @@ inline int occlusion_count_packet(__global const floatW *boxes, __global const i
                                   const float max_distance VISITS_PARAM)
 {
     uint shift[DIM - 1];
-    for (int k = 0; k < DIM - 1; ++k) shift[k] = point_shift(index, seed, (uint)k);
+    float4 frame[DIM - 1];
+    point_sampling(n, index, seed, shift, frame);
     const float4 o = p + offset * n;
     float origin[4];
     vstore4(o, 0, origin);
-    float4 frame[DIM - 1];
-    tangent_frame(n, frame);
     PacketRay rays[PACKET];
     int hits = 0;
     for (int s0 = 0; s0 < samples; s0 += PACKET) {
@@ -66,44 +65,39 @@ inline int occlusion_count_packet(__global const floatW *boxes, __global const i
     return hits;
 }
 
-// occlusion counts, PACKET rays of a point at a time (the default AO kernel)
-__kernel __attribute__((vec_type_hint(float4))) void ao_bvh(__global const floatW *boxes, __global const int *children,
-                     __global const floatL *blocks, __global const float4 *points, __global const float4 *normals,
-                     __global const uint *index, __global const uint *table, const int samples,
-                     const uint seed, const float offset, const float max_distance,
-                     __global int *counts
+// The parameters of the two tree AO kernels (the host passes the same arguments to either)
+// and, with -D COUNT_VISITS, their per-point output: the four counters of bvh.h.
 #ifdef COUNT_VISITS
-                     , __global int *visits_out  // per point: the four counters of bvh.h
+#define VISITS_OUT_PARAM , __global int *visits_out
+#define VISITS_STORE(i) for (int k = 0; k < 4; ++k) visits_out[4 * (i) + k] = visits[k]
+#else
+#define VISITS_OUT_PARAM
+#define VISITS_STORE(i)
 #endif
-                     )
+#define AO_TREE_PARAMS                                                                              \
+    __global const floatW *boxes, __global const int *children, __global const floatL *blocks,     \
+    __global const float4 *points, __global const float4 *normals, __global const uint *index,     \
+    __global const uint *table, const int samples, const uint seed, const float offset,            \
+    const float max_distance, __global int *counts VISITS_OUT_PARAM
+
+// occlusion counts, PACKET rays of a point at a time (the default AO kernel)
+__kernel __attribute__((vec_type_hint(float4))) void ao_bvh(AO_TREE_PARAMS)
 {
     const size_t i = get_global_id(0);
     VISITS_DECL
     counts[i] = occlusion_count_packet(boxes, children, blocks, points[i], normals[i], index[i],
                                        table, samples, seed, offset, max_distance VISITS_ARG);
-#ifdef COUNT_VISITS
-    for (int k = 0; k < 4; ++k) visits_out[4 * i + k] = visits[k];
-#endif
+    VISITS_STORE(i);
 }
 
 // the same counts, one ray at a time (trace_any): the reference the packet kernel must equal
-__kernel __attribute__((vec_type_hint(float4))) void ao_bvh_rays(__global const floatW *boxes, __global const int *children,
-                     __global const floatL *blocks, __global const float4 *points, __global const float4 *normals,
-                     __global const uint *index, __global const uint *table, const int samples,
-                     const uint seed, const float offset, const float max_distance,
-                     __global int *counts
-#ifdef COUNT_VISITS
-                     , __global int *visits_out  // per point: the four counters of bvh.h
-#endif
-                     )
+__kernel __attribute__((vec_type_hint(float4))) void ao_bvh_rays(AO_TREE_PARAMS)
 {
     const size_t i = get_global_id(0);
     VISITS_DECL
     counts[i] = occlusion_count(1, boxes, children, blocks, 0, points[i], normals[i], index[i],
                                 table, samples, seed, offset, max_distance VISITS_ARG);
-#ifdef COUNT_VISITS
-    for (int k = 0; k < 4; ++k) visits_out[4 * i + k] = visits[k];
-#endif
+    VISITS_STORE(i);
 }
 
 __kernel __attribute__((vec_type_hint(float4))) void ao_brute(__global const floatL *blocks, const int n_blocks,
@@ -145,17 +139,19 @@ __kernel __attribute__((vec_type_hint(float4))) void cast_brute(__global const f
     t_out[i] = t;
 }
 
+// the parameters of the two direction kernels below (tests call them alike)
+#define DIRECTIONS_PARAMS                                                                           \
+    __global const float4 *normals, __global const uint *index, __global const uint *table,        \
+    const int samples, const uint seed, __global float4 *out
+
 // the directions of sample_directions, generated eight at a time (cosine_directions8) as the
 // packet kernel does: for tests, which check that they are the same bits
-__kernel void sample_directions8(__global const float4 *normals, __global const uint *index,
-                                 __global const uint *table, const int samples, const uint seed,
-                                 __global float4 *out)
+__kernel void sample_directions8(DIRECTIONS_PARAMS)
 {
     const size_t i = get_global_id(0);
     uint shift[DIM - 1];
-    for (int k = 0; k < DIM - 1; ++k) shift[k] = point_shift(index[i], seed, (uint)k);
     float4 frame[DIM - 1];
-    tangent_frame(normals[i], frame);
+    point_sampling(normals[i], index[i], seed, shift, frame);
     for (int s0 = 0; s0 < samples; s0 += 8) {
         float8 w[DIM];
         cosine_directions8(normals[i], frame, table, s0, samples, shift, w);
@@ -167,15 +163,12 @@ __kernel void sample_directions8(__global const float4 *normals, __global const 
 }
 
 // the directions ao_* trace for each point (for tests: must equal ao4d.sampling.cosine_hemisphere)
-__kernel void sample_directions(__global const float4 *normals, __global const uint *index,
-                                __global const uint *table, const int samples, const uint seed,
-                                __global float4 *out)
+__kernel void sample_directions(DIRECTIONS_PARAMS)
 {
     const size_t i = get_global_id(0);
     uint shift[DIM - 1];
-    for (int k = 0; k < DIM - 1; ++k) shift[k] = point_shift(index[i], seed, (uint)k);
     float4 frame[DIM - 1];
-    tangent_frame(normals[i], frame);
+    point_sampling(normals[i], index[i], seed, shift, frame);
     for (int s = 0; s < samples; ++s)
         out[i * samples + s] = cosine_direction(normals[i], frame, table, s, shift);
 }

@@ -75,13 +75,13 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
     for (;;) {
         COUNT_VISIT(0);
         COUNT_VISIT(2);
+        __global const int *child = children + (size_t)node * WIDTH;
         floatW tnw;
         const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, ray.near, ray.far, ray.inv_w,
                                     ray.o_inv, t_max, &tnw);
         if (any(hitw)) {
             int hits[WIDTH];
             vstoreW(hitw, 0, hits);
-            __global const int *child = children + (size_t)node * WIDTH;
             for (int s = 0; s < WIDTH; ++s) {
                 const int c = child[s];
                 if (!hits[s] || c == 0) continue;

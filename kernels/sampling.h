@@ -64,6 +64,34 @@ inline void tangent_frame(const float4 n, float4 *frame)
     for (int j = 0; j < DIM - 1; ++j) frame[j] = tangent(n, j);
 }
 
+// what every direction of one point needs: the Cranley-Patterson shifts of point `index` and
+// the tangent frame of its unit normal n
+inline void point_sampling(const float4 n, const uint index, const uint seed, uint *shift, float4 *frame)
+{
+    for (int k = 0; k < DIM - 1; ++k) shift[k] = point_shift(index, seed, (uint)k);
+    tangent_frame(n, frame);
+}
+
+// Unit coordinates u0, u1 (, u2) -> b0, b1 (, b2): a point of the unit disc (3D) or ball (4D),
+// uniform, and `up`, the height above it on the unit sphere: the cosine-weighted direction in
+// the tangent frame (Malley). One text for scalar (T = float) and eight-lane (T = float8)
+// samples, so both compute the same operations in the same order. sincos: one shared range
+// reduction where separate sin and cos would do two.
+#define DISC_POINT(T)                                                   \
+    const T r = sqrt(u0);                                               \
+    T cos_phi;                                                          \
+    const T sin_phi = sincos(6.283185307179586f * u1, &cos_phi);        \
+    const T b0 = r * cos_phi, b1 = r * sin_phi;                         \
+    const T up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1)))
+#define BALL_POINT(T)                                                   \
+    const T r = cbrt(u0);                                               \
+    const T z = 1.0f - 2.0f * u1;                                       \
+    const T sz = sqrt(fmax(0.0f, 1.0f - z * z));                        \
+    T cos_phi;                                                          \
+    const T sin_phi = sincos(6.283185307179586f * u2, &cos_phi);        \
+    const T b0 = r * sz * cos_phi, b1 = r * sz * sin_phi, b2 = r * z;   \
+    const T up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1 + b2 * b2)))
+
 // direction of sample `s` for a point with normal n and tangent frame `frame`;
 // table holds (samples, DIM-1) 24-bit ints
 inline float4 cosine_direction(const float4 n, const float4 *frame, __global const uint *table,
@@ -76,25 +104,13 @@ inline float4 cosine_direction(const float4 n, const float4 *frame, __global con
 #elif DIM == 3
     const float u0 = unit_coordinate(table[2 * s], shift[0]);
     const float u1 = unit_coordinate(table[2 * s + 1], shift[1]);
-    const float r = sqrt(u0);
-    // sincos: one shared range reduction (separate sin and cos made ray generation a tenth
-    // of the 4D AO time on Intel's CPU runtime)
-    float cos_phi;
-    const float sin_phi = sincos(6.283185307179586f * u1, &cos_phi);
-    const float b0 = r * cos_phi, b1 = r * sin_phi;
-    const float up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1)));
+    DISC_POINT(float);
     return b0 * frame[0] + b1 * frame[1] + up * n;
 #else
     const float u0 = unit_coordinate(table[3 * s], shift[0]);
     const float u1 = unit_coordinate(table[3 * s + 1], shift[1]);
     const float u2 = unit_coordinate(table[3 * s + 2], shift[2]);
-    const float r = cbrt(u0);
-    const float z = 1.0f - 2.0f * u1;
-    const float sz = sqrt(fmax(0.0f, 1.0f - z * z));
-    float cos_phi;
-    const float sin_phi = sincos(6.283185307179586f * u2, &cos_phi);
-    const float b0 = r * sz * cos_phi, b1 = r * sz * sin_phi, b2 = r * z;
-    const float up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1 + b2 * b2)));
+    BALL_POINT(float);
     return b0 * frame[0] + b1 * frame[1] + b2 * frame[2] + up * n;
 #endif
 }
@@ -117,20 +133,10 @@ inline void cosine_directions8(const float4 n, const float4 *frame, __global con
     const float8 up = sqrt(fmax(0.0f, 1.0f - b0 * b0));
 #elif DIM == 3
     const float8 u0 = UNIT8(0), u1 = UNIT8(1);
-    const float8 r = sqrt(u0);
-    float8 cos_phi;
-    const float8 sin_phi = sincos(6.283185307179586f * u1, &cos_phi);
-    const float8 b0 = r * cos_phi, b1 = r * sin_phi;
-    const float8 up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1)));
+    DISC_POINT(float8);
 #else
     const float8 u0 = UNIT8(0), u1 = UNIT8(1), u2 = UNIT8(2);
-    const float8 r = cbrt(u0);
-    const float8 z = 1.0f - 2.0f * u1;
-    const float8 sz = sqrt(fmax(0.0f, 1.0f - z * z));
-    float8 cos_phi;
-    const float8 sin_phi = sincos(6.283185307179586f * u2, &cos_phi);
-    const float8 b0 = r * sz * cos_phi, b1 = r * sz * sin_phi, b2 = r * z;
-    const float8 up = sqrt(fmax(0.0f, 1.0f - (b0 * b0 + b1 * b1 + b2 * b2)));
+    BALL_POINT(float8);
 #endif
 #undef UNIT8
     float f[DIM][4];

@@ -239,6 +239,38 @@ def test_undefined_normals_give_nan():
     assert np.isnan(s[1]) and not np.isnan(s[0])  # (0, 1, 4) is degenerate (collinear)
 
 
+def test_a_trimesh_or_a_pair_gives_the_ao_of_the_same_simplex_mesh():
+    trimesh = pytest.importorskip("trimesh")
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    ground = trimesh.creation.box(extents=(4.0, 4.0, 0.2))
+    ground.apply_translation((0, 0, -1.2))
+    tm = trimesh.util.concatenate([sphere, ground])
+    mesh = ao4d.SimplexMesh(tm.vertices, tm.faces)
+    kw = dict(samples=16, seed=3, backend="numpy")
+    ref = ao4d.ambient_occlusion(mesh, **kw)
+    assert 0 < np.nanmean(ref) < 1  # the ground shades the sphere's underside
+    np.testing.assert_array_equal(ao4d.ambient_occlusion(tm, **kw), ref)
+    np.testing.assert_array_equal(ao4d.ambient_occlusion((tm.vertices, tm.faces), **kw), ref)
+    np.testing.assert_array_equal(
+        ao4d.ambient_occlusion([tm.vertices.tolist(), tm.faces.tolist()], at="simplices", **kw),
+        ao4d.ambient_occlusion(mesh, at="simplices", **kw))
+
+
+def test_default_samples_are_renders_and_the_command_lines():
+    import inspect
+
+    from ao4d.cli import build_parser
+
+    default = inspect.signature(ao4d.ambient_occlusion).parameters["samples"].default
+    assert default == 64 == inspect.signature(ao4d.render).parameters["samples"].default
+    assert build_parser().parse_args(["ao", "m.npz", "--out", "a.npz"]).samples == default
+    rng = np.random.default_rng(1750)
+    mesh = sphere_over_ground(rng, 3)
+    p, n = up_points(rng, 3, 4, 0.5)
+    np.testing.assert_array_equal(ao4d.ambient_occlusion(mesh, points=p, normals=n, backend="numpy"),
+                                  ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=64, backend="numpy"))
+
+
 def test_bad_inputs():
     rng = np.random.default_rng(1700)
     mesh = sphere_over_ground(rng, 3)
@@ -270,8 +302,10 @@ def test_bad_inputs():
         run(mesh, max_distance=np.nan, backend="numpy")
     with pytest.raises(TypeError, match="`seed`"):
         run(mesh, seed=1.5, backend="numpy")
-    with pytest.raises(TypeError, match="`mesh`"):
+    with pytest.raises(TypeError, match="`mesh` must be a SimplexMesh, a trimesh.Trimesh"):
         run(np.zeros((3, 3)), backend="numpy")
+    with pytest.raises(ValueError, match=r"`mesh` holds no valid mesh: `simplices` must have shape \(S, 3\)"):
+        run((mesh.vertices, mesh.simplices[:, :2]), backend="numpy")
     with pytest.raises(ValueError, match="`mesh` has no simplices"):
         run(ao4d.SimplexMesh(np.zeros((0, 4)), np.zeros((0, 4), dtype=int)), backend="numpy")
     with pytest.raises(ValueError, match="all 1 simplices are degenerate"):

@@ -113,7 +113,7 @@ def test_extract_field_chunks_equals_slab_path(dim):
     for method in ("cubes", "simplices"):
         ref = ao4d.extract_field(field, shape, (-1.3, 1.3), method=method)
         _assert_closed_outward(ref)
-        got = ao4d.extract_field(field, shape, (-1.3, 1.3), method=method, chunks=(5, 4, 7, 3)[:dim])
+        got = ao4d.extract_field(field, shape, (-1.3, 1.3), method=method, blocks=(5, 4, 7, 3)[:dim])
         _assert_identical(ref, got)
 
 
@@ -122,7 +122,7 @@ def test_extract_field_chunks_lambda_field():
     centre = np.array([0.1, -0.2, 0.05])
     field = lambda p: np.linalg.norm(p - centre, axis=-1) - 0.7  # noqa: E731
     ref = ao4d.extract_field(field, (16, 15, 17), (-1.0, 1.0), chunk=2)
-    got = ao4d.extract_field(field, (16, 15, 17), (-1.0, 1.0), chunk=2, chunks=6)
+    got = ao4d.extract_field(field, (16, 15, 17), (-1.0, 1.0), chunk=2, blocks=6)
     _assert_identical(ref, got)
 
 
@@ -132,7 +132,7 @@ def test_field_blocks_name_a_non_finite_field():
         return np.where(p[..., 0] > 0.7, np.nan, r)
 
     with pytest.raises(ValueError, match=r"`field` returned \d+ non-finite value\(s\).*at point"):
-        ao4d.extract_field(field, (12, 12, 12), (-1, 1), chunks=5)
+        ao4d.extract_field(field, (12, 12, 12), (-1, 1), blocks=5)
 
 
 def test_field_array_equals_sample():
@@ -186,9 +186,9 @@ def test_too_many_blocks_refused_before_work(monkeypatch):
     with pytest.raises(ValueError, match="blocks .*use larger chunks"):
         ao4d.extract(da.zeros((40, 40, 40), chunks=5))
     with pytest.raises(ValueError, match="`chunks`"):
-        ao4d.extract_field(fields.hypersphere(1.0), 64, (-1, 1), chunks=0)
+        ao4d.extract_field(fields.hypersphere(1.0), 64, (-1, 1), blocks=0)
     with pytest.raises(ValueError, match="`chunks`"):
-        ao4d.extract_field(fields.hypersphere(1.0), 64, (-1, 1), chunks=(4, 4))
+        ao4d.extract_field(fields.hypersphere(1.0), 64, (-1, 1), blocks=(4, 4))
 
 
 def test_progress_counts_blocks(monkeypatch):
@@ -247,7 +247,7 @@ def test_dask_array_equals_in_memory_on_local_cluster(cluster_client, dim, metho
 def test_extract_field_chunks_on_local_cluster(cluster_client):
     field = fields.spheritorus(0.8, 0.35)
     ref = ao4d.extract_field(field, 14, (-1.3, 1.3), method="simplices")
-    got = ao4d.extract_field(field, 14, (-1.3, 1.3), method="simplices", chunks=(5, 6, 4, 7))
+    got = ao4d.extract_field(field, 14, (-1.3, 1.3), method="simplices", blocks=(5, 6, 4, 7))
     _assert_identical(ref, got)
 
 
@@ -279,7 +279,7 @@ def test_process_workers_pickle_the_tasks(tmp_path):
         # dask's default worker environment is slow for ao4d, and ao4d says so, once
         with pytest.warns(WorkerEnvironmentWarning, match="MALLOC_TRIM_THRESHOLD_=65536"):
             got = ao4d.extract(grid.values, 0.0)
-        got_field = ao4d.extract_field(field, 12, (-1.2, 1.2), chunks=5)
+        got_field = ao4d.extract_field(field, 12, (-1.2, 1.2), blocks=5)
     _assert_identical(ref, got)
     _assert_identical(ref_field, got_field)
     before = os.environ.get("MALLOC_TRIM_THRESHOLD_")  # dask's nanny put it here
@@ -290,4 +290,4 @@ def test_process_workers_pickle_the_tasks(tmp_path):
     assert os.environ.get("MALLOC_TRIM_THRESHOLD_") == before  # restored
     with cluster, Client(cluster) as client:  # no warning with the recommended environment
         assert list(client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_")).values()) == [None]
-        _assert_identical(ref_field, ao4d.extract_field(field, 12, (-1.2, 1.2), chunks=5))
+        _assert_identical(ref_field, ao4d.extract_field(field, 12, (-1.2, 1.2), blocks=5))

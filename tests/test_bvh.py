@@ -124,6 +124,18 @@ def test_fallback_cache_for_plain_objects():
     assert raycast.get_bvh(obj) is not first
 
 
+def test_get_bvh_takes_a_trimesh_and_a_pair():
+    trimesh = pytest.importorskip("trimesh")
+    tm = trimesh.creation.icosphere(subdivisions=1)
+    ref = raycast.get_bvh(ao4d.SimplexMesh(tm.vertices, tm.faces))
+    for mesh in (tm, (tm.vertices, tm.faces)):
+        tree = raycast.get_bvh(mesh)
+        np.testing.assert_array_equal(tree.prim, ref.prim)
+        np.testing.assert_array_equal(tree.origin, ref.origin)
+    with pytest.raises(TypeError, match="`mesh` must be a SimplexMesh"):
+        raycast.get_bvh(tm.vertices)
+
+
 def test_bad_inputs(build_bvh):
     good_v = np.eye(3)
     with pytest.raises(ValueError, match="`simplices` is empty"):

@@ -472,6 +472,19 @@ def test_extract_field_bad_input_is_named(args, kwargs, error, match):
         ao4d.extract_field(*args, **kwargs)
 
 
+def test_extract_field_old_spelling_chunks_warns_and_means_blocks():
+    # `chunk` (cell layers per slab) and `chunks` (dask blocks) read alike: the blocks are `blocks`
+    pytest.importorskip("dask")
+    field = F.hypersphere(1.0, dim=3)
+    new = ao4d.extract_field(field, 10, (-1.3, 1.3), blocks=5)
+    with pytest.warns(DeprecationWarning, match="`chunks` is now called `blocks`"):
+        old = ao4d.extract_field(field, 10, (-1.3, 1.3), chunks=5)
+    np.testing.assert_array_equal(old.vertices, new.vertices)
+    np.testing.assert_array_equal(old.simplices, new.simplices)
+    with pytest.raises(TypeError, match="both `blocks` and its old spelling `chunks`"):
+        ao4d.extract_field(field, 10, (-1.3, 1.3), chunks=5, blocks=5)
+
+
 # --------------------------------------------------------------------------------------------
 # command line
 # --------------------------------------------------------------------------------------------
@@ -692,6 +705,20 @@ def test_affine_places_vertices_and_keeps_the_mesh_closed_and_outward(d):
         ao4d.extract(v, 0.0, affine=np.eye(d))
     with pytest.raises(ValueError, match="invertible"):
         ao4d.extract(v, 0.0, affine=np.zeros((d, d + 1)))
+
+
+def test_cli_extract_affine_flag_places_by_the_files_affine(tmp_path, capsys):
+    # the command line keeps `--affine` (read_grid's keep_affine=True); no deprecation on the way
+    from ao4d.cli import main
+
+    v = F.sample(F.hypersphere(0.8, dim=3), (9, 10, 11), (-1, 1))
+    np.save(tmp_path / "v.npy", v)
+    assert main(["extract", "--input", str(tmp_path / "v.npy"), "--affine", "--spacing", "0.5", "2", "1",
+                 "--level", "0", "--no-progress", "--out", str(tmp_path / "m.npz")]) == 0
+    ref = ao4d.extract(v, 0.0, spacing=(0.5, 2, 1))
+    got = ao4d.SimplexMesh.load(tmp_path / "m.npz")
+    np.testing.assert_allclose(got.vertices, ref.vertices, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(got.simplices, ref.simplices)
 
 
 def test_ties_take_the_positive_side_like_a_level_just_below():

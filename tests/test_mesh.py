@@ -230,6 +230,83 @@ def test_concatenate_errors():
         concatenate([a, c])
 
 
+# --------------------------------------------------------------------------------------------
+# as_mesh / as_meshes: every form of a mesh a function takes
+# --------------------------------------------------------------------------------------------
+
+
+def test_as_mesh_takes_a_mesh_a_trimesh_a_pair_and_a_plain_object():
+    from ao4d.mesh import as_mesh
+
+    mesh = simplex_boundary(3)
+    assert as_mesh(mesh) is mesh  # as it is: its cache stays
+    tm = _trimesh_shapes()["icosphere"]
+    from_tm = as_mesh(tm)
+    np.testing.assert_array_equal(from_tm.vertices, tm.vertices)
+    np.testing.assert_array_equal(from_tm.simplices, tm.faces)
+    assert from_tm.volume == pytest.approx(tm.volume, rel=1e-12)  # trimesh's winding is ours
+    for pair in ((mesh.vertices, mesh.simplices), [mesh.vertices.tolist(), mesh.simplices.tolist()]):
+        got = as_mesh(pair)
+        np.testing.assert_array_equal(got.vertices, mesh.vertices)
+        np.testing.assert_array_equal(got.simplices, mesh.simplices)
+
+    class Plain:
+        vertices, simplices = mesh.vertices, mesh.simplices
+
+    np.testing.assert_array_equal(as_mesh(Plain()).simplices, mesh.simplices)
+    from ao4d.mesh import as_meshes
+
+    assert [m.n_simplices for m in as_meshes(Plain())] == [mesh.n_simplices]
+
+
+@pytest.mark.parametrize(
+    ("value", "error", "match"),
+    [
+        (np.zeros((3, 3)), TypeError, r"`solid` must be a SimplexMesh, a trimesh.Trimesh, a \(vertices, simplices\) "
+                                      r"pair.*got ndarray"),
+        ("mesh.npz", TypeError, "`solid` must be a SimplexMesh.*got str"),
+        (([[0, 0], [1, 0]], [[0, 5]]), ValueError, r"`solid` holds no valid mesh: `simplices` holds 1 vertex index"),
+        (([[0, 0], [1, 0]], [[0.5, 1]]), TypeError, "`solid` holds no valid mesh: `simplices` must hold integer"),
+        (([0, 1], [[0, 1]]), TypeError, "`solid` must be"),  # a 1D first entry is no vertex array
+        ((np.eye(3), np.eye(3, dtype=int), 1), TypeError, "`solid` must be"),
+    ],
+)
+def test_as_mesh_bad_input_names_the_parameter(value, error, match):
+    from ao4d.mesh import as_mesh
+
+    with pytest.raises(error, match=match):
+        as_mesh(value, "solid")
+
+
+def test_as_meshes_one_or_many_in_any_form():
+    from ao4d.mesh import _mesh_list, as_meshes
+
+    a, b = simplex_boundary(3), simplex_boundary(3).transformed(np.eye(3), 2.0)
+    assert as_meshes(a) == [a]
+    assert as_meshes([a, b]) == [a, b] and as_meshes((a, b)) == [a, b]  # two meshes, not a pair
+    pairs = [(a.vertices, a.simplices), (b.vertices, b.simplices)]
+    got = as_meshes(pairs)  # a list of two pairs, not a pair
+    assert [m.n_vertices for m in got] == [4, 4] and np.array_equal(got[1].vertices, b.vertices)
+    square = ([[0, 0], [0, 1], [1, 1], [1, 0]], [[0, 1], [1, 2], [2, 3], [3, 0]])
+    assert len(as_meshes(square)) == 1 and as_meshes(square)[0].volume == pytest.approx(1.0)
+    assert len(as_meshes([_trimesh_shapes()["box"], a])) == 2
+    with pytest.raises(TypeError, match=r"`scene\[1\]` must be a SimplexMesh"):
+        as_meshes([a, 3], "scene")
+    with pytest.raises(TypeError, match="`scene` must be a SimplexMesh.*or a sequence of them, got int"):
+        as_meshes(3, "scene")
+    with pytest.raises(ValueError, match="`scene` must contain at least one mesh"):
+        as_meshes([], "scene")
+    assert _mesh_list is as_meshes  # rendering's import, until it calls as_meshes
+
+
+def test_concatenate_takes_pairs_and_trimeshes():
+    a = simplex_boundary(3)
+    tm = _trimesh_shapes()["box"]
+    both = concatenate([(a.vertices, a.simplices), tm])
+    assert both.volume == pytest.approx(a.volume + tm.volume, rel=1e-12)
+    assert np.array_equal(np.bincount(both.cell_data["object_id"]), [4, len(tm.faces)])
+
+
 def test_submesh_errors():
     mesh = simplex_boundary(3)
     with pytest.raises(ValueError, match="`which` mask must have length 4"):

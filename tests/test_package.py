@@ -137,6 +137,33 @@ def test_lazy_exports_resolve():
         ao4d.nope  # noqa: B018
 
 
+def test_all_and_dir_list_functions_and_classes_and_modules_stay_attributes():
+    # issue 32: `ao` beside `ambient_occlusion`, `sampling` beside `sample` in one list confused
+    code = (
+        "import ao4d, inspect, types\n"
+        "assert ao4d.__all__ == sorted(ao4d.__all__) and ao4d.__all__\n"
+        "for name in ao4d.__all__:\n"
+        "    value = getattr(ao4d, name)\n"
+        "    assert inspect.isfunction(value) or inspect.isclass(value), name\n"
+        "assert sorted(dir(ao4d)) == sorted(ao4d.__all__ + ['__version__'])\n"
+        "ns = {}\n"
+        "exec('from ao4d import *', ns)\n"
+        "assert sorted(k for k in ns if k != '__builtins__') == ao4d.__all__\n"
+        "for name in ('fields', 'lut', 'mesh', 'ao', 'sampling', 'viewer', 'bvh', 'rendering'):\n"
+        "    assert type(getattr(ao4d, name)) is types.ModuleType, name\n"
+        "    assert name not in ao4d.__all__\n"
+        "assert sorted(dir(ao4d)) == sorted(ao4d.__all__ + ['__version__'])  # loaded modules too\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+def test_every_public_top_level_module_is_reachable_as_an_attribute():
+    # not attributes: the command line, and the marching engines behind ao4d.march
+    top = {m.split(".")[1] for m in PUBLIC if m.count(".") >= 1} - {"cli", "commands", "cells", "cells_device"}
+    assert top <= set(ao4d._MODULES), sorted(top - set(ao4d._MODULES))
+    assert not set(ao4d._MODULES) & set(ao4d.__all__)
+
+
 def test_long_files_say_why():
     # a file over about 700 lines states at its top why it stays one module
     for path in list(PACKAGE.rglob("*.py")):

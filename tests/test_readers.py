@@ -516,11 +516,11 @@ def test_nifti_affine_true_places_vertices_in_scanner_coordinates(tmp_path, flip
     x = np.linspace(-1, 1, 9)
     r = np.sqrt(sum(g * g for g in np.meshgrid(x, x, x, indexing="ij")))
     nib.save(nib.Nifti1Image(r.astype(np.float32), affine), tmp_path / "o.nii")
-    with pytest.warns(ObliqueAffineWarning, match="affine=True"):
+    with pytest.warns(ObliqueAffineWarning, match="keep_affine=True"):
         read_grid(tmp_path / "o.nii")
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # affine=True: no oblique warning
-        vol = read_grid(tmp_path / "o.nii", affine=True)
+        warnings.simplefilter("error")  # keep_affine=True: no oblique warning
+        vol = read_grid(tmp_path / "o.nii", keep_affine=True)
     np.testing.assert_allclose(vol.affine, affine, rtol=0, atol=1e-6)  # float32 in the header
     mesh = ao4d.extract(vol.values, 0.8, affine=vol.affine)
     index = ao4d.extract(np.asarray(vol.values), 0.8)
@@ -536,11 +536,23 @@ def test_nifti_affine_true_places_vertices_in_scanner_coordinates(tmp_path, flip
 
 def test_other_formats_give_a_diagonal_affine_with_affine_true(tmp_path, grid4):
     np.save(tmp_path / "v.npy", grid4)
-    vol = read_grid(tmp_path / "v.npy", spacing=(0.5, 1, 2, 3), origin=(1, 2, 3, 4), affine=True)
+    vol = read_grid(tmp_path / "v.npy", spacing=(0.5, 1, 2, 3), origin=(1, 2, 3, 4), keep_affine=True)
     expect = np.eye(5)
     expect[:4, :4], expect[:4, 4] = np.diag([0.5, 1, 2, 3]), [1, 2, 3, 4]
     np.testing.assert_array_equal(vol.affine, expect)
     assert read_grid(tmp_path / "v.npy").affine is None
+
+
+def test_keep_affine_old_spelling_affine_warns_and_still_works(tmp_path, grid4):
+    # `affine` is the matrix in ao4d.extract; read_grid's bool is `keep_affine`
+    np.save(tmp_path / "v.npy", grid4)
+    with pytest.warns(DeprecationWarning, match="`affine` is now called `keep_affine`"):
+        old = read_grid(tmp_path / "v.npy", spacing=0.5, affine=True)
+    np.testing.assert_array_equal(old.affine, read_grid(tmp_path / "v.npy", spacing=0.5, keep_affine=True).affine)
+    with pytest.raises(TypeError, match="both `keep_affine` and its old spelling `affine`"):
+        read_grid(tmp_path / "v.npy", affine=True, keep_affine=True)
+    with pytest.raises(TypeError, match="`keep_affine`"):
+        read_grid(tmp_path / "v.npy", keep_affine="yes")
 
 
 def test_read_grid_ndim_must_be_ints(tmp_path, grid4):
@@ -619,14 +631,14 @@ def test_affine_true_with_a_given_spacing_keeps_the_oblique_rotation(tmp_path, g
     affine[:3, :3], affine[:3, 3] = q @ np.diag([2.0, 1.5, 1.0]), [-90.0, 120.0, 30.0]
     path = _nifti_4d(tmp_path / "o.nii", grid4, zooms=(2.0, 1.5, 1.0, 3.0), units=("mm", "unknown"),
                      affine=affine)
-    whole = read_grid(path, affine=True)
+    whole = read_grid(path, keep_affine=True)
     np.testing.assert_allclose(whole.affine[:3, :3], affine[:3, :3], atol=1e-6)
-    w_only = read_grid(path, affine=True, spacing=(None, None, None, 0.5))
+    w_only = read_grid(path, keep_affine=True, spacing=(None, None, None, 0.5))
     np.testing.assert_allclose(w_only.affine[:3], whole.affine[:3], atol=0)  # rotation kept
     assert w_only.affine[3, 3] == 0.5 and w_only.affine[3, 4] == whole.affine[3, 4]
     assert any("vertices placed by the file's affine" in n for n in w_only.notes)
     assert any("axes w take the given spacing" in n for n in w_only.notes)
-    every = read_grid(path, affine=True, spacing=0.25, origin=(1, 2, 3, 4))
+    every = read_grid(path, keep_affine=True, spacing=0.25, origin=(1, 2, 3, 4))
     np.testing.assert_allclose(every.affine[:4, :4], whole.affine[:4, :4]
                                / np.linalg.norm(whole.affine[:4, :4], axis=0) * 0.25, atol=1e-12)
     np.testing.assert_array_equal(every.affine[:4, 4], [1, 2, 3, 4])

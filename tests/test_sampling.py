@@ -21,6 +21,14 @@ def _unit(rng, n, d):
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
+def _directions(d, rng_seed, n, *, samples, seed):
+    """A generator seeded ``rng_seed``, ``n`` random unit normals drawn from it, and ``samples``
+    cosine-weighted directions about each (n, samples, d)."""
+    rng = np.random.default_rng(rng_seed)
+    normals = _unit(rng, n, d)
+    return rng, normals, sampling.cosine_hemisphere(normals, samples, seed=seed)
+
+
 def _lowbias32(x: int) -> int:
     # C. Wellons' "lowbias32" in plain Python integers: an independent reference
     x ^= x >> 16
@@ -46,10 +54,7 @@ def test_hash_matches_reference_and_mixes():
 def test_moments_match_the_cosine_density(d):
     # E[t] and E[t^2] of t = w.n under p(w) = (w.n)/|B^{d-1}| (derivation in cosine_moments):
     # 3D: 2/3, 1/2; 4D: 3 pi/16, 2/5; 2D: pi/4, 2/3
-    rng = np.random.default_rng(10 + d)
-    normals = _unit(rng, 64, d)
-    samples = 256
-    w = sampling.cosine_hemisphere(normals, samples, seed=3)
+    _, normals, w = _directions(d, 10 + d, 64, samples=256, seed=3)
     t = np.einsum("nsd,nd->ns", w, normals).ravel()
     mean, second = sampling.cosine_moments(d)
     if d == 4:
@@ -82,10 +87,7 @@ def test_cosine_cdf_is_malleys_not_normalized_sum(d):
 
 @pytest.mark.parametrize("d", DIMS)
 def test_directions_are_unit_upper_and_symmetric_about_n(d):
-    rng = np.random.default_rng(30 + d)
-    normals = _unit(rng, 48, d)
-    samples = 512
-    w = sampling.cosine_hemisphere(normals, samples, seed=5)
+    rng, normals, w = _directions(d, 30 + d, 48, samples=512, seed=5)
     np.testing.assert_allclose(np.linalg.norm(w, axis=2), 1.0, atol=1e-12)
     assert (np.einsum("nsd,nd->ns", w, normals) >= 0).all()
     # tangential part: mean zero and isotropic, E[(w.t)^2] = (1 - E[t^2]) / (d-1) for unit t

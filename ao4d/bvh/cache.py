@@ -62,8 +62,9 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
 
     Parameters
     ----------
-    mesh : SimplexMesh or any object with ``vertices`` and ``simplices``
-        The mesh whose tree is wanted.
+    mesh : SimplexMesh, any object with ``vertices`` and ``simplices``, trimesh.Trimesh or (vertices, simplices)
+        The mesh whose tree is wanted. A ``trimesh.Trimesh`` or a pair is read by
+        :func:`ao4d.mesh.as_mesh` into a new mesh, so its tree is built on every call.
     leaf_size : int
         Most simplices per leaf.
     builder : {"auto", "host", "device"}
@@ -87,6 +88,11 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
     """
     check_choice(builder, "builder", BUILDERS)
     leaf_size = check_positive_int(leaf_size, "leaf_size")
+    if not hasattr(mesh, "simplices"):  # a trimesh.Trimesh or a (vertices, simplices) pair
+        # imported here: importing the tree need not import the mesh's files and pictures
+        from ..mesh import as_mesh
+
+        mesh = as_mesh(mesh)
     if runtime is not None and leaf_size > MAX_LEAF_BLOCKS * block_lanes(runtime):
         lanes = block_lanes(runtime)
         raise ValueError(f"`leaf_size` must be at most {MAX_LEAF_BLOCKS * lanes} on this device "

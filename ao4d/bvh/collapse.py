@@ -8,9 +8,9 @@ ray meets the box). One slot is n itself: a leaf slot (where allowed) or a wide 
 children's best split of ``width`` slots; more slots split i between the two children. Then top
 down, the choices give each wide node its slots. Everything is vectorised over a tree level.
 
-The greedy collapse it replaced (open the child of largest area until the node is full) left
-half the slots empty: 33,425 wide nodes for 97,559 leaf blocks against 19,865, and traced 4D AO
-rays 6-16% slower (1.1M-tetrahedron spheritorus and tiger, ``bench/ao.py``).
+Why not a greedy collapse (open the child of largest area until the node is full): it leaves
+about half the slots empty, so the tree has more wide nodes and rays visit more of them (the
+benchmarks guide has the figures).
 """
 
 from __future__ import annotations

@@ -6,8 +6,8 @@ most 16 and halves below level 40; leaves are ranges of the reordered simplices)
 same :class:`ao4d.bvh.BVH`, so :func:`ao4d.bvh.blocks.widen` and both traversals apply unchanged. One
 difference: splits follow the SAH bins exactly, where the host builder rounds a left side to
 whole leaves of 16; not rounding costs more, partly filled leaf blocks but gives a much better
-tree (on bench/ao.py's spheritorus: SAH cost 73 against 128, 2.4 leaf blocks tested per AO ray
-against 4.3, AO 10-25% faster on it and on the tiger).
+tree: lower SAH cost, fewer leaf blocks tested per AO ray, faster AO (figures: the benchmarks
+guide).
 
 Work is split so that the device does every pass over the simplices and the host only
 bookkeeping per node:
@@ -55,6 +55,25 @@ _BINS = 32  # kernels' MAX_BINS
 _SUBTREE_MAX = 1 << 15  # largest subtree one work-item builds (its stack holds 40 + 16 levels)
 
 
+class _LazyFrames:
+    """A :class:`DeviceBVH`'s ``inverse`` or ``origin``: both computed for every simplex on the
+    first read; assigning ``None`` (as the dataclass constructor does) leaves them to be computed."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.slot = f"_{name}"
+
+    def __get__(self, tree: Any, owner: type | None = None) -> Any:
+        if tree is None:
+            return self
+        if getattr(tree, self.slot) is None:
+            tree._inverse, tree._origin = tree.frames(np.arange(tree.n_prims))
+        return getattr(tree, self.slot)
+
+    def __set__(self, tree: Any, value: Any) -> None:
+        if value is not None:
+            setattr(tree, self.slot, value)
+
+
 class DeviceBVH(BVH):
     """A :class:`ao4d.bvh.BVH` built on an OpenCL device.
 
@@ -63,35 +82,16 @@ class DeviceBVH(BVH):
     :meth:`frames` gives them for a few simplices without computing all.
     """
 
-    # the dataclass fields `inverse` and `origin` become lazy properties here
+    # the dataclass fields `inverse` and `origin` become lazy here
+    inverse = _LazyFrames()
+    origin = _LazyFrames()
+
     def __init__(self, *, vertices: np.ndarray, simplices: np.ndarray, **fields: Any) -> None:
         self._source = (vertices, simplices)
         self._inverse = self._origin = None
         self.device_source: dict[str, Any] | None = None  # the build's device buffers
         self.device_wide: dict[int, dict[str, Any]] = {}  # lanes -> device_wide_tree(...)
         super().__init__(inverse=None, origin=None, **fields)
-
-    @property  # type: ignore[override]
-    def inverse(self) -> np.ndarray:
-        if self._inverse is None:
-            self._inverse, self._origin = self.frames(np.arange(self.n_prims))
-        return self._inverse
-
-    @inverse.setter
-    def inverse(self, value) -> None:
-        if value is not None:
-            self._inverse = value
-
-    @property  # type: ignore[override]
-    def origin(self) -> np.ndarray:
-        if self._origin is None:
-            self._inverse, self._origin = self.frames(np.arange(self.n_prims))
-        return self._origin
-
-    @origin.setter
-    def origin(self, value) -> None:
-        if value is not None:
-            self._origin = value
 
     def frames(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Inverse matrices (k, d, d) and vertex 0 (k, d), float64, of tree-order simplices ``p``."""
@@ -180,7 +180,7 @@ def build(
     Parameters
     ----------
     vertices : (V, d) array_like of float
-        d in {2, 3, 4}.
+        The mesh's vertices, d in {2, 3, 4} (the same arguments as :func:`ao4d.bvh.host.build`).
     simplices : (S, d) array_like of int
         Vertex indices per simplex.
     leaf_size : int

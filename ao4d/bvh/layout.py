@@ -34,7 +34,7 @@ _BOX_MARGIN = 1e-5  # of the scene diagonal: covers float32 error of slab tests
 # covers fma slab tests of rays from up to 16 times the scene's farthest point
 _BOX_FMA_MARGIN = 0.1
 
-WIDTH = 8  # children per node of the kernels' tree: one float8 per box coordinate (16 was not faster)
+WIDTH = 8  # children per node of the kernels' tree: one float8 per box coordinate (16 is no faster)
 LANES = 16  # simplices per leaf block: one float16 per simplex coordinate (kernels' LANES)
 STACK_SIZE = 256  # traversal stack entries, passed to kernels/bvh.h as -D STACK_SIZE (1 KiB of ints)
 LEAF_BLOCKS = 1  # most leaf blocks per leaf slot of a wide node (the encoding allows 4)

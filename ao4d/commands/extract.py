@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
 
         grid = read_grid(args.input, spacing=_one_or_many(args.spacing),
                          origin=_one_or_many(args.origin), ndim=args.dim, w_scale=args.w_scale,
-                         affine=args.affine)
+                         keep_affine=args.affine)
         print(f"read {grid.source}: shape {grid.shape}, {grid.values.dtype}"
               f"{' (lazy, block by block)' if grid.lazy else ''}; spacing "
               f"{np.round(grid.spacing, 6).tolist()}, origin {np.round(grid.origin, 6).tolist()}"
