@@ -23,6 +23,7 @@ import numpy as np
 
 from ._atomic import atomic_path
 from ._validate import as_array, as_vector, check_choice, check_positive_int
+from .compositing import over
 from .volumes import pyvista_offscreen, volume_array
 
 __all__ = ["save_montage", "save_volume_png", "composite", "save_slice_png", "ao_colors", "slice_scalars",
@@ -271,9 +272,7 @@ def composite(
     alpha = np.moveaxis(alpha, axis, 0)
     out = np.zeros(alpha.shape[1:] + (4,))
     for layer_c, layer_a in zip(colours, alpha):
-        weight = (1.0 - out[..., 3]) * layer_a
-        out[..., :3] += weight[..., None] * layer_c
-        out[..., 3] += weight
+        over(out, layer_c, layer_a)
     return out
 
 
@@ -756,9 +755,7 @@ def composite_rgba(rgba, *, opacity: float = 0.9, axis: int = 2) -> np.ndarray:
     arr = np.moveaxis(rgba_array(rgba), axis, 0)
     out = np.zeros(arr.shape[1:3] + (4,))
     for layer in arr:
-        weight = (1.0 - out[..., 3]) * opacity * layer[..., 3]
-        out[..., :3] += weight[..., None] * layer[..., :3]
-        out[..., 3] += weight
+        over(out, layer[..., :3], opacity, layer[..., 3])
     return out
 
 
