@@ -306,12 +306,12 @@ def image_shape(shape) -> tuple[int, int, int]:
     Parameters
     ----------
     shape : (3,) sequence of int
-        Voxels along the image axes x, y, z.
+        ``(nx, ny, nz)``, each at least 1.
 
     Returns
     -------
     tuple of int
-        ``(nx, ny, nz)``.
+        The same three numbers as ints.
 
     Examples
     --------

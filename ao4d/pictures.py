@@ -622,16 +622,8 @@ def _volume_png_numpy(path, arr, lo, hi, *, title, label, cmap, spacing, origin)
     import matplotlib
 
     rgba = composite(arr.data, background=arr.mask, cmap=cmap, vmin=lo, vmax=hi, axis=2)
-    white = np.ones(3)
-    picture = rgba[..., :3] + (1.0 - rgba[..., 3:]) * white  # over a white background
-    extent = _xy_extent(arr.shape, spacing, origin)
-    fig = figure(6.4, 5.4)
-    ax = fig.add_axes([0.08, 0.08, 0.72, 0.8])
-    ax.imshow(np.swapaxes(np.clip(picture, 0, 1), 0, 1), origin="lower", extent=extent,
-              interpolation="nearest")
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
-    ax.set_title(f"{title}\n(composited along z)", fontsize=9)
+    fig = _composited_figure(rgba, _xy_extent(arr.shape, spacing, origin), title, (6.4, 5.4),
+                             [0.08, 0.08, 0.72, 0.8])
     cax = fig.add_axes([0.85, 0.15, 0.03, 0.66])
     mappable = matplotlib.cm.ScalarMappable(
         norm=matplotlib.colors.Normalize(lo, hi), cmap=matplotlib.colormaps[cmap])
@@ -804,17 +796,22 @@ def save_rgba_volume_png(
         _voxel_picture(path, colours, arr[..., 3] > 0, title=title, spacing=spacing3,
                        origin=origin3, width=int(0.78 * size[0]))
         return path
-    layered = composite_rgba(arr, axis=2)  # premultiplied: over white is C + (1 - A) white
+    fig = _composited_figure(composite_rgba(arr, axis=2), _xy_extent(arr.shape, spacing3, origin3),
+                             title, (6.0, 5.4), [0.1, 0.08, 0.85, 0.8])
+    return save_figure(fig, path)
+
+
+def _composited_figure(layered, extent, title: str, size, rect):
+    """A figure of premultiplied RGBA composited along z, shown over white (``C + (1 - A)``)."""
     picture = layered[..., :3] + (1.0 - layered[..., 3:])
-    extent = _xy_extent(arr.shape, spacing3, origin3)
-    fig = figure(6.0, 5.4)
-    ax = fig.add_axes([0.1, 0.08, 0.85, 0.8])
+    fig = figure(*size)
+    ax = fig.add_axes(rect)
     ax.imshow(np.swapaxes(np.clip(picture, 0, 1), 0, 1), origin="lower", extent=extent,
               interpolation="nearest")
     ax.set_xlabel("x")
     ax.set_ylabel("y")
     ax.set_title(f"{title}\n(composited along z)", fontsize=9)
-    return save_figure(fig, path)
+    return fig
 
 
 def _rgba_volume_png_pyvista(path, arr, *, title, spacing, origin, size):

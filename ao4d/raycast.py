@@ -587,9 +587,9 @@ def trace(tracer: Tracer | None, origins: np.ndarray, directions: np.ndarray, *,
     closest : bool
         The nearest hit, or any hit.
     accel : {"bvh", "brute"}
-        Traverse the tree, or test every simplex.
+        As for :func:`cast_rays`.
     bar : tqdm-like, optional
-        Updated with the number of rays traced.
+        Counts the rays as they are traced.
 
     Returns
     -------

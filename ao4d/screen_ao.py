@@ -139,9 +139,7 @@ class DepthVolume:
         DepthVolume
             The volume.
         """
-        if not isinstance(camera, Camera4D):
-            raise TypeError(f"`camera` must be an ao4d.Camera4D, got {type(camera).__name__}")
-        shape = image_shape(shape)
+        shape = _camera_shape(camera, shape)
         depth = as_array(depth, "depth", dtype=np.float64)
         if depth.size != math.prod(shape):
             raise ValueError(f"`depth` must hold {math.prod(shape)} voxels, got shape {depth.shape}")
@@ -173,7 +171,7 @@ class DepthVolume:
         camera : Camera4D
             The view.
         shape : (3,) tuple of int
-            The image's voxels along x, y, z.
+            As for :meth:`from_hits`.
         backend : {"auto", "opencl", "numpy"}
             Where the rays are cast.
 
@@ -184,9 +182,7 @@ class DepthVolume:
         """
         from .raycast import cast_rays
 
-        if not isinstance(camera, Camera4D):
-            raise TypeError(f"`camera` must be an ao4d.Camera4D, got {type(camera).__name__}")
-        shape = image_shape(shape)
+        shape = _camera_shape(camera, shape)
         if getattr(mesh, "dim", None) != 4:
             raise ValueError("`mesh` must be a 4D SimplexMesh (tetrahedra in R^4)")
         origins, directions = (a.reshape(-1, 4) for a in camera.rays(shape))
@@ -204,9 +200,9 @@ class DepthVolume:
         Parameters
         ----------
         camera : Camera4D
-            The camera that cast the rays.
+            Whose :meth:`~ao4d.Camera4D.rays` were cast.
         shape : (3,) tuple of int
-            The image's voxels along x, y, z.
+            ``(nx, ny, nz)``, already checked.
         directions : (nx * ny * nz, 4) float64 numpy.ndarray
             The rays' directions (:meth:`ao4d.Camera4D.rays`, C order).
         t : (nx * ny * nz,) float64 numpy.ndarray
@@ -290,6 +286,13 @@ class DepthVolume:
         by ``|u . m| >= GRAZING`` and rounds a few times)."""
         depth = self.depth[self.hit]
         return 2.0**-16 * (float(depth.max()) if depth.size else 0.0)
+
+
+def _camera_shape(camera: Camera4D, shape) -> tuple[int, int, int]:
+    """``shape`` checked (:func:`ao4d.camera.image_shape`) once ``camera`` is a Camera4D."""
+    if not isinstance(camera, Camera4D):
+        raise TypeError(f"`camera` must be an ao4d.Camera4D, got {type(camera).__name__}")
+    return image_shape(shape)
 
 
 def screen_space_occlusion(
@@ -615,16 +618,11 @@ def _numpy_counts(volume: DepthVolume, pts, nrm, *, samples, steps, reach, bias,
         gv = g[(idx[..., 0] * shape[1] + idx[..., 1]) * shape[2] + idx[..., 2]]
         seen = inside & np.isfinite(gv[..., 3])
         d = np.abs(gv[..., 3])
-        m = gv.copy()
-        m[..., 3] = np.copysign(np.sqrt(np.maximum(0.0, 1.0 - (gv[..., :3] ** 2).sum(-1))), gv[..., 3])
-        centre = np.concatenate([f["origin"] + f["spacing"] * idx,
-                                 np.full(idx.shape[:-1] + (1,), f["distance"])], axis=-1)
+        se, m = _surfaces(gv, idx, f)
         if f["perspective"]:
-            se = d[..., None] * centre / np.linalg.norm(centre, axis=-1, keepdims=True)
             tq = np.linalg.norm(c, axis=-1)
             u = c / tq[..., None]
         else:
-            se = np.concatenate([centre[..., :3], d[..., None]], axis=-1)
             tq = c[..., 3]
             u = np.zeros_like(c)
             u[..., 3] = 1.0

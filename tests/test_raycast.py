@@ -18,15 +18,20 @@ from ao4d import bvh, cl, raycast
 DIMS = (2, 3, 4)
 
 
+
+def _shifted_soup(seed: int, d: int, shift: float):
+    """A random soup and 3000 random rays, both moved by ``shift`` along every axis."""
+    rng = np.random.default_rng(seed)
+    mesh = soup_scene(rng, d)
+    o, w = random_rays(rng, d, 3000)
+    return ao4d.SimplexMesh(mesh.vertices + shift, mesh.simplices), o + shift, w
+
+
 @pytest.mark.parametrize("d", DIMS)
 @pytest.mark.parametrize("closest", [True, False])
 @pytest.mark.parametrize("shift", [0.0, 1000.0])  # far from the coordinate origin: float32 slabs
 def test_bvh_equals_brute_force(d, closest, shift, backend):
-    rng = np.random.default_rng(900 + d)
-    mesh = soup_scene(rng, d)
-    mesh = ao4d.SimplexMesh(mesh.vertices + shift, mesh.simplices)
-    o, w = random_rays(rng, d, 3000)
-    o = o + shift
+    mesh, o, w = _shifted_soup(900 + d, d, shift)
     for max_distance in (np.inf, 0.7):
         fast = raycast.cast_rays(mesh, o, w, closest=closest, backend=backend, max_distance=max_distance)
         slow = raycast.cast_rays(mesh, o, w, closest=closest, backend=backend, accel="brute", max_distance=max_distance)
@@ -370,6 +375,15 @@ def test_rays_at_the_barycentric_tolerance_equal_brute_force(d, backend):
 # -- the AO kernel's shared-origin packets (kernels/bvh.h trace_packet) -------------------------
 
 
+def _surface_points(mesh, runtime, every: int = 1):
+    """Vertices with a clear normal (every ``every``-th), their normals, the mesh's tree on
+    ``runtime`` and the AO rays' origin offset."""
+    normals = mesh.vertex_normals
+    keep = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)[::every]
+    tree = raycast.get_bvh(mesh, runtime=runtime)
+    return mesh.vertices[keep], normals[keep], tree, ao4d.ao.ORIGIN_OFFSET * tree.diagonal
+
+
 def _ao_counts(mesh, runtime, points, normals, samples, offset, max_distance, *, traversal="packet",
                accel="bvh"):
     # _ao_opencl takes points in the tree's frame; offset and reach below are tree lengths
@@ -418,11 +432,7 @@ def test_packet_traversal_on_an_extracted_4d_surface(cl_runtime):
     # a marched 4D surface: every vertex's rays start next to its own tetrahedra, deep in the tree
     field = ao4d.fields.spheritorus(1.0, 0.4)
     mesh = ao4d.extract_field(field, (15, 15, 15, 7), ((-1.5, -1.5, -1.5, -0.5), (1.5, 1.5, 1.5, 0.5)))
-    normals = mesh.vertex_normals
-    keep = np.linalg.norm(normals, axis=1) > 0.5
-    p, n = mesh.vertices[keep], normals[keep]
-    tree = raycast.get_bvh(mesh, runtime=cl_runtime)
-    offset = ao4d.ao.ORIGIN_OFFSET * tree.diagonal
+    p, n, tree, offset = _surface_points(mesh, cl_runtime)
     for max_distance in (np.inf, 0.25 * tree.diagonal):
         packet = _ao_counts(mesh, cl_runtime, p, n, 64, offset, max_distance)
         rays = _ao_counts(mesh, cl_runtime, p, n, 64, offset, max_distance, traversal="rays")
@@ -560,11 +570,7 @@ def test_ray_mapping_gives_the_plain_formulas_bits(d, in_dtype, shift, monkeypat
 def test_cast_rays_over_many_launches_equals_brute_force(d, shift, cl_runtime, monkeypatch):
     # launches of 700 rays reuse one launch's mapped buffers: every ray's answer equals the
     # brute-force answer (and the numpy traversal's hits are those of one launch for all)
-    rng = np.random.default_rng(2900 + d)
-    mesh = soup_scene(rng, d)
-    mesh = ao4d.SimplexMesh(mesh.vertices + shift, mesh.simplices)
-    o, w = random_rays(rng, d, 3000)
-    o = o + shift
+    mesh, o, w = _shifted_soup(2900 + d, d, shift)
     whole = raycast.cast_rays(mesh, o, w, closest=False, backend="opencl")
     monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 700)
     for closest in (False, True):
@@ -611,11 +617,7 @@ def test_ao_counts_on_dense_shapes_equal_brute_force(lanes, shift, cl_runtime, m
     monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime: lanes)
     for name, base in _dense_4d_surfaces().items():
         mesh = ao4d.SimplexMesh(base.vertices + shift, base.simplices)
-        normals = mesh.vertex_normals
-        keep = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)[::7]
-        p, n = mesh.vertices[keep], normals[keep]
-        tree = raycast.get_bvh(mesh, runtime=cl_runtime)
-        offset = ao4d.ao.ORIGIN_OFFSET * tree.diagonal
+        p, n, tree, offset = _surface_points(mesh, cl_runtime, every=7)
         for max_distance in (np.inf, 0.25 * tree.diagonal):
             packet = _ao_counts(mesh, cl_runtime, p, n, 40, offset, max_distance)
             rays = _ao_counts(mesh, cl_runtime, p, n, 40, offset, max_distance, traversal="rays")

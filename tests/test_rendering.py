@@ -119,11 +119,17 @@ def test_flat_tetrahedron_appears_unmirrored():
     np.testing.assert_allclose(img.depth[img.hit], 3.0, rtol=1e-5)
 
 
-def test_two_objects_get_their_ids():
-    left = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [-1, 0, 0, 0]), (14,) * 4,
+def _left_and_right(n: int):
+    """Two hyperspheres of radius 0.8 at x = -1 and x = 1, each on an n^4 grid."""
+    left = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [-1, 0, 0, 0]), (n,) * 4,
                               ([-2, -1, -1, -1], [0, 1, 1, 1]))
-    right = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [1, 0, 0, 0]), (14,) * 4,
+    right = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [1, 0, 0, 0]), (n,) * 4,
                                ([0, -1, -1, -1], [2, 1, 1, 1]))
+    return left, right
+
+
+def test_two_objects_get_their_ids():
+    left, right = _left_and_right(14)
     cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=2.0)
     img = render([left, right], cam, (16, 8, 8), ao="none")
     x = cam.project(cam.voxel_centers((16, 8, 8)))[..., 0]
@@ -132,16 +138,6 @@ def test_two_objects_get_their_ids():
     scene, ids = prepare_scene([left, right])
     assert ids.shape == (left.n_simplices + right.n_simplices,)
     assert ids.max() == 1
-
-
-@pytest.fixture(scope="module")
-def touching_pair():
-    # two hyperspheres close together occlude each other near the gap; each alone is convex
-    # and unoccluded, so A is 0 on the far sides and positive near the gap
-    bounds = ([-2.2, -1.1, -1.1, -1.1], [2.2, 1.1, 1.1, 1.1])
-    field = ao4d.fields.union(ao4d.fields.hypersphere(1.0, [-1.05, 0, 0, 0]),
-                              ao4d.fields.hypersphere(1.0, [1.05, 0, 0, 0]))
-    return ao4d.extract_field(field, (24, 12, 12, 12), bounds)
 
 
 def test_ao_darkens_the_gap(touching_pair):
@@ -977,10 +973,7 @@ def test_ao_given_as_an_array_is_shaded_as_stored_ao_without_ao_rays():
 
 
 def test_ao_given_per_mesh_of_a_list_is_joined_in_list_order():
-    left = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [-1, 0, 0, 0]), (12,) * 4,
-                              ([-2, -1, -1, -1], [0, 1, 1, 1]))
-    right = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [1, 0, 0, 0]), (12,) * 4,
-                               ([0, -1, -1, -1], [2, 1, 1, 1]))
+    left, right = _left_and_right(12)
     cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=2.0)
     img = render([left, right], cam, (16, 8, 8),
                  ao=[np.zeros(left.n_vertices), np.full(right.n_vertices, 0.5)], backend="numpy")
