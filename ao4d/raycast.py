@@ -21,6 +21,10 @@ before they are rounded for the kernels.
 
 Work is split into launches of at most ``RAYS_PER_LAUNCH`` rays with a tqdm bar; Ctrl-C stops
 between launches.
+
+Why this stays one module: the traversals share the ray mapping into the tree's frame, the
+kernels' scene arguments and the numpy reference traversal; split, each part would need the
+others' private helpers.
 """
 
 from __future__ import annotations
