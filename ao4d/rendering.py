@@ -431,6 +431,9 @@ def render(
 
         warnings.warn("render(normals=...) is deprecated: use shading='smooth' or shading='flat'",
                       DeprecationWarning, stacklevel=2)
+        if shading != "smooth" and shading != normals:
+            raise ValueError(f"`normals` (deprecated) and `shading` disagree: {normals!r} and {shading!r}; "
+                             "pass `shading` only")
         shading = normals
     opts = _Options.check(camera, shape, ao=ao, samples=samples, max_distance=max_distance, seed=seed,
                           denoise=denoise, ambient=ambient, light=light, diffuse=diffuse,

@@ -1013,6 +1013,8 @@ def test_normals_is_the_deprecated_spelling_of_shading():
     assert not np.array_equal(flat.shade, smooth.shade)
     with pytest.raises(ValueError, match="shading"):
         render(mesh, cam, (4, 4, 4), shading="phong", **kw)
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="pass `shading` only"):
+        render(mesh, cam, (4, 4, 4), shading="flat", normals="smooth", **kw)
 
 
 def test_one_trace_per_ray_batch_on_one_tracer(monkeypatch):
