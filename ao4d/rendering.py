@@ -75,7 +75,8 @@ __all__ = ["render", "RenderResult", "prepare_scene", "ShadeRangeWarning", "comp
 # lights 0.7 (1 - AO) + 0.3 Lambert, so one light of intensity 1 keeps shade in [0, 1].
 AMBIENT, AMBIENT_LIT, DIFFUSE = 1.0, 0.7, 0.3
 
-# Primary rays per cast_rays call: bounds host memory and lets tqdm show progress.
+# Rays per trace call: bounds the host memory of refining hits (float64 simplex frames) and
+# lets tqdm show progress.
 _CHUNK = 1 << 16
 # Show progress by default only for images with at least this many voxels.
 _PROGRESS_VOXELS = 1 << 18
@@ -390,7 +391,7 @@ def render(
         Shading normals interpolated from vertex normals, or the hit simplex's own.
     backend : {"auto", "opencl", "numpy"}
         Resolved once (:func:`ao4d.cl.resolve_backend`); primary, layer and shadow rays
-        (:func:`ao4d.raycast.cast_rays`) and AO (:func:`ao4d.ambient_occlusion`) all run on it.
+        (:func:`ao4d.raycast.trace`) and AO (:func:`ao4d.ambient_occlusion`) all run on it.
     progress : bool, optional
         Progress bars (:mod:`ao4d._progress`: silenced by ``--no-progress``); default on for
         images of 2^18 voxels or more.
@@ -701,10 +702,19 @@ def _screen_steps(scene: _Scene, camera, opts: _Options) -> int:
 
 
 def _cast(run: _Run, origins, directions, desc, *, closest=True, max_distance=math.inf):
-    """Hits of one batch of rays: ``t``, ``simplex``, barycentric weights (progress bar over rays)."""
-    with _progress.bar(len(origins), desc, unit="ray", show=run.opts.show, unit_scale=True) as bar:
-        hits = trace(run.tracer, origins, directions, closest=closest, max_distance=max_distance, bar=bar)
-        return hits.t, hits.simplex, hits.barycentric
+    """Hits of many rays: ``t``, ``simplex``, barycentric weights; one :func:`ao4d.raycast.trace`
+    per batch of ``_CHUNK`` rays on the render's tracer (progress bar over rays)."""
+    n = len(origins)
+    t = np.full(n, np.inf)
+    simplex = np.full(n, -1, dtype=np.int64)
+    bary = np.zeros((n, 4))
+    with _progress.bar(n, desc, unit="ray", show=run.opts.show, unit_scale=True) as bar:
+        for start in range(0, n, _CHUNK):
+            stop = min(start + _CHUNK, n)
+            hits = trace(run.tracer, origins[start:stop], directions[start:stop], closest=closest,
+                         max_distance=max_distance, bar=bar)
+            t[start:stop], simplex[start:stop], bary[start:stop] = hits.t, hits.simplex, hits.barycentric
+    return t, simplex, bary
 
 
 def _with_first_hits(run: _Run, camera, directions, t, simplex) -> _Run:

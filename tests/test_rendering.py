@@ -1018,8 +1018,8 @@ def test_normals_is_the_deprecated_spelling_of_shading():
 
 
 def test_one_trace_per_ray_batch_on_one_tracer(monkeypatch):
-    # primary rays are one batch however many voxels: no re-validation per chunk, and every
-    # batch runs on the tracer resolved once
+    # every batch of rays is one internal trace on the tracer resolved once: no public
+    # cast_rays re-validating rays and re-resolving the backend and tree per batch
     from ao4d import raycast
 
     mesh, cam = _small_scene()
@@ -1028,6 +1028,8 @@ def test_one_trace_per_ray_batch_on_one_tracer(monkeypatch):
                         lambda tracer, o, w, **k: calls.append((tracer, len(o))) or raycast.trace(tracer, o, w, **k))
     monkeypatch.setattr(raycast, "cast_rays", lambda *a, **k: pytest.fail("public cast_rays re-entered"))
     img = render(mesh, cam, (48, 48, 32), ao="none", light=(0, 1, 0, -1), shadows=True, backend="numpy")
-    assert calls[0][1] == 48 * 48 * 32 > 1 << 16
+    chunk = ao4d.rendering._CHUNK
+    primary = 48 * 48 * 32
+    assert [n for _, n in calls[:2]] == [chunk, primary - chunk]  # two batches of primary rays
     assert len({id(tracer) for tracer, _ in calls}) == 1
-    assert len(calls) == 2 and calls[1][1] == img.info["shadow_rays"]
+    assert sum(n for _, n in calls[2:]) == img.info["shadow_rays"]
