@@ -28,7 +28,7 @@ import numpy as np
 from ._validate import as_array, as_real, as_vector, check_choice, check_memory, check_positive_int
 from .geometry import cross
 
-__all__ = ["Camera4D", "ImageGeometry"]
+__all__ = ["Camera4D", "ImageGeometry", "image_shape"]
 
 # |sin| of the angle below which two directions count as parallel (about 0.06 degrees)
 _PARALLEL_TOL = 1e-3
@@ -224,7 +224,7 @@ class Camera4D:
         ImageGeometry
             Spacing and origin of the voxels.
         """
-        shape = _image_shape(shape)
+        shape = image_shape(shape)
         spacing = 2.0 * self.half_width / max(shape)
         origin = tuple(-0.5 * spacing * (n - 1) for n in shape)
         return ImageGeometry(shape=shape, spacing=spacing, origin=origin)
@@ -235,7 +235,7 @@ class Camera4D:
         Parameters
         ----------
         shape : (3,) tuple of int
-            Voxels along the image axes x, y, z.
+            As for :meth:`geometry`.
 
         Returns
         -------
@@ -300,7 +300,24 @@ class Camera4D:
         return lateral * scale[..., None]
 
 
-def _image_shape(shape) -> tuple[int, int, int]:
+def image_shape(shape) -> tuple[int, int, int]:
+    """A 3D image's size as three positive ints, else an error naming ``shape``.
+
+    Parameters
+    ----------
+    shape : (3,) sequence of int
+        ``(nx, ny, nz)``, each at least 1.
+
+    Returns
+    -------
+    tuple of int
+        The same three numbers as ints.
+
+    Examples
+    --------
+    >>> image_shape([4, 5, 6])
+    (4, 5, 6)
+    """
     try:
         items = tuple(shape)
     except TypeError:

@@ -81,6 +81,7 @@ import numpy as np
 
 from ._atomic import atomic_open, check_output_file
 from ._validate import as_real, check_bool, check_choice
+from .compositing import over
 from .viewer import HALF_FOV_DEG, MARGIN, ZOOM_RANGE, Camera, Frame, _b64_size, _scene_json, _wrap, camera, merged_state
 
 __all__ = [
@@ -489,9 +490,7 @@ def reference_march(image: Any, state: Mapping[str, Any] | None, width: int, hei
             c, a = colours[q], ramp[q] * (texel[:, 3] / 255.0)
         alpha = 1.0 - (1.0 - a) ** STEP
         acc = out[active]
-        w = (1.0 - acc[:, 3]) * alpha
-        acc[:, :3] += w[:, None] * c
-        acc[:, 3] += w
+        over(acc, c, alpha)
         out[active] = acc
         active = active[acc[:, 3] < A_STOP]
     return out.reshape(cam.height, cam.width, 4)

@@ -23,6 +23,7 @@ import numpy as np
 
 from ._atomic import atomic_path
 from ._validate import as_array, as_vector, check_choice, check_positive_int
+from .compositing import over
 from .volumes import pyvista_offscreen, volume_array
 
 __all__ = ["save_montage", "save_volume_png", "composite", "save_slice_png", "ao_colors", "slice_scalars",
@@ -271,9 +272,7 @@ def composite(
     alpha = np.moveaxis(alpha, axis, 0)
     out = np.zeros(alpha.shape[1:] + (4,))
     for layer_c, layer_a in zip(colours, alpha):
-        weight = (1.0 - out[..., 3]) * layer_a
-        out[..., :3] += weight[..., None] * layer_c
-        out[..., 3] += weight
+        over(out, layer_c, layer_a)
     return out
 
 
@@ -623,16 +622,8 @@ def _volume_png_numpy(path, arr, lo, hi, *, title, label, cmap, spacing, origin)
     import matplotlib
 
     rgba = composite(arr.data, background=arr.mask, cmap=cmap, vmin=lo, vmax=hi, axis=2)
-    white = np.ones(3)
-    picture = rgba[..., :3] + (1.0 - rgba[..., 3:]) * white  # over a white background
-    extent = _xy_extent(arr.shape, spacing, origin)
-    fig = figure(6.4, 5.4)
-    ax = fig.add_axes([0.08, 0.08, 0.72, 0.8])
-    ax.imshow(np.swapaxes(np.clip(picture, 0, 1), 0, 1), origin="lower", extent=extent,
-              interpolation="nearest")
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
-    ax.set_title(f"{title}\n(composited along z)", fontsize=9)
+    fig = _composited_figure(rgba, _xy_extent(arr.shape, spacing, origin), title, (6.4, 5.4),
+                             [0.08, 0.08, 0.72, 0.8])
     cax = fig.add_axes([0.85, 0.15, 0.03, 0.66])
     mappable = matplotlib.cm.ScalarMappable(
         norm=matplotlib.colors.Normalize(lo, hi), cmap=matplotlib.colormaps[cmap])
@@ -756,9 +747,7 @@ def composite_rgba(rgba, *, opacity: float = 0.9, axis: int = 2) -> np.ndarray:
     arr = np.moveaxis(rgba_array(rgba), axis, 0)
     out = np.zeros(arr.shape[1:3] + (4,))
     for layer in arr:
-        weight = (1.0 - out[..., 3]) * opacity * layer[..., 3]
-        out[..., :3] += weight[..., None] * layer[..., :3]
-        out[..., 3] += weight
+        over(out, layer[..., :3], opacity, layer[..., 3])
     return out
 
 
@@ -807,17 +796,22 @@ def save_rgba_volume_png(
         _voxel_picture(path, colours, arr[..., 3] > 0, title=title, spacing=spacing3,
                        origin=origin3, width=int(0.78 * size[0]))
         return path
-    layered = composite_rgba(arr, axis=2)  # premultiplied: over white is C + (1 - A) white
+    fig = _composited_figure(composite_rgba(arr, axis=2), _xy_extent(arr.shape, spacing3, origin3),
+                             title, (6.0, 5.4), [0.1, 0.08, 0.85, 0.8])
+    return save_figure(fig, path)
+
+
+def _composited_figure(layered, extent, title: str, size, rect):
+    """A figure of premultiplied RGBA composited along z, shown over white (``C + (1 - A)``)."""
     picture = layered[..., :3] + (1.0 - layered[..., 3:])
-    extent = _xy_extent(arr.shape, spacing3, origin3)
-    fig = figure(6.0, 5.4)
-    ax = fig.add_axes([0.1, 0.08, 0.85, 0.8])
+    fig = figure(*size)
+    ax = fig.add_axes(rect)
     ax.imshow(np.swapaxes(np.clip(picture, 0, 1), 0, 1), origin="lower", extent=extent,
               interpolation="nearest")
     ax.set_xlabel("x")
     ax.set_ylabel("y")
     ax.set_title(f"{title}\n(composited along z)", fontsize=9)
-    return save_figure(fig, path)
+    return fig
 
 
 def _rgba_volume_png_pyvista(path, arr, *, title, spacing, origin, size):

@@ -6,7 +6,9 @@ ray-simplex test and barycentric tolerance ``ao4d.bvh.BARY_EPS``. The OpenCL ker
 the numpy traversal walks the binary tree in float64. They differ only on rays that graze an edge
 or the ``max_distance`` sphere.
 
-Three traversals: :func:`cast_rays` (closest or any hit of given rays: rendering, shadows),
+Three traversals: :func:`cast_rays` (closest or any hit of given rays; it validates, then calls
+:func:`trace`, which :func:`ao4d.render` calls directly with its :class:`Tracer`: the mesh's tree
+and device copies fetched once on a resolved backend),
 :func:`count_occluded` (any-hit counts of cosine-distributed rays generated on the device:
 ambient occlusion), and :func:`sample_directions` (the directions that kernel traces, for tests).
 On CPUs the AO kernel traces the rays of a point together as one packet from their shared origin
@@ -18,8 +20,11 @@ The trees and their device copies come from :func:`ao4d.bvh.get_bvh` and
 before they are rounded for the kernels.
 
 Work is split into launches of at most ``RAYS_PER_LAUNCH`` rays with a tqdm bar; Ctrl-C stops
-between launches. It stays one module: the three traversals share the ray checks, the frame
-mapping and the launch loop.
+between launches.
+
+Why this stays one module: the traversals share the ray mapping into the tree's frame, the
+kernels' scene arguments and the numpy reference traversal; split, each part would need the
+others' private helpers.
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ from .bvh import BUILDERS, get_bvh
 from ._validate import as_array, as_real, check_bool, check_choice, check_memory
 from .sampling import cosine_hemisphere, sobol_table
 
-__all__ = ["cast_rays", "count_occluded", "sample_directions", "traversal_counts", "get_bvh", "RayHits",
+__all__ = ["cast_rays", "trace", "Tracer", "count_occluded", "sample_directions", "traversal_counts", "get_bvh", "RayHits",
            "mesh_arrays", "unit_rows", "progress_bar", "RAYS_PER_LAUNCH", "ACCELS", "BUILDERS"]
 
 AO_PACKET = 32  # rays of a point traced together by the AO kernel (kernels/bvh.h trace_packet)
@@ -197,7 +202,7 @@ def _pad4(a: np.ndarray) -> np.ndarray:
     return out
 
 
-def _trace_opencl(mesh, tree, runtime, rays, max_distance, any_hit, accel, bar):
+def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar):
     """The kernels' answer per ray of ``rays`` (:class:`_Rays`), launch by launch: (N,) int32,
     ``lanes * leaf block + lane`` or -1 (:func:`_tree_order` maps it to tree-order simplices).
 
@@ -216,7 +221,6 @@ def _trace_opencl(mesh, tree, runtime, rays, max_distance, any_hit, accel, bar):
     buf_t = pcl.Buffer(ctx, mf.WRITE_ONLY, size * 4)
     buf_h = pcl.Buffer(ctx, mf.WRITE_ONLY, size * 4)
     hit = np.empty(n, dtype=np.int32)
-    dev = _bvh.device_tree(mesh, tree, runtime)
     kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast", accel)
     args = head + [buf_o, buf_w, np.float32(max_distance), np.int32(any_hit), buf_t, buf_h]
     write = pcl.map_flags.WRITE_INVALIDATE_REGION
@@ -526,22 +530,92 @@ def cast_rays(
     closest = check_bool(closest, "closest")
     check_choice(accel, "accel", ACCELS)
     runtime = cl.resolve_backend(backend)
-    n = len(origins)
+    if len(origins) == 0:  # no tree is needed to miss
+        return trace(None, origins, directions)
+    with progress_bar(progress, len(origins), "rays") as bar:
+        return trace(Tracer.of(mesh, runtime), origins, directions, max_distance=max_distance,
+                     closest=closest, accel=accel, bar=bar)
+
+
+class Tracer:
+    """A mesh's tree on a resolved backend: what every trace of the mesh needs, fetched once.
+
+    Attributes
+    ----------
+    tree : ao4d.bvh.BVH
+        The mesh's tree (:func:`ao4d.bvh.get_bvh`).
+    runtime : ao4d.cl.Runtime or None
+        The OpenCL device, or None for the numpy traversal.
+    device : dict or None
+        The tree's device copies (:func:`ao4d.bvh.device_tree`) on ``runtime``.
+    """
+
+    __slots__ = ("tree", "runtime", "device")
+
+    def __init__(self, tree: Any, runtime: Any, device: dict | None) -> None:
+        self.tree, self.runtime, self.device = tree, runtime, device
+
+    @classmethod
+    def of(cls, mesh: Any, runtime: Any) -> Tracer:
+        """The tracer of ``mesh`` on ``runtime`` (:func:`ao4d.cl.resolve_backend`'s answer).
+
+        Parameters
+        ----------
+        mesh : SimplexMesh
+            A mesh with at least one simplex.
+        runtime : ao4d.cl.Runtime or None
+            The OpenCL device, or None for numpy.
+
+        Returns
+        -------
+        Tracer
+            Its tree, and the device copies when ``runtime`` is a device.
+        """
+        tree = get_bvh(mesh, runtime=runtime)
+        return cls(tree, runtime, None if runtime is None else _bvh.device_tree(mesh, tree, runtime))
+
+
+def trace(tracer: Tracer | None, origins: np.ndarray, directions: np.ndarray, *,
+          max_distance: float = math.inf, closest: bool = True, accel: str = "bvh",
+          bar: Any = None) -> RayHits:
+    """:func:`cast_rays` on trusted inputs: one batch of rays, no validation.
+
+    Parameters
+    ----------
+    tracer : Tracer
+        The mesh's tree on its backend (None only when there are no rays).
+    origins, directions : (N, d) float32 or float64 numpy.ndarray
+        Finite rows; directions non-zero (normalised here).
+    max_distance : float
+        Hits count for ``0 < t <= max_distance`` (> 0, inf allowed).
+    closest : bool
+        The nearest hit, or any hit.
+    accel : {"bvh", "brute"}
+        As for :func:`cast_rays`.
+    bar : tqdm-like, optional
+        Counts the rays as they are traced.
+
+    Returns
+    -------
+    RayHits
+        As :func:`cast_rays` returns.
+    """
+    n, d = origins.shape
     if n == 0:  # OpenCL refuses buffers of zero bytes
         return RayHits(t=np.zeros(0), simplex=np.zeros(0, dtype=np.int64), barycentric=np.zeros((0, d)))
-    tree = get_bvh(mesh, runtime=runtime)
+    bar = _NullBar() if bar is None else bar
+    tree, runtime = tracer.tree, tracer.runtime
     rays = _Rays(tree.frame, origins, directions)
     reach = tree.frame.length(max_distance)
-    with progress_bar(progress, n, "rays") as bar:
-        if runtime is not None:
-            hit = _trace_opencl(mesh, tree, runtime, rays, reach, not closest, accel, bar)
-        else:
-            check_memory(min(n, _NUMPY_RAYS_PER_STEP) * 64.0 + n * 8.0, "the numpy ray arrays")
-            hit = _trace_numpy(tree, rays, reach, not closest, accel, bar)
+    if runtime is not None:
+        hit = _trace_opencl(tracer.device, tree, runtime, rays, reach, not closest, accel, bar)
+    else:
+        check_memory(min(n, _NUMPY_RAYS_PER_STEP) * 64.0 + n * 8.0, "the numpy ray arrays")
+        hit = _trace_numpy(tree, rays, reach, not closest, accel, bar)
     rows = np.flatnonzero(hit >= 0)
     p = hit[rows].astype(np.int64)
     if runtime is not None:  # the kernels answer lanes * leaf block + lane
-        p = _tree_order(_bvh.device_tree(mesh, tree, runtime), p)
+        p = _tree_order(tracer.device, p)
     simplex = np.full(n, -1, dtype=np.int64)
     simplex[rows] = tree.prim[p]
     # the hit rays as they are now (the caller may change the arrays); mapped when t is read

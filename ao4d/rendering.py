@@ -1,6 +1,6 @@
 """Render 4D meshes into 3D image volumes with a :class:`~ao4d.camera.Camera4D`.
 
-One primary ray per voxel (closest hit through :func:`ao4d.raycast.cast_rays`). At a hit with
+One primary ray per voxel (closest hit through :func:`ao4d.raycast.trace`). At a hit with
 ambient occlusion ``A`` (DESIGN.md definition), normal ``n`` turned towards the viewer and, per
 light k, unit direction ``l_k`` towards it, shadow visibility ``V_k`` and intensity ``I_k``::
 
@@ -22,7 +22,8 @@ front to back over the first ``layers`` (default :data:`MAX_LAYERS` = 4) surface
 ray: a further closest-hit ray is cast from just past (1e-4 bounding-box diagonals) each
 transparent hit. With ``light=`` a
 direction (one white light), ``specular=0``, ``shadows=False`` and no depth cue, ``shade`` is
-``ambient * (1 - A) + diffuse * max(0, n . l)`` to the bit, as before these terms existed.
+``ambient * (1 - A) + diffuse * max(0, n . l)`` to the bit: terms whose weight is 0 or factor
+is 1 are left out of the sum, not added as zeros or multiplied in.
 
 With ``ao="screen"`` the occlusion comes from the image itself (:mod:`ao4d.screen_ao`): the first
 hits' depths, points and viewer-facing normals form a depth volume, and every shaded hit (those
@@ -47,7 +48,7 @@ import math
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -57,10 +58,11 @@ from . import _progress, cl
 from ._validate import (as_array, as_real, check_bool, check_choice, check_int, check_memory,
                         check_positive_int)
 from .ao import ORIGIN_OFFSET, ambient_occlusion
-from .camera import Camera4D, ImageGeometry, _image_shape
+from .camera import Camera4D, ImageGeometry, image_shape
+from .compositing import over, unpremultiply
 from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, lambert
 from .mesh import SimplexMesh, _mesh_list, concatenate, warn_if_inside_out
-from .raycast import RAYS_PER_SECOND, cast_rays, check_distance, check_rays
+from .raycast import RAYS_PER_SECOND, Tracer, check_distance, check_rays, trace
 from .screen_ao import (DENOISE_PER_SECOND, LOOKUPS_PER_SECOND, MAX_STEPS, MIN_STEPS, STEP_VOXELS, DepthVolume,
                         default_steps, screen_space_occlusion, viewer_side)
 from .screen_ao import denoise as denoise_occlusion
@@ -73,7 +75,8 @@ __all__ = ["render", "RenderResult", "prepare_scene", "ShadeRangeWarning", "comp
 # lights 0.7 (1 - AO) + 0.3 Lambert, so one light of intensity 1 keeps shade in [0, 1].
 AMBIENT, AMBIENT_LIT, DIFFUSE = 1.0, 0.7, 0.3
 
-# Primary rays per cast_rays call: bounds host memory and lets tqdm show progress.
+# Rays per trace call: bounds the host memory of refining hits (float64 simplex frames) and
+# lets tqdm show progress.
 _CHUNK = 1 << 16
 # Show progress by default only for images with at least this many voxels.
 _PROGRESS_VOXELS = 1 << 18
@@ -203,20 +206,45 @@ def default_weights(ambient: float | None, diffuse: float | None, lit: bool) -> 
     return ambient, diffuse
 
 
-def _check_inputs(scene, ao: str, ambient: float, diffuse: float, specular: np.ndarray, lights) -> None:
-    """Refuse stored AO that would shade wrongly, and say when the weights can exceed 1."""
-    if ao == "vertices" and "ao" in scene.point_data:
-        values = np.asarray(scene.point_data["ao"], dtype=np.float64)
-        used = np.zeros(scene.n_vertices, dtype=bool)
-        used[scene.simplices.ravel()] = True
-        bad_nan = used & ~np.isfinite(values)
-        if bad_nan.any():
-            raise ValueError(f"`point_data['ao']` is NaN at {int(bad_nan.sum())} vertices that simplices use "
-                             f"(first: vertex {int(np.argmax(bad_nan))}); recompute it with ao4d.ambient_occlusion")
-        outside = used & ((values < 0) | (values > 1))
-        if outside.any():
-            raise ValueError(f"`point_data['ao']` must be occlusion in [0, 1], got values in "
-                             f"[{values[used].min():.4g}, {values[used].max():.4g}]")
+def _check_vertex_ao(values: np.ndarray, scene, name: str) -> np.ndarray:
+    """Per-vertex AO as float64, refused where it would shade wrongly (NaN or outside [0, 1] at
+    vertices that simplices use)."""
+    values = np.asarray(values, dtype=np.float64)
+    used = np.zeros(scene.n_vertices, dtype=bool)
+    used[scene.simplices.ravel()] = True
+    bad_nan = used & ~np.isfinite(values)
+    if bad_nan.any():
+        raise ValueError(f"`{name}` is NaN at {int(bad_nan.sum())} vertices that simplices use "
+                         f"(first: vertex {int(np.argmax(bad_nan))}); recompute it with ao4d.ambient_occlusion")
+    outside = used & ((values < 0) | (values > 1))
+    if outside.any():
+        raise ValueError(f"`{name}` must be occlusion in [0, 1], got values in "
+                         f"[{values[used].min():.4g}, {values[used].max():.4g}]")
+    return values
+
+
+def _given_ao(ao, meshes, scene) -> np.ndarray:
+    """``render(ao=...)`` given as values: one (V,) array for the joined scene, or one array
+    per mesh of the list (joined in the list's order, as the vertices are)."""
+    per_mesh = (isinstance(meshes, Sequence) and isinstance(ao, (list, tuple)) and len(ao) == len(meshes)
+                and all(np.ndim(item) == 1 for item in ao))
+    if per_mesh:
+        parts = [as_array(item, f"ao[{k}]", ndim=1, dtype=np.float64) for k, item in enumerate(ao)]
+        for k, (part, mesh) in enumerate(zip(parts, meshes)):
+            if len(part) != mesh.n_vertices:
+                raise ValueError(f"`ao[{k}]` must hold one value per vertex of meshes[{k}] "
+                                 f"({mesh.n_vertices}), got {len(part)}")
+        values = np.concatenate(parts)
+    else:
+        values = as_array(ao, "ao", ndim=1, dtype=np.float64)
+        if len(values) != scene.n_vertices:
+            raise ValueError(f"`ao` must hold one value per vertex ({scene.n_vertices}), or be one of "
+                             f"'vertices', 'hits', 'screen', 'none'; got {len(values)} values")
+    return _check_vertex_ao(values, scene, "ao")
+
+
+def _check_weights(ambient: float, diffuse: float, specular: np.ndarray, lights) -> None:
+    """Say when the weights let shade exceed 1."""
     lit = sum(light.intensity for light in lights)
     brightest = ambient + lit * (diffuse + float(np.max(specular, initial=0.0)))
     if brightest > 1 + 1e-9:
@@ -224,7 +252,7 @@ def _check_inputs(scene, ao: str, ambient: float, diffuse: float, specular: np.n
 
         warnings.warn(
             f"`ambient` + light intensity x (`diffuse` + `specular`) = {brightest:.3g} > 1: shade can "
-            "exceed 1 (it is in [0, 1] when they sum to at most 1)", ShadeRangeWarning, stacklevel=3)
+            "exceed 1 (it is in [0, 1] when they sum to at most 1)", ShadeRangeWarning, stacklevel=4)
 
 
 class ShadeRangeWarning(UserWarning):
@@ -272,7 +300,7 @@ def render(
     camera: Camera4D,
     shape=(64, 64, 64),
     *,
-    ao: Literal["vertices", "hits", "screen", "none"] = "vertices",
+    ao: Literal["vertices", "hits", "screen", "none"] | Any = "vertices",
     samples: int = 64,
     max_distance: float = math.inf,
     seed: int = 0,
@@ -287,10 +315,11 @@ def render(
     color=None,
     opacity=None,
     layers: int = MAX_LAYERS,
-    normals: Literal["smooth", "flat"] = "smooth",
+    shading: Literal["smooth", "flat"] = "smooth",
     backend: Literal["auto", "opencl", "numpy"] = "auto",
     progress: bool | None = None,
     max_rays: float | None = None,
+    normals: Literal["smooth", "flat"] | None = None,
 ) -> RenderResult:
     """Render 4D meshes into a 3D image volume (one primary ray per voxel).
 
@@ -303,10 +332,11 @@ def render(
         The 4D camera; its image hyperplane holds the 3D image.
     shape : (3,) tuple of int
         Image size ``(nx, ny, nz)`` along the camera's image axes.
-    ao : {"vertices", "hits", "screen", "none"}
+    ao : {"vertices", "hits", "screen", "none"} or array_like
         ``"vertices"``: per-vertex occlusion from ``mesh.point_data["ao"]`` (computed with
         :func:`ao4d.ambient_occlusion` when absent) interpolated with the hit's barycentric
-        weights. ``"hits"``: occlusion computed at every hit point with the normal facing the
+        weights. An array: that per-vertex occlusion (in [0, 1]), shaded as ``"vertices"``:
+        ``(V,)`` for the mesh (the joined list), or one ``(V_k,)`` array per mesh of a list. ``"hits"``: occlusion computed at every hit point with the normal facing the
         viewer (exact per voxel and right for open, two-sided geometry). ``"screen"``: 4D
         screen-space AO at every hit, read from the image's own depth volume (first hits,
         their points and viewer-facing normals) with the same directions as ``"hits"``
@@ -357,11 +387,11 @@ def render(
     layers : int
         Surfaces composited front to back along a ray (1..16; default 4): a ray ends after
         ``layers`` hits or at its first opaque hit.
-    normals : {"smooth", "flat"}
+    shading : {"smooth", "flat"}
         Shading normals interpolated from vertex normals, or the hit simplex's own.
     backend : {"auto", "opencl", "numpy"}
         Resolved once (:func:`ao4d.cl.resolve_backend`); primary, layer and shadow rays
-        (:func:`ao4d.raycast.cast_rays`) and AO (:func:`ao4d.ambient_occlusion`) all run on it.
+        (:func:`ao4d.raycast.trace`) and AO (:func:`ao4d.ambient_occlusion`) all run on it.
     progress : bool, optional
         Progress bars (:mod:`ao4d._progress`: silenced by ``--no-progress``); default on for
         images of 2^18 voxels or more.
@@ -369,6 +399,9 @@ def render(
         Refuse, before any work, a render whose rays (primary, AO, shadow and layer rays, an
         upper bound) exceed this; default :data:`ao4d.raycast.MAX_RAYS` of the backend
         (about half an hour of work), ``math.inf`` for no limit (CLI: ``--force``).
+    normals : {"smooth", "flat"}, optional
+        Deprecated spelling of ``shading`` (a :class:`DeprecationWarning`); ``normals`` names
+        arrays of normals elsewhere (:func:`ao4d.ambient_occlusion`).
 
     Returns
     -------
@@ -394,101 +427,61 @@ def render(
     [1.0, 0.5, 0.0, 1.0]
     """
     started = time.perf_counter()
-    if not isinstance(camera, Camera4D):
-        raise TypeError(f"`camera` must be an ao4d.Camera4D, got {type(camera).__name__}")
-    shape = _image_shape(shape)
-    check_choice(ao, "ao", ("vertices", "hits", "screen", "none"))
-    check_choice(normals, "normals", ("smooth", "flat"))
-    check_choice(backend, "backend", cl.BACKENDS)
-    samples = check_positive_int(samples, "samples")
-    seed = check_int(seed, "seed")
-    denoise = check_int(denoise, "denoise", minimum=0)
-    if denoise and ao != "screen":
-        raise ValueError(f"`denoise` filters screen-space AO: it needs ao='screen', got ao={ao!r}")
-    lights = as_lights(light, "light")
-    ambient, diffuse = default_weights(ambient, diffuse, bool(lights))
-    shadows = check_bool(shadows, "shadows")
-    cue = check_depth_cue(depth_cue)
-    layers = check_positive_int(layers, "layers")
-    if layers > _LAYER_LIMIT:
-        raise ValueError(f"`layers` must be <= {_LAYER_LIMIT}, got {layers}")
-    max_distance = check_distance(max_distance)
-    n_rays = math.prod(shape)
-    check_memory(n_rays * 4 * 8 * 10, "rendering an image of this shape")
-    scene, object_ids = prepare_scene(meshes)
-    n_objects = int(object_ids.max()) + 1
-    material = _Material(
-        color=_per_object(color, "color", n_objects, (1.0, 1.0, 1.0), unit=True),
-        opacity=_per_object(opacity, "opacity", n_objects, 1.0, unit=True),
-        specular=_per_object(specular, "specular", n_objects, 0.0, unit=False),
-        shininess=_per_object(shininess, "shininess", n_objects, 32.0, unit=False, positive=True),
-    )
-    _check_inputs(scene, ao, ambient, diffuse, material.specular, lights)
-    show = n_rays >= _PROGRESS_VOXELS if progress is None else bool(progress)
-    runtime = cl.resolve_backend(backend)
-    backend = cl.backend_name(runtime)  # what runs: every stage on the same device
-    _check_budget(scene, n_rays, ao=ao, samples=samples, lights=lights, shadows=shadows,
-                  layers=1 if material.opaque else layers, backend=backend, max_rays=max_rays,
-                  camera=camera, shape=shape, max_distance=max_distance, denoise=denoise)
-    if ao == "hits" or (ao == "vertices" and "ao" not in scene.point_data):
-        # only AO computed here: stored AO was computed (and warned about) where it was made,
-        # and the check costs a pass over every simplex
-        warn_if_inside_out(scene, "AO is 1 on its surface and the image dark")
-    info: dict[str, Any] = {"primary_rays": n_rays, "layer_rays": 0, "shadow_rays": 0,
-                            "ao_rays": 0, "screen_lookups": 0, "primary_seconds": 0.0,
-                            "layer_seconds": 0.0, "shadow_seconds": 0.0, "ao_seconds": 0.0,
-                            "backend": backend,
-                            "device": cl.describe(runtime)}
-    lo, hi = np.asarray(scene.bounds, dtype=np.float64)
-    shading = _Shading(
-        scene=scene, object_ids=object_ids, material=material, lights=lights, ambient=ambient,
-        diffuse=diffuse, shadows=shadows, cue=cue, layers=layers, ao=ao, normals=normals,
-        samples=samples, seed=seed, max_distance=max_distance, backend=backend, show=show,
-        offset=ORIGIN_OFFSET * float(np.linalg.norm(hi - lo)), info=info,
-    )
+    if normals is not None:
+        import warnings
 
-    origins, directions = (a.reshape(-1, 4) for a in camera.rays(shape))
+        warnings.warn("render(normals=...) is deprecated: use shading='smooth' or shading='flat'",
+                      DeprecationWarning, stacklevel=2)
+        if shading != "smooth" and shading != normals:
+            raise ValueError(f"`normals` (deprecated) and `shading` disagree: {normals!r} and {shading!r}; "
+                             "pass `shading` only")
+        shading = normals
+    opts = _Options.check(camera, shape, ao=ao, samples=samples, max_distance=max_distance, seed=seed,
+                          denoise=denoise, ambient=ambient, light=light, diffuse=diffuse,
+                          shadows=shadows, depth_cue=depth_cue, layers=layers, shading=shading,
+                          backend=backend, progress=progress)
+    scene = _Scene.of(meshes, opts, ao, color=color, opacity=opacity, specular=specular,
+                      shininess=shininess)
+    runtime = cl.resolve_backend(backend)
+    name = cl.backend_name(runtime)  # what runs: every stage on the same device
+    _check_budget(scene, opts, camera, name, max_rays)
+    if opts.ao == "hits" or (opts.ao == "vertices" and scene.vertex_ao is None):
+        # only AO computed here: given or stored AO was checked where it was made, and the
+        # check costs a pass over every simplex
+        warn_if_inside_out(scene.mesh, "AO is 1 on its surface and the image dark")
+    run = _Run(opts=opts, scene=scene, backend=name, tracer=Tracer.of(scene.mesh, runtime),
+               stats=_Stats(primary_rays=math.prod(opts.shape), backend=name, device=cl.describe(runtime)))
+    stats = run.stats
+
+    origins, directions = (a.reshape(-1, 4) for a in camera.rays(opts.shape))
     tick = time.perf_counter()
-    t, simplex, bary = _cast_chunked(scene, origins, directions, backend, show, "primary rays")
-    info["primary_seconds"] = time.perf_counter() - tick
+    t, simplex, bary = _cast(run, origins, directions, "primary rays")
+    stats.primary_seconds = time.perf_counter() - tick
     hit = simplex >= 0
-    info["hits"] = int(hit.sum())
+    stats.hits = int(hit.sum())
     rows = np.flatnonzero(hit)
-    points = origins[rows] + t[rows, None] * directions[rows]
-    occlusion = None
-    if ao == "screen" and rows.size:
-        tick = time.perf_counter()
-        volume = shading.screen = _depth_volume(scene, camera, shape, directions, t, simplex)
-        occlusion = screen_space_occlusion(volume, points, volume.normals.reshape(-1, 4)[rows],
-                                           samples=samples, max_distance=max_distance, seed=seed,
-                                           backend=backend)
-        info["screen_lookups"] += rows.size * samples * default_steps(volume, max_distance)
-        if denoise:
-            image = np.full(n_rays, np.nan)
-            image[rows] = occlusion
-            occlusion = denoise_occlusion(image.reshape(shape), volume, radius=denoise,
-                                          backend=backend).reshape(-1)[rows]
-        info["ao_seconds"] += time.perf_counter() - tick
-    first = shading.hits(points, directions[rows], t[rows], simplex[rows], bary[rows],
-                         occlusion=occlusion)
-    rgba = _composite_rays(shading, origins, directions, rows, t[rows], simplex[rows], first)
-    info["seconds"] = time.perf_counter() - started
+    if rows.size:
+        run = _with_first_hits(run, camera, directions, t, simplex)
+    first = _shade(run, origins[rows] + t[rows, None] * directions[rows], directions[rows], t[rows],
+                   simplex[rows], bary[rows], first=True)
+    rgba = _composite_rays(run, origins, directions, rows, t[rows], simplex[rows], first)
+    stats.seconds = time.perf_counter() - started
+    shape = opts.shape
     return RenderResult(
         shade=_scatter(shape, hit, first.shade, 0.0, np.float32),
         depth=_scatter(shape, hit, t[hit], np.inf, np.float32),
-        object_id=_scatter(shape, hit, object_ids[simplex[hit]], -1, np.int32),
+        object_id=_scatter(shape, hit, scene.object_ids[simplex[hit]], -1, np.int32),
         occlusion=_scatter(shape, hit, first.occlusion, np.nan, np.float32),
         rgba=rgba.reshape(shape + (4,)),
         camera=camera,
         geometry=camera.geometry(shape),
-        info=info,
+        info=stats.as_dict(),
     )
 
 
 def composite_layer(acc: np.ndarray, rgb: np.ndarray, alpha: np.ndarray) -> None:
-    """Add one layer behind what ``acc`` holds: front-to-back "over", in place.
-
-    ``C += (1 - A) a c`` and ``A += (1 - A) a`` (premultiplied accumulation; Porter & Duff).
+    """Add one layer behind what ``acc`` holds: front-to-back "over", in place
+    (:func:`ao4d.compositing.over`).
 
     Parameters
     ----------
@@ -498,21 +491,59 @@ def composite_layer(acc: np.ndarray, rgb: np.ndarray, alpha: np.ndarray) -> None
         The layer's colour (not premultiplied).
     alpha : (H,) float64
         The layer's opacity.
-
-    Examples
-    --------
-    >>> acc = np.zeros((1, 4))
-    >>> composite_layer(acc, np.array([[1.0, 0, 0]]), np.array([0.5]))   # red in front
-    >>> composite_layer(acc, np.array([[0.0, 0, 1]]), np.array([0.5]))   # blue behind
-    >>> acc.tolist()
-    [[0.5, 0.0, 0.25, 0.75]]
     """
-    weight = (1.0 - acc[:, 3]) * alpha
-    acc[:, :3] += weight[:, None] * rgb
-    acc[:, 3] += weight
+    over(acc, rgb, alpha)
 
 
-# -- materials ---------------------------------------------------------------------------------
+# -- options, scene, statistics: fixed before the first ray --------------------------------------
+
+
+@dataclass(frozen=True)
+class _Options:
+    """:func:`render`'s options, validated once."""
+
+    shape: tuple[int, int, int]
+    ao: str  # "vertices", "hits", "screen" or "none" ("vertices" when values are given)
+    samples: int
+    max_distance: float
+    seed: int
+    denoise: int
+    ambient: float
+    diffuse: float
+    lights: tuple[Light, ...]
+    shadows: bool
+    cue: tuple[float, float, float] | None
+    layers: int
+    shading: str
+    show: bool
+
+    @classmethod
+    def check(cls, camera, shape, *, ao, samples, max_distance, seed, denoise, ambient, light, diffuse,
+              shadows, depth_cue, layers, shading, backend, progress) -> _Options:
+        if not isinstance(camera, Camera4D):
+            raise TypeError(f"`camera` must be an ao4d.Camera4D, got {type(camera).__name__}")
+        shape = image_shape(shape)
+        ao = check_choice(ao, "ao", _AO_MODES) if isinstance(ao, str) else "vertices"
+        check_choice(shading, "shading", ("smooth", "flat"))
+        check_choice(backend, "backend", cl.BACKENDS)
+        denoise = check_int(denoise, "denoise", minimum=0)
+        if denoise and ao != "screen":
+            raise ValueError(f"`denoise` filters screen-space AO: it needs ao='screen', got ao={ao!r}")
+        lights = as_lights(light, "light")
+        ambient, diffuse = default_weights(ambient, diffuse, bool(lights))
+        layers = check_positive_int(layers, "layers")
+        if layers > _LAYER_LIMIT:
+            raise ValueError(f"`layers` must be <= {_LAYER_LIMIT}, got {layers}")
+        n_voxels = math.prod(shape)
+        check_memory(n_voxels * 4 * 8 * 10, "rendering an image of this shape")
+        return cls(shape=shape, ao=ao, samples=check_positive_int(samples, "samples"),
+                   max_distance=check_distance(max_distance), seed=check_int(seed, "seed"), denoise=denoise,
+                   ambient=ambient, diffuse=diffuse, lights=lights, shadows=check_bool(shadows, "shadows"),
+                   cue=check_depth_cue(depth_cue), layers=layers, shading=shading,
+                   show=n_voxels >= _PROGRESS_VOXELS if progress is None else bool(progress))
+
+
+_AO_MODES = ("vertices", "hits", "screen", "none")
 
 
 @dataclass(frozen=True)
@@ -527,6 +558,45 @@ class _Material:
     @property
     def opaque(self) -> bool:
         return bool((self.opacity >= 1.0).all())
+
+
+@dataclass(frozen=True)
+class _Scene:
+    """The joined mesh and what shading reads of it, fetched once."""
+
+    mesh: Any
+    object_ids: np.ndarray  # (S,) per simplex
+    material: _Material
+    simplices: np.ndarray  # (S, 4)
+    simplex_normals: np.ndarray  # (S, 4)
+    vertex_normals: np.ndarray | None  # (V, 4), for smooth shading with lights
+    vertex_ao: np.ndarray | None  # (V,) given or stored per-vertex AO
+    offset: float  # how far rays leave a surface: ORIGIN_OFFSET bounding-box diagonals
+    diagonal: float  # of the bounding box
+
+    @classmethod
+    def of(cls, meshes, opts: _Options, ao, *, color, opacity, specular, shininess) -> _Scene:
+        mesh, object_ids = prepare_scene(meshes)
+        n_objects = int(object_ids.max()) + 1
+        material = _Material(
+            color=_per_object(color, "color", n_objects, (1.0, 1.0, 1.0), unit=True),
+            opacity=_per_object(opacity, "opacity", n_objects, 1.0, unit=True),
+            specular=_per_object(specular, "specular", n_objects, 0.0, unit=False),
+            shininess=_per_object(shininess, "shininess", n_objects, 32.0, unit=False, positive=True),
+        )
+        vertex_ao = None
+        if not isinstance(ao, str):
+            vertex_ao = _given_ao(ao, meshes, mesh)
+        elif opts.ao == "vertices" and "ao" in mesh.point_data:
+            vertex_ao = _check_vertex_ao(mesh.point_data["ao"], mesh, "point_data['ao']")
+        _check_weights(opts.ambient, opts.diffuse, material.specular, opts.lights)
+        lo, hi = np.asarray(mesh.bounds, dtype=np.float64)
+        diagonal = float(np.linalg.norm(hi - lo))
+        smooth = opts.lights and opts.shading == "smooth"
+        return cls(mesh=mesh, object_ids=object_ids, material=material, simplices=mesh.simplices,
+                   simplex_normals=np.asarray(mesh.simplex_normals),
+                   vertex_normals=np.asarray(mesh.vertex_normals) if smooth else None,
+                   vertex_ao=vertex_ao, offset=ORIGIN_OFFSET * diagonal, diagonal=diagonal)
 
 
 def _per_object(value, name: str, n_objects: int, default, *, unit: bool,
@@ -557,250 +627,58 @@ def _per_object(value, name: str, n_objects: int, default, *, unit: bool,
     return np.array(arr)
 
 
-# -- shading -----------------------------------------------------------------------------------
+@dataclass
+class _Stats:
+    """Counts and timings of one render (:attr:`RenderResult.info`)."""
+
+    primary_rays: int
+    backend: str
+    device: str
+    layer_rays: int = 0
+    shadow_rays: int = 0
+    ao_rays: int = 0
+    screen_lookups: int = 0
+    hits: int = 0
+    primary_seconds: float = 0.0
+    layer_seconds: float = 0.0
+    shadow_seconds: float = 0.0
+    ao_seconds: float = 0.0
+    seconds: float = 0.0
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(vars(self))
 
 
 @dataclass(frozen=True)
-class _Shaded:
-    """Shading of a set of hits."""
+class _Run:
+    """One render's resolved state: options, scene, the backend and its tracer, statistics, and
+    what the first hits fix for every layer (per-vertex AO, the screen-space depth volume)."""
 
-    shade: np.ndarray  # (H,) the grey illumination
-    rgb: np.ndarray  # (H, 3) colour, clipped to [0, 1]
-    occlusion: np.ndarray  # (H,)
-
-
-@dataclass
-class _Shading:
-    """Everything needed to shade hits; :meth:`hits` is called once per layer."""
-
-    scene: Any
-    object_ids: np.ndarray
-    material: _Material
-    lights: tuple[Light, ...]
-    ambient: float
-    diffuse: float
-    shadows: bool
-    cue: tuple[float, float, float] | None
-    layers: int
-    ao: str
-    normals: str
-    samples: int
-    seed: int
-    max_distance: float
+    opts: _Options
+    scene: _Scene
     backend: str
-    show: bool
-    offset: float
-    info: dict
-    _vertex_ao: np.ndarray | None = None
-    screen: DepthVolume | None = None  # the first hits, for ao="screen"
-
-    def hits(self, points, directions, depth, simplex, bary, occlusion=None) -> _Shaded:
-        """Shade hits: points (H, 4), ray directions (H, 4), depths (H,), simplices, weights;
-        ``occlusion`` (H,) when already known (the first hits' screen-space AO)."""
-        scene = self.scene
-        tri = scene.simplices[simplex]  # (H, 4) vertex ids of the hit tetrahedra
-        # two-sided shading: the side of the hit simplex that faces the ray decides, for the
-        # face normal and for the interpolated vertex normal alike (near silhouettes an
-        # interpolated normal may lean away from the ray although the face is seen from its
-        # front)
-        raw_n = np.asarray(scene.simplex_normals)[simplex]
-        side = _viewer_side(raw_n, directions)
-        face_n = raw_n * side[:, None]
-
-        occ = np.zeros(len(simplex))
-        if occlusion is not None:
-            occ = np.asarray(occlusion, dtype=np.float64)
-        elif self.ao == "vertices" and len(simplex):
-            # weights a rounding below 0 or summing above 1 would leave [0, 1]
-            occ = np.clip(np.einsum("hk,hk->h", bary, self._per_vertex_ao()[tri]), 0.0, 1.0)
-        elif self.ao == "hits" and len(simplex):
-            occ = _hit_occlusion(scene, points, face_n, samples=self.samples, seed=self.seed,
-                                 max_distance=self.max_distance, backend=self.backend,
-                                 info=self.info, show=self.show)
-        elif self.ao == "screen" and len(simplex):
-            start = time.perf_counter()
-            occ = screen_space_occlusion(self.screen, points, face_n, samples=self.samples,
-                                         max_distance=self.max_distance, seed=self.seed,
-                                         backend=self.backend)
-            self.info["ao_seconds"] += time.perf_counter() - start
-            self.info["screen_lookups"] += (len(points) * self.samples
-                                            * default_steps(self.screen, self.max_distance))
-
-        objects = self.object_ids[simplex]
-        open_ = self.ambient * (1.0 - np.clip(occ, 0.0, 1.0))
-        shade = open_
-        diffuse_rgb = np.zeros((len(simplex), 3))
-        highlight_rgb = np.zeros((len(simplex), 3))
-        if self.lights and len(simplex):
-            if self.normals == "smooth":
-                vn = np.asarray(scene.vertex_normals)[tri]  # (H, 4, 4)
-                lam_n = np.einsum("hk,hkd->hd", bary, vn)
-                lam_n /= np.maximum(np.linalg.norm(lam_n, axis=1, keepdims=True), 1e-12)
-                lam_n = lam_n * side[:, None]
-            else:
-                lam_n = face_n
-            spec_w = self.material.specular[objects]
-            shiny = self.material.shininess[objects]
-            for light in self.lights:
-                to_light, _ = light.towards(points)
-                lit = lambert(lam_n, to_light)
-                term = self.diffuse * lit * light.intensity
-                spec = None
-                if (spec_w > 0).any():
-                    spec = spec_w * blinn_phong(lam_n, to_light, -directions, shiny) * light.intensity
-                if self.shadows:
-                    seen = self._visibility(points, face_n, light, lit > 0)
-                    term = term * seen
-                    spec = None if spec is None else spec * seen
-                shade = shade + term
-                diffuse_rgb += term[:, None] * light.color
-                if spec is not None:
-                    shade = shade + spec
-                    highlight_rgb += spec[:, None] * light.color
-        rgb = self.material.color[objects] * (open_[:, None] + diffuse_rgb) + highlight_rgb
-        if self.cue is not None:
-            factor = depth_cue(depth, *self.cue)
-            shade = shade * factor
-            rgb = rgb * factor[:, None]
-        return _Shaded(shade=shade, rgb=np.clip(rgb, 0.0, 1.0), occlusion=occ)
-
-    def _per_vertex_ao(self) -> np.ndarray:
-        """Per-vertex AO, stored on the mesh or computed once per render."""
-        if self._vertex_ao is None:
-            scene = self.scene
-            if "ao" not in scene.point_data:
-                start = time.perf_counter()
-                values = ambient_occlusion(scene, samples=self.samples,
-                                           max_distance=self.max_distance, at="vertices",
-                                           seed=self.seed, backend=self.backend,
-                                           max_rays=math.inf)  # render checked its budget
-                self.info["ao_seconds"] += time.perf_counter() - start
-                self.info["ao_rays"] += scene.n_vertices * self.samples
-            else:
-                values = scene.point_data["ao"]
-            self._vertex_ao = np.asarray(values, dtype=np.float64)
-        return self._vertex_ao
-
-    def _visibility(self, points, face_n, light: Light, lit) -> np.ndarray:
-        """(H,) fraction of ``light`` reaching each hit (1 where not ``lit``: no term anyway)."""
-        seen = np.ones(len(points))
-        rows = np.flatnonzero(lit)
-        if not rows.size:
-            return seen
-        start = time.perf_counter()
-        origins = points[rows] + self.offset * face_n[rows]
-        if light.direction is not None:
-            dirs = np.broadcast_to(light.direction, origins.shape)
-            reach = np.full(len(rows), np.inf)
-        else:  # a point light: only what lies between the (moved) origin and the light counts
-            offset = light.position - origins
-            reach = np.linalg.norm(offset, axis=1)
-            dirs = offset / np.maximum(reach, 1e-300)[:, None]
-            keep = reach > 0  # a hit on the light itself is lit
-            rows, origins, dirs, reach = rows[keep], origins[keep], dirs[keep], reach[keep]
-        if rows.size:
-            seen[rows] = self._transmittance(origins, dirs, reach)
-        self.info["shadow_seconds"] += time.perf_counter() - start
-        return seen
-
-    def _transmittance(self, origins, dirs, reach) -> np.ndarray:
-        """Light fraction arriving along rays ``origins + s dirs``, ``0 < s < reach``."""
-        scene, backend, show = self.scene, self.backend, self.show
-        n = len(origins)
-        finite = np.isfinite(reach)
-        longest = float(reach[finite].max()) if finite.any() else math.inf
-        longest = math.inf if (~finite).any() or not longest > 0 else longest
-        if self.material.opaque:
-            # any hit blocks; for point lights a reported hit beyond the light says nothing
-            # about the stretch before it, so those rays are asked again for their closest hit
-            self.info["shadow_rays"] += n
-            t, simplex, _ = _cast_chunked(scene, origins, dirs, backend, show, "shadow rays",
-                                          closest=False, max_distance=longest)
-            blocked = (simplex >= 0) & (t < reach)
-            unsure = np.flatnonzero((simplex >= 0) & (t >= reach))
-            if unsure.size:
-                self.info["shadow_rays"] += unsure.size
-                t2, s2, _ = _cast_chunked(scene, origins[unsure], dirs[unsure], backend, show,
-                                          "shadow rays", closest=True, max_distance=longest)
-                blocked[unsure] = (s2 >= 0) & (t2 < reach[unsure])
-            return np.where(blocked, 0.0, 1.0)
-        # transparent objects: walk the closest hits, losing (1 - opacity) per surface
-        passed = np.ones(n)
-        active = np.arange(n)
-        start = np.zeros(n)  # distance travelled from each origin
-        for _ in range(self.layers):
-            if not active.size:
-                break
-            self.info["shadow_rays"] += active.size
-            o = origins[active] + start[active, None] * dirs[active]
-            t, simplex, _ = _cast_chunked(scene, o, dirs[active], backend, show, "shadow rays",
-                                          closest=True, max_distance=longest)
-            got = (simplex >= 0) & (start[active] + t < reach[active])
-            active, t, simplex = active[got], t[got], simplex[got]
-            passed[active] *= 1.0 - self.material.opacity[self.object_ids[simplex]]
-            start[active] += t + self.offset
-            active = active[passed[active] > 0]
-        return passed
+    tracer: Tracer
+    stats: _Stats
+    vertex_ao: np.ndarray | None = None
+    volume: DepthVolume | None = None
 
 
-def _composite_rays(shading: _Shading, origins, directions, rows, t, simplex, first: _Shaded):
-    """(N, 4) float32 RGBA of every ray: the first layer, then the layers behind transparent hits.
-
-    ``rows`` are the rays with a first hit; ``at`` indexes them for the rays still going.
-    """
-    acc = np.zeros((len(rows), 4))  # premultiplied colour and opacity of the rays that hit
-    material, info = shading.material, shading.info
-    at = np.arange(len(rows))
-    layer = first
-    for depth_index in range(shading.layers):
-        alpha = material.opacity[shading.object_ids[simplex]]
-        if depth_index == 0:
-            composite_layer(acc, layer.rgb, alpha)
-        else:
-            sub = acc[at]
-            composite_layer(sub, layer.rgb, alpha)
-            acc[at] = sub
-        if depth_index == shading.layers - 1:
-            break
-        go = (alpha < 1.0) & (acc[at, 3] < _OPAQUE)
-        if not go.any():
-            break
-        at, t = at[go], t[go]
-        ray = rows[at]
-        start = t + shading.offset
-        tick = time.perf_counter()
-        o = origins[ray] + start[:, None] * directions[ray]
-        t_next, simplex, bary = _cast_chunked(shading.scene, o, directions[ray], shading.backend,
-                                              shading.show, "rays behind transparent hits")
-        info["layer_rays"] += len(ray)
-        info["layer_seconds"] += time.perf_counter() - tick
-        hit = simplex >= 0
-        at, ray, simplex, bary = at[hit], ray[hit], simplex[hit], bary[hit]
-        points, t = o[hit] + t_next[hit, None] * directions[ray], start[hit] + t_next[hit]
-        layer = shading.hits(points, directions[ray], t, simplex, bary)
-    out = np.zeros((len(origins), 4), dtype=np.float32)
-    alpha = acc[:, 3:]
-    out[rows, :3] = np.clip(np.where(alpha > 0, acc[:, :3] / np.maximum(alpha, 1e-300), 0.0), 0, 1)
-    out[rows, 3] = alpha[:, 0]
-    return out
-
-
-def _check_budget(scene, n_voxels: int, *, ao: str, samples: int, lights, shadows: bool,
-                  layers: int, backend: str, max_rays, camera=None, shape=None,
-                  max_distance: float = math.inf, denoise: int = 0) -> None:
+def _check_budget(scene: _Scene, opts: _Options, camera, backend: str, max_rays) -> None:
     """Refuse a render whose rays would exceed ``max_rays``, before any of them is cast.
 
-    An upper bound: every voxel's ray hits ``layers`` surfaces, each with AO at the hit
-    (``ao="hits"``; ``"screen"``: ``samples`` directions of at most :func:`_screen_steps`
-    look-ups, and the ``denoise`` filter's window per voxel, as rays taking as long) and a
-    shadow ray per light (transparent scenes: ``layers`` per light).
+    An upper bound: every voxel's ray hits ``layers`` surfaces (1 in opaque scenes), each with
+    AO at the hit (``ao="hits"``; ``"screen"``: ``samples`` directions of at most
+    :func:`_screen_steps` look-ups, and the ``denoise`` filter's window per voxel, as rays
+    taking as long) and a shadow ray per light (transparent scenes: ``layers`` per light).
     """
-    per_hit = (samples if ao == "hits" else 0) + (len(lights) * layers if shadows else 0)
-    ao_vertices = scene.n_vertices * samples if ao == "vertices" and "ao" not in scene.point_data else 0
+    ao, samples, n_voxels, denoise = opts.ao, opts.samples, math.prod(opts.shape), opts.denoise
+    layers = 1 if scene.material.opaque else opts.layers
+    per_hit = (samples if ao == "hits" else 0) + (len(opts.lights) * layers if opts.shadows else 0)
+    ao_vertices = scene.mesh.n_vertices * samples if ao == "vertices" and scene.vertex_ao is None else 0
     total = n_voxels * layers * (1 + per_hit) + ao_vertices
     what = f"rendering {n_voxels:,} voxels with ao={ao!r}, `samples`={samples}"
     if ao == "screen":  # look-ups and the filter's window, counted as rays at their cost
-        lookups = n_voxels * layers * samples * _screen_steps(scene, camera, shape, max_distance)
+        lookups = n_voxels * layers * samples * _screen_steps(scene, camera, opts)
         window = n_voxels * (2 * denoise + 1) ** 3 if denoise else 0
         seconds = lookups / LOOKUPS_PER_SECOND[backend] + window / DENOISE_PER_SECOND[backend]
         total += seconds * RAYS_PER_SECOND[backend]
@@ -812,58 +690,240 @@ def _check_budget(scene, n_voxels: int, *, ao: str, samples: int, lights, shadow
                     "(CLI: --force)")
 
 
-def _screen_steps(scene, camera, shape, max_distance) -> int:
+def _screen_steps(scene: _Scene, camera, opts: _Options) -> int:
     """An upper bound of :func:`ao4d.screen_ao.default_steps` before the image exists: the
     reach clamped to the scene's diagonal (the visible points' box is inside it)."""
-    lo, hi = np.asarray(scene.bounds, dtype=np.float64)
-    reach = min(max_distance, float(np.linalg.norm(hi - lo)))
-    voxels = reach / camera.geometry(shape).spacing
+    reach = min(opts.max_distance, scene.diagonal)
+    voxels = reach / camera.geometry(opts.shape).spacing
     return int(min(MAX_STEPS, max(MIN_STEPS, math.ceil(voxels / STEP_VOXELS))))
 
 
-def _cast_chunked(scene, origins, directions, backend, show, desc, *, closest=True,
-                  max_distance=math.inf):
-    """Hits of many rays, in chunks (progress bar over rays)."""
+# -- the pipeline: rays, first hits, shading, layers ----------------------------------------------
+
+
+def _cast(run: _Run, origins, directions, desc, *, closest=True, max_distance=math.inf):
+    """Hits of many rays: ``t``, ``simplex``, barycentric weights; one :func:`ao4d.raycast.trace`
+    per batch of ``_CHUNK`` rays on the render's tracer (progress bar over rays)."""
     n = len(origins)
     t = np.full(n, np.inf)
     simplex = np.full(n, -1, dtype=np.int64)
     bary = np.zeros((n, 4))
-    with _progress.bar(n, desc, unit="ray", show=show, unit_scale=True) as bar:
+    with _progress.bar(n, desc, unit="ray", show=run.opts.show, unit_scale=True) as bar:
         for start in range(0, n, _CHUNK):
             stop = min(start + _CHUNK, n)
-            hits = cast_rays(scene, origins[start:stop], directions[start:stop],
-                             closest=closest, max_distance=max_distance, backend=backend)
-            t[start:stop] = hits.t
-            simplex[start:stop] = hits.simplex
-            bary[start:stop] = hits.barycentric
-            bar.update(stop - start)
+            hits = trace(run.tracer, origins[start:stop], directions[start:stop], closest=closest,
+                         max_distance=max_distance, bar=bar)
+            t[start:stop], simplex[start:stop], bary[start:stop] = hits.t, hits.simplex, hits.barycentric
     return t, simplex, bary
 
 
-_viewer_side = viewer_side  # +1 where a normal faces against its ray, -1 where along it
+def _with_first_hits(run: _Run, camera, directions, t, simplex) -> _Run:
+    """What the first hits fix for every layer: the per-vertex AO (``ao="vertices"``, given,
+    stored or computed here once) or the depth volume (``ao="screen"``)."""
+    opts, scene = run.opts, run.scene
+    if opts.ao == "vertices":
+        values = scene.vertex_ao
+        if values is None:
+            start = time.perf_counter()
+            values = ambient_occlusion(scene.mesh, samples=opts.samples, max_distance=opts.max_distance,
+                                       at="vertices", seed=opts.seed, backend=run.backend,
+                                       max_rays=math.inf)  # render checked its budget
+            run.stats.ao_seconds += time.perf_counter() - start
+            run.stats.ao_rays += scene.mesh.n_vertices * opts.samples
+        return replace(run, vertex_ao=np.asarray(values, dtype=np.float64))
+    if opts.ao == "screen":
+        volume = DepthVolume.of_first_hits(camera, opts.shape, directions, t, simplex, scene.simplex_normals)
+        return replace(run, volume=volume)
+    return run
 
 
-def _depth_volume(scene, camera, shape, directions, t, simplex) -> DepthVolume:
-    """The first hits as a depth volume: depth and viewer-facing face normal (valid by
-    construction: built directly, without :meth:`DepthVolume.from_hits`' checks)."""
-    hit = simplex >= 0
-    normals = np.zeros((len(t), 4))
-    rows = np.flatnonzero(hit)
-    raw_n = np.asarray(scene.simplex_normals)[simplex[rows]]
-    normals[rows] = raw_n * _viewer_side(raw_n, directions[rows])[:, None]
-    return DepthVolume(depth=np.where(hit, t, np.inf).reshape(shape),
-                       normals=normals.reshape(shape + (4,)), camera=camera)
-
-
-def _hit_occlusion(scene, points, normals, *, samples, seed, max_distance, backend, info, show):
-    """AO at every hit point, hemisphere around the normal that faces the viewer."""
+def _occlusion(run: _Run, points, face_n, tri, bary, first: bool) -> np.ndarray:
+    """(H,) AO at hits: interpolated per-vertex values, AO rays, or the depth volume (the
+    first hits' values filtered with ``denoise``)."""
+    opts, stats = run.opts, run.stats
+    if opts.ao == "none" or not len(points):
+        return np.zeros(len(points))
+    if opts.ao == "vertices":
+        # weights a rounding below 0 or summing above 1 would leave [0, 1]
+        return np.clip(np.einsum("hk,hk->h", bary, run.vertex_ao[tri]), 0.0, 1.0)
     start = time.perf_counter()
-    values = ambient_occlusion(scene, samples=samples, max_distance=max_distance, points=points,
-                               normals=normals, seed=seed, backend=backend, progress=show,
-                               max_rays=math.inf)  # render checked its budget before any ray
-    info["ao_seconds"] += time.perf_counter() - start
-    info["ao_rays"] += len(points) * samples
-    return np.asarray(values, dtype=np.float64)
+    if opts.ao == "hits":  # the hemisphere around the normal that faces the viewer
+        occ = ambient_occlusion(run.scene.mesh, samples=opts.samples, max_distance=opts.max_distance,
+                                points=points, normals=face_n, seed=opts.seed, backend=run.backend,
+                                progress=opts.show, max_rays=math.inf)  # render checked its budget
+        stats.ao_rays += len(points) * opts.samples
+    else:
+        volume = run.volume
+        occ = screen_space_occlusion(volume, points, face_n, samples=opts.samples,
+                                     max_distance=opts.max_distance, seed=opts.seed, backend=run.backend)
+        stats.screen_lookups += len(points) * opts.samples * default_steps(volume, opts.max_distance)
+        if first and opts.denoise:
+            image = np.full(volume.depth.size, np.nan)
+            image[volume.hit.reshape(-1)] = occ
+            occ = denoise_occlusion(image.reshape(opts.shape), volume, radius=opts.denoise,
+                                    backend=run.backend)[volume.hit]
+    stats.ao_seconds += time.perf_counter() - start
+    return np.asarray(occ, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class _Shaded:
+    """Shading of a set of hits."""
+
+    shade: np.ndarray  # (H,) the grey illumination
+    rgb: np.ndarray  # (H, 3) colour, clipped to [0, 1]
+    occlusion: np.ndarray  # (H,)
+
+
+def _shade(run: _Run, points, directions, depth, simplex, bary, *, first: bool = False) -> _Shaded:
+    """Shade hits: points (H, 4), ray directions (H, 4), depths (H,), simplices, weights;
+    ``first``: the primary rays' hits (in voxel order)."""
+    opts, scene = run.opts, run.scene
+    tri = scene.simplices[simplex]  # (H, 4) vertex ids of the hit tetrahedra
+    # two-sided shading: the side of the hit simplex that faces the ray decides, for the face
+    # normal and for the interpolated vertex normal alike (near silhouettes an interpolated
+    # normal may lean away from the ray although the face is seen from its front)
+    raw_n = scene.simplex_normals[simplex]
+    side = viewer_side(raw_n, directions)
+    face_n = raw_n * side[:, None]
+    occ = _occlusion(run, points, face_n, tri, bary, first)
+
+    objects = scene.object_ids[simplex]
+    material = scene.material
+    open_ = opts.ambient * (1.0 - np.clip(occ, 0.0, 1.0))
+    shade = open_
+    diffuse_rgb = np.zeros((len(simplex), 3))
+    highlight_rgb = np.zeros((len(simplex), 3))
+    if opts.lights and len(simplex):
+        if opts.shading == "smooth":
+            lam_n = np.einsum("hk,hkd->hd", bary, scene.vertex_normals[tri])
+            lam_n /= np.maximum(np.linalg.norm(lam_n, axis=1, keepdims=True), 1e-12)
+            lam_n = lam_n * side[:, None]
+        else:
+            lam_n = face_n
+        spec_w = material.specular[objects]
+        shiny = material.shininess[objects]
+        for light in opts.lights:
+            to_light, _ = light.towards(points)
+            lit = lambert(lam_n, to_light)
+            term = opts.diffuse * lit * light.intensity
+            spec = None  # skipped, not multiplied by 0: without highlights shade is the plain sum
+            if (spec_w > 0).any():
+                spec = spec_w * blinn_phong(lam_n, to_light, -directions, shiny) * light.intensity
+            if opts.shadows:
+                seen = _visibility(run, points, face_n, light, lit > 0)
+                term = term * seen
+                spec = None if spec is None else spec * seen
+            shade = shade + term
+            diffuse_rgb += term[:, None] * light.color
+            if spec is not None:
+                shade = shade + spec
+                highlight_rgb += spec[:, None] * light.color
+    rgb = material.color[objects] * (open_[:, None] + diffuse_rgb) + highlight_rgb
+    if opts.cue is not None:
+        factor = depth_cue(depth, *opts.cue)
+        shade = shade * factor
+        rgb = rgb * factor[:, None]
+    return _Shaded(shade=shade, rgb=np.clip(rgb, 0.0, 1.0), occlusion=occ)
+
+
+def _visibility(run: _Run, points, face_n, light: Light, lit) -> np.ndarray:
+    """(H,) fraction of ``light`` reaching each hit (1 where not ``lit``: no term anyway)."""
+    seen = np.ones(len(points))
+    rows = np.flatnonzero(lit)
+    if not rows.size:
+        return seen
+    start = time.perf_counter()
+    origins = points[rows] + run.scene.offset * face_n[rows]
+    if light.direction is not None:
+        dirs = np.broadcast_to(light.direction, origins.shape)
+        reach = np.full(len(rows), np.inf)
+    else:  # a point light: only what lies between the (moved) origin and the light counts
+        offset = light.position - origins
+        reach = np.linalg.norm(offset, axis=1)
+        dirs = offset / np.maximum(reach, 1e-300)[:, None]
+        keep = reach > 0  # a hit on the light itself is lit
+        rows, origins, dirs, reach = rows[keep], origins[keep], dirs[keep], reach[keep]
+    if rows.size:
+        seen[rows] = _transmittance(run, origins, dirs, reach)
+    run.stats.shadow_seconds += time.perf_counter() - start
+    return seen
+
+
+def _transmittance(run: _Run, origins, dirs, reach) -> np.ndarray:
+    """Light fraction arriving along rays ``origins + s dirs``, ``0 < s < reach``."""
+    scene, stats = run.scene, run.stats
+    n = len(origins)
+    finite = np.isfinite(reach)
+    longest = float(reach[finite].max()) if finite.any() else math.inf
+    longest = math.inf if (~finite).any() or not longest > 0 else longest
+    if scene.material.opaque:
+        # any hit blocks; for point lights a reported hit beyond the light says nothing about
+        # the stretch before it, so those rays are asked again for their closest hit
+        stats.shadow_rays += n
+        t, simplex, _ = _cast(run, origins, dirs, "shadow rays", closest=False, max_distance=longest)
+        blocked = (simplex >= 0) & (t < reach)
+        unsure = np.flatnonzero((simplex >= 0) & (t >= reach))
+        if unsure.size:
+            stats.shadow_rays += unsure.size
+            t2, s2, _ = _cast(run, origins[unsure], dirs[unsure], "shadow rays", max_distance=longest)
+            blocked[unsure] = (s2 >= 0) & (t2 < reach[unsure])
+        return np.where(blocked, 0.0, 1.0)
+    # transparent objects: walk the closest hits, losing (1 - opacity) per surface
+    passed = np.ones(n)
+    active = np.arange(n)
+    start = np.zeros(n)  # distance travelled from each origin
+    for _ in range(run.opts.layers):
+        if not active.size:
+            break
+        stats.shadow_rays += active.size
+        o = origins[active] + start[active, None] * dirs[active]
+        t, simplex, _ = _cast(run, o, dirs[active], "shadow rays", max_distance=longest)
+        got = (simplex >= 0) & (start[active] + t < reach[active])
+        active, t, simplex = active[got], t[got], simplex[got]
+        passed[active] *= 1.0 - scene.material.opacity[scene.object_ids[simplex]]
+        start[active] += t + scene.offset
+        active = active[passed[active] > 0]
+    return passed
+
+
+def _composite_rays(run: _Run, origins, directions, rows, t, simplex, first: _Shaded):
+    """(N, 4) float32 RGBA of every ray: the first layer, then the layers behind transparent hits.
+
+    ``rows`` are the rays with a first hit; ``at`` indexes them for the rays still going.
+    """
+    scene, stats, layers = run.scene, run.stats, run.opts.layers
+    acc = np.zeros((len(rows), 4))  # premultiplied colour and opacity of the rays that hit
+    at = np.arange(len(rows))
+    layer = first
+    for depth_index in range(layers):
+        alpha = scene.material.opacity[scene.object_ids[simplex]]
+        if depth_index == 0:
+            over(acc, layer.rgb, alpha)
+        else:
+            sub = acc[at]
+            over(sub, layer.rgb, alpha)
+            acc[at] = sub
+        if depth_index == layers - 1:
+            break
+        go = (alpha < 1.0) & (acc[at, 3] < _OPAQUE)
+        if not go.any():
+            break
+        at, t = at[go], t[go]
+        ray = rows[at]
+        start = t + scene.offset
+        tick = time.perf_counter()
+        o = origins[ray] + start[:, None] * directions[ray]
+        t_next, simplex, bary = _cast(run, o, directions[ray], "rays behind transparent hits")
+        stats.layer_rays += len(ray)
+        stats.layer_seconds += time.perf_counter() - tick
+        hit = simplex >= 0
+        at, ray, simplex, bary = at[hit], ray[hit], simplex[hit], bary[hit]
+        points, t = o[hit] + t_next[hit, None] * directions[ray], start[hit] + t_next[hit]
+        layer = _shade(run, points, directions[ray], t, simplex, bary)
+    out = np.zeros((len(origins), 4), dtype=np.float32)
+    out[rows] = unpremultiply(acc)
+    return out
 
 
 def _scatter(shape, hit, values, fill, dtype) -> np.ndarray:

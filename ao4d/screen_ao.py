@@ -78,21 +78,19 @@ import numpy as np
 
 from . import cl
 from ._validate import as_array, as_real, check_int, check_memory, check_positive_int
-from .camera import Camera4D, _image_shape
+from .camera import Camera4D, image_shape
 from .sampling import cosine_hemisphere, sobol_table
 
 __all__ = ["DepthVolume", "screen_space_occlusion", "denoise", "default_steps", "viewer_side",
            "STEP_VOXELS", "MIN_STEPS", "MAX_STEPS", "GRAZING", "LOOKUPS_PER_SECOND", "DENOISE_PER_SECOND"]
 
 # Default march: one point per STEP_VOXELS voxels of reach (at the target's distance), between
-# MIN_STEPS and MAX_STEPS. On the demo scene at reach 1 (20 voxels at 80^3) the error against
-# ray-traced AO is smallest at 4 points (the experiment's steps table); with an infinite reach
-# (125 voxels) 4 points step over whole objects.
+# MIN_STEPS and MAX_STEPS: a short reach needs few points (more only add look-ups that land on
+# the surface's own voxels), a long one needs more, or whole objects are stepped over.
 STEP_VOXELS, MIN_STEPS, MAX_STEPS = 8, 4, 16
 GRAZING = 0.1  # |u . m| below which the voxel's depth replaces its tangent hyperplane
 # Rates for render's estimates before work, on the fast side (raycast.RAYS_PER_SECOND's rule):
-# depth look-ups per second (measured 3e7 on Intel's CPU runtime with 2 cores, 6e5 in numpy)
-# and denoise filter-window voxels per second (1.5-7e8 and 1e7)
+# depth look-ups per second and denoise filter-window voxels per second, per backend
 LOOKUPS_PER_SECOND = {"opencl": 1e8, "numpy": 1e6}
 DENOISE_PER_SECOND = {"opencl": 1e9, "numpy": 1.5e7}
 _BIAS = 1e-3  # default bias, times the reach
@@ -141,9 +139,7 @@ class DepthVolume:
         DepthVolume
             The volume.
         """
-        if not isinstance(camera, Camera4D):
-            raise TypeError(f"`camera` must be an ao4d.Camera4D, got {type(camera).__name__}")
-        shape = _image_shape(shape)
+        shape = _camera_shape(camera, shape)
         depth = as_array(depth, "depth", dtype=np.float64)
         if depth.size != math.prod(shape):
             raise ValueError(f"`depth` must hold {math.prod(shape)} voxels, got shape {depth.shape}")
@@ -166,7 +162,7 @@ class DepthVolume:
     def trace(cls, mesh, camera: Camera4D, shape, *, backend: str = "auto") -> DepthVolume:
         """Cast one primary ray per voxel (closest hit, :func:`ao4d.raycast.cast_rays`) and keep
         the depth and viewer-facing simplex normal of each first hit: the volume
-        :func:`ao4d.render` builds for ``ao="screen"``.
+        :func:`ao4d.render` builds for ``ao="screen"`` (:meth:`of_first_hits`).
 
         Parameters
         ----------
@@ -175,7 +171,7 @@ class DepthVolume:
         camera : Camera4D
             The view.
         shape : (3,) tuple of int
-            The image's voxels along x, y, z.
+            As for :meth:`from_hits`.
         backend : {"auto", "opencl", "numpy"}
             Where the rays are cast.
 
@@ -186,18 +182,48 @@ class DepthVolume:
         """
         from .raycast import cast_rays
 
-        if not isinstance(camera, Camera4D):
-            raise TypeError(f"`camera` must be an ao4d.Camera4D, got {type(camera).__name__}")
-        shape = _image_shape(shape)
+        shape = _camera_shape(camera, shape)
         if getattr(mesh, "dim", None) != 4:
             raise ValueError("`mesh` must be a 4D SimplexMesh (tetrahedra in R^4)")
         origins, directions = (a.reshape(-1, 4) for a in camera.rays(shape))
         hits = cast_rays(mesh, origins, directions, backend=backend)
-        hit = hits.simplex >= 0
-        raw = np.asarray(mesh.simplex_normals)[hits.simplex[hit]]
-        normals = np.zeros((len(hit), 4))
-        normals[hit] = raw * viewer_side(raw, directions[hit])[:, None]
-        return cls.from_hits(camera, shape, np.where(hit, hits.t, np.inf), normals)
+        built = cls.of_first_hits(camera, shape, directions, hits.t, hits.simplex,
+                                  np.asarray(mesh.simplex_normals))
+        return cls.from_hits(camera, shape, built.depth, built.normals)
+
+    @classmethod
+    def of_first_hits(cls, camera: Camera4D, shape: tuple[int, int, int], directions: np.ndarray,
+                      t: np.ndarray, simplex: np.ndarray, simplex_normals: np.ndarray) -> DepthVolume:
+        """The volume of one closest-hit ray per voxel, built without checks (valid by
+        construction: the caller cast the rays).
+
+        Parameters
+        ----------
+        camera : Camera4D
+            Whose :meth:`~ao4d.Camera4D.rays` were cast.
+        shape : (3,) tuple of int
+            ``(nx, ny, nz)``, already checked.
+        directions : (nx * ny * nz, 4) float64 numpy.ndarray
+            The rays' directions (:meth:`ao4d.Camera4D.rays`, C order).
+        t : (nx * ny * nz,) float64 numpy.ndarray
+            Hit distances (ignored where ``simplex`` is -1).
+        simplex : (nx * ny * nz,) int64 numpy.ndarray
+            The hit simplex per ray, -1 on a miss.
+        simplex_normals : (S, 4) float64 numpy.ndarray
+            The mesh's unit simplex normals.
+
+        Returns
+        -------
+        DepthVolume
+            Depth (inf on background) and the hit simplex's normal turned towards the viewer.
+        """
+        hit = simplex >= 0
+        normals = np.zeros((len(t), 4))
+        rows = np.flatnonzero(hit)
+        raw = simplex_normals[simplex[rows]]
+        normals[rows] = raw * viewer_side(raw, directions[rows])[:, None]
+        return cls(depth=np.where(hit, t, np.inf).reshape(shape), normals=normals.reshape(shape + (4,)),
+                   camera=camera)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -224,8 +250,8 @@ class DepthVolume:
         """(nx * ny * nz, 4) float64: the kernel's G-buffer (``kernels/screen_ao.cl``): the
         viewer-facing normal in the camera's basis, its last component's sign carried by the
         depth in the fourth column (inf on background). Computed once, read-only."""
-        # einsum, not matmul: BLAS threads started right after an OpenCL launch on the same
-        # cores made this 20x slower (measured in render)
+        # einsum, not matmul: matmul would start BLAS threads that compete for the cores with
+        # the OpenCL runtime's threads of the launch just before
         g = np.einsum("nk,jk->nj", self.normals.reshape(-1, 4), self.camera.basis)  # rows a, b, c, d
         depth = self.depth.reshape(-1)  # inf on background (normals 0 there)
         g[:, 3] = np.copysign(depth, np.where(g[:, 3] < 0, -1.0, 1.0))
@@ -260,6 +286,13 @@ class DepthVolume:
         by ``|u . m| >= GRAZING`` and rounds a few times)."""
         depth = self.depth[self.hit]
         return 2.0**-16 * (float(depth.max()) if depth.size else 0.0)
+
+
+def _camera_shape(camera: Camera4D, shape) -> tuple[int, int, int]:
+    """``shape`` checked (:func:`ao4d.camera.image_shape`) once ``camera`` is a Camera4D."""
+    if not isinstance(camera, Camera4D):
+        raise TypeError(f"`camera` must be an ao4d.Camera4D, got {type(camera).__name__}")
+    return image_shape(shape)
 
 
 def screen_space_occlusion(
@@ -298,7 +331,7 @@ def screen_space_occlusion(
         Depth (>= 0) by which a surface must lie in front of a march point to hide it; default
         ``1e-3 L``. At least ``2^-16`` times the largest eye distance of the points and the
         visible surface, on both backends: the float32 kernel cannot resolve less, and would
-        count its rounding as occlusion (a reach of 1e-6 gave 0.37 there).
+        count its rounding as occlusion.
     thickness : float, optional
         Range limit (> ``bias``): surfaces farther than this in front of a march point do not
         hide it (the depth volume's assumed thickness); default ``L``.
@@ -585,16 +618,11 @@ def _numpy_counts(volume: DepthVolume, pts, nrm, *, samples, steps, reach, bias,
         gv = g[(idx[..., 0] * shape[1] + idx[..., 1]) * shape[2] + idx[..., 2]]
         seen = inside & np.isfinite(gv[..., 3])
         d = np.abs(gv[..., 3])
-        m = gv.copy()
-        m[..., 3] = np.copysign(np.sqrt(np.maximum(0.0, 1.0 - (gv[..., :3] ** 2).sum(-1))), gv[..., 3])
-        centre = np.concatenate([f["origin"] + f["spacing"] * idx,
-                                 np.full(idx.shape[:-1] + (1,), f["distance"])], axis=-1)
+        se, m = _surfaces(gv, idx, f)
         if f["perspective"]:
-            se = d[..., None] * centre / np.linalg.norm(centre, axis=-1, keepdims=True)
             tq = np.linalg.norm(c, axis=-1)
             u = c / tq[..., None]
         else:
-            se = np.concatenate([centre[..., :3], d[..., None]], axis=-1)
             tq = c[..., 3]
             u = np.zeros_like(c)
             u[..., 3] = 1.0

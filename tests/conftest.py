@@ -43,6 +43,18 @@ def build_bvh(request):
 
 
 @pytest.fixture(scope="module")
+def touching_pair():
+    """Two hyperspheres close together: they occlude each other near the gap; each alone is
+    convex and unoccluded, so A is 0 on the far sides and positive near the gap."""
+    import ao4d
+
+    bounds = ([-2.2, -1.1, -1.1, -1.1], [2.2, 1.1, 1.1, 1.1])
+    field = ao4d.fields.union(ao4d.fields.hypersphere(1.0, [-1.05, 0, 0, 0]),
+                              ao4d.fields.hypersphere(1.0, [1.05, 0, 0, 0]))
+    return ao4d.extract_field(field, (24, 12, 12, 12), bounds)
+
+
+@pytest.fixture(scope="module")
 def ball4():
     """A convex polytope inscribed in the unit 4-ball (qhull), outward oriented."""
     from _shapes import ball_polytope

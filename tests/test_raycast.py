@@ -374,6 +374,15 @@ def test_rays_at_the_barycentric_tolerance_equal_brute_force(d, backend):
 # -- the AO kernel's shared-origin packets (kernels/bvh.h trace_packet) -------------------------
 
 
+def _surface_points(mesh, runtime, every: int = 1):
+    """Vertices with a clear normal (every ``every``-th), their normals, the mesh's tree on
+    ``runtime`` and the AO rays' origin offset."""
+    normals = mesh.vertex_normals
+    keep = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)[::every]
+    tree = raycast.get_bvh(mesh, runtime=runtime)
+    return mesh.vertices[keep], normals[keep], tree, ao4d.ao.ORIGIN_OFFSET * tree.diagonal
+
+
 def _ao_counts(mesh, runtime, points, normals, samples, offset, max_distance, *, traversal="packet",
                accel="bvh"):
     # _ao_opencl takes points in the tree's frame; offset and reach below are tree lengths
@@ -418,20 +427,11 @@ def test_packet_traversal_gives_the_per_ray_and_brute_force_counts(d, lanes, shi
             assert 0.05 < np.mean((packet > 0) & (packet < samples))  # partly occluded points
 
 
-def _vertex_rays(mesh, runtime, every=1):
-    """Every ``every``-th vertex with a clear normal (length > 0.5), its normal, the mesh's tree on
-    ``runtime`` and the AO rays' origin offset."""
-    normals = mesh.vertex_normals
-    keep = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)[::every]
-    tree = raycast.get_bvh(mesh, runtime=runtime)
-    return mesh.vertices[keep], normals[keep], tree, ao4d.ao.ORIGIN_OFFSET * tree.diagonal
-
-
 def test_packet_traversal_on_an_extracted_4d_surface(cl_runtime):
     # a marched 4D surface: every vertex's rays start next to its own tetrahedra, deep in the tree
     field = ao4d.fields.spheritorus(1.0, 0.4)
     mesh = ao4d.extract_field(field, (15, 15, 15, 7), ((-1.5, -1.5, -1.5, -0.5), (1.5, 1.5, 1.5, 0.5)))
-    p, n, tree, offset = _vertex_rays(mesh, cl_runtime)
+    p, n, tree, offset = _surface_points(mesh, cl_runtime)
     for max_distance in (np.inf, 0.25 * tree.diagonal):
         packet = _ao_counts(mesh, cl_runtime, p, n, 64, offset, max_distance)
         rays = _ao_counts(mesh, cl_runtime, p, n, 64, offset, max_distance, traversal="rays")
@@ -616,7 +616,7 @@ def test_ao_counts_on_dense_shapes_equal_brute_force(lanes, shift, cl_runtime, m
     monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime: lanes)
     for name, base in _dense_4d_surfaces().items():
         mesh = ao4d.SimplexMesh(base.vertices + shift, base.simplices)
-        p, n, tree, offset = _vertex_rays(mesh, cl_runtime, every=7)
+        p, n, tree, offset = _surface_points(mesh, cl_runtime, every=7)
         for max_distance in (np.inf, 0.25 * tree.diagonal):
             packet = _ao_counts(mesh, cl_runtime, p, n, 40, offset, max_distance)
             rays = _ao_counts(mesh, cl_runtime, p, n, 40, offset, max_distance, traversal="rays")

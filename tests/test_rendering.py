@@ -82,7 +82,7 @@ def test_lambert_term_matches_sphere_normal(sphere, normals):
     light = np.array([0.3, 0.5, -0.2, -1.0])
     shape = (20, 20, 20)
     img = render(sphere, cam, shape, ao="none", ambient=0.25, light=light, diffuse=0.75,
-                 normals=normals)
+                 shading=normals)
     t_true, points = _analytic_sphere(cam, shape)
     lam = np.clip(points @ (light / np.linalg.norm(light)) / R, 0, None)
     expected = 0.25 + 0.75 * lam
@@ -119,11 +119,17 @@ def test_flat_tetrahedron_appears_unmirrored():
     np.testing.assert_allclose(img.depth[img.hit], 3.0, rtol=1e-5)
 
 
-def test_two_objects_get_their_ids():
-    left = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [-1, 0, 0, 0]), (14,) * 4,
+def _left_and_right(n: int):
+    """Two hyperspheres of radius 0.8 at x = -1 and x = 1, each on an n^4 grid."""
+    left = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [-1, 0, 0, 0]), (n,) * 4,
                               ([-2, -1, -1, -1], [0, 1, 1, 1]))
-    right = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [1, 0, 0, 0]), (14,) * 4,
+    right = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [1, 0, 0, 0]), (n,) * 4,
                                ([0, -1, -1, -1], [2, 1, 1, 1]))
+    return left, right
+
+
+def test_two_objects_get_their_ids():
+    left, right = _left_and_right(14)
     cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=2.0)
     img = render([left, right], cam, (16, 8, 8), ao="none")
     x = cam.project(cam.voxel_centers((16, 8, 8)))[..., 0]
@@ -132,16 +138,6 @@ def test_two_objects_get_their_ids():
     scene, ids = prepare_scene([left, right])
     assert ids.shape == (left.n_simplices + right.n_simplices,)
     assert ids.max() == 1
-
-
-@pytest.fixture(scope="module")
-def touching_pair():
-    # two hyperspheres close together occlude each other near the gap; each alone is convex
-    # and unoccluded, so A is 0 on the far sides and positive near the gap
-    bounds = ([-2.2, -1.1, -1.1, -1.1], [2.2, 1.1, 1.1, 1.1])
-    field = ao4d.fields.union(ao4d.fields.hypersphere(1.0, [-1.05, 0, 0, 0]),
-                              ao4d.fields.hypersphere(1.0, [1.05, 0, 0, 0]))
-    return ao4d.extract_field(field, (24, 12, 12, 12), bounds)
 
 
 def test_ao_darkens_the_gap(touching_pair):
@@ -227,7 +223,7 @@ def test_backends_agree(backend, request):
     [
         (dict(camera="cam"), TypeError, "`camera` must be an ao4d.Camera4D"),
         (dict(ao="bent"), ValueError, "`ao` must be one of"),
-        (dict(normals="phong"), ValueError, "`normals` must be one of"),
+        (dict(shading="phong"), ValueError, "`shading` must be one of"),
         (dict(backend="cuda"), ValueError, "`backend` must be one of"),
         (dict(light=[0, 0, 0, 0]), ValueError, "`light` must be a non-zero"),
         (dict(light=[0, 0, 1]), ValueError, "`light` must have shape"),
@@ -422,7 +418,7 @@ def test_shadow_of_a_ball_on_the_ground(ball_over_ground, light, view):
     shape = (40, 40, 40)
     cam = _ground_camera(view)
     img = render(ball_over_ground, cam, shape, ao="none", ambient=0.3, diffuse=0.7, light=light,
-                 shadows=True, normals="flat")
+                 shadows=True, shading="flat")
     q = _ground_points(cam, shape)
     to_light, reach = light.towards(q.reshape(-1, 4))
     to_light = np.broadcast_to(to_light, (q[..., 0].size, 4)).reshape(shape + (4,))
@@ -456,7 +452,7 @@ def test_transparent_ball_lets_light_through(ball_over_ground):
     shape = (40, 40, 40)
     cam = _ground_camera([0, -1, 0, 0])
     img = render(ball_over_ground, cam, shape, ao="none", ambient=0.3, diffuse=0.7, light=light,
-                 shadows=True, normals="flat", opacity=[1.0, alpha])
+                 shadows=True, shading="flat", opacity=[1.0, alpha])
     q = _ground_points(cam, shape)
     rel = BALL_C - q
     s = rel @ light.direction
@@ -595,7 +591,7 @@ def test_without_new_terms_the_images_are_the_previous_ones_exactly(touching_pai
                                  normals=normals, occlusion=mesh.point_data["ao"])
     for extra in ({}, {"shadows": False, "specular": 0.0}):
         img = render(mesh, cam, shape, ao="vertices", ambient=0.7, diffuse=0.3, light=light,
-                     normals=normals, **extra)
+                     shading=normals, **extra)
         np.testing.assert_array_equal(img.shade, expected)  # bit for bit
         # white objects under a white light: the colour is the grey shade (clipped), opaque
         np.testing.assert_array_equal(img.rgba[..., :3],
@@ -875,8 +871,8 @@ def test_ray_budget_is_checked_before_any_ray_and_can_be_lifted(monkeypatch):
 
     mesh, cam = _small_scene()
     cast = []
-    monkeypatch.setattr(ao4d.rendering, "cast_rays",
-                        lambda *a, **k: cast.append(1) or raycast.cast_rays(*a, **k))
+    monkeypatch.setattr(ao4d.rendering, "trace",
+                        lambda *a, **k: cast.append(1) or raycast.trace(*a, **k))
     with pytest.raises(ValueError, match=r"pass max_rays=math.inf \(CLI: --force\)"):
         render(mesh, cam, (16, 16, 16), ao="hits", samples=200000, backend="numpy")
     assert not cast  # before: the primary rays ran first, and render had no max_rays
@@ -896,8 +892,8 @@ def test_screen_ao_and_its_filter_are_budgeted_before_any_ray(backend, request, 
         request.getfixturevalue("cl_runtime")
     mesh, cam = _small_scene()
     cast = []
-    monkeypatch.setattr(ao4d.rendering, "cast_rays",
-                        lambda *a, **k: cast.append(1) or raycast.cast_rays(*a, **k))
+    monkeypatch.setattr(ao4d.rendering, "trace",
+                        lambda *a, **k: cast.append(1) or raycast.trace(*a, **k))
     with pytest.raises(ValueError, match=r"`samples`=10000000 \(.* depth look-ups.*about \d+ (h|days) on the"):
         render(mesh, cam, (32, 32, 32), ao="screen", samples=10_000_000, backend=backend)
     if backend == "numpy":
@@ -960,3 +956,80 @@ def test_stored_ao_skips_the_inside_out_check(monkeypatch):
     assert img.hit.any() and not calls
     render(mesh, cam, (6, 6, 6), ao="hits", samples=4, backend="numpy")
     assert calls == [1]
+
+
+def test_ao_given_as_an_array_is_shaded_as_stored_ao_without_ao_rays():
+    mesh, cam = _small_scene()
+    values = np.linspace(0.0, 1.0, mesh.n_vertices)
+    given = render(mesh, cam, (8, 8, 8), ao=values, backend="numpy")
+    assert given.info["ao_rays"] == 0 and "ao" not in mesh.point_data
+    stored = mesh.copy()
+    stored.point_data["ao"] = values
+    by_point_data = render(stored, cam, (8, 8, 8), ao="vertices", backend="numpy")
+    assert np.array_equal(given.shade, by_point_data.shade)
+    assert np.array_equal(given.occlusion, by_point_data.occlusion, equal_nan=True)
+    # the occlusion at a hit interpolates the given values: not all zero, not recomputed
+    assert np.nanmax(given.occlusion) > 0.1
+
+
+def test_ao_given_per_mesh_of_a_list_is_joined_in_list_order():
+    left, right = _left_and_right(12)
+    cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=2.0)
+    img = render([left, right], cam, (16, 8, 8),
+                 ao=[np.zeros(left.n_vertices), np.full(right.n_vertices, 0.5)], backend="numpy")
+    assert np.all(img.occlusion[img.object_id == 0] == 0)
+    assert np.allclose(img.occlusion[img.object_id == 1], 0.5)
+    assert np.allclose(img.shade[img.object_id == 1], 0.5)
+
+
+@pytest.mark.parametrize("ao, match", [
+    (np.zeros(5), r"`ao` must hold one value per vertex"),
+    (np.full(1, np.nan), r"`ao` is NaN"),
+    ("everywhere", r"`ao`"),
+])
+def test_bad_ao_values_are_refused_naming_ao(ao, match):
+    mesh, cam = _small_scene()
+    if np.ndim(ao) == 1 and len(ao) == 1:  # a NaN at a used vertex
+        ao = np.zeros(mesh.n_vertices)
+        ao[mesh.simplices[0, 0]] = np.nan
+    with pytest.raises(ValueError, match=match):
+        render(mesh, cam, (4, 4, 4), ao=ao, backend="numpy")
+
+
+def test_ao_per_mesh_of_the_wrong_length_is_refused():
+    mesh, cam = _small_scene()
+    with pytest.raises(ValueError, match=r"`ao\[1\]` must hold one value per vertex of meshes\[1\]"):
+        render([mesh, mesh], cam, (4, 4, 4), ao=[np.zeros(mesh.n_vertices), np.zeros(3)], backend="numpy")
+
+
+def test_normals_is_the_deprecated_spelling_of_shading():
+    mesh, cam = _small_scene()
+    kw = dict(ao="none", light=(0, 1, 0, -1), backend="numpy")
+    flat = render(mesh, cam, (8, 8, 8), shading="flat", **kw)
+    with pytest.warns(DeprecationWarning, match=r"use shading="):
+        old = render(mesh, cam, (8, 8, 8), normals="flat", **kw)
+    assert np.array_equal(flat.shade, old.shade)
+    smooth = render(mesh, cam, (8, 8, 8), **kw)
+    assert not np.array_equal(flat.shade, smooth.shade)
+    with pytest.raises(ValueError, match="shading"):
+        render(mesh, cam, (4, 4, 4), shading="phong", **kw)
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="pass `shading` only"):
+        render(mesh, cam, (4, 4, 4), shading="flat", normals="smooth", **kw)
+
+
+def test_one_trace_per_ray_batch_on_one_tracer(monkeypatch):
+    # every batch of rays is one internal trace on the tracer resolved once: no public
+    # cast_rays re-validating rays and re-resolving the backend and tree per batch
+    from ao4d import raycast
+
+    mesh, cam = _small_scene()
+    calls = []
+    monkeypatch.setattr(ao4d.rendering, "trace",
+                        lambda tracer, o, w, **k: calls.append((tracer, len(o))) or raycast.trace(tracer, o, w, **k))
+    monkeypatch.setattr(raycast, "cast_rays", lambda *a, **k: pytest.fail("public cast_rays re-entered"))
+    img = render(mesh, cam, (48, 48, 32), ao="none", light=(0, 1, 0, -1), shadows=True, backend="numpy")
+    chunk = ao4d.rendering._CHUNK
+    primary = 48 * 48 * 32
+    assert [n for _, n in calls[:2]] == [chunk, primary - chunk]  # two batches of primary rays
+    assert len({id(tracer) for tracer, _ in calls}) == 1
+    assert sum(n for _, n in calls[2:]) == img.info["shadow_rays"]

@@ -130,14 +130,6 @@ def test_occluders_outside_the_image_are_not_seen():
 # -- backends, determinism, ray-traced AO ---------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def touching_pair():
-    bounds = ([-2.2, -1.1, -1.1, -1.1], [2.2, 1.1, 1.1, 1.1])
-    field = ao4d.fields.union(ao4d.fields.hypersphere(1.0, [-1.05, 0, 0, 0]),
-                              ao4d.fields.hypersphere(1.0, [1.05, 0, 0, 0]))
-    return ao4d.extract_field(field, (24, 12, 12, 12), bounds)
-
-
 PAIR_CAMERAS = {
     "orthographic": Camera4D([0, 0.5, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=2.2),
     "perspective": Camera4D([0.3, 0.8, 0, -5], [0, 0, 0, 0], fov=55),
