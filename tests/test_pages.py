@@ -9,7 +9,6 @@ a page of its own: silhouette IoU >= 95 %, median colour error <= 0.02.
 
 from __future__ import annotations
 
-import base64
 import html
 import io
 import urllib.request
@@ -17,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _chromium import Chromium, browser_or_skip, capture, find_chromium
 
 import ao4d
 from ao4d import image_viewer as iv
 from ao4d import pages
-from ao4d._chromium import Chromium, find_chromium
 
 
 @pytest.fixture(scope="module")
@@ -166,8 +165,7 @@ def test_notebook_shows_the_image_and_the_meshes_inline(tmp_path):
         for k in range(2):
             api = f"document.querySelectorAll('iframe')[{k}].contentWindow.ao4d"
             assert browser.evaluate(f"{api}.error") is None
-            cap = browser.evaluate(f"{api}.capture()")
-            alpha = np.frombuffer(base64.b64decode(cap["rgba"]), np.uint8)[3::4]
+            alpha = capture(browser, api)[..., 3]
             assert (alpha > 0).mean() > 0.02  # the canvas draws
         assert browser.errors == []
 
@@ -176,11 +174,7 @@ def test_notebook_shows_the_image_and_the_meshes_inline(tmp_path):
 
 @pytest.fixture(scope="module")
 def browser():
-    if find_chromium() is None:
-        pytest.skip("Chromium is not installed (Debian: apt-get install chromium); "
-                    "the browser tests need it")
-    with Chromium(width=1000, height=460) as chromium:
-        yield chromium
+    yield from browser_or_skip(1000, 460)
 
 
 def test_browser_demo_page_both_views_and_its_fragment(browser, demo_dir):
@@ -195,9 +189,8 @@ def test_browser_demo_page_both_views_and_its_fragment(browser, demo_dir):
     assert browser.evaluate("window.ao4d.views().image.state().array") == "occlusion"
     # the projection view agrees with the numpy ray-march of the demo's image file
     state = browser.evaluate("window.ao4d.views().image.state()")
-    cap = browser.evaluate("window.ao4d.views().image.capture()")
-    page = np.frombuffer(base64.b64decode(cap["rgba"]), np.uint8).reshape(cap["height"], cap["width"], 4) / 255
-    ref = iv.reference_march(demo_dir / "image.vti", state, cap["width"], cap["height"])
+    page = capture(browser, "window.ao4d.views().image") / 255
+    ref = iv.reference_march(demo_dir / "image.vti", state, page.shape[1], page.shape[0])
     a, b = page[..., 3] > 0.5, ref[..., 3] > 0.5
     assert b.sum() > 1000
     iou = (a & b).sum() / (a | b).sum()
