@@ -583,7 +583,7 @@ def image_page_text(image: Any, *, state: Mapping[str, Any] | None = None, title
         "scalars": blob(data.scalars),
         "colors": None if data.colors is None else blob(data.colors),
     }
-    head, middle, tail = template(_TEMPLATE, "__AO4D_IMAGE__")
+    head, middle, tail = template(_TEMPLATE)
     parts = [head, scene_json(scene), middle]
     for k, b in enumerate(blobs):
         parts.append(f'<script type="application/octet-stream" id="ao4d-blob-{k}">')
@@ -644,7 +644,9 @@ def _state_fragment(state: Mapping[str, Any]) -> str:
 
 def page_info(text: str) -> dict:
     """The scene JSON object of an image page's text (for tests and tools)."""
-    start = text.index('<script type="application/json" id="ao4d-image">') + len(
-        '<script type="application/json" id="ao4d-image">')
-    end = text.index("</script>", start)
-    return json.loads(text[start:end])  # "<\\/" is JSON for "</"
+    for tag in ('<script type="application/json" id="ao4d-scene">',
+                '<script type="application/json" id="ao4d-image">'):  # the latter: older image pages
+        if tag in text:
+            start = text.index(tag) + len(tag)
+            return json.loads(text[start:text.index("</script>", start)])  # "<\\/" is JSON for "</"
+    raise ValueError("`text` is not an ao4d image page: it holds no scene")

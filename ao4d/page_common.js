@@ -96,6 +96,8 @@ const ao4dPage = (function () {
   }
 
   // ------------------------------------------------------------------ WebGL
+  // the first lines of every shader: GLSL ES 3.00, high precision
+  const GLSL = "#version 300 es\nprecision highp float;\nprecision highp int;\n";
   // a program and its uniforms' locations (an array uniform under its name without "[0]")
   function compile(gl, vsText, fsText) {
     const prog = gl.createProgram();
@@ -184,21 +186,6 @@ const ao4dPage = (function () {
   }
 
   // ------------------------------------------------------------------ frames
-  // frame pacing: no new frame while the GPU still works on the last one (a fence), so slow
-  // renderers never queue frames and the fps shown are frames actually rendered
-  function gpuFence(gl) {
-    let fence = null;
-    return {
-      busy() {
-        if (!fence) return false;
-        if (gl.getSyncParameter(fence, gl.SYNC_STATUS) !== gl.SIGNALED) return true;
-        gl.deleteSync(fence);
-        fence = null;
-        return false;
-      },
-      set() { fence = gl.fenceSync(gl.SYNC_GPU_COMMANDS_COMPLETE, 0); gl.flush(); },
-    };
-  }
   // frames per second over the last second of back-to-back frames (a pause restarts it)
   function frameClock() {
     const times = [];
@@ -216,13 +203,33 @@ const ao4dPage = (function () {
       reset() { times.length = 0; },
     };
   }
-  // after a frame: the first one marks the page ready (true then); WebGL errors reported
-  function markReady(api, gl) {
-    if (api.ready) return false;
-    checkGL(gl, "first frame");
-    api.ready = true;
-    document.documentElement.dataset.ready = "1";
-    return true;
+  // frames on demand: request() asks for one; none is drawn while the GPU still works on the
+  // last one (a fence), so slow renderers never queue frames and the fps shown are frames
+  // actually rendered. motion(t), when given, moves the scene before a frame and returns true
+  // while it moves (frames keep coming); drawn() runs after each frame.
+  function frameLoop(gl, clock, draw, drawn, motion) {
+    let fence = null, dirty = true, pending = false, moving = false;
+    function busy() {
+      if (!fence) return false;
+      if (gl.getSyncParameter(fence, gl.SYNC_STATUS) !== gl.SIGNALED) return true;
+      gl.deleteSync(fence);
+      fence = null;
+      return false;
+    }
+    function frame(t) {
+      pending = false;
+      if ((dirty || moving) && busy()) { pending = true; requestAnimationFrame(frame); return; }
+      moving = motion ? motion(t) : false;
+      if (!dirty && !moving) return;
+      draw();
+      fence = gl.fenceSync(gl.SYNC_GPU_COMMANDS_COMPLETE, 0);
+      gl.flush();
+      dirty = false;
+      clock.tick(t);
+      drawn();
+      if (moving) { pending = true; requestAnimationFrame(frame); }
+    }
+    return { request() { dirty = true; if (!pending) { pending = true; requestAnimationFrame(frame); } } };
   }
   // fn() at most every ms milliseconds, soon after a call (census, message, URL: not every frame)
   function throttled(fn, ms) {
@@ -235,13 +242,6 @@ const ao4dPage = (function () {
   }
 
   // ------------------------------------------------------------------ panel and input
-  // the line over the canvas: the error, "loading...", or what detail() says ("" for nothing)
-  function showMessage(api, detail) {
-    const text = api.error || (api.ready ? detail() : "loading\u2026");
-    const box = document.getElementById("message");
-    box.innerHTML = "";
-    if (text) { const span = document.createElement("span"); span.textContent = text; box.appendChild(span); }
-  }
   function addSlider(parent, key, min, max, step) {
     const row = document.createElement("div");
     row.className = "row";
@@ -304,21 +304,80 @@ const ao4dPage = (function () {
       if (handled) e.preventDefault();
     });
   }
-  // the page's start-up steps in order; an error stops them and is shown (api.error, show())
-  async function boot(api, show, steps) {
-    try {
-      for (const step of steps) await step();
-    } catch (err) {
-      api.error = String(err && err.message || err);
-      show();
-      console.error("ao4d view: " + api.error);
+  // the line over the canvas: the error, "loading...", or what detail() says ("" for nothing)
+  function showMessage(api, detail) {
+    const text = api.error || (api.ready ? detail() : "loading\u2026");
+    const box = document.getElementById("message");
+    box.innerHTML = "";
+    if (text) { const span = document.createElement("span"); span.textContent = text; box.appendChild(span); }
+  }
+  // the sliders of the 3D camera (az, el, zoom: zoom's slider is log10 of the zoom)
+  function cameraSliders(parent) {
+    addSlider(parent, "az", -180, 180, 0.5);
+    addSlider(parent, "el", -90, 90, 0.5);
+    addSlider(parent, "zoom", -1, 1.3, 0.01);
+  }
+
+  // ------------------------------------------------------------------ the page
+  // what every page does with what it brings (spec): its state set (clean(), then the controls,
+  // sync(), a frame, and the URL soon after, with idle()), written to the URL fragment
+  // (hashText()) and read back from it (parseHash()), frames on demand (draw(), drawn(),
+  // motion(t)), the message over the canvas (error, "loading...", or message()), PNGs over
+  // the background bg (pngName), and window.ao4d's setState, state, hash, capture and png.
+  // run() starts the page: the fragment's state, then spec.steps (the panel, WebGL: setting
+  // the page's gl, spec.gl() reads it; the buffers), then frames; an error stops it, shown.
+  function page(spec) {
+    const { api, state, canvas } = spec;
+    const clock = frameClock();
+    const hash = hashWriter(spec.hashText);
+    let gl = null, loop = null;
+    const scheduleIdle = throttled(() => { hash.write(); spec.idle(); }, 250);
+    function requestRender() { if (loop) loop.request(); }
+    function setState(partial, quiet) {
+      Object.assign(state, spec.clean(partial));
+      spec.sync();
+      requestRender();
+      if (!quiet) scheduleIdle();
+      return spec.snapshot();
     }
+    function updateMessage() { showMessage(api, spec.message); }
+    function composite() { spec.draw(); return flatten(canvas, spec.bg); }
+    function drawn() {
+      if (!api.ready) {
+        checkGL(gl, "first frame");
+        api.ready = true;
+        document.documentElement.dataset.ready = "1";
+        updateMessage();
+      }
+      spec.drawn();
+    }
+    async function run() {
+      try {
+        Object.assign(state, spec.parseHash(location.hash));
+        hash.follow((text) => setState(spec.parseHash(text)));
+        for (const step of spec.steps) await step();
+        gl = spec.gl();
+        hash.mark();
+        loop = frameLoop(gl, clock, spec.draw, drawn, spec.motion);
+        loop.request();
+      } catch (err) {
+        api.error = String(err && err.message || err);
+        updateMessage();
+        console.error("ao4d view: " + api.error);
+      }
+    }
+    api.setState = (partial) => setState(partial || {});
+    api.state = () => spec.snapshot();
+    api.hash = () => spec.hashText();
+    // draw now and read the canvas back: RGBA rows from the top, base64 (alpha 0 = background)
+    api.capture = () => { spec.draw(); return readCanvas(gl, canvas); };
+    api.png = () => composite().toDataURL("image/png");
+    return { clock, setState, requestRender, scheduleIdle, updateMessage, run, png: () => savePNG(composite(), spec.pngName) };
   }
 
   return Object.freeze({
-    wrap, fmt, ignored, fragmentPairs, hashWriter, b64bytes, loadBlob, dot3, cross, norm3, orbitCamera,
-    compile, checkGL, rendererName, fitCanvas, readCanvas, flatten, savePNG, sweepFrames, gpuFence,
-    frameClock, markReady, throttled, showMessage, addSlider, bindSliders, setSlider, bindOrbit,
-    bindKeys, boot,
+    GLSL, wrap, fmt, ignored, fragmentPairs, hashWriter, b64bytes, loadBlob, dot3, cross, norm3, orbitCamera,
+    compile, checkGL, rendererName, fitCanvas, sweepFrames, addSlider, bindSliders, setSlider, cameraSliders,
+    bindOrbit, bindKeys, page,
   });
 })();

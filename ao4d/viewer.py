@@ -913,7 +913,7 @@ def page_text(meshes: Any, **options: Any) -> str:
     if b64_size(raw) > 8 * max_bytes:  # beyond what compression can bring under the limit
         raise ValueError(f"the meshes hold {raw / 1e6:.0f} MB, {limit_text}")
     scene, blobs = _build([m for m, _ in items], names=[n for _, n in items], **options, external=False)
-    head, middle, tail = template(_TEMPLATE, "__AO4D_SCENE__")
+    head, middle, tail = template(_TEMPLATE)
     scene_text = scene_json(scene)
     size = len(head) + len(scene_text) + len(middle) + len(tail)
     size += sum(b64_size(len(b.data)) + 80 for b in blobs)
@@ -1016,6 +1016,6 @@ def serve(meshes: Any, *, port: int = 0, host: str = "127.0.0.1", **options: Any
     if isinstance(port, bool) or not isinstance(port, (int, np.integer)) or not 0 <= port < 65536:
         raise ValueError(f"`port` must be an integer in [0, 65535], got {port!r}")
     scene, blobs = _build(meshes, **_options(options, "serve", without=("max_bytes",)), external=True)
-    head, middle, tail = template(_TEMPLATE, "__AO4D_SCENE__")
+    head, middle, tail = template(_TEMPLATE)
     page = (head + scene_json(scene) + middle + tail).encode("utf-8")
     return ViewServer(page, [b.data for b in blobs], host, port)
