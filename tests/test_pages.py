@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import html
 import io
+import re
 import urllib.request
 from pathlib import Path
 
@@ -19,8 +20,8 @@ import pytest
 from _chromium import Chromium, browser_or_skip, capture, find_chromium
 
 import ao4d
+from ao4d import _page, pages
 from ao4d import image_viewer as iv
-from ao4d import pages
 
 
 @pytest.fixture(scope="module")
@@ -115,6 +116,74 @@ def test_demo_view_html_holds_both_views(demo_dir):
     assert len(inner) == 2
     assert 'content="ao4d view"' in inner[0] and 'content="ao4d view (image)"' in inner[1]
     assert iv.page_info(inner[1])["shape"] == [16, 16, 16]
+
+
+# --------------------------------------------------------------------------- one shared script
+
+_SLOTS = ("<!--AO4D_HEAD-->", "<!--AO4D_PANEL-->", "<!--AO4D_BODY-->", "<!--AO4D_COMMON-->",
+          "<!--AO4D_DATA-->", "__AO4D_SCENE__")
+
+
+def _own_script(text):
+    """A page's text without the shared script: what the page itself brings."""
+    common = _page.common_script()
+    assert text.count(common) == 1, f"the shared script {text.count(common)} times"
+    return text.replace(common, "")
+
+
+def _shared_definitions():
+    """The functions and arrow constants ao4d/page_common.js defines (at its top level)."""
+    script = _page.common_script()
+    names = set(re.findall(r"^  (?:async )?function (\w+)\(|^  const (\w+) = \(", script, re.M))
+    names = {a or b for a, b in names}
+    assert {"fragmentPairs", "loadBlob", "compile", "orbitCamera", "bindOrbit", "bindKeys", "page",
+            "readCanvas", "savePNG", "cross"} <= names
+    return names
+
+
+def _assert_one_shared_script(text):
+    rest = _own_script(text)
+    assert "const ao4dPage" not in rest and rest.count("<!DOCTYPE html>") == 1
+    for slot in _SLOTS:
+        assert slot not in text, slot
+    for name in _shared_definitions():  # no copy of a shared function left in the page's own script
+        assert not re.search(rf"function {name}\(|const {name} = \(", rest), name
+
+
+def test_pages_hold_the_shared_script_once_and_no_copy(sphere, image, tmp_path):
+    from ao4d import viewer
+
+    _assert_one_shared_script(viewer.page_text(sphere))
+    _assert_one_shared_script(iv.image_page_text(image))
+    with viewer.serve(sphere) as server, urllib.request.urlopen(server.url, timeout=10) as reply:
+        _assert_one_shared_script(reply.read().decode())
+    # the result page: its own script uses the shared one too, and each view holds it once
+    text = pages.result_page(sphere, image, tmp_path / "r.html").read_text()
+    inner = [html.unescape(part.split('"', 1)[0]) for part in text.split('srcdoc="')[1:]]
+    assert len(inner) == 2
+    outer = text
+    for page in inner:
+        _assert_one_shared_script(page)
+        outer = outer.replace(html.escape(page, quote=True), "")
+    _assert_one_shared_script(outer)
+    assert "fragmentPairs(location.hash)" in outer and "decodeURIComponent" not in _own_script(outer)
+
+
+def test_page_sources_share_no_run_of_six_lines():
+    """The pages' sources and the shared frame and script: each idea written once (the
+    ``duplicates`` tool's bar, exact lines here)."""
+    folder = Path(ao4d.__file__).parent
+    sources = {name: (folder / name).read_text().splitlines()
+               for name in ("viewer_page.html", "image_page.html", "page_frame.html", "page_common.js")}
+    sources["pages._OUTER"] = pages._OUTER.splitlines()
+    runs = {}
+    for name, lines in sources.items():
+        for i in range(len(lines) - 5):
+            window = tuple(line.strip() for line in lines[i:i + 6])
+            if sum(bool(line) for line in window) >= 4:
+                runs.setdefault(window, set()).add(name)
+    shared = [(sorted(names), window) for window, names in runs.items() if len(names) > 1]
+    assert not shared, shared[:3]
 
 
 # --------------------------------------------------------------------------- notebooks

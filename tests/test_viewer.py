@@ -436,6 +436,20 @@ def test_serve_gives_page_and_buffers(small_sphere):
         viewer.serve(small_sphere, port=70000)
 
 
+def test_page_text_and_serve_take_the_options_of_view(small_sphere, tmp_path):
+    # one list of options (view's signature): the same page by view and page_text, and an option
+    # view does not take (or serve: max_bytes) refused naming the function
+    options = {"names": ["ball"], "state": {"w": 0.2, "xw": 30}, "title": "t", "cull": "none"}
+    assert viewer.view(small_sphere, tmp_path / "a.html", **options).read_text() == \
+        viewer.page_text(small_sphere, **options)
+    with pytest.raises(TypeError, match=r"page_text\(\) got unknown option\(s\) 'colour'; it takes .*colors"):
+        viewer.page_text(small_sphere, colour="red")
+    with pytest.raises(TypeError, match=r"serve\(\) got unknown option\(s\) 'max_bytes'"):
+        viewer.serve(small_sphere, max_bytes=10**9)
+    with pytest.raises(ValueError, match="`max_bytes` must be a positive integer"):
+        viewer.page_text(small_sphere, max_bytes=0)
+
+
 # --------------------------------------------------------------------------- in the browser
 
 WIDTH, HEIGHT = 700, 420  # window; the canvas is what the panel leaves (424 x 420)
