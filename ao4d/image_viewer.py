@@ -1,6 +1,7 @@
 """The 4D camera's 3D image in the browser: one self-contained WebGL2 page that ray-marches it.
 
-:func:`view_image` writes an HTML file holding the page (``ao4d/image_page.html``) and the image
+:func:`view_image` writes an HTML file holding the page (``ao4d/image_page.html``, in the frame and
+with the script every ao4d page shares, :mod:`ao4d._page`) and the image
 of :func:`ao4d.render` (a :class:`~ao4d.rendering.RenderResult`, or the ``.vti`` / ``.mhd`` file
 ``ao4d render`` writes). The page ray-marches the volume on the GPU every frame, with a transfer
 function (colour map presets and an opacity ramp dragged on the page), axis-aligned clipping

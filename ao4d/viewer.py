@@ -1,7 +1,7 @@
 """The browser viewer: one self-contained WebGL2 page that slices 4D tetrahedral meshes on the GPU.
 
 :func:`view` writes an HTML file holding the page (``ao4d/viewer_page.html``: HTML, JavaScript,
-GLSL) and the meshes (float32 vertices, uint32 simplices, float32 AO; zlib-compressed and
+GLSL, in the frame and with the script every ao4d page shares, :mod:`ao4d._page`) and the meshes (float32 vertices, uint32 simplices, float32 AO; zlib-compressed and
 base64-encoded, inflated in the browser by ``DecompressionStream``). It needs no network and
 opens from ``file://``. Scenes too large to inline are served by :func:`serve` on 127.0.0.1.
 
