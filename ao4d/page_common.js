@@ -1,8 +1,9 @@
 // ao4d/page_common.js: the script every ao4d page shares (the slicing page, the image page and the
 // result page that holds both). ao4d/_page.py inlines it, once, as its own <script> before the
 // page's script, so each page stays one self-contained file. It defines one global,
-// `ao4dPage`: functions that take what they work on (the page's gl, canvas, state), and a few
-// small objects that keep their own state (the fragment writer, the fps clock, the GPU fence).
+// `ao4dPage`: functions that take what they work on (the page's gl, canvas, state), small
+// objects that keep their own state (the fragment writer, the fps clock, frames on demand), and
+// page(spec), the life every page shares (state, URL, frames, message, window.ao4d, start-up).
 "use strict";
 const ao4dPage = (function () {
   // ------------------------------------------------------------------ values
@@ -287,8 +288,8 @@ const ao4dPage = (function () {
       const t = e.target;
       if ((t instanceof HTMLInputElement && t.type === "range") || t instanceof HTMLSelectElement) return;
       if (e.ctrlKey || e.metaKey || e.altKey) return;
-      let handled = true;
       if (pageKey && pageKey(e)) { e.preventDefault(); return; }
+      let handled = true;
       switch (e.key) {
         case "ArrowLeft": setState({ az: state.az + 5 }); break;
         case "ArrowRight": setState({ az: state.az - 5 }); break;
@@ -376,8 +377,8 @@ const ao4dPage = (function () {
   }
 
   return Object.freeze({
-    GLSL, wrap, fmt, ignored, fragmentPairs, hashWriter, b64bytes, loadBlob, dot3, cross, norm3, orbitCamera,
-    compile, checkGL, rendererName, fitCanvas, sweepFrames, addSlider, bindSliders, setSlider, cameraSliders,
+    GLSL, wrap, fmt, ignored, fragmentPairs, hashWriter, b64bytes, loadBlob, dot3, norm3, orbitCamera,
+    compile, rendererName, fitCanvas, sweepFrames, addSlider, bindSliders, setSlider, cameraSliders,
     bindOrbit, bindKeys, page,
   });
 })();
