@@ -1,6 +1,7 @@
 """The 4D camera's 3D image in the browser: one self-contained WebGL2 page that ray-marches it.
 
-:func:`view_image` writes an HTML file holding the page (``ao4d/image_page.html``) and the image
+:func:`view_image` writes an HTML file holding the page (``ao4d/image_page.html``, in the frame and
+with the script every ao4d page shares, :mod:`ao4d._page`) and the image
 of :func:`ao4d.render` (a :class:`~ao4d.rendering.RenderResult`, or the ``.vti`` / ``.mhd`` file
 ``ao4d render`` writes). The page ray-marches the volume on the GPU every frame, with a transfer
 function (colour map presets and an opacity ramp dragged on the page), axis-aligned clipping
@@ -73,16 +74,15 @@ import warnings
 import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ._atomic import atomic_open, check_output_file
+from ._page import b64_size, check_max_bytes, scene_json, template, wrap_degrees, write_page
 from ._validate import as_real, check_bool, check_choice
 from .compositing import over
-from .viewer import HALF_FOV_DEG, MARGIN, ZOOM_RANGE, Camera, Frame, _b64_size, _scene_json, _wrap, camera, merged_state
+from .viewer import HALF_FOV_DEG, MARGIN, ZOOM_RANGE, Camera, Frame, camera, merged_state
 
 __all__ = [
     "ARRAYS",
@@ -380,7 +380,7 @@ def full_state(state: Mapping[str, Any] | None = None, *, image: ImageData | Non
     for a, b in (("x0", "x1"), ("y0", "y1"), ("z0", "z1")):
         if out[a] > out[b]:
             raise ValueError(f"`state['{a}']` must be <= `state['{b}']`, got {out[a]} > {out[b]}")
-    out["az"] = _wrap(as_real(out["az"], "state['az']"))
+    out["az"] = wrap_degrees(as_real(out["az"], "state['az']"))
     out["el"] = min(90.0, max(-90.0, as_real(out["el"], "state['el']")))
     out["zoom"] = as_real(out["zoom"], "state['zoom']", ge=ZOOM_RANGE[0], le=ZOOM_RANGE[1])
     return out
@@ -498,15 +498,6 @@ def reference_march(image: Any, state: Mapping[str, Any] | None, width: int, hei
 
 # --------------------------------------------------------------------------- the page
 
-def _template() -> tuple[str, str, str]:
-    text = resources.files("ao4d").joinpath(_TEMPLATE).read_text(encoding="utf-8")
-    head, sep, rest = text.partition("__AO4D_IMAGE__")
-    middle, sep2, tail = rest.partition("<!--AO4D_DATA-->")
-    if not sep or not sep2:  # pragma: no cover - the shipped template has both
-        raise RuntimeError(f"ao4d/{_TEMPLATE} lacks its placeholders")
-    return head, middle, tail
-
-
 def _histogram(data: ImageData) -> dict[str, list[int]]:
     hit = data.hit
     out = {}
@@ -545,8 +536,7 @@ def image_page_text(image: Any, *, state: Mapping[str, Any] | None = None, title
     Parameters are those of :func:`view_image`.
     """
     check_bool(compress, "compress")
-    if isinstance(max_bytes, bool) or not isinstance(max_bytes, (int, np.integer)) or max_bytes < 1:
-        raise ValueError(f"`max_bytes` must be a positive integer, got {max_bytes!r}")
+    check_max_bytes(max_bytes)
     if title is not None and not isinstance(title, str):
         raise TypeError(f"`title` must be a string, got {type(title).__name__}")
     data = encode(image)
@@ -554,8 +544,8 @@ def image_page_text(image: Any, *, state: Mapping[str, Any] | None = None, title
     for note in data.notes:
         warnings.warn(note, ImageRangeWarning, stacklevel=2)
     raw = data.scalars.nbytes + (0 if data.colors is None else data.colors.nbytes)
-    if not compress and _b64_size(raw) > max_bytes:
-        raise ValueError(f"the page would be about {_b64_size(raw) / 1e6:.0f} MB, over `max_bytes`")
+    if not compress and b64_size(raw) > max_bytes:
+        raise ValueError(f"the page would be about {b64_size(raw) / 1e6:.0f} MB, over `max_bytes`")
     blobs: list[bytes] = []
 
     def blob(arr: np.ndarray) -> dict:
@@ -593,8 +583,8 @@ def image_page_text(image: Any, *, state: Mapping[str, Any] | None = None, title
         "scalars": blob(data.scalars),
         "colors": None if data.colors is None else blob(data.colors),
     }
-    head, middle, tail = _template()
-    parts = [head, _scene_json(scene), middle]
+    head, middle, tail = template(_TEMPLATE)
+    parts = [head, scene_json(scene), middle]
     for k, b in enumerate(blobs):
         parts.append(f'<script type="application/octet-stream" id="ao4d-blob-{k}">')
         parts.append(base64.b64encode(b).decode("ascii"))
@@ -635,18 +625,15 @@ def view_image(
     Returns
     -------
     path : Path
-        The page written.
+        The page written (``path``, checked before any work).
 
     Raises
     ------
     ValueError
         A bad image, state or option; a page over ``max_bytes``.
     """
-    target = check_output_file(path, "path", (".html", ".htm"))  # before any work
-    text = image_page_text(image, state=state, title=title, compress=compress, max_bytes=max_bytes)
-    with atomic_open(target, "w", encoding="utf-8", newline="\n") as fh:
-        fh.write(text)
-    return target
+    return write_page(path, lambda: image_page_text(image, state=state, title=title, compress=compress,
+                                                    max_bytes=max_bytes))
 
 
 def _state_fragment(state: Mapping[str, Any]) -> str:
@@ -657,7 +644,9 @@ def _state_fragment(state: Mapping[str, Any]) -> str:
 
 def page_info(text: str) -> dict:
     """The scene JSON object of an image page's text (for tests and tools)."""
-    start = text.index('<script type="application/json" id="ao4d-image">') + len(
-        '<script type="application/json" id="ao4d-image">')
-    end = text.index("</script>", start)
-    return json.loads(text[start:end])  # "<\\/" is JSON for "</"
+    for tag in ('<script type="application/json" id="ao4d-scene">',
+                '<script type="application/json" id="ao4d-image">'):  # the latter: older image pages
+        if tag in text:
+            start = text.index(tag) + len(tag)
+            return json.loads(text[start:text.index("</script>", start)])  # "<\\/" is JSON for "</"
+    raise ValueError("`text` is not an ao4d image page: it holds no scene")

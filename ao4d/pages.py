@@ -26,13 +26,13 @@ Examples
 from __future__ import annotations
 
 import html
-import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ._atomic import atomic_open, check_output_file
+from ._atomic import check_output_file
+from ._page import scene_json, with_common_script, write_page
 
 __all__ = ["INLINE_LIMIT", "InlinePage", "Page", "inline", "is_image", "result_page", "view"]
 
@@ -99,10 +99,7 @@ class InlinePage:
 
     def save(self, path: str | os.PathLike) -> Page:
         """Write the page (.html, atomically) and return it as a :class:`Page`."""
-        target = check_output_file(path, "path", (".html", ".htm"))
-        with atomic_open(target, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(self.html)
-        return Page(target)
+        return Page(write_page(path, lambda: self.html))
 
     def close(self) -> None:
         """Stop the server, if one was started."""
@@ -144,10 +141,10 @@ def _check_view_input(what: Any, options: dict) -> None:
                         f"{what.shape}: extract a mesh from it first (ao4d.extract(values, level)) or "
                         "render one (ao4d.render)")
     if is_image(what):
-        from .image_viewer import image_page_text as target
+        from .image_viewer import view_image as target
         kind = "an image's page"
     else:
-        from .viewer import page_text as target
+        from .viewer import view as target
         kind = "the meshes' page"
     known = [name for name, p in inspect.signature(target).parameters.items()
              if p.kind == p.KEYWORD_ONLY]
@@ -244,22 +241,20 @@ _OUTER = """<!DOCTYPE html>
   <iframe id="view-image" title="projection" srcdoc="__IMAGE__"></iframe>
 </div>
 <script type="application/json" id="ao4d-result">__META__</script>
+<!--AO4D_COMMON-->
 <script>
 "use strict";
 (function () {
+  const { fragmentPairs, hashWriter } = ao4dPage;
   const meta = JSON.parse(document.getElementById("ao4d-result").textContent);
   const LAYOUTS = ["image", "slices", "both"];
   const frames = { slices: document.getElementById("view-slices"), image: document.getElementById("view-image") };
   const prefix = { slices: "s.", image: "i." };
-  let layout = meta.tab, lastHash = "";
+  let layout = meta.tab;
   document.getElementById("title").textContent = meta.title;
   // the fragment: tab=..., then s.KEY=... for the slicing view and i.KEY=... for the image view
   const start = { slices: {}, image: {} };
-  for (const part of location.hash.replace(/^#/, "").split("&")) {
-    const i = part.indexOf("=");
-    if (i < 0) continue;
-    let key, value;
-    try { key = decodeURIComponent(part.slice(0, i)); value = decodeURIComponent(part.slice(i + 1)); } catch (e) { continue; }
+  for (const [key, value] of fragmentPairs(location.hash)) {
     if (key === "tab") { if (LAYOUTS.includes(value)) layout = value; else console.warn("ao4d: ignoring tab=" + value); }
     else if (key.startsWith("s.")) start.slices[key.slice(2)] = key === "s.hide" ? (value ? value.split(",").map(Number) : []) : value;
     else if (key.startsWith("i.")) start.image[key.slice(2)] = value;
@@ -279,10 +274,8 @@ _OUTER = """<!DOCTYPE html>
     }
     return "#" + parts.join("&");
   }
-  function writeHash() {
-    const h = hashText();
-    if (h !== lastHash) { lastHash = h; try { history.replaceState(null, "", h); } catch (e) { /* file:// contexts may refuse */ } }
-  }
+  const hash = hashWriter(hashText);
+  const writeHash = () => hash.write();
   const applied = { slices: false, image: false };
   function poll() {
     for (const name of ["slices", "image"]) {
@@ -359,11 +352,9 @@ def result_page(
     if len(slices) + len(picture) > max_bytes:
         raise ValueError(f"the page would be {(len(slices) + len(picture)) / 1e6:.0f} MB, over "
                          f"`max_bytes` = {max_bytes / 1e6:.0f} MB")
-    meta = json.dumps({"title": title, "tab": tab}).replace("</", "<\\/")
-    text = (_OUTER.replace("__TITLE__", html.escape(title))
+    meta = scene_json({"title": title, "tab": tab})
+    text = (with_common_script(_OUTER).replace("__TITLE__", html.escape(title))
             .replace("__META__", meta)
             .replace('srcdoc="__SLICES__"', f'srcdoc="{html.escape(slices, quote=True)}"', 1)
             .replace('srcdoc="__IMAGE__"', f'srcdoc="{html.escape(picture, quote=True)}"', 1))
-    with atomic_open(target, "w", encoding="utf-8", newline="\n") as fh:
-        fh.write(text)
-    return Page(target)
+    return Page(write_page(target, lambda: text))

@@ -1,7 +1,7 @@
 """The browser viewer: one self-contained WebGL2 page that slices 4D tetrahedral meshes on the GPU.
 
 :func:`view` writes an HTML file holding the page (``ao4d/viewer_page.html``: HTML, JavaScript,
-GLSL) and the meshes (float32 vertices, uint32 simplices, float32 AO; zlib-compressed and
+GLSL, in the frame and with the script every ao4d page shares, :mod:`ao4d._page`) and the meshes (float32 vertices, uint32 simplices, float32 AO; zlib-compressed and
 base64-encoded, inflated in the browser by ``DecompressionStream``). It needs no network and
 opens from ``file://``. Scenes too large to inline are served by :func:`serve` on 127.0.0.1.
 
@@ -70,20 +70,19 @@ from __future__ import annotations
 
 import base64
 import http.server
-import json
+import inspect
 import math
 import os
 import threading
 import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ._atomic import atomic_open, check_output_file
+from ._page import b64_size, check_max_bytes, scene_json, template, wrap_degrees, write_page
 from ._validate import as_array, as_real, check_bool, check_choice
 from .slicing import SLICE_CASES
 
@@ -181,12 +180,6 @@ def _frame(meshes: list, center: Any, offsets: np.ndarray) -> Frame:
     return Frame(np.array(c, dtype=np.float64), radius)
 
 
-def _wrap(angle: float) -> float:
-    """Degrees into (-180, 180]."""
-    a = (angle + 180.0) % 360.0 - 180.0
-    return 180.0 if a == -180.0 else a + 0.0
-
-
 def merged_state(state: Mapping[str, Any] | None, defaults: Mapping[str, Any], example: str) -> dict:
     """``defaults`` updated by the non-None entries of a page's ``state``; a non-mapping or an
     unknown key is an error naming ``state`` (``example``: a valid one, for the message)."""
@@ -227,7 +220,7 @@ def full_state(state: Mapping[str, Any] | None = None, *, frame: Frame | None = 
             continue
         out[key] = as_real(out[key], f"state['{key}']")
     for key in (*ANGLES, "az"):
-        out[key] = _wrap(out[key])
+        out[key] = wrap_degrees(out[key])
     out["el"] = min(90.0, max(-90.0, out["el"]))
     lo, hi = ZOOM_RANGE
     out["zoom"] = as_real(out["zoom"], "state['zoom']", ge=lo, le=hi)
@@ -814,22 +807,16 @@ def _build(meshes: Any, *, names, state, center, offsets, colors, cmap, title, c
     return scene, blobs
 
 
-def _template() -> tuple[str, str, str]:
-    text = resources.files("ao4d").joinpath(_TEMPLATE).read_text(encoding="utf-8")
-    head, sep, rest = text.partition("__AO4D_SCENE__")
-    middle, sep2, tail = rest.partition("<!--AO4D_DATA-->")
-    if not sep or not sep2:  # pragma: no cover - the shipped template has both
-        raise RuntimeError(f"ao4d/{_TEMPLATE} lacks its placeholders")
-    return head, middle, tail
-
-
-def _scene_json(scene: dict) -> str:
-    # inside <script>: no "</" may appear
-    return json.dumps(scene, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
-
-
-def _b64_size(n: int) -> int:
-    return 4 * ((n + 2) // 3)
+def _options(given: Mapping[str, Any], where: str, *, without: tuple[str, ...] = ()) -> dict:
+    """The keyword options of :func:`view` (but ``without``), defaults filled in from its
+    signature; an unknown one is a ``TypeError`` naming ``where``."""
+    known = {name: p.default for name, p in inspect.signature(view).parameters.items()
+             if p.kind == p.KEYWORD_ONLY and name not in without}
+    unknown = sorted(set(given) - set(known))
+    if unknown:
+        raise TypeError(f"{where}() got unknown option(s) {', '.join(map(repr, unknown))}; "
+                        f"it takes {', '.join(known)}")
+    return {**known, **given}
 
 
 def view(
@@ -893,54 +880,43 @@ def view(
     ValueError
         Bad meshes, state or options; a page over ``max_bytes``.
     """
-    if isinstance(max_bytes, bool) or not isinstance(max_bytes, (int, np.integer)) or max_bytes < 1:
-        raise ValueError(f"`max_bytes` must be a positive integer, got {max_bytes!r}")
-    target = check_output_file(path, "path", (".html", ".htm"))  # before any work, as the CLI
-    text = page_text(meshes, names=names, state=state, center=center, offsets=offsets,
-                     colors=colors, cmap=cmap, title=title, compress=compress, cull=cull,
-                     max_bytes=max_bytes, progress=progress)
-    with atomic_open(target, "w", encoding="utf-8", newline="\n") as fh:
-        fh.write(text)
-    return target
+    check_max_bytes(max_bytes)
+    options = dict(names=names, state=state, center=center, offsets=offsets, colors=colors, cmap=cmap,
+                   title=title, compress=compress, cull=cull, max_bytes=max_bytes, progress=progress)
+    return write_page(path, lambda: page_text(meshes, **options))  # the path checked before any work
 
 
-def page_text(
-    meshes: Any,
-    *,
-    names: Sequence[str] | None = None,
-    state: Mapping[str, Any] | None = None,
-    center: Any = None,
-    offsets: Any = None,
-    colors: Sequence[Any] | None = None,
-    cmap: str = "magma",
-    title: str | None = None,
-    compress: bool = True,
-    cull: str = "auto",
-    max_bytes: int = MAX_BYTES,
-    progress: bool | None = None,
-) -> str:
+def page_text(meshes: Any, **options: Any) -> str:
     """The page of :func:`view` as a string (for notebooks and the demo's result page).
 
-    Parameters are those of :func:`view`.
+    Parameters
+    ----------
+    meshes : SimplexMesh, path to an .npz mesh, or a sequence of them
+        As for :func:`view`.
+    **options
+        The keyword options of :func:`view` (``names``, ``state``, ..., ``max_bytes``); an
+        unknown one is a ``TypeError``.
+
+    Returns
+    -------
+    page : str
     """
-    if isinstance(max_bytes, bool) or not isinstance(max_bytes, (int, np.integer)) or max_bytes < 1:
-        raise ValueError(f"`max_bytes` must be a positive integer, got {max_bytes!r}")
-    items = _as_meshes(meshes, names)
+    options = _options(options, "page_text")
+    max_bytes, compress = check_max_bytes(options.pop("max_bytes")), options["compress"]
+    items = _as_meshes(meshes, options.pop("names"))
     raw = sum(m.n_vertices * m.dim * 4 + m.n_simplices * m.dim * 4 + m.n_vertices * 4
               for m, _ in items)
     limit_text = (f"over `max_bytes` = {max_bytes / 1e6:.0f} MB; serve it instead: "
                   "`ao4d view ... --serve` (or ao4d.viewer.serve)")
-    if not compress and _b64_size(raw) > max_bytes:
-        raise ValueError(f"the page would be about {_b64_size(raw) / 1e6:.0f} MB, {limit_text}")
-    if _b64_size(raw) > 8 * max_bytes:  # beyond what compression can bring under the limit
+    if not compress and b64_size(raw) > max_bytes:
+        raise ValueError(f"the page would be about {b64_size(raw) / 1e6:.0f} MB, {limit_text}")
+    if b64_size(raw) > 8 * max_bytes:  # beyond what compression can bring under the limit
         raise ValueError(f"the meshes hold {raw / 1e6:.0f} MB, {limit_text}")
-    scene, blobs = _build([m for m, _ in items], names=[n for _, n in items], state=state,
-                          center=center, offsets=offsets, colors=colors, cmap=cmap, title=title,
-                          compress=compress, cull=cull, progress=progress, external=False)
-    head, middle, tail = _template()
-    scene_text = _scene_json(scene)
+    scene, blobs = _build([m for m, _ in items], names=[n for _, n in items], **options, external=False)
+    head, middle, tail = template(_TEMPLATE)
+    scene_text = scene_json(scene)
     size = len(head) + len(scene_text) + len(middle) + len(tail)
-    size += sum(_b64_size(len(b.data)) + 80 for b in blobs)
+    size += sum(b64_size(len(b.data)) + 80 for b in blobs)
     if size > max_bytes:
         raise ValueError(f"the page would be {size / 1e6:.0f} MB, {limit_text}")
     parts = [head, scene_text, middle]
@@ -1015,32 +991,20 @@ class ViewServer:
         self.close()
 
 
-def serve(
-    meshes: Any,
-    *,
-    port: int = 0,
-    host: str = "127.0.0.1",
-    names: Sequence[str] | None = None,
-    state: Mapping[str, Any] | None = None,
-    center: Any = None,
-    offsets: Any = None,
-    colors: Sequence[Any] | None = None,
-    cmap: str = "magma",
-    title: str | None = None,
-    compress: bool = True,
-    cull: str = "auto",
-    progress: bool | None = None,
-) -> ViewServer:
+def serve(meshes: Any, *, port: int = 0, host: str = "127.0.0.1", **options: Any) -> ViewServer:
     """Serve the page of :func:`view` with its buffers as separate files, for any size.
 
     Parameters
     ----------
-    meshes, names, state, center, offsets, colors, cmap, title, compress, cull, progress
+    meshes : SimplexMesh, path to an .npz mesh, or a sequence of them
         As for :func:`view`.
     port : int
         TCP port (0: any free one; see ``server.url``).
     host : {"127.0.0.1", "localhost"}
         Loopback only.
+    **options
+        The keyword options of :func:`view` but ``max_bytes`` (``names``, ``state``, ...,
+        ``progress``); an unknown one is a ``TypeError``.
 
     Returns
     -------
@@ -1051,9 +1015,7 @@ def serve(
     check_choice(host, "host", ("127.0.0.1", "localhost"))
     if isinstance(port, bool) or not isinstance(port, (int, np.integer)) or not 0 <= port < 65536:
         raise ValueError(f"`port` must be an integer in [0, 65535], got {port!r}")
-    scene, blobs = _build(meshes, names=names, state=state, center=center, offsets=offsets,
-                          colors=colors, cmap=cmap, title=title, compress=compress, cull=cull,
-                          progress=progress, external=True)
-    head, middle, tail = _template()
-    page = (head + _scene_json(scene) + middle + tail).encode("utf-8")
+    scene, blobs = _build(meshes, **_options(options, "serve", without=("max_bytes",)), external=True)
+    head, middle, tail = template(_TEMPLATE)
+    page = (head + scene_json(scene) + middle + tail).encode("utf-8")
     return ViewServer(page, [b.data for b in blobs], host, port)

@@ -34,6 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
+# the headless-Chromium client lives with the tests (tests/_chromium.py)
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+
 
 def _hypersphere(target: int):
     import ao4d
@@ -70,8 +73,9 @@ def _play_fps(browser, seconds: float = 3.0) -> float:
 
 
 def bench(sizes, window, out_dir: Path) -> list[dict]:
+    from _chromium import Chromium
+
     import ao4d
-    from ao4d._chromium import Chromium
 
     rows = []
     with Chromium(width=window[0], height=window[1], timeout=600) as browser:
@@ -112,8 +116,9 @@ def _row(r: dict) -> str:
 
 def screenshots(out: Path, window) -> list[Path]:
     """The two README pictures: a 4D tiger with its 4D AO, and the demo scene."""
+    from _chromium import Chromium
+
     import ao4d
-    from ao4d._chromium import Chromium
     from ao4d.commands.demo import run_demo
 
     out.mkdir(parents=True, exist_ok=True)
@@ -151,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--screenshots", type=Path, metavar="DIR",
                         help="write the README pictures into DIR instead of benchmarking")
     args = parser.parse_args(argv)
-    from ao4d._chromium import find_chromium
+    from _chromium import find_chromium
 
     if find_chromium() is None:
         print("bench/view.py needs Chromium (Debian: apt-get install chromium)", file=sys.stderr)

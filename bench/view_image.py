@@ -29,6 +29,9 @@ import tempfile
 import time
 from pathlib import Path
 
+# the headless-Chromium client lives with the tests (tests/_chromium.py)
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+
 
 def _image(n: int):
     import ao4d
@@ -52,8 +55,9 @@ def main(argv=None) -> int:
     parser.add_argument("--no-numpy", action="store_true", help="skip the numpy peer")
     args = parser.parse_args(argv)
 
+    from _chromium import Chromium
+
     from ao4d import image_viewer as iv
-    from ao4d._chromium import Chromium
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp, \

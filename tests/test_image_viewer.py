@@ -22,7 +22,7 @@ import pytest
 import ao4d
 from ao4d import cli
 from ao4d import image_viewer as iv
-from ao4d._chromium import Chromium, find_chromium
+from _chromium import browser_or_skip, capture, open_page
 
 
 # --------------------------------------------------------------------------- images
@@ -251,26 +251,11 @@ WIDTH, HEIGHT = 620, 380  # window; the canvas is what the panel leaves (344 x 3
 
 @pytest.fixture(scope="module")
 def browser():
-    if find_chromium() is None:
-        pytest.skip("Chromium is not installed (Debian: apt-get install chromium); "
-                    "the browser tests need it")
-    with Chromium(width=WIDTH, height=HEIGHT) as chromium:
-        yield chromium
-
-
-def _open(browser, url, fragment=""):
-    browser.errors.clear()
-    browser.goto("about:blank")
-    browser.goto(url + fragment)
-    browser.wait_for("window.ao4d && (window.ao4d.ready || window.ao4d.error)", timeout=60)
-    assert browser.evaluate("window.ao4d.error") is None
-    return browser.evaluate("window.ao4d.stats()")
+    yield from browser_or_skip(WIDTH, HEIGHT)
 
 
 def _capture(browser, api="window.ao4d"):
-    cap = browser.evaluate(f"{api}.capture()")
-    rgba = np.frombuffer(base64.b64decode(cap["rgba"]), np.uint8)
-    return rgba.reshape(cap["height"], cap["width"], 4) / 255.0
+    return capture(browser, api) / 255.0
 
 
 def agreement(page, reference):
@@ -294,7 +279,7 @@ def sphere_page(sphere_image, tmp_path_factory):
     {"array": "depth", "cmap": "gray", "lo": 0.0, "hi": 0.3, "opacity": 0.35, "az": 0, "el": 0},
 ], ids=["rgba-surface", "shade-ramp", "occlusion-clipped", "depth-glass"])
 def test_browser_hypersphere_image_equals_the_numpy_ray_march(browser, sphere_image, sphere_page, state):
-    stats = _open(browser, sphere_page, iv._state_fragment(state))
+    stats = open_page(browser, sphere_page, iv._state_fragment(state))
     assert stats["renderer"] and "swiftshader" in stats["renderer"].lower()
     page = _capture(browser)
     ref = iv.reference_march(sphere_image, state, page.shape[1], page.shape[0])
@@ -306,14 +291,14 @@ def test_browser_hypersphere_image_equals_the_numpy_ray_march(browser, sphere_im
 
 def test_browser_empty_image_draws_nothing_and_says_so(browser, tmp_path):
     url = iv.view_image(np.zeros((24, 24, 24), np.float32), tmp_path / "empty.html").as_uri()
-    stats = _open(browser, url, "#opacity=1&lo=0&hi=0")
+    stats = open_page(browser, url, "#opacity=1&lo=0&hi=0")
     assert stats["empty"] and stats["hits"] == 0 and "nothing to draw" in stats["message"]
     assert not _capture(browser).any()
     assert browser.errors == []
 
 
 def test_browser_url_state_round_trip(browser, sphere_page):
-    _open(browser, sphere_page, "#array=shade&az=40&el=-15&zoom=1.25&lo=0.2&hi=0.7&opacity=0.5&y1=0.6")
+    open_page(browser, sphere_page, "#array=shade&az=40&el=-15&zoom=1.25&lo=0.2&hi=0.7&opacity=0.5&y1=0.6")
     s = browser.evaluate("window.ao4d.state()")
     assert (s["array"], s["az"], s["el"], s["zoom"], s["lo"], s["hi"], s["opacity"], s["y1"]) == \
         ("shade", 40, -15, 1.25, 0.2, 0.7, 0.5, 0.6)
@@ -321,11 +306,11 @@ def test_browser_url_state_round_trip(browser, sphere_page):
     py = iv.full_state({k: v for k, v in s.items()})
     assert (s["az"], s["el"], s["cmap"], s["z0"]) == (py["az"], py["el"], "inferno", 0.25) == (-90, 90, "inferno", 0.25)
     fragment = browser.wait_for("location.hash.includes('z0=0.25') && location.hash", timeout=5)
-    _open(browser, sphere_page, fragment)
+    open_page(browser, sphere_page, fragment)
     assert browser.evaluate("window.ao4d.state()") == s
     # bad values are left out with a warning
     browser.console.clear()
-    _open(browser, sphere_page, "#array=banana&opacity=x&x0=0.9&x1=0.1&zoom=%zz")
+    open_page(browser, sphere_page, "#array=banana&opacity=x&x0=0.9&x1=0.1&zoom=%zz")
     s = browser.evaluate("window.ao4d.state()")
     assert (s["array"], s["opacity"], s["x0"], s["x1"]) == ("rgba", 1, 0, 1)
     assert any(kind == "warning" and "ao4d view: ignoring" in text for kind, text in browser.console)
@@ -333,7 +318,7 @@ def test_browser_url_state_round_trip(browser, sphere_page):
 
 
 def test_browser_drag_the_ramp_orbit_and_presets(browser, sphere_page):
-    _open(browser, sphere_page, "#array=shade&lo=0&hi=0&opacity=1&az=30&el=20&zoom=1")
+    open_page(browser, sphere_page, "#array=shade&lo=0&hi=0&opacity=1&az=30&el=20&zoom=1")
 
     def mouse(kind, px, py, buttons=0, **extra):
         browser.send("Input.dispatchMouseEvent", session=True, type=kind, x=px, y=py,

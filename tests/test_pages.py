@@ -9,19 +9,19 @@ a page of its own: silhouette IoU >= 95 %, median colour error <= 0.02.
 
 from __future__ import annotations
 
-import base64
 import html
 import io
+import re
 import urllib.request
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _chromium import Chromium, browser_or_skip, capture, find_chromium
 
 import ao4d
+from ao4d import _page, pages
 from ao4d import image_viewer as iv
-from ao4d import pages
-from ao4d._chromium import Chromium, find_chromium
 
 
 @pytest.fixture(scope="module")
@@ -118,6 +118,74 @@ def test_demo_view_html_holds_both_views(demo_dir):
     assert iv.page_info(inner[1])["shape"] == [16, 16, 16]
 
 
+# --------------------------------------------------------------------------- one shared script
+
+_SLOTS = ("<!--AO4D_HEAD-->", "<!--AO4D_PANEL-->", "<!--AO4D_BODY-->", "<!--AO4D_COMMON-->",
+          "<!--AO4D_DATA-->", "__AO4D_SCENE__")
+
+
+def _own_script(text):
+    """A page's text without the shared script: what the page itself brings."""
+    common = _page.common_script()
+    assert text.count(common) == 1, f"the shared script {text.count(common)} times"
+    return text.replace(common, "")
+
+
+def _shared_definitions():
+    """The functions and arrow constants ao4d/page_common.js defines (at its top level)."""
+    script = _page.common_script()
+    names = set(re.findall(r"^  (?:async )?function (\w+)\(|^  const (\w+) = \(", script, re.M))
+    names = {a or b for a, b in names}
+    assert {"fragmentPairs", "loadBlob", "compile", "orbitCamera", "bindOrbit", "bindKeys", "page",
+            "readCanvas", "savePNG", "cross"} <= names
+    return names
+
+
+def _assert_one_shared_script(text):
+    rest = _own_script(text)
+    assert "const ao4dPage" not in rest and rest.count("<!DOCTYPE html>") == 1
+    for slot in _SLOTS:
+        assert slot not in text, slot
+    for name in _shared_definitions():  # no copy of a shared function left in the page's own script
+        assert not re.search(rf"function {name}\(|const {name} = \(", rest), name
+
+
+def test_pages_hold_the_shared_script_once_and_no_copy(sphere, image, tmp_path):
+    from ao4d import viewer
+
+    _assert_one_shared_script(viewer.page_text(sphere))
+    _assert_one_shared_script(iv.image_page_text(image))
+    with viewer.serve(sphere) as server, urllib.request.urlopen(server.url, timeout=10) as reply:
+        _assert_one_shared_script(reply.read().decode())
+    # the result page: its own script uses the shared one too, and each view holds it once
+    text = pages.result_page(sphere, image, tmp_path / "r.html").read_text()
+    inner = [html.unescape(part.split('"', 1)[0]) for part in text.split('srcdoc="')[1:]]
+    assert len(inner) == 2
+    outer = text
+    for page in inner:
+        _assert_one_shared_script(page)
+        outer = outer.replace(html.escape(page, quote=True), "")
+    _assert_one_shared_script(outer)
+    assert "fragmentPairs(location.hash)" in outer and "decodeURIComponent" not in _own_script(outer)
+
+
+def test_page_sources_share_no_run_of_six_lines():
+    """The pages' sources and the shared frame and script: each idea written once (the
+    ``duplicates`` tool's bar, exact lines here)."""
+    folder = Path(ao4d.__file__).parent
+    sources = {name: (folder / name).read_text().splitlines()
+               for name in ("viewer_page.html", "image_page.html", "page_frame.html", "page_common.js")}
+    sources["pages._OUTER"] = pages._OUTER.splitlines()
+    runs = {}
+    for name, lines in sources.items():
+        for i in range(len(lines) - 5):
+            window = tuple(line.strip() for line in lines[i:i + 6])
+            if sum(bool(line) for line in window) >= 4:
+                runs.setdefault(window, set()).add(name)
+    shared = [(sorted(names), window) for window, names in runs.items() if len(names) > 1]
+    assert not shared, shared[:3]
+
+
 # --------------------------------------------------------------------------- notebooks
 
 def _notebook(tmp_path):
@@ -166,8 +234,7 @@ def test_notebook_shows_the_image_and_the_meshes_inline(tmp_path):
         for k in range(2):
             api = f"document.querySelectorAll('iframe')[{k}].contentWindow.ao4d"
             assert browser.evaluate(f"{api}.error") is None
-            cap = browser.evaluate(f"{api}.capture()")
-            alpha = np.frombuffer(base64.b64decode(cap["rgba"]), np.uint8)[3::4]
+            alpha = capture(browser, api)[..., 3]
             assert (alpha > 0).mean() > 0.02  # the canvas draws
         assert browser.errors == []
 
@@ -176,11 +243,7 @@ def test_notebook_shows_the_image_and_the_meshes_inline(tmp_path):
 
 @pytest.fixture(scope="module")
 def browser():
-    if find_chromium() is None:
-        pytest.skip("Chromium is not installed (Debian: apt-get install chromium); "
-                    "the browser tests need it")
-    with Chromium(width=1000, height=460) as chromium:
-        yield chromium
+    yield from browser_or_skip(1000, 460)
 
 
 def test_browser_demo_page_both_views_and_its_fragment(browser, demo_dir):
@@ -195,9 +258,8 @@ def test_browser_demo_page_both_views_and_its_fragment(browser, demo_dir):
     assert browser.evaluate("window.ao4d.views().image.state().array") == "occlusion"
     # the projection view agrees with the numpy ray-march of the demo's image file
     state = browser.evaluate("window.ao4d.views().image.state()")
-    cap = browser.evaluate("window.ao4d.views().image.capture()")
-    page = np.frombuffer(base64.b64decode(cap["rgba"]), np.uint8).reshape(cap["height"], cap["width"], 4) / 255
-    ref = iv.reference_march(demo_dir / "image.vti", state, cap["width"], cap["height"])
+    page = capture(browser, "window.ao4d.views().image") / 255
+    ref = iv.reference_march(demo_dir / "image.vti", state, page.shape[1], page.shape[0])
     a, b = page[..., 3] > 0.5, ref[..., 3] > 0.5
     assert b.sum() > 1000
     iou = (a & b).sum() / (a | b).sum()

@@ -20,12 +20,12 @@ import zlib
 
 import numpy as np
 import pytest
+from _chromium import browser_or_skip, capture, open_page
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ao4d
 from ao4d import cli, viewer
-from ao4d._chromium import Chromium, find_chromium
 
 HALF = math.radians(viewer.HALF_FOV_DEG)
 
@@ -436,6 +436,20 @@ def test_serve_gives_page_and_buffers(small_sphere):
         viewer.serve(small_sphere, port=70000)
 
 
+def test_page_text_and_serve_take_the_options_of_view(small_sphere, tmp_path):
+    # one list of options (view's signature): the same page by view and page_text, and an option
+    # view does not take (or serve: max_bytes) refused naming the function
+    options = {"names": ["ball"], "state": {"w": 0.2, "xw": 30}, "title": "t", "cull": "none"}
+    assert viewer.view(small_sphere, tmp_path / "a.html", **options).read_text() == \
+        viewer.page_text(small_sphere, **options)
+    with pytest.raises(TypeError, match=r"page_text\(\) got unknown option\(s\) 'colour'; it takes .*colors"):
+        viewer.page_text(small_sphere, colour="red")
+    with pytest.raises(TypeError, match=r"serve\(\) got unknown option\(s\) 'max_bytes'"):
+        viewer.serve(small_sphere, max_bytes=10**9)
+    with pytest.raises(ValueError, match="`max_bytes` must be a positive integer"):
+        viewer.page_text(small_sphere, max_bytes=0)
+
+
 # --------------------------------------------------------------------------- in the browser
 
 WIDTH, HEIGHT = 700, 420  # window; the canvas is what the panel leaves (424 x 420)
@@ -443,26 +457,7 @@ WIDTH, HEIGHT = 700, 420  # window; the canvas is what the panel leaves (424 x 4
 
 @pytest.fixture(scope="module")
 def browser():
-    if find_chromium() is None:
-        pytest.skip("Chromium is not installed (Debian: apt-get install chromium); "
-                    "the browser tests need it")
-    with Chromium(width=WIDTH, height=HEIGHT) as chromium:
-        yield chromium
-
-
-def _open(browser, url, fragment=""):
-    browser.errors.clear()
-    browser.goto("about:blank")
-    browser.goto(url + fragment)
-    browser.wait_for("window.ao4d && (window.ao4d.ready || window.ao4d.error)", timeout=60)
-    assert browser.evaluate("window.ao4d.error") is None
-    return browser.evaluate("window.ao4d.stats()")
-
-
-def _capture(browser):
-    cap = browser.evaluate("window.ao4d.capture()")
-    rgba = np.frombuffer(base64.b64decode(cap["rgba"]), np.uint8)
-    return rgba.reshape(cap["height"], cap["width"], 4)
+    yield from browser_or_skip(WIDTH, HEIGHT)
 
 
 def _disc_radius(frame, state, width, height, rho):
@@ -545,8 +540,8 @@ def sphere_page(tmp_path_factory, sphere):
 @pytest.mark.parametrize("w", [0.0, 0.6])
 def test_browser_hypersphere_slice_is_a_ball(browser, sphere, sphere_page, w):
     state = {"w": w, "az": 30, "el": 20, "zoom": 1}
-    stats = _open(browser, sphere_page, f"#w={w}&az=30&el=20&zoom=1")
-    img = _capture(browser)
+    stats = open_page(browser, sphere_page, f"#w={w}&az=30&el=20&zoom=1")
+    img = capture(browser)
     h, w_px = img.shape[:2]
     assert [w_px, h] == stats["canvas"]
     covered = img[..., 3] > 127
@@ -563,13 +558,13 @@ def test_browser_hypersphere_slice_is_a_ball(browser, sphere, sphere_page, w):
 
 
 def test_browser_empty_slice_is_empty_and_says_so(browser, sphere_page):
-    stats = _open(browser, sphere_page, "#w=1.2")
+    stats = open_page(browser, sphere_page, "#w=1.2")
     assert stats["triangles"] == 0 and stats["empty"]
     assert "Empty slice" in stats["message"]
-    assert (_capture(browser)[..., 3] == 0).all()
+    assert (capture(browser)[..., 3] == 0).all()
     # moving back into the object draws it again and the message goes
     browser.evaluate("window.ao4d.setState({w: 0.2})")
-    assert (_capture(browser)[..., 3] > 127).sum() > 1000
+    assert (capture(browser)[..., 3] > 127).sum() > 1000
     browser.wait_for("window.ao4d.stats().message === ''", timeout=5)
     assert browser.errors == []
 
@@ -580,8 +575,8 @@ def test_browser_off_centre_hypersphere_turned_90_in_xw(browser, tmp_path):
     url = viewer.view(mesh, tmp_path / "off.html", center=np.zeros(4)).as_uri()
     for fragment, rho in [("#w=0.5&xw=90", 0.45), ("#w=0.3&xw=90", math.sqrt(0.45**2 - 0.2**2)),
                           ("#w=0.5&xw=-90", None), ("#w=0.5&xw=0", None)]:
-        stats = _open(browser, url, fragment + "&az=30&el=20")
-        img = _capture(browser)
+        stats = open_page(browser, url, fragment + "&az=30&el=20")
+        img = capture(browser)
         covered = img[..., 3] > 127
         h, w_px = covered.shape
         if rho is None:  # turned the other way, or not at all: the hyperplane misses it
@@ -609,9 +604,9 @@ def test_browser_silhouette_equals_cpu_slice(browser, demo_like, tmp_path, aa):
     meshes, names = demo_like
     frame = viewer.scene_frame(meshes)
     url = viewer.view(meshes, tmp_path / "demo.html", names=names).as_uri()
-    stats = _open(browser, url, _fragment(STATE) + ("" if aa is None else f"&aa={aa}"))
+    stats = open_page(browser, url, _fragment(STATE) + ("" if aa is None else f"&aa={aa}"))
     assert stats["antialias"] is (aa == 1)  # SwiftShader: off unless asked for
-    img = _capture(browser)
+    img = capture(browser)
     h, w_px = img.shape[:2]
     owner, _ = _cpu_picture(meshes, STATE, w_px, h, frame)
     gpu, cpu = img[..., 3] > 127, owner >= 0
@@ -629,8 +624,8 @@ def test_browser_colours_are_the_cpu_slice_ao(browser, demo_like, tmp_path):
     path = viewer.view(meshes, tmp_path / "demo.html", names=names)
     _, page_scene, _ = _scene_of(path)
     state = dict(STATE, light=0, w=0.0, xw=10, yw=0, zw=0)
-    _open(browser, path.as_uri(), _fragment(state))
-    img = _capture(browser)
+    open_page(browser, path.as_uri(), _fragment(state))
+    img = capture(browser)
     h, w_px = img.shape[:2]
     owner, value = _cpu_picture(meshes, state, w_px, h, frame)
     # compare away from edges: the pixel and its 4 neighbours belong to the same object
@@ -654,7 +649,7 @@ def test_browser_colours_are_the_cpu_slice_ao(browser, demo_like, tmp_path):
     assert allv.std() > 0.05 and np.quantile(allv, 0.95) - np.quantile(allv, 0.05) > 0.2
     # lighting only darkens (Lambert term in [0.3, 1]) and does somewhere
     browser.evaluate("window.ao4d.setState({light: 1})")
-    lit = _capture(browser)
+    lit = capture(browser)
     both = (lit[..., 3] == 255) & (img[..., 3] == 255)
     assert (lit[both][:, :3].astype(int) <= img[both][:, :3].astype(int) + 1).all()
     assert (lit[both][:, :3].astype(int).sum(1) < img[both][:, :3].astype(int).sum(1) - 30).mean() > 0.2
@@ -664,10 +659,10 @@ def test_browser_colours_are_the_cpu_slice_ao(browser, demo_like, tmp_path):
 def test_browser_lambert_term_is_the_slice_triangles_normal(browser, sphere, sphere_page):
     """lit / unlit = 0.3 + 0.7 max(n . l, 0), n the CPU slice triangle's normal at the pixel."""
     state = {"w": 0.4, "xw": 25, "az": -40, "el": 25, "zoom": 1.1}
-    _open(browser, sphere_page, _fragment(state) + "&light=0")
-    flat = _capture(browser).astype(float)
+    open_page(browser, sphere_page, _fragment(state) + "&light=0")
+    flat = capture(browser).astype(float)
     browser.evaluate("window.ao4d.setState({light: 1})")
-    lit = _capture(browser).astype(float)
+    lit = capture(browser).astype(float)
     h, w_px = flat.shape[:2]
     frame = viewer.scene_frame(sphere)
     tri = viewer.slice_for_state(sphere, state)
@@ -690,8 +685,8 @@ def test_browser_lambert_term_is_the_slice_triangles_normal(browser, sphere, sph
 def test_browser_mesh_without_ao_has_shade_one(browser, small_sphere, tmp_path):
     path = viewer.view(small_sphere, tmp_path / "noao.html")
     _, page_scene, _ = _scene_of(path)
-    stats = _open(browser, path.as_uri(), "#w=0&light=0")
-    img = _capture(browser)
+    stats = open_page(browser, path.as_uri(), "#w=0&light=0")
+    img = capture(browser)
     top = _ramp_of(page_scene, 0)[255, :3].astype(int)
     px = img[img[..., 3] == 255][:, :3].astype(int)
     assert len(px) > 1000 and (np.abs(px - top) <= 1).all()
@@ -700,7 +695,7 @@ def test_browser_mesh_without_ao_has_shade_one(browser, small_sphere, tmp_path):
 
 
 def test_browser_url_state_round_trip(browser, sphere_page):
-    _open(browser, sphere_page, "#w=0.3&xw=90&az=30&el=20&zoom=1.5")
+    open_page(browser, sphere_page, "#w=0.3&xw=90&az=30&el=20&zoom=1.5")
     s = browser.evaluate("window.ao4d.state()")
     assert (s["w"], s["xw"], s["az"], s["el"], s["zoom"], s["xy"]) == (0.3, 90, 30, 20, 1.5, 0)
     # setState wraps and clamps like ao4d.viewer.full_state, and writes the fragment
@@ -711,13 +706,13 @@ def test_browser_url_state_round_trip(browser, sphere_page):
     fragment = browser.wait_for("location.hash.includes('yz=12.5') && location.hash", timeout=5)
     assert "xy=-90" in fragment and "light=0" in fragment and "w=0.3" in fragment
     # a fresh load of that URL restores the same state
-    _open(browser, sphere_page, fragment)
+    open_page(browser, sphere_page, fragment)
     assert browser.evaluate("window.ao4d.state()") == s
     assert browser.errors == []
 
 
 def test_browser_mouse_keys_wheel_and_play(browser, sphere_page):
-    _open(browser, sphere_page, "#w=0&az=30&el=20&zoom=1")
+    open_page(browser, sphere_page, "#w=0&az=30&el=20&zoom=1")
     x, y = 276 + 200, 200  # on the canvas, right of the panel
 
     def mouse(kind, px, py, buttons=0, modifiers=0, **extra):
@@ -757,7 +752,7 @@ def test_browser_mouse_keys_wheel_and_play(browser, sphere_page):
 def test_browser_png_button_and_hidden_objects(browser, demo_like, tmp_path):
     meshes, names = demo_like
     url = viewer.view(meshes, tmp_path / "demo.html", names=names).as_uri()
-    stats = _open(browser, url, "#w=0&hide=1,3")
+    stats = open_page(browser, url, "#w=0&hide=1,3")
     assert stats["per_object"][1] == 0 and stats["per_object"][3] == 0 and stats["per_object"][0] > 0
     assert browser.evaluate("[0,1,2,3].map(i => document.getElementById('vis-' + i).checked)") == \
         [True, False, True, False]
@@ -783,9 +778,9 @@ def test_browser_3d_mesh_orbit_view(browser, tmp_path):
     frame = viewer.scene_frame(ball3)
     url = viewer.view(ball3, tmp_path / "ball3.html").as_uri()
     state = {"az": 70, "el": -10, "zoom": 0.9}
-    stats = _open(browser, url, _fragment(state))
+    stats = open_page(browser, url, _fragment(state))
     assert browser.evaluate("getComputedStyle(document.getElementById('controls4d')).display") == "none"
-    img = _capture(browser)
+    img = capture(browser)
     h, w_px = img.shape[:2]
     tri = np.asarray(ball3.vertices)[np.asarray(ball3.simplices)]
     owner, _ = _rasterize(tri, np.ones(tri.shape[:2]), np.zeros(len(tri), int), state, w_px, h, frame)
@@ -803,11 +798,11 @@ def test_browser_3d_mesh_orbit_view(browser, tmp_path):
 
 def test_browser_served_page_equals_file_page(browser, small_sphere, tmp_path):
     fragment = "#w=0.25&xw=30&yz=40"
-    file_stats = _open(browser, viewer.view(small_sphere, tmp_path / "s.html").as_uri(), fragment)
-    file_img = _capture(browser)
+    file_stats = open_page(browser, viewer.view(small_sphere, tmp_path / "s.html").as_uri(), fragment)
+    file_img = capture(browser)
     with viewer.serve(small_sphere) as server:
-        stats = _open(browser, server.url, fragment)
-        img = _capture(browser)
+        stats = open_page(browser, server.url, fragment)
+        img = capture(browser)
     assert stats["triangles"] == file_stats["triangles"] > 0
     assert np.array_equal(img, file_img)
     assert browser.errors == []
@@ -824,10 +819,10 @@ def test_browser_scene_far_from_the_origin_looks_like_the_one_at_it(browser, sph
     state = {"xw": 30, "yz": 20, "az": 30, "el": 20, "zoom": 1}
     here = viewer.view(sphere, tmp_path / "here.html").as_uri()
     there = viewer.view(moved, tmp_path / "there.html").as_uri()
-    stats_a = _open(browser, here, _fragment({"w": 0.3, **state}))
-    img_a = _capture(browser).astype(int)
-    stats_b = _open(browser, there, _fragment({"w": 0.3 + shift, **state}))
-    img_b = _capture(browser).astype(int)
+    stats_a = open_page(browser, here, _fragment({"w": 0.3, **state}))
+    img_a = capture(browser).astype(int)
+    stats_b = open_page(browser, there, _fragment({"w": 0.3 + shift, **state}))
+    img_b = capture(browser).astype(int)
     assert stats_a["triangles"] > 1000
     assert abs(stats_b["triangles"] - stats_a["triangles"]) <= 0.001 * stats_a["triangles"]
     differ = np.abs(img_a - img_b).max(axis=2) > 8
@@ -840,7 +835,7 @@ def test_browser_scene_far_from_the_origin_looks_like_the_one_at_it(browser, sph
 def test_browser_bad_fragment_values_are_ignored_with_a_warning(browser, sphere_page, fragment):
     # before: "URI malformed" left a blank page, and light=banana turned the light off
     browser.console.clear()
-    _open(browser, sphere_page, fragment)
+    open_page(browser, sphere_page, fragment)
     s = browser.evaluate("window.ao4d.state()")
     default = viewer.full_state(None, frame=viewer.scene_frame(_ball(1.0)))
     assert s["light"] == 1 and s["zoom"] == default["zoom"] and s["hide"] == []
@@ -854,16 +849,16 @@ def test_browser_url_holds_the_whole_view(browser, small_sphere, tmp_path):
     # into the page's initial state: the objects the user showed came back hidden, unlit
     path = viewer.view([small_sphere, small_sphere], tmp_path / "two.html",
                        offsets=[[0, 0, 0, 0], [3, 0, 0, 0]], state={"hide": [1], "light": 0})
-    _open(browser, path.as_uri())
+    open_page(browser, path.as_uri())
     assert browser.evaluate("window.ao4d.state()")["hide"] == [1]
     browser.evaluate("window.ao4d.setState({hide: [], light: 1, az: 40})")
     fragment = browser.wait_for("location.hash.includes('az=40') && location.hash", timeout=5)
     assert "light=1" in fragment and re.search(r"(^#|&)hide=(&|$)", fragment), fragment
-    _open(browser, path.as_uri(), fragment)
+    open_page(browser, path.as_uri(), fragment)
     s = browser.evaluate("window.ao4d.state()")
     assert s["hide"] == [] and s["light"] == 1 and s["az"] == 40
     # a hand-written fragment with view keys is the view: every object shown and lit
-    _open(browser, path.as_uri(), "#az=10")
+    open_page(browser, path.as_uri(), "#az=10")
     s = browser.evaluate("window.ao4d.state()")
     assert s["hide"] == [] and s["light"] == 1 and s["az"] == 10
     assert browser.errors == []

@@ -1,5 +1,10 @@
 """Headless Chromium over the DevTools protocol on a pipe: a tiny client for tests and benches.
 
+A helper of the tests (``tests/test_viewer.py``, ``test_image_viewer.py``, ``test_pages.py``) and of
+``bench/view.py`` and ``bench/view_image.py`` (which put ``tests/`` on ``sys.path``); not part of the
+package. :func:`browser_or_skip`, :func:`open_page` and :func:`capture` are the steps every browser
+test takes: start a browser (or skip without one), load a page until it is drawn, read its pixels.
+
 No websocket, no extra package: Chromium is started with ``--remote-debugging-pipe`` and reads
 NUL-terminated JSON commands on file descriptor 3 and writes replies and events on 4 (here the
 child's stdin and stdout are duplicated onto 3 and 4 by ``sh``). One page (target) per
@@ -19,10 +24,11 @@ import shutil
 import subprocess
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Chromium", "ChromiumError", "find_chromium"]
+__all__ = ["Chromium", "ChromiumError", "browser_or_skip", "capture", "find_chromium", "open_page"]
 
 FLAGS = (
     "--headless=new",
@@ -230,3 +236,36 @@ class Chromium:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+# ---------------------------------------------------------------------- what every browser test does
+
+def browser_or_skip(width: int, height: int) -> Iterator[Chromium]:
+    """A browser of this window size for a pytest fixture to yield from; skips without Chromium."""
+    import pytest
+
+    if find_chromium() is None:
+        pytest.skip("Chromium is not installed (Debian: apt-get install chromium); "
+                    "the browser tests need it")
+    with Chromium(width=width, height=height) as chromium:
+        yield chromium
+
+
+def open_page(browser: Chromium, url: str, fragment: str = "") -> dict:
+    """Load an ao4d page afresh, wait until it is drawn, check it reports no error; its stats."""
+    browser.errors.clear()
+    browser.goto("about:blank")
+    browser.goto(url + fragment)
+    browser.wait_for("window.ao4d && (window.ao4d.ready || window.ao4d.error)", timeout=60)
+    error = browser.evaluate("window.ao4d.error")
+    assert error is None, error
+    return browser.evaluate("window.ao4d.stats()")
+
+
+def capture(browser: Chromium, api: str = "window.ao4d") -> Any:
+    """The page's canvas as ``api.capture()`` reads it back: (height, width, 4) uint8, rows from the top."""
+    import numpy as np
+
+    cap = browser.evaluate(f"{api}.capture()")
+    rgba = np.frombuffer(base64.b64decode(cap["rgba"]), np.uint8)
+    return rgba.reshape(cap["height"], cap["width"], 4)
