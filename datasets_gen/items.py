@@ -196,11 +196,17 @@ class _Writer:
         for stale in store.files(self.rel):  # leftovers of an interrupted attempt (no valid record)
             store.remove(f"{self.rel}/{stale}")
 
-    def __call__(self, name: str, data: bytes, *, hashed: bool = True) -> None:
+    def __call__(self, name: str, data: bytes) -> None:
+        """Write a file of the item, timed as ``write``, and keep its hash for the record."""
         with _stage(self.timing, "write"):
             self.store.write_bytes(f"{self.rel}/{name}", data)
-            if hashed:
-                self.hashes[name] = hashlib.sha256(data).hexdigest()
+            self.hashes[name] = hashlib.sha256(data).hexdigest()
+
+    def close(self, timing: bytes, record: bytes) -> None:
+        """Write ``timing.json`` and then ``record.json``, which marks the item complete
+        (neither is hashed in the record nor timed: the timing is already complete)."""
+        self.store.write_bytes(f"{self.rel}/timing.json", timing)
+        self.store.write_bytes(f"{self.rel}/record.json", record)
 
 
 def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
@@ -334,8 +340,7 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
             **extra,
         }
     timing["total"] = time.perf_counter() - start
-    write("timing.json", json_bytes({"seconds": timing, "pid": os.getpid()}), hashed=False)
-    write("record.json", json_bytes(record), hashed=False)  # last: marks the item complete
+    write.close(json_bytes({"seconds": timing, "pid": os.getpid()}), json_bytes(record))
     return {"index": spec.index, "seconds": timing}
 
 
