@@ -15,8 +15,8 @@ from typing import Any
 from datasets_gen import run
 from datasets_gen.config import config_text
 
-# the radius drawn for hyperspheres in the small configs
-RADIUS = {"uniform": [0.5, 0.8]}
+# hypersphere parameters of the small configs: the radius drawn in [0.5, 0.8]
+BALL = {"radius": {"uniform": [0.5, 0.8]}}
 # a lifted box prism: an exact 4-volume
 BOX_PRISM = {"shape": "box", "op": "prism", "size": 0.4}
 
