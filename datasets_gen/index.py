@@ -138,9 +138,8 @@ def run_info(config: Config, seed: int) -> bytes:
     Parameters
     ----------
     config : Config
-        The run's configuration.
     seed : int
-        The run's seed.
+        The run's configuration and seed.
 
     Returns
     -------
@@ -160,12 +159,8 @@ def check_same_run(store: Store, config: Config, seed: int) -> None:
 
     Parameters
     ----------
-    store : Store
-        The run's output.
-    config : Config
-        The run's configuration.
-    seed : int
-        The run's seed.
+    store, config, seed
+        As for :func:`claim_out`.
 
     Raises
     ------
@@ -199,9 +194,8 @@ def claim_out(store: Store, config: Config, seed: int) -> None:
     store : Store
         The run's output.
     config : Config
-        The run's configuration.
     seed : int
-        The run's seed.
+        The run's configuration and seed.
 
     Raises
     ------

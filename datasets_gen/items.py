@@ -133,10 +133,8 @@ def write_item(store: Store, index: int, files: Mapping[str, bytes]) -> None:
 
     Parameters
     ----------
-    store : Store
-        The run's output.
-    index : int
-        The item's index.
+    store, index
+        As for :func:`item_complete`.
     files : mapping of str to bytes
         File name -> bytes, as :func:`make_item` wrote them into another store.
     """

@@ -38,7 +38,9 @@ from __future__ import annotations
 import os
 import sys
 import time
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from ._store import is_url, open_store
 from .config import Config, load_config
@@ -50,23 +52,17 @@ from .splits import split_of
 __all__ = ["run", "RunSummary", "item_seed", "main"]
 
 
-def run(
-    config: str | os.PathLike | Config,
-    out: str | os.PathLike,
-    *,
-    workers: int = 1,
-    scheduler: str | None = None,
-    executor: Executor | None = None,
-    seed: int | None = None,
-    progress: bool | None = None,
-) -> RunSummary:
+def run(config: str | os.PathLike | Mapping[str, Any] | Config, out: str | os.PathLike, *,
+        workers: int = 1, scheduler: str | None = None, executor: Executor | None = None,
+        seed: int | None = None, progress: bool | None = None) -> RunSummary:
     """Make (or finish) the dataset of ``config`` in the folder ``out``.
 
     Parameters
     ----------
-    config : str, path or Config
-        A configuration file, a shipped configuration's name (``"smoke"``, ``"tori"``, ...) or
-        a loaded :class:`~datasets_gen.config.Config`.
+    config : str, path, mapping or Config
+        A configuration file, a shipped configuration's name (``"smoke"``, ``"tori"``, ...), a
+        mapping (:func:`~datasets_gen.config.load_config`) or a loaded
+        :class:`~datasets_gen.config.Config`.
     out : path-like or str
         Output folder: new, empty, or holding an earlier (partial) run of the same config/seed.
         A local path, or an fsspec URL (``s3://bucket/run``, ``gs://...``, ``file:///...``;
