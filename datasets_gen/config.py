@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 from ao4d.cl import BACKENDS
 
+from ._checks import check_keys
 from .samples import check_samples
 from .sequence import check_sequence
 from .splits import check_split
@@ -325,10 +326,10 @@ def _parse(data: dict, text: str, source: str) -> Config:
 def _no_unknown(table: Any, allowed: set[str], source: str, where: str) -> None:
     if not isinstance(table, dict):
         raise ConfigError(f"{source}: {where} must be a table, got {type(table).__name__}")
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise ConfigError(f"{source}: {where}: unknown key(s) {', '.join(map(repr, unknown))}; "
-                          f"allowed: {', '.join(sorted(allowed))}")
+    try:
+        check_keys(table, allowed, where)
+    except ValueError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
 
 
 def _check_settings(s: dict[str, Any], where: str) -> None:
