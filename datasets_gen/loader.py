@@ -60,6 +60,7 @@ def load(path_or_url: str | os.PathLike, *, split: str | None = None, verify: bo
     Returns
     -------
     Dataset
+        The items, read lazily.
 
     Raises
     ------
@@ -76,6 +77,14 @@ class Dataset:
     present, the ``samples.npz`` arrays when present) plus ``record`` (the item's JSON record);
     ``ds.records`` every record; ``ds.frames(i)`` the item's sequence frames; ``ds.indices`` the
     dataset indices of the items (``ds[i]`` is item ``ds.indices[i]``).
+
+    Parameters
+    ----------
+    path_or_url : path or str
+    split : str, optional
+    verify, normalize : bool
+    transform : callable, optional
+        As for :func:`load`.
     """
 
     def __init__(self, path_or_url: str | os.PathLike, *, split: str | None = None,
@@ -152,7 +161,18 @@ class Dataset:
             raise DatasetError(f"item {index}: {name} is damaged: {type(exc).__name__}: {exc}") from None
 
     def record(self, i: int) -> dict:
-        """The JSON record of ``ds[i]``."""
+        """The JSON record of ``ds[i]``.
+
+        Parameters
+        ----------
+        i : int
+            Position in the dataset (``ds.indices[i]`` is the item's index).
+
+        Returns
+        -------
+        dict
+            The item's ``record.json``.
+        """
         index = self._index(i)
         if index not in self._records:
             try:
@@ -167,7 +187,19 @@ class Dataset:
         return [self.record(i) for i in range(len(self))]
 
     def raw(self, i: int) -> dict[str, Any]:
-        """``ds[i]`` before ``normalize`` and ``transform``: the files' arrays, as stored."""
+        """``ds[i]`` before ``normalize`` and ``transform``: the files' arrays, as stored.
+
+        Parameters
+        ----------
+        i : int
+            Position in the dataset.
+
+        Returns
+        -------
+        dict
+            ``vertices``, ``simplices``, ``ao`` and the ``samples.npz`` arrays when present,
+            and ``record``.
+        """
         index = self._index(i)
         record = self.record(i)
         listed = record.get("files", {})
@@ -188,9 +220,24 @@ class Dataset:
         return self.transform(item) if self.transform is not None else item
 
     def frames(self, i: int) -> list[Any]:
-        """The frames of item ``ds[i]``'s ``sequence.npz`` as ``trimesh.Trimesh`` objects
-        (``metadata["time"]`` in [0, 1]; with ``normalize``, in the normalised coordinates);
-        raises :class:`DatasetError` if it has none."""
+        """The frames of item ``ds[i]``'s ``sequence.npz``.
+
+        Parameters
+        ----------
+        i : int
+            Position in the dataset.
+
+        Returns
+        -------
+        list of trimesh.Trimesh
+            One per frame (``metadata["time"]`` in [0, 1]; with ``normalize``, in the
+            normalised coordinates).
+
+        Raises
+        ------
+        DatasetError
+            The item has no sequence.
+        """
         from .sequence import frames_of
 
         index = self._index(i)

@@ -61,7 +61,7 @@ def run(config: str | os.PathLike | Mapping[str, Any] | Config, out: str | os.Pa
     ----------
     config : str, path, mapping or Config
         A configuration file, a shipped configuration's name (``"smoke"``, ``"tori"``, ...), a
-        mapping (:func:`~datasets_gen.config.load_config`) or a loaded
+        mapping (:func:`~datasets_gen.load_config`) or a loaded
         :class:`~datasets_gen.config.Config`.
     out : path-like or str
         Output folder: new, empty, or holding an earlier (partial) run of the same config/seed.
