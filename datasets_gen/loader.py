@@ -81,10 +81,15 @@ class Dataset:
     Parameters
     ----------
     path_or_url : path or str
+        The run's output folder or URL (:func:`load`).
     split : str, optional
-    verify, normalize : bool
+        Only the items of this split.
+    verify : bool
+        Check each file's sha256 against the manifest before use.
+    normalize : bool
+        Apply each item's ``record["normalization"]``.
     transform : callable, optional
-        As for :func:`load`.
+        Called on each item's dict.
     """
 
     def __init__(self, path_or_url: str | os.PathLike, *, split: str | None = None,
