@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from ._store import Store, open_store
+from .items import item_folder
 
 __all__ = ["load", "Dataset", "DatasetError", "POINT_ARRAYS"]
 
@@ -142,7 +143,7 @@ class Dataset:
         return self.indices[int(i)]
 
     def _read(self, index: int, name: str) -> bytes:
-        rel = f"items/{index:05d}/{name}"
+        rel = f"{item_folder(index)}/{name}"
         try:
             data = self._store.read_bytes(rel)
         except OSError as exc:
