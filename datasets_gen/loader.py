@@ -198,7 +198,7 @@ class Dataset:
         Parameters
         ----------
         i : int
-            Position in the dataset.
+            Position in the dataset; negative positions count from the end.
 
         Returns
         -------
@@ -231,7 +231,7 @@ class Dataset:
         Parameters
         ----------
         i : int
-            Position in the dataset.
+            Position in the dataset of an item made with a ``sequence`` setting.
 
         Returns
         -------
