@@ -50,15 +50,15 @@ def bench_check(repeats: int) -> None:
 
 def bench_writes(config: str, workers: int) -> None:
     from datasets_gen import run
-    from datasets_gen import runner
+    from datasets_gen.executors import Dask
 
     manifests = {}
     for shared in (False, True):
-        runner._WORKERS_WRITE = shared
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "run"
             tracemalloc.start()
-            summary = run(config, out, scheduler=f"local:{workers}", progress=False)
+            summary = run(config, out, executor=Dask(f"local:{workers}", workers_write=shared),
+                          progress=False)
             _, peak = tracemalloc.get_traced_memory()
             tracemalloc.stop()
             manifests[shared] = (out / "manifest.json").read_bytes()

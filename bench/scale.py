@@ -29,26 +29,15 @@ from pathlib import Path
 
 # A dataset of moderate items (grid 24, AO with 32 samples): seconds each, so that start-up
 # does not dominate.
-DATASET = """
-name = "scale-bench"
-seed = 11
-
-[defaults]
-grid = 24
-padding = 0.15
-rotation = "random"
-ao = { samples = 32 }
-
-[[family]]
-kind = "hypersphere"
-count = 6
-params = { radius = { uniform = [0.6, 0.9] } }
-
-[[family]]
-kind = "spheritorus"
-count = 6
-params = { R = { uniform = [0.6, 0.8] }, r = { uniform = [0.25, 0.35] } }
-"""
+DATASET = {
+    "name": "scale-bench", "seed": 11,
+    "defaults": {"grid": 24, "padding": 0.15, "rotation": "random", "ao": {"samples": 32}},
+    "family": [
+        {"kind": "hypersphere", "count": 6, "params": {"radius": {"uniform": [0.6, 0.9]}}},
+        {"kind": "spheritorus", "count": 6,
+         "params": {"R": {"uniform": [0.6, 0.8]}, "r": {"uniform": [0.25, 0.35]}}},
+    ],
+}
 
 
 def _field():
@@ -125,8 +114,10 @@ def _run_case(kind: str, grid: int, chunks: int) -> dict:
 
 
 def _datasets(folder: Path) -> list[dict]:
+    from datasets_gen.config import config_text
+
     config = folder / "scale.toml"
-    config.write_text(DATASET, encoding="utf-8")
+    config.write_text(config_text(DATASET), encoding="utf-8")
     rows = []
     for label, extra in (("--workers 2", ["--workers", "2"]), ("--scheduler local:2", ["--scheduler", "local:2"])):
         out = folder / label.replace(" ", "_").replace(":", "").strip("-")

@@ -22,8 +22,10 @@ True
 from __future__ import annotations
 
 from .config import Config, ConfigError, load_config, shipped_configs
+from .index import RunSummary
+from .items import item_seed
 from .loader import Dataset, DatasetError, load
-from .runner import RunSummary, item_seed, run
+from .runner import run
 
 __all__ = ["run", "RunSummary", "load_config", "shipped_configs", "Config", "ConfigError",
            "item_seed", "load", "Dataset", "DatasetError"]

@@ -10,7 +10,8 @@ import hashlib
 import json
 import math
 import os
-from collections.abc import Mapping
+import tempfile
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -19,12 +20,20 @@ import numpy as np
 from ao4d._atomic import atomic_open
 from ao4d._npz import write_npz
 
-__all__ = ["write_npz", "write_json", "json_bytes", "sha256_file", "to_jsonable", "save_mesh_npz"]
+__all__ = ["write_npz", "write_json", "json_bytes", "sha256_file", "to_jsonable", "written_bytes"]
 
 
-def save_mesh_npz(path: str | os.PathLike, mesh: Any) -> Path:
-    """Write a SimplexMesh as ``.npz`` (``SimplexMesh.save``: byte-reproducible); return the path."""
-    return mesh.save(Path(path))
+def written_bytes(name: str, write: Callable[[Path], Any]) -> bytes:
+    """The bytes that ``write(path)`` puts in a file called ``name``.
+
+    For writers that take only a path (``SimplexMesh.save``, ``ao4d.pictures.save_montage``):
+    they write into a private scratch folder, so that the caller can hand the bytes to a
+    :class:`~datasets_gen._store.Store`. The name keeps the suffix that chooses the format.
+    """
+    with tempfile.TemporaryDirectory(prefix="datasets_gen-") as scratch:
+        path = Path(scratch) / name
+        write(path)
+        return path.read_bytes()
 
 
 def to_jsonable(value: Any) -> Any:

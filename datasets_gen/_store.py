@@ -20,7 +20,7 @@ from typing import Any
 
 from ao4d._atomic import atomic_open
 
-__all__ = ["Store", "LocalStore", "FsspecStore", "open_store", "is_url", "check_url"]
+__all__ = ["Store", "LocalStore", "FsspecStore", "MemoryStore", "open_store", "is_url", "check_url"]
 
 _BLOCK = 1 << 20
 
@@ -200,6 +200,45 @@ class LocalStore(Store):
             raise ValueError(f"cannot create the output folder `out` {self.name!r}: "
                              f"{exc.strerror or exc}") from None
         return any(out.iterdir())
+
+
+class MemoryStore(Store):
+    """Files held in this object: where a dask worker that cannot see the output makes an
+    item, whose files it then sends back (:func:`datasets_gen.items.write_item`)."""
+
+    def __init__(self) -> None:
+        self.name = "memory (scratch)"
+        self.process_local = True
+        self._files: dict[str, bytes] = {}
+
+    def read_bytes(self, rel: str) -> bytes:
+        try:
+            return self._files[rel]
+        except KeyError:
+            raise FileNotFoundError(rel) from None
+
+    def write_bytes(self, rel: str, data: bytes) -> None:
+        self._files[rel] = bytes(data)
+
+    def is_file(self, rel: str) -> bool:
+        return rel in self._files
+
+    def files(self, rel: str = "") -> list[str]:
+        prefix = f"{rel}/" if rel else ""
+        return sorted(k[len(prefix):] for k in self._files
+                      if k.startswith(prefix) and "/" not in k[len(prefix):])
+
+    def size(self, rel: str) -> int:
+        return len(self.read_bytes(rel))
+
+    def remove(self, rel: str) -> None:
+        self._files.pop(rel, None)
+
+    def sha256(self, rel: str) -> str:
+        return hashlib.sha256(self.read_bytes(rel)).hexdigest()
+
+    def prepare(self) -> bool:
+        return bool(self._files)
 
 
 class FsspecStore(Store):

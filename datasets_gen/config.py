@@ -34,8 +34,11 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import json
 import math
+import re
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -44,6 +47,7 @@ from typing import Any
 import numpy as np
 from ao4d.cl import BACKENDS
 
+from ._checks import check_keys
 from .samples import check_samples
 from .sequence import check_sequence
 from .splits import check_split
@@ -53,8 +57,8 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["Config", "Family", "ItemSpec", "load_config", "shipped_configs", "sample_params",
-           "ConfigError"]
+__all__ = ["Config", "Family", "ItemSpec", "load_config", "config_text", "shipped_configs",
+           "sample_params", "ConfigError"]
 
 DISTRIBUTIONS = ("uniform", "loguniform", "normal", "integers", "choice")
 _TOP_KEYS = {"name", "description", "seed", "backend", "defaults", "family", "split"}
@@ -159,13 +163,86 @@ def shipped_configs() -> list[str]:
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
-def load_config(config: str | Path) -> Config:
-    """Read and validate a configuration by path or by shipped name (``"smoke"``, ``"tori"``...).
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
+
+def _toml_key(key: Any) -> str:
+    key = str(key)
+    return key if _BARE_KEY.fullmatch(key) else json.dumps(key, ensure_ascii=False)
+
+
+def _toml_value(value: Any, where: str) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf") if math.isinf(value) \
+            else repr(value)
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v, where) for v in value) + "]"
+    if isinstance(value, Mapping):
+        if not value:
+            return "{}"
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(v, where)}"
+                                for k, v in value.items()) + " }"
+    raise ConfigError(f"{where}: a value of type {type(value).__name__} has no TOML form: {value!r}")
+
+
+def config_text(data: Mapping[str, Any]) -> str:
+    """The TOML text of a configuration given as a mapping (as ``tomllib`` would read it).
+
+    Top-level keys first, then the ``[defaults]`` table and one ``[[family]]`` table per
+    family, one ``key = value`` line per setting (tables within them written inline).
 
     Parameters
     ----------
-    config : str or pathlib.Path
-        A TOML file, or the name of a shipped configuration (:func:`shipped_configs`).
+    data : mapping
+        The configuration: ``name``, ``seed``, ``defaults``, ``family`` (a list of tables)...
+
+    Returns
+    -------
+    str
+        The text; :func:`load_config` of the mapping parses it, so a run's ``run.json``
+        holds a text that reproduces the run.
+
+    Raises
+    ------
+    ConfigError
+        A value that TOML cannot hold (None, an object), naming its key.
+    """
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"`config` must be a mapping, got {type(data).__name__}")
+    lines = [f"{_toml_key(k)} = {_toml_value(v, k)}" for k, v in data.items()
+             if k not in ("defaults", "family")]
+
+    def table(header: str, values: Any, where: str) -> None:
+        if not isinstance(values, Mapping):
+            raise ConfigError(f"{where} must be a table, got {type(values).__name__}")
+        lines.extend(["", header])
+        lines.extend(f"{_toml_key(k)} = {_toml_value(v, f'{where}.{k}')}" for k, v in values.items())
+
+    if "defaults" in data:
+        table("[defaults]", data["defaults"], "defaults")
+    families = data.get("family", [])
+    if not isinstance(families, (list, tuple)):
+        raise ConfigError(f"`family` must be a list of tables, got {type(families).__name__}")
+    for n, fam in enumerate(families):
+        table("[[family]]", fam, f"family #{n + 1}")
+    return "\n".join(lines) + "\n"
+
+
+def load_config(config: str | Path | Mapping[str, Any]) -> Config:
+    """Read and validate a configuration by path, by shipped name (``"smoke"``, ``"tori"``...)
+    or as a mapping.
+
+    Parameters
+    ----------
+    config : str, pathlib.Path or mapping
+        A TOML file, the name of a shipped configuration (:func:`shipped_configs`), or the
+        configuration as a mapping (written as TOML by :func:`config_text`: ``Config.text``).
 
     Returns
     -------
@@ -179,6 +256,9 @@ def load_config(config: str | Path) -> Config:
     ConfigError
         Malformed TOML, unknown keys, bad values or distributions (the message says where).
     """
+    if isinstance(config, Mapping):
+        text = config_text(config)
+        return _parse(tomllib.loads(text), text, "<mapping>")
     path = Path(config)
     if path.is_file():
         text, source = path.read_text(encoding="utf-8"), str(path)
@@ -246,10 +326,10 @@ def _parse(data: dict, text: str, source: str) -> Config:
 def _no_unknown(table: Any, allowed: set[str], source: str, where: str) -> None:
     if not isinstance(table, dict):
         raise ConfigError(f"{source}: {where} must be a table, got {type(table).__name__}")
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise ConfigError(f"{source}: {where}: unknown key(s) {', '.join(map(repr, unknown))}; "
-                          f"allowed: {', '.join(sorted(allowed))}")
+    try:
+        check_keys(table, allowed, where)
+    except ValueError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
 
 
 def _check_settings(s: dict[str, Any], where: str) -> None:

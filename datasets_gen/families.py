@@ -308,15 +308,25 @@ def _field_kind(name: str) -> Kind:
     return Kind(params, build, (func.__doc__ or "").strip().splitlines()[0])
 
 
+def _count(p: dict, default: int) -> int:
+    """The parameter ``n`` (how many parts), at least 1."""
+    n = int(p.get("n", default))
+    if n < 1:
+        raise ValueError(f"`n` must be >= 1, got {n}")
+    return n
+
+
+def _floats(p: dict, **defaults: float) -> tuple[float, ...]:
+    """The parameters named by ``defaults``, as floats, in that order."""
+    return tuple(float(p.get(name, value)) for name, value in defaults.items())
+
+
 def _metaballs(p: dict, settings: dict, rng: np.random.Generator, rotation) -> Shape:
     """``n`` balls, centres uniform in [-spread, spread]^4, radii radius * U(1 - jitter, 1 + jitter)."""
     from ao4d import fields
 
-    n = int(p.get("n", 4))
-    if n < 1:
-        raise ValueError(f"`n` must be >= 1, got {n}")
-    spread, radius, jitter = (float(p.get(k, d)) for k, d in
-                              (("spread", 0.5), ("radius", 0.4), ("jitter", 0.3)))
+    n = _count(p, 4)
+    spread, radius, jitter = _floats(p, spread=0.5, radius=0.4, jitter=0.3)
     centres = rng.uniform(-spread, spread, size=(n, 4))
     radii = radius * rng.uniform(1 - jitter, 1 + jitter, size=n)
     sharpness = float(p.get("sharpness", 2.0))
@@ -332,11 +342,8 @@ def _tesseracts(p: dict, settings: dict, rng: np.random.Generator, rotation) -> 
     """CSG of ``n`` randomly rotated, shifted rounded tesseracts: union, or the first minus the rest."""
     from ao4d import fields
 
-    n = int(p.get("n", 3))
-    if n < 1:
-        raise ValueError(f"`n` must be >= 1, got {n}")
-    half, spread, rounding = (float(p.get(k, d)) for k, d in
-                              (("half", 0.4), ("spread", 0.4), ("rounding", 0.05)))
+    n = _count(p, 3)
+    half, spread, rounding = _floats(p, half=0.4, spread=0.4, rounding=0.05)
     operation = p.get("operation", "union")
     if operation not in ("union", "difference"):
         raise ValueError(f"`operation` must be 'union' or 'difference', got {operation!r}")

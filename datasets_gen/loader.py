@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from ._store import Store, open_store
+from .items import item_folder
 
 __all__ = ["load", "Dataset", "DatasetError", "POINT_ARRAYS"]
 
@@ -60,6 +61,7 @@ def load(path_or_url: str | os.PathLike, *, split: str | None = None, verify: bo
     Returns
     -------
     Dataset
+        The items, read lazily.
 
     Raises
     ------
@@ -76,6 +78,19 @@ class Dataset:
     present, the ``samples.npz`` arrays when present) plus ``record`` (the item's JSON record);
     ``ds.records`` every record; ``ds.frames(i)`` the item's sequence frames; ``ds.indices`` the
     dataset indices of the items (``ds[i]`` is item ``ds.indices[i]``).
+
+    Parameters
+    ----------
+    path_or_url : path or str
+        The run's output folder or URL (:func:`load`).
+    split : str, optional
+        Only the items of this split.
+    verify : bool
+        Check each file's sha256 against the manifest before use.
+    normalize : bool
+        Apply each item's ``record["normalization"]``.
+    transform : callable, optional
+        Called on each item's dict.
     """
 
     def __init__(self, path_or_url: str | os.PathLike, *, split: str | None = None,
@@ -128,7 +143,7 @@ class Dataset:
         return self.indices[int(i)]
 
     def _read(self, index: int, name: str) -> bytes:
-        rel = f"items/{index:05d}/{name}"
+        rel = f"{item_folder(index)}/{name}"
         try:
             data = self._store.read_bytes(rel)
         except OSError as exc:
@@ -152,7 +167,18 @@ class Dataset:
             raise DatasetError(f"item {index}: {name} is damaged: {type(exc).__name__}: {exc}") from None
 
     def record(self, i: int) -> dict:
-        """The JSON record of ``ds[i]``."""
+        """The JSON record of ``ds[i]``.
+
+        Parameters
+        ----------
+        i : int
+            Position in the dataset (``ds.indices[i]`` is the item's index).
+
+        Returns
+        -------
+        dict
+            The item's ``record.json``.
+        """
         index = self._index(i)
         if index not in self._records:
             try:
@@ -167,7 +193,19 @@ class Dataset:
         return [self.record(i) for i in range(len(self))]
 
     def raw(self, i: int) -> dict[str, Any]:
-        """``ds[i]`` before ``normalize`` and ``transform``: the files' arrays, as stored."""
+        """``ds[i]`` before ``normalize`` and ``transform``: the files' arrays, as stored.
+
+        Parameters
+        ----------
+        i : int
+            Position in the dataset; negative positions count from the end.
+
+        Returns
+        -------
+        dict
+            ``vertices``, ``simplices``, ``ao`` and the ``samples.npz`` arrays when present,
+            and ``record``.
+        """
         index = self._index(i)
         record = self.record(i)
         listed = record.get("files", {})
@@ -188,9 +226,24 @@ class Dataset:
         return self.transform(item) if self.transform is not None else item
 
     def frames(self, i: int) -> list[Any]:
-        """The frames of item ``ds[i]``'s ``sequence.npz`` as ``trimesh.Trimesh`` objects
-        (``metadata["time"]`` in [0, 1]; with ``normalize``, in the normalised coordinates);
-        raises :class:`DatasetError` if it has none."""
+        """The frames of item ``ds[i]``'s ``sequence.npz``.
+
+        Parameters
+        ----------
+        i : int
+            Position in the dataset of an item made with a ``sequence`` setting.
+
+        Returns
+        -------
+        list of trimesh.Trimesh
+            One per frame (``metadata["time"]`` in [0, 1]; with ``normalize``, in the
+            normalised coordinates).
+
+        Raises
+        ------
+        DatasetError
+            The item has no sequence.
+        """
         from .sequence import frames_of
 
         index = self._index(i)

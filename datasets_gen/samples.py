@@ -48,6 +48,8 @@ from typing import Any
 
 import numpy as np
 
+from ._checks import check_keys
+
 __all__ = ["SAMPLE_KEYS", "DEFAULT_SAMPLES", "EXACT_SDF_KINDS", "check_samples", "normalization",
            "sample_box", "surface_samples", "mesh_distance", "mesh_occupancy", "make_samples",
            "SAMPLE_ARRAYS"]
@@ -77,10 +79,7 @@ def check_samples(value: Any) -> dict[str, Any] | bool:
         return copy.deepcopy(DEFAULT_SAMPLES)
     if not isinstance(value, dict):
         raise ValueError(f"`samples` must be a table (or true/false), got {value!r}")
-    unknown = sorted(set(value) - SAMPLE_KEYS)
-    if unknown:
-        raise ValueError(f"`samples`: unknown key(s) {', '.join(map(repr, unknown))}; allowed: "
-                         f"{', '.join(sorted(SAMPLE_KEYS))}")
+    check_keys(value, SAMPLE_KEYS, "`samples`")
     out = {**copy.deepcopy(DEFAULT_SAMPLES), **copy.deepcopy(value)}
     for key in ("uniform", "near_surface", "surface"):
         n = out[key]

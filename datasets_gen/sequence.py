@@ -33,6 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from ._checks import check_keys
+
 __all__ = ["AXES", "DEFAULT_SEQUENCE", "check_sequence", "make_sequence", "frames_of"]
 
 AXES = ("x", "y", "z", "w")
@@ -51,10 +53,7 @@ def check_sequence(value: Any) -> dict[str, Any] | bool:
         return dict(DEFAULT_SEQUENCE)
     if not isinstance(value, dict):
         raise ValueError(f"`sequence` must be a table (or true/false), got {value!r}")
-    unknown = sorted(set(value) - set(DEFAULT_SEQUENCE))
-    if unknown:
-        raise ValueError(f"`sequence`: unknown key(s) {', '.join(map(repr, unknown))}; allowed: "
-                         f"{', '.join(sorted(DEFAULT_SEQUENCE))}")
+    check_keys(value, DEFAULT_SEQUENCE, "`sequence`")
     out = {**DEFAULT_SEQUENCE, **value}
     frames = out["frames"]
     if isinstance(frames, bool) or not isinstance(frames, int) or not 1 <= frames <= _MAX_FRAMES:

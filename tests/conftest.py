@@ -63,6 +63,28 @@ def ball4():
 
 
 @pytest.fixture(scope="session")
+def tiny_config(tmp_path_factory):
+    """The TOML file of the suite's tiny dataset configuration (tests/_datasets.py: TINY)."""
+    from _datasets import TINY, write_config
+
+    return write_config(tmp_path_factory.mktemp("cfg"), TINY, "tiny.toml")
+
+
+@pytest.fixture(scope="session")
+def tiny_reference(tiny_config, tmp_path_factory):
+    """One clean single-process run of the tiny configuration: the bytes that every other
+    way of making it (processes, dask, URLs, resumed runs) must reproduce."""
+    from _datasets import TINY_ITEMS
+
+    from datasets_gen import run
+
+    out = tmp_path_factory.mktemp("ref") / "run"
+    summary = run(tiny_config, out, progress=False)
+    assert summary.made == TINY_ITEMS and not summary.failed, summary
+    return out
+
+
+@pytest.fixture(scope="session")
 def cl_runtime():
     """The OpenCL runtime ao4d chooses; skips the test when this machine has none."""
     from ao4d import cl

@@ -10,44 +10,22 @@ import sys
 
 import numpy as np
 import pytest
+from _datasets import BALL, config, family, make
 
 from datasets_gen import export as export_mod
-from datasets_gen import load, run
+from datasets_gen import load
 from datasets_gen.export import export, item_arrays, parse_size
 
-CONFIG = """
-name = "export"
-seed = 4
-backend = "numpy"
-split = { train = 0.5, test = 0.5 }
-
-[defaults]
-grid = 7
-padding = 0.15
-rotation = "random"
-ao = { samples = 4 }
-samples = { uniform = 200, near_surface = 50, sigmas = [0.02], surface = 100 }
-
-[[family]]
-kind = "hypersphere"
-count = 4
-params = { radius = { uniform = [0.5, 0.8] } }
-
-[[family]]
-kind = "spheritorus"
-count = 1
-ao = false
-sequence = { frames = 2 }
-params = { R = 0.7, r = 0.3 }
-"""
+CONFIG = config(
+    "export", 4, [family("hypersphere", 4, BALL),
+                  family("spheritorus", 1, {"R": 0.7, "r": 0.3}, ao=False, sequence={"frames": 2})],
+    split={"train": 0.5, "test": 0.5}, grid=7, padding=0.15, rotation="random", ao={"samples": 4},
+    samples={"uniform": 200, "near_surface": 50, "sigmas": [0.02], "surface": 100})
 
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("export")
-    (folder / "c.toml").write_text(CONFIG)
-    assert not run(folder / "c.toml", folder / "data", progress=False).failed
-    return folder / "data"
+    return make(tmp_path_factory.mktemp("export"), CONFIG)
 
 
 def _same(a: np.ndarray, b: np.ndarray) -> None:

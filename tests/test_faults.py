@@ -323,11 +323,9 @@ def test_slice_command_checks_outputs_before_loading(tmp_path, capsys, monkeypat
 
 @pytest.fixture()
 def tiny_config_file(tmp_path) -> Path:
-    from test_datasets_gen import TINY
+    from _datasets import TINY, write_config
 
-    path = tmp_path / "tiny.toml"
-    path.write_text(TINY, encoding="utf-8")
-    return path
+    return write_config(tmp_path, TINY, "tiny.toml")
 
 
 def test_datasets_gen_out_that_is_a_file_or_read_only_is_a_clear_error(tiny_config_file, tmp_path,

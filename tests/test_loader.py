@@ -8,44 +8,21 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 import pytest
+from _datasets import BALL, BOX_PRISM, config, family, make
 
 import datasets_gen
-from datasets_gen import DatasetError, load, run
+from datasets_gen import DatasetError, load
 
-CONFIG = """
-name = "loader"
-seed = 1
-backend = "numpy"
-split = { train = 0.5, val = 0.25, test = 0.25 }
-
-[defaults]
-grid = 8
-padding = 0.15
-rotation = "random"
-ao = { samples = 4 }
-samples = { uniform = 300, near_surface = 100, sigmas = [0.02], surface = 200 }
-sequence = { frames = 3 }
-
-[[family]]
-kind = "hypersphere"
-count = 3
-params = { radius = { uniform = [0.5, 0.8] } }
-
-[[family]]
-kind = "lifted"
-count = 1
-rotation = "none"
-params = { shape = "box", op = "prism", size = 0.4 }
-"""
+CONFIG = config(
+    "loader", 1, [family("hypersphere", 3, BALL), family("lifted", 1, BOX_PRISM, rotation="none")],
+    split={"train": 0.5, "val": 0.25, "test": 0.25}, grid=8, padding=0.15, rotation="random",
+    ao={"samples": 4}, sequence={"frames": 3},
+    samples={"uniform": 300, "near_surface": 100, "sigmas": [0.02], "surface": 200})
 
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("loader")
-    (folder / "c.toml").write_text(CONFIG)
-    summary = run(folder / "c.toml", folder / "out", progress=False)
-    assert not summary.failed, summary.failed
-    return folder / "out"
+    return make(tmp_path_factory.mktemp("loader"), CONFIG)
 
 
 def test_items_hold_the_files_arrays_and_record(dataset):

@@ -7,6 +7,7 @@ import json
 from collections import Counter
 
 import pytest
+from _datasets import BALL, BOX_PRISM, config, family
 
 from datasets_gen import ConfigError, load_config, run
 from datasets_gen.splits import check_split, split_of
@@ -55,29 +56,10 @@ def test_bad_split_in_a_config_is_a_config_error(tmp_path):
         load_config(path)
 
 
-CONFIG = """
-name = "splits"
-seed = 2
-backend = "numpy"
-split = { train = 0.5, val = 0.25, test = 0.25 }
-
-[defaults]
-grid = 6
-padding = 0.2
-ao = false
-samples = { uniform = 60, near_surface = 20, sigmas = [0.05], surface = 20 }
-sequence = { frames = 2 }
-
-[[family]]
-kind = "hypersphere"
-count = 7
-params = { radius = { uniform = [0.5, 0.8] } }
-
-[[family]]
-kind = "lifted"
-count = 1
-params = { shape = "box", op = "prism", size = 0.4 }
-"""
+CONFIG = config("splits", 2, [family("hypersphere", 7, BALL), family("lifted", 1, BOX_PRISM)],
+                split={"train": 0.5, "val": 0.25, "test": 0.25}, grid=6, padding=0.2, ao=False,
+                samples={"uniform": 60, "near_surface": 20, "sigmas": [0.05], "surface": 20},
+                sequence={"frames": 2})
 
 
 def _splits(folder):
@@ -91,10 +73,8 @@ def _splits(folder):
 
 def test_splits_and_samples_are_the_same_for_any_worker_count(tmp_path):
     # the samples and sequences (field and mesh labels) are byte-identical too: same manifest
-    path = tmp_path / "c.toml"
-    path.write_text(CONFIG)
-    one = run(path, tmp_path / "one", progress=False)
-    two = run(path, tmp_path / "two", workers=2, progress=False)
+    one = run(CONFIG, tmp_path / "one", progress=False)
+    two = run(CONFIG, tmp_path / "two", workers=2, progress=False)
     assert not one.failed and not two.failed
     a, b = _splits(tmp_path / "one"), _splits(tmp_path / "two")
     assert a == b == [split_of({"train": 0.5, "val": 0.25, "test": 0.25}, 2, i) for i in range(8)]

@@ -13,7 +13,8 @@ from typing import Any
 
 from ao4d._atomic import atomic_open, atomic_path
 
-__all__ = ["parse_args", "write_csv", "write_results", "figure", "save_figure", "best_time", "machine"]
+__all__ = ["parse_args", "write_csv", "write_results", "figure", "finish_panel", "save_figure", "best_time",
+           "machine"]
 
 
 def parse_args(name: str, description: str, argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -65,6 +66,15 @@ def figure(n_panels: int = 1, *, width: float = 5.0, height: float = 3.8):
     FigureCanvasAgg(fig)
     axes = [fig.add_subplot(1, n_panels, i + 1) for i in range(n_panels)]
     return fig, axes
+
+
+def finish_panel(ax, *, title: str, xlabel: str, ylabel: str) -> None:
+    """Title, axis labels, a grid on every (log) decade and a small legend: a throughput panel."""
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
 
 
 def save_figure(fig, path: Path) -> Path:

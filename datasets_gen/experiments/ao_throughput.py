@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._common import best_time, figure, machine, parse_args, save_figure, write_results
+from ._common import best_time, figure, finish_panel, machine, parse_args, save_figure, write_results
 
 NAME = "ao_throughput"
 
@@ -61,11 +61,8 @@ def plot(rows: list[dict], path) -> None:
                 if sel:
                     ax.loglog([r["simplices"] for r in sel], [r["rays_per_second"] for r in sel],
                               style, color=colour, ms=4, label=f"{backend}, {accel}")
-        ax.set_title(f"rays from the sphere's vertices, {scene}", fontsize=9)
-        ax.set_xlabel("tetrahedra in the mesh")
-        ax.set_ylabel("AO rays per second")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
+        finish_panel(ax, title=f"rays from the sphere's vertices, {scene}",
+                     xlabel="tetrahedra in the mesh", ylabel="AO rays per second")
     fig.suptitle(f"4D AO throughput, BVH vs brute force ({machine()})", fontsize=9)
     save_figure(fig, path)
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 
-from ._common import best_time, figure, machine, parse_args, save_figure, write_results
+from ._common import best_time, figure, finish_panel, machine, parse_args, save_figure, write_results
 
 NAME = "extract_throughput"
 
@@ -72,11 +72,7 @@ def plot(rows: list[dict], path) -> None:
             sel = [r for r in rows if (r["dim"], r["tool"], r["method"]) == (dim, tool, method)]
             ax.loglog([r["cells"] for r in sel], [r["cells_per_second"] for r in sel], "-o", ms=4,
                       color=f"C{i}", label=f"{tool} ({method})")
-        ax.set_xlabel(f"{dim}D grid cells")
-        ax.set_ylabel("cells per second")
-        ax.set_title(f"{dim}D ball", fontsize=9)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
+        finish_panel(ax, title=f"{dim}D ball", xlabel=f"{dim}D grid cells", ylabel="cells per second")
     fig.suptitle(f"Extraction throughput ({machine()})", fontsize=9)
     save_figure(fig, path)
 

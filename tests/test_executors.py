@@ -1,13 +1,12 @@
-"""datasets_gen on dask.distributed (``--scheduler``): the same bytes as a one-process run, also
-when a worker is killed mid-item or the client is killed and rerun. The workers of these
-clusters see the output folder, so they write the items themselves (the client only the index
-and the manifest); one test makes them send the bytes back instead, as workers without the
-folder do."""
+"""Tests for datasets_gen.executors: spawned processes and dask.distributed (``--scheduler``)
+give the same bytes as a one-process run, also when a worker is killed mid-item or the client
+is killed and rerun. The workers of these clusters see the output folder, so they write the
+items themselves (the client only the index and the manifest); one test makes them send the
+bytes back instead, as workers without the folder do."""
 
 from __future__ import annotations
 
 import json
-import re
 import os
 import signal
 import subprocess
@@ -17,18 +16,17 @@ import time
 from pathlib import Path
 
 import pytest
+from _datasets import tiny, write_config
 
 from datasets_gen import run
-from datasets_gen import runner as runner_mod
+from datasets_gen.executors import Dask, InProcess, ProcessPool, executor_for
+from datasets_gen.runner import main
 
 distributed = pytest.importorskip("distributed", reason="distributed is a dependency of ao4d")
 
-from test_datasets_gen import TINY  # noqa: E402  (the suite's tiny config: a few seconds)
-
-# TINY with somewhat heavier items (finer grids, more AO samples: 0.3 to 1.3 s each here), so
-# that a worker can be caught in the middle of one
-CONFIG = TINY.replace('name = "tiny"', 'name = "tiny14"').replace("grid = 10", "grid = 14").replace(
-    "samples = 4", "samples = 8")
+# the suite's tiny config with somewhat heavier items (finer grids, more AO samples: 0.3 to
+# 1.3 s each here), so that a worker can be caught in the middle of one
+CONFIG = tiny("tiny14", grid=14, ao={"samples": 8})
 
 
 def _manifest(out: Path) -> bytes:
@@ -37,9 +35,7 @@ def _manifest(out: Path) -> bytes:
 
 @pytest.fixture(scope="module")
 def config(tmp_path_factory):
-    path = tmp_path_factory.mktemp("cfg") / "tiny14.toml"
-    path.write_text(CONFIG, encoding="utf-8")
-    return path
+    return write_config(tmp_path_factory.mktemp("cfg"), CONFIG, "tiny14.toml")
 
 
 @pytest.fixture(scope="module")
@@ -65,10 +61,23 @@ def cluster():
         yield cluster
 
 
+def test_two_workers_give_identical_manifest(tiny_reference, tiny_config, tmp_path):
+    summary = run(tiny_config, tmp_path / "par", workers=2, progress=False)
+    assert summary.made == 5 and not summary.failed
+    assert _manifest(tmp_path / "par") == _manifest(tiny_reference)
+
+
+def test_executors_from_workers_and_scheduler(tiny_config, tmp_path):
+    assert executor_for() == InProcess() and executor_for(3) == ProcessPool(3)
+    assert executor_for(1, "local:2") == Dask("local:2", workers_write=True)
+    with pytest.raises(ValueError, match="give `executor`"):
+        run(tiny_config, tmp_path / "a", workers=2, executor=InProcess())
+    assert not (tmp_path / "a").exists()
+
+
 def test_local_cluster_manifest_equals_one_process(config, reference, tmp_path, capsys):
     out = tmp_path / "run"
-    assert runner_mod.main([str(config), "--out", str(out), "--scheduler", "local:2",
-                            "--no-progress"]) == 0
+    assert main([str(config), "--out", str(out), "--scheduler", "local:2", "--no-progress"]) == 0
     assert "5 made, 0 skipped (already complete), 0 failed of 5" in capsys.readouterr().out
     assert _manifest(out) == _manifest(reference)
     # the workers wrote nothing here but the client did: no scratch folders, no temp files left
@@ -93,11 +102,10 @@ def test_workers_write_their_items_when_they_see_the_folder(config, reference, c
     assert set(summary.stages) >= {"build", "check", "bvh", "ao", "write", "total"}
 
 
-def test_workers_without_the_folder_send_the_items_back(config, reference, cluster, tmp_path,
-                                                        monkeypatch):
+def test_workers_without_the_folder_send_the_items_back(config, reference, cluster, tmp_path):
     out = tmp_path / "run"
-    monkeypatch.setattr(runner_mod, "_WORKERS_WRITE", False)  # as if they could not see it
-    summary = run(config, out, scheduler=cluster.scheduler_address, progress=False)
+    as_if_unseen = Dask(cluster.scheduler_address, workers_write=False)
+    summary = run(config, out, executor=as_if_unseen, progress=False)
     assert (summary.made, summary.failed) == (5, {})
     hashed = json.loads(_manifest(out))["files"]
     item_bytes = sum(f["bytes"] for name, f in hashed.items() if name.startswith("items/"))
@@ -192,8 +200,8 @@ def test_scheduler_errors(config, tmp_path, capsys):
     import dask
 
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
-        assert runner_mod.main([str(config), "--out", str(tmp_path / "d"), "--scheduler",
-                                "tcp://127.0.0.1:9", "--no-progress"]) == 2
+        assert main([str(config), "--out", str(tmp_path / "d"), "--scheduler",
+                     "tcp://127.0.0.1:9", "--no-progress"]) == 2
     assert "cannot reach the dask scheduler" in capsys.readouterr().err
 
 
@@ -236,32 +244,25 @@ def _http_reply(conn, stop):
     (_silent, r"accepted the connection but sent nothing in 1 s"),
     (_http_reply, r"answers like an HTTP server, not a dask scheduler"),
 ])
-def test_a_scheduler_address_that_is_not_a_scheduler_fails_fast(config, tmp_path, capsys, monkeypatch,
-                                                                 handler, match):
-    monkeypatch.setattr(runner_mod, "SCHEDULER_PROBE_SECONDS", 1.0)
+def test_a_scheduler_address_that_is_not_a_scheduler_fails_fast(config, tmp_path, handler, match):
     port, stop = _serve(handler)
     try:
-        start = time.perf_counter()
-        assert runner_mod.main([str(config), "--out", str(tmp_path / "o"), "--scheduler",
-                                f"tcp://127.0.0.1:{port}", "--no-progress"]) == 2
-        waited = time.perf_counter() - start
+        with pytest.raises(ValueError, match=match):
+            run(config, tmp_path / "o", executor=Dask(f"tcp://127.0.0.1:{port}", probe_seconds=1.0),
+                progress=False)
     finally:
         stop.set()
-    err = capsys.readouterr().err
-    assert re.search(match, err) and "Traceback" not in err, err
-    assert waited < 20  # the probe's 1 s, not dask's minutes
     assert not (tmp_path / "o").exists()  # refused before the output folder is made
 
 
-def test_an_http_server_is_not_taken_for_a_scheduler(config, tmp_path, capsys, monkeypatch):
+def test_an_http_server_is_not_taken_for_a_scheduler(config, tmp_path, capsys):
     from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
-    monkeypatch.setattr(runner_mod, "SCHEDULER_PROBE_SECONDS", 1.0)
     server = ThreadingHTTPServer(("127.0.0.1", 0), BaseHTTPRequestHandler)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
-        assert runner_mod.main([str(config), "--out", str(tmp_path / "o"), "--scheduler",
-                                f"127.0.0.1:{server.server_address[1]}", "--no-progress"]) == 2
+        assert main([str(config), "--out", str(tmp_path / "o"), "--scheduler",
+                     f"127.0.0.1:{server.server_address[1]}", "--no-progress"]) == 2
     finally:
         server.shutdown()
         server.server_close()
@@ -272,4 +273,4 @@ def test_an_http_server_is_not_taken_for_a_scheduler(config, tmp_path, capsys, m
 
 
 def test_a_real_scheduler_passes_the_probe(cluster):
-    runner_mod._probe_scheduler(cluster.scheduler_address)  # no error: it greets at once
+    Dask(cluster.scheduler_address, probe_seconds=1.0).check()  # no error: it greets at once

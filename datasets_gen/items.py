@@ -1,0 +1,399 @@
+"""One item of a dataset: its seeds, its folder, how it is made and when it is complete.
+
+An item's files live in ``items/<index:05d>/`` of the run's :class:`~datasets_gen._store.Store`::
+
+    mesh.npz      the closed 4D mesh (ao4d.mesh_files npz layout: SimplexMesh.load reads it)
+    ao.npz        occlusion per vertex (or per simplex), float64
+    <render>.png  optional renders (z-slice montage of the shaded 3D image)
+    samples.npz   optional learning samples (datasets_gen.samples)
+    sequence.npz  optional 3D frames along an axis (datasets_gen.sequence)
+    timing.json   wall-clock seconds per stage (not hashed)
+    record.json   parameters, seeds, versions, mesh check, measures, file hashes; written last
+
+Item ``i`` draws everything from ``np.random.SeedSequence([seed, i])`` (:func:`item_seed`), so
+items can be made in any order or process and give the same bytes. Every file is written
+through the store, each atomically, and ``record.json`` last: an item is complete when its
+record exists and every file it lists has the recorded hash (:func:`item_complete`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import time
+from collections.abc import Iterator, Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from ao4d._npz import npz_bytes
+
+from ._files import json_bytes, written_bytes
+from ._store import Store, open_store
+from .config import ItemSpec, sample_params
+
+__all__ = ["RUN_FORMAT", "Job", "item_seed", "item_folder", "item_complete", "make_item",
+           "write_item", "versions"]
+
+RUN_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class Job:
+    """What a process needs to make one item.
+
+    Attributes
+    ----------
+    spec : ItemSpec
+        The item: its index, family and number in the family.
+    seed : int
+        The run's seed.
+    out : str
+        The run's output (a folder or an fsspec URL), as the process making the item sees it.
+    backend : str
+        The AO and render backend (``"auto"``, ``"opencl"``, ``"numpy"``).
+    run_sha256 : str
+        sha256 of the output's ``run.json``: a process that reads the same sees the same output.
+    split : str, optional
+        The item's split (:mod:`datasets_gen.splits`), None without a split table.
+    """
+
+    spec: ItemSpec
+    seed: int
+    out: str
+    backend: str
+    run_sha256: str = ""
+    split: str | None = None
+
+
+def item_seed(seed: int, index: int) -> np.random.SeedSequence:
+    """The seed sequence of item ``index`` of a run with ``seed``.
+
+    Parameters
+    ----------
+    seed : int
+        The run's seed.
+    index : int
+        The item's index.
+
+    Returns
+    -------
+    numpy.random.SeedSequence
+        ``SeedSequence([seed, index])``: everything random about the item is drawn from it.
+    """
+    return np.random.SeedSequence([int(seed), int(index)])
+
+
+def item_folder(index: int) -> str:
+    """The folder of item ``index`` in its run's store (``"items/00003"``).
+
+    Parameters
+    ----------
+    index : int
+        The item's index.
+
+    Returns
+    -------
+    str
+        A relative POSIX path.
+    """
+    return f"items/{int(index):05d}"
+
+
+def item_complete(store: Store, index: int) -> bool:
+    """Whether item ``index`` of ``store`` is complete.
+
+    Parameters
+    ----------
+    store : Store
+        The run's output.
+    index : int
+        The item's index.
+
+    Returns
+    -------
+    bool
+        True when its ``record.json`` exists and every file it lists has the recorded hash.
+    """
+    rel = item_folder(index)
+    try:
+        files = json.loads(store.read_text(f"{rel}/record.json"))["files"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    return all(store.is_file(f"{rel}/{name}") and store.sha256(f"{rel}/{name}") == digest
+               for name, digest in files.items())
+
+
+def write_item(store: Store, index: int, files: Mapping[str, bytes]) -> None:
+    """Write a made item's files into ``store``: leftovers of an interrupted attempt deleted
+    first, each file atomically, ``record.json`` last (it marks the item complete).
+
+    Parameters
+    ----------
+    store, index
+        As for :func:`item_complete`.
+    files : mapping of str to bytes
+        File name -> bytes, as :func:`make_item` wrote them into another store.
+    """
+    rel = item_folder(index)
+    for stale in store.files(rel):
+        if stale not in files:
+            store.remove(f"{rel}/{stale}")
+    store.remove(f"{rel}/record.json")
+    for name in sorted(files, key=lambda n: n == "record.json"):
+        store.write_bytes(f"{rel}/{name}", files[name])
+
+
+def versions() -> dict[str, str]:
+    """ao4d's version and the checksums of its lookup tables and kernel sources.
+
+    Returns
+    -------
+    dict of str to str
+        ``ao4d``, ``kernels_sha256``, ``lut_manifest_sha256``, ``lut_cube_4d_sha256`` and
+        ``lut_simplex_4d_sha256``: the same values give the same items.
+    """
+    import ao4d
+    from ao4d._resources import data_dir
+
+    manifest = data_dir("lut") / "manifest.json"
+    manifest_bytes = manifest.read_bytes()
+    tables = json.loads(manifest_bytes.decode("utf-8")).get("files", {})
+    kernels = hashlib.sha256()
+    for path in sorted(data_dir("kernels").iterdir()):
+        if path.suffix in (".cl", ".h"):
+            kernels.update(path.name.encode() + b"\0" + path.read_bytes())
+    return {
+        "ao4d": ao4d.__version__,
+        "kernels_sha256": kernels.hexdigest(),
+        "lut_manifest_sha256": hashlib.sha256(manifest_bytes).hexdigest(),
+        "lut_cube_4d_sha256": tables.get("cube_4d.npz", {}).get("sha256", ""),
+        "lut_simplex_4d_sha256": tables.get("simplex_4d.npz", {}).get("sha256", ""),
+    }
+
+
+@contextlib.contextmanager
+def _stage(timing: dict[str, float], name: str) -> Iterator[None]:
+    """Add the wall-clock seconds of the ``with`` block to ``timing[name]``."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        timing[name] = timing.get(name, 0.0) + time.perf_counter() - t0
+
+
+class _Writer:
+    """Writes an item's files into its folder of a store and keeps their hashes."""
+
+    def __init__(self, store: Store, index: int, timing: dict[str, float]) -> None:
+        self.store, self.rel, self.timing = store, item_folder(index), timing
+        self.hashes: dict[str, str] = {}
+        for stale in store.files(self.rel):  # leftovers of an interrupted attempt (no valid record)
+            store.remove(f"{self.rel}/{stale}")
+
+    def __call__(self, name: str, data: bytes) -> None:
+        """Write a file of the item, timed as ``write``, and keep its hash for the record."""
+        with _stage(self.timing, "write"):
+            self.store.write_bytes(f"{self.rel}/{name}", data)
+            self.hashes[name] = hashlib.sha256(data).hexdigest()
+
+    def close(self, timing: bytes, record: bytes) -> None:
+        """Write ``timing.json`` and then ``record.json``, which marks the item complete
+        (neither is hashed in the record nor timed: the timing is already complete)."""
+        self.store.write_bytes(f"{self.rel}/timing.json", timing)
+        self.store.write_bytes(f"{self.rel}/record.json", record)
+
+
+def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
+    """Make item ``job.spec.index`` and write its files into ``store``.
+
+    Top-level and given only picklable arguments: it runs in spawned processes and on dask
+    workers alike. ``timing.json`` holds the wall-clock seconds of each stage: ``build``
+    (field, grid and extraction, or the lifted solid), ``check`` (mesh check, volume,
+    measure), ``bvh`` (the tree the AO rays and the renders trace), ``ao``, ``render_<name>``
+    (primary rays, AO at hits, shading) and ``picture_<name>`` (the PNG) per render,
+    ``samples`` and ``sequence`` (the labelled points and the frames, when the config asks),
+    ``write`` (every file and hash), and ``total``.
+
+    Parameters
+    ----------
+    job : Job
+        The item and its run.
+    store : Store, optional
+        Where to write; default the store of ``job.out``.
+
+    Returns
+    -------
+    dict
+        ``{"index": index, "seconds": {stage: seconds}}``.
+    """
+    from .families import build_shape, random_rotation
+    from .samples import normalization
+
+    start = time.perf_counter()
+    spec = job.spec
+    store = open_store(job.out) if store is None else store
+    timing: dict[str, float] = {}
+    write = _Writer(store, spec.index, timing)
+    settings = spec.family.settings
+    # spawn(5)'s first three children are spawn(3)'s: samples left the meshes, AO and renders as they were
+    params_ss, rotation_ss, ao_ss, samples_ss, sequence_ss = item_seed(job.seed, spec.index).spawn(5)
+    rng = np.random.default_rng(params_ss)
+    params = sample_params(spec.family.params, rng)
+    rotation = (random_rotation(np.random.default_rng(rotation_ss))
+                if settings["rotation"] == "random" else None)
+    ao_seed = int(ao_ss.generate_state(1)[0])
+
+    with _stage(timing, "build"):
+        shape = build_shape(spec.family.kind, params, settings, rng, rotation)
+    mesh = shape.mesh
+    with _stage(timing, "check"):
+        report = mesh.check()
+        volume, measure = float(mesh.volume), float(mesh.measure)
+    with _stage(timing, "write"):
+        data = written_bytes("mesh.npz", mesh.save)
+    write("mesh.npz", data)
+
+    occlusion = None
+    if settings["ao"] or settings["renders"]:
+        with _stage(timing, "bvh"):
+            _build_bvh(mesh, job.backend)
+    if settings["ao"]:
+        import ao4d
+
+        ao = settings["ao"]
+        with _stage(timing, "ao"):
+            occlusion = ao4d.ambient_occlusion(mesh, samples=ao["samples"], max_distance=ao["max_distance"],
+                                               at=ao["at"], seed=ao_seed, backend=job.backend,
+                                               progress=False)
+        with _stage(timing, "write"):
+            data = npz_bytes({"occlusion": np.asarray(occlusion, np.float64)})
+        write("ao.npz", data)
+
+    extra: dict[str, Any] = {}
+    ao_at = settings["ao"]["at"] if settings["ao"] else "vertices"
+    if settings.get("samples"):
+        from .samples import make_samples
+
+        with _stage(timing, "samples"):
+            arrays, extra["samples"] = make_samples(
+                shape, spec.family.kind, settings["samples"], np.random.default_rng(samples_ss),
+                occlusion=occlusion, ao_at=ao_at, backend=job.backend)
+        with _stage(timing, "write"):
+            data = npz_bytes(arrays)
+        write("samples.npz", data)
+    if settings.get("sequence"):
+        from .sequence import make_sequence
+
+        with _stage(timing, "sequence"):
+            arrays, extra["sequence"] = make_sequence(
+                shape, spec.family.kind, settings["sequence"], occlusion=occlusion, ao_at=ao_at,
+                samples=settings.get("samples") or None, rng=np.random.default_rng(sequence_ss),
+                backend=job.backend)
+        with _stage(timing, "write"):
+            data = npz_bytes(arrays)
+        write("sequence.npz", data)
+
+    for render in settings["renders"]:
+        title = f"item {spec.index}: {spec.family.name} ({spec.family.kind}), looking along +w"
+        write(f"{render['name']}.png",
+              _render(render, mesh, occlusion, settings, ao_seed, job.backend, title, timing))
+
+    with _stage(timing, "write"):
+        expected = shape.volume_expected
+        record = {
+            "format": RUN_FORMAT,
+            "index": spec.index,
+            "family": spec.family.name,
+            "kind": spec.family.kind,
+            "number": spec.number,
+            "seed": {"run": job.seed, "entropy": [job.seed, spec.index], "ao": ao_seed},
+            "params": params,
+            "derived": shape.derived,
+            "rotation": rotation,
+            "settings": {k: v for k, v in settings.items() if k != "renders"},
+            "renders": settings["renders"],
+            "grid": shape.grid,
+            "versions": versions(),
+            "mesh": {
+                "vertices": mesh.n_vertices,
+                "simplices": mesh.n_simplices,
+                "check": {**asdict(report), "ok": report.ok},
+                "volume": volume,
+                "measure": measure,
+                "volume_expected": expected,
+                "volume_rel_error": None if not expected else volume / expected - 1.0,
+                "bounds": mesh.bounds,
+            },
+            "ao": None if occlusion is None else {
+                "mean": float(np.mean(occlusion)), "min": float(np.min(occlusion)),
+                "max": float(np.max(occlusion)), "values": len(occlusion),
+                "backend": _backend_ran(job.backend)},
+            "files": dict(write.hashes),
+            "split": job.split,
+            "normalization": normalization(mesh),
+            **extra,
+        }
+    timing["total"] = time.perf_counter() - start
+    write.close(json_bytes({"seconds": timing, "pid": os.getpid()}), json_bytes(record))
+    return {"index": spec.index, "seconds": timing}
+
+
+def _build_bvh(mesh: Any, backend: str) -> None:
+    """Build (and cache on ``mesh``) the BVH that the AO rays and the renders will trace, on
+    the device they run on, so that its time is a stage of its own."""
+    from ao4d import cl
+    from ao4d.raycast import get_bvh
+
+    get_bvh(mesh, runtime=cl.resolve_backend(backend, warn=False))
+
+
+def _backend_ran(backend: str) -> str:
+    """The backend that computes for a requested ``backend`` ("auto" resolves to one)."""
+    from ao4d import cl
+
+    return cl.backend_name(cl.resolve_backend(backend, warn=False))
+
+
+def _render(render: dict, mesh: Any, occlusion: Any, settings: dict, seed: int, backend: str,
+            title: str, timing: dict[str, float]) -> bytes:
+    """The PNG of the item seen along +w from its centre: a z-slice montage.
+
+    Orthographic by default, framed tightly on the mesh's x, y, z extent (a perspective
+    camera framing the whole 4D bounding sphere leaves most of the image empty).
+    """
+    import ao4d
+    from ao4d.pictures import save_montage
+
+    lo, hi = mesh.bounds
+    if render.get("projection", "orthographic") == "orthographic":
+        centre = (lo + hi) / 2
+        eye = centre - [0, 0, 0, (hi[3] - lo[3]) + 1.0]
+        camera = ao4d.Camera4D(eye, centre, up=(0, 1, 0, 0), over=(0, 0, 1, 0),
+                               projection="orthographic",
+                               half_width=1.05 * float(np.max(hi[:3] - lo[:3])) / 2)
+    else:
+        camera = ao4d.Camera4D.framing(mesh.bounds, fov=float(render.get("fov", 40.0)), margin=1.0)
+    vertex_ao = occlusion is not None and settings["ao"]["at"] == "vertices"
+    # the item's own mesh (not a copy), so the render traces the BVH already built for it; the
+    # mesh file is written, and the occlusion is attached only for the render
+    if vertex_ao:
+        mesh.point_data["ao"] = occlusion
+    try:
+        with _stage(timing, f"render_{render['name']}"):
+            result = ao4d.render(mesh, camera, tuple(render.get("shape", (32, 32, 32))),
+                                 ao="vertices" if vertex_ao else "hits",
+                                 samples=int(render.get("samples", 32)), seed=seed, backend=backend,
+                                 progress=False)
+    finally:
+        if vertex_ao:
+            del mesh.point_data["ao"]
+    # a fixed colour scale (shade = 1 - A in [0, 1]) makes items comparable, and a flat,
+    # unoccluded view shows white rather than an arbitrary stretch of a constant image
+    with _stage(timing, f"picture_{render['name']}"):
+        return written_bytes(f"{render['name']}.png", lambda path: save_montage(
+            path, result.shade, background=~result.hit, label="shade (1 - A)", title=title,
+            vmin=0.0, vmax=1.0, spacing=result.geometry.spacing, origin=result.geometry.origin))
