@@ -441,7 +441,6 @@ def block_sizes(chunks: Any, shape: tuple[int, ...]) -> tuple[tuple[int, ...], .
     return out
 
 
-_chunks = block_sizes  # the private name, for callers on other branches until they merge
 
 
 # --------------------------------------------------------------------------------------------

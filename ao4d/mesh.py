@@ -853,7 +853,6 @@ def as_meshes(meshes: Any, name: str = "meshes") -> list[SimplexMesh]:
     return items
 
 
-_mesh_list = as_meshes  # the name rendering.py imports until it calls as_meshes
 
 
 def _is_trimesh(value: Any) -> bool:

@@ -61,7 +61,7 @@ from .ao import ORIGIN_OFFSET, ambient_occlusion
 from .camera import Camera4D, ImageGeometry, image_shape
 from .compositing import over, unpremultiply
 from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, lambert
-from .mesh import SimplexMesh, _mesh_list, concatenate, warn_if_inside_out
+from .mesh import SimplexMesh, as_meshes, concatenate, warn_if_inside_out
 from .raycast import RAYS_PER_SECOND, Tracer, check_distance, check_rays, trace
 from .screen_ao import (DENOISE_PER_SECOND, LOOKUPS_PER_SECOND, MAX_STEPS, MIN_STEPS, STEP_VOXELS, DepthVolume,
                         default_steps, screen_space_occlusion, viewer_side)
@@ -279,7 +279,7 @@ def prepare_scene(meshes) -> tuple[Any, np.ndarray]:
     if isinstance(meshes, SimplexMesh):
         items = [meshes]
     elif isinstance(meshes, Sequence) and not isinstance(meshes, (str, bytes)):
-        items = _mesh_list(meshes)
+        items = as_meshes(meshes)
     else:
         raise TypeError(
             f"`meshes` must be a SimplexMesh or a list of them, got {type(meshes).__name__}"
