@@ -129,7 +129,7 @@ def test_fields_and_dask_blocks_agree(cl_runtime, method):
     _assert_same_mesh(ref, ao4d.extract_field(field, 12, (-1.3, 1.3), method=method, chunk=3,
                                               backend="opencl"))
     _assert_same_mesh(ref, ao4d.extract_field(field, 12, (-1.3, 1.3), method=method, chunk=3,
-                                              chunks=7, backend="opencl"))
+                                              blocks=7, backend="opencl"))
     values = ao4d.sample(fields.hypersphere(1.0), 9, (-1.3, 1.3))
     ref = ao4d.extract(values, method=method, backend="numpy")
     _assert_same_mesh(ref, ao4d.extract(da.from_array(values, chunks=4), method=method,
