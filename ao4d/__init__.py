@@ -45,9 +45,34 @@ _EXPORTS = {
 # ``__all__`` and ``dir`` so that ``ao`` stands apart from ``ambient_occlusion``, ``sampling``
 # from ``sample``, ``viewer`` from ``view``
 _MODULES = (
-    "lut", "fields", "fields_device", "cl", "geometry", "topology", "slicing", "mesh", "mesh_files", "march",
-    "blockwise", "readers", "bvh", "raycast", "sampling", "ao", "camera", "lighting", "rendering",
-    "screen_ao", "compositing", "volumes", "pictures", "lift", "scenes", "viewer", "image_viewer", "pages",
+    "lut",
+    "fields",
+    "fields_device",
+    "cl",
+    "geometry",
+    "topology",
+    "slicing",
+    "mesh",
+    "mesh_files",
+    "march",
+    "blockwise",
+    "readers",
+    "bvh",
+    "raycast",
+    "sampling",
+    "ao",
+    "camera",
+    "lighting",
+    "rendering",
+    "screen_ao",
+    "compositing",
+    "volumes",
+    "pictures",
+    "lift",
+    "scenes",
+    "viewer",
+    "image_viewer",
+    "pages",
 )
 
 __all__ = sorted(_EXPORTS)

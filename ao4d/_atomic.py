@@ -119,8 +119,9 @@ def check_output_folder(path: str | os.PathLike, name: str) -> Path:
 
 
 @contextlib.contextmanager
-def all_or_nothing(paths: Iterable[str | os.PathLike] = (), *, folder: str | os.PathLike | None = None
-                   ) -> Iterator[None]:
+def all_or_nothing(
+    paths: Iterable[str | os.PathLike] = (), *, folder: str | os.PathLike | None = None
+) -> Iterator[None]:
     """Undo this block's file changes among ``paths`` (or anywhere in ``folder``) if it fails.
 
     Before the block, every file that exists among ``paths`` (or in ``folder``) gets a hidden

@@ -27,8 +27,7 @@ class _Deprecated:
 DEPRECATED: Any = _Deprecated()
 
 
-def renamed(func: str, old: str, old_value: Any, new: str, new_value: Any, default: Any,
-            *, stacklevel: int = 3) -> Any:
+def renamed(func: str, old: str, old_value: Any, new: str, new_value: Any, default: Any, *, stacklevel: int = 3) -> Any:
     """The value of parameter ``new``, taken from its old spelling ``old`` when that was given.
 
     Parameters
@@ -60,6 +59,9 @@ def renamed(func: str, old: str, old_value: Any, new: str, new_value: Any, defau
         return new_value
     if new_value is not default:
         raise TypeError(f"{func}() got both `{new}` and its old spelling `{old}`; give only `{new}`")
-    warnings.warn(f"{func}(): the parameter `{old}` is now called `{new}`; `{old}=` will stop working in a "
-                  "future release", DeprecationWarning, stacklevel=stacklevel)
+    warnings.warn(
+        f"{func}(): the parameter `{old}` is now called `{new}`; `{old}=` will stop working in a future release",
+        DeprecationWarning,
+        stacklevel=stacklevel,
+    )
     return old_value

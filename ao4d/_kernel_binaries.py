@@ -63,9 +63,17 @@ def cache_key(device, depends: str, text: str, options: list[str]) -> str:
 
     platform = device.platform
     parts = (
-        _CACHE_FORMAT, depends, text, "\0".join(options),
-        platform.name, platform.vendor, platform.version,
-        device.name, device.vendor, device.version, device.driver_version,
+        _CACHE_FORMAT,
+        depends,
+        text,
+        "\0".join(options),
+        platform.name,
+        platform.vendor,
+        platform.version,
+        device.name,
+        device.vendor,
+        device.version,
+        device.driver_version,
         cl_version,  # pyopencl adds its own -I and defines to every build
     )
     h = hashlib.sha256()

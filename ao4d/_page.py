@@ -24,8 +24,18 @@ from typing import Any
 
 from ._atomic import atomic_open, check_output_file
 
-__all__ = ["COMMON_MARK", "b64_size", "check_max_bytes", "common_script", "framed", "scene_json", "template",
-           "with_common_script", "wrap_degrees", "write_page"]
+__all__ = [
+    "COMMON_MARK",
+    "b64_size",
+    "check_max_bytes",
+    "common_script",
+    "framed",
+    "scene_json",
+    "template",
+    "with_common_script",
+    "wrap_degrees",
+    "write_page",
+]
 
 COMMON_MARK = "<!--AO4D_COMMON-->"  # where a template takes the shared script
 _COMMON_FILE = "page_common.js"

@@ -32,8 +32,16 @@ def enabled() -> bool:
     return _state["enabled"]
 
 
-def bar(total: float, desc: str, *, unit: str = "it", show: bool = True, unit_scale: bool = False,
-        initial: int = 0, stream: TextIO | None = None) -> Any:
+def bar(
+    total: float,
+    desc: str,
+    *,
+    unit: str = "it",
+    show: bool = True,
+    unit_scale: bool = False,
+    initial: int = 0,
+    stream: TextIO | None = None,
+) -> Any:
     """A progress display over ``total`` units: tqdm on a terminal, log lines elsewhere.
 
     Parameters
@@ -65,8 +73,7 @@ def bar(total: float, desc: str, *, unit: str = "it", show: bool = True, unit_sc
     if isatty is not None and isatty():
         from tqdm.auto import tqdm
 
-        return tqdm(total=total, desc=desc, unit=unit, unit_scale=unit_scale, initial=initial,
-                    leave=False, file=stream)
+        return tqdm(total=total, desc=desc, unit=unit, unit_scale=unit_scale, initial=initial, leave=False, file=stream)
     return _LogLines(total, desc, unit=unit, unit_scale=unit_scale, initial=initial, stream=stream)
 
 
@@ -101,8 +108,7 @@ def _count(n: float, scale: bool) -> str:
 class _LogLines(_Silent):
     """One plain line at most every LOG_INTERVAL seconds: no carriage returns in logs."""
 
-    def __init__(self, total: float, desc: str, *, unit: str, unit_scale: bool, initial: int,
-                 stream: TextIO) -> None:
+    def __init__(self, total: float, desc: str, *, unit: str, unit_scale: bool, initial: int, stream: TextIO) -> None:
         super().__init__(total, initial)
         self.desc, self.unit, self.scale = desc, unit, unit_scale
         self.stream = stream

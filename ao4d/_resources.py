@@ -27,6 +27,4 @@ def data_dir(name: str) -> Path:
     for folder in candidates:
         if folder.is_dir():
             return folder
-    raise FileNotFoundError(
-        f"ao4d data folder {name!r} not found; looked in " + ", ".join(map(str, candidates))
-    )
+    raise FileNotFoundError(f"ao4d data folder {name!r} not found; looked in " + ", ".join(map(str, candidates)))

@@ -81,9 +81,7 @@ def foreign_tbb(lib_dir: str | None = None) -> list[str]:
     if lib_dir is None:
         return []
     own = os.path.realpath(lib_dir)
-    return [
-        p for p in mapped_libraries() if _is_tbb(p) and os.path.dirname(os.path.realpath(p)) != own
-    ]
+    return [p for p in mapped_libraries() if _is_tbb(p) and os.path.dirname(os.path.realpath(p)) != own]
 
 
 def preload_runtime_tbb() -> dict[str, object]:

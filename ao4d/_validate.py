@@ -10,8 +10,16 @@ from typing import Any
 import numpy as np
 
 __all__ = [
-    "as_array", "as_real", "as_vector", "check_choice", "check_int", "check_positive_int", "check_bool", "check_finite",
-    "check_memory", "check_grid_lengths",
+    "as_array",
+    "as_real",
+    "as_vector",
+    "check_choice",
+    "check_int",
+    "check_positive_int",
+    "check_bool",
+    "check_finite",
+    "check_memory",
+    "check_grid_lengths",
 ]
 
 # Refuse allocations above this many bytes before starting work (overridable per call).
@@ -57,7 +65,7 @@ def as_array(
             words = " or ".join(f"{k}D" for k in allowed)
             raise ValueError(f"`{name}` must be a {words} array, got shape {arr.shape}")
     if shape_tail is not None:
-        tail = arr.shape[arr.ndim - len(shape_tail):] if arr.ndim >= len(shape_tail) else None
+        tail = arr.shape[arr.ndim - len(shape_tail) :] if arr.ndim >= len(shape_tail) else None
         if tail is None or any(want is not None and got != want for got, want in zip(tail, shape_tail)):
             want_s = "(..., " + ", ".join("*" if w is None else str(w) for w in shape_tail) + ")"
             raise ValueError(f"`{name}` must have shape {want_s}, got {arr.shape}")
@@ -185,14 +193,18 @@ def check_grid_lengths(steps: Any, extents: Any, name: str, *, hint: str = "") -
     highest = (np.finfo(np.float64).max / room) ** (1 / power)
     small, big = float(steps.min()), float(max(steps.max(), extents.max()))
     if small < lowest:
-        raise ValueError(f"`{name}` {small:.3g} is too small for a {d}D mesh: its measures multiply "
-                         f"{power} lengths, which underflow float64 below {lowest:.1e}; give the grid "
-                         f"in larger units (e.g. spacing=1) and scale the mesh afterwards{hint}")
+        raise ValueError(
+            f"`{name}` {small:.3g} is too small for a {d}D mesh: its measures multiply "
+            f"{power} lengths, which underflow float64 below {lowest:.1e}; give the grid "
+            f"in larger units (e.g. spacing=1) and scale the mesh afterwards{hint}"
+        )
     if not big <= highest:
-        raise ValueError(f"`{name}` gives the grid an extent of {big:.3g}, too large for a {d}D mesh: "
-                         f"its measures multiply {power} lengths, which overflow float64 above "
-                         f"{highest:.1e}; give the grid in smaller units and scale the mesh "
-                         f"afterwards{hint}")
+        raise ValueError(
+            f"`{name}` gives the grid an extent of {big:.3g}, too large for a {d}D mesh: "
+            f"its measures multiply {power} lengths, which overflow float64 above "
+            f"{highest:.1e}; give the grid in smaller units and scale the mesh "
+            f"afterwards{hint}"
+        )
 
 
 def check_bool(value: Any, name: str) -> bool:
@@ -230,6 +242,5 @@ def check_memory(
     """Refuse work needing more than ``limit`` bytes, saying how much it would need and what to do."""
     if nbytes > limit:
         raise MemoryError(
-            f"{what} would need about {nbytes / 2**30:.1f} GiB, above the limit of "
-            f"{limit / 2**30:.1f} GiB; {hint}"
+            f"{what} would need about {nbytes / 2**30:.1f} GiB, above the limit of {limit / 2**30:.1f} GiB; {hint}"
         )

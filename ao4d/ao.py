@@ -24,14 +24,12 @@ from ._validate import as_array, check_choice, check_int, check_memory, check_po
 from .bvh.host import nondegenerate
 from .geometry import simplex_normals
 from .mesh import as_mesh, warn_if_inside_out
+from .raycast import ACCELS, check_distance, check_rays, count_occluded, get_bvh, mesh_arrays, progress_bar, unit_rows
 from .topology import GRID_EDGE_KEY
-from .raycast import (ACCELS, check_distance, check_rays, count_occluded, get_bvh, mesh_arrays, progress_bar,
-                      unit_rows)
 
 __all__ = ["ambient_occlusion", "ORIGIN_OFFSET", "OpenMeshWarning"]
 
 ORIGIN_OFFSET = 1e-4  # times the bounding-box diagonal
-
 
 
 class OpenMeshWarning(UserWarning):
@@ -50,8 +48,10 @@ def warn_if_open(mesh: Any, *, stacklevel: int = 3) -> None:
 
         warnings.warn(
             f"the mesh is open ({n_open:,} boundary faces): {cache[GRID_EDGE_KEY]}; rays leak out "
-            "through the open faces, so AO near them is too low", OpenMeshWarning,
-            stacklevel=stacklevel)
+            "through the open faces, so AO near them is too low",
+            OpenMeshWarning,
+            stacklevel=stacklevel,
+        )
 
 
 def _query_points(mesh, at, points, normals, d):
@@ -62,9 +62,7 @@ def _query_points(mesh, at, points, normals, d):
         points = as_array(points, "points", ndim=2, shape_tail=(d,), dtype=np.float64, finite=True)
         normals = as_array(normals, "normals", ndim=2, shape_tail=(d,), dtype=np.float64, finite=True)
         if len(points) != len(normals):
-            raise ValueError(
-                f"`points` and `normals` must have the same length, got {len(points)} and {len(normals)}"
-            )
+            raise ValueError(f"`points` and `normals` must have the same length, got {len(points)} and {len(normals)}")
         return points, unit_rows(normals, "normals"), np.ones(len(points), dtype=bool)
     check_choice(at, "at", ("vertices", "simplices"))
     vertices, simplices = mesh_arrays(mesh)
@@ -216,12 +214,15 @@ def ambient_occlusion(
     check_choice(accel, "accel", ACCELS)
     pts, nrm, defined = _query_points(mesh, at, points, normals, d)
     runtime = cl.resolve_backend(backend)
-    check_rays(int(defined.sum()) * samples, cl.backend_name(runtime), max_rays,
-               what=f"`samples`={samples} at {int(defined.sum())} points",
-               hint="use fewer `samples` or points, or pass max_rays=math.inf (CLI: --force)")
+    check_rays(
+        int(defined.sum()) * samples,
+        cl.backend_name(runtime),
+        max_rays,
+        what=f"`samples`={samples} at {int(defined.sum())} points",
+        hint="use fewer `samples` or points, or pass max_rays=math.inf (CLI: --force)",
+    )
     # the Sobol table holds samples x (d - 1) float64 values (and a float32 copy for the device)
-    check_memory(samples * d * 12.0, f"the direction table for samples={samples}",
-                 hint="use fewer `samples`")
+    check_memory(samples * d * 12.0, f"the direction table for samples={samples}", hint="use fewer `samples`")
     if points is None:  # at the mesh's own points: inward normals look into the solid
         warn_if_inside_out(mesh, "every hemisphere looks into the solid (AO = 1 everywhere)")
     warn_if_open(mesh)
@@ -233,19 +234,34 @@ def ambient_occlusion(
     pts, nrm = pts[idx], nrm[idx]
     desc = f"{d}D AO ({cl.backend_name(runtime)})"
     with progress_bar(progress, idx.size * samples, desc) as bar:
-        counts = count_occluded(mesh, pts, nrm, samples=samples, seed=seed,
-                                offset=ORIGIN_OFFSET * tree.world_diagonal, max_distance=max_distance,
-                                runtime=runtime, accel=accel, bar=bar)
+        counts = count_occluded(
+            mesh,
+            pts,
+            nrm,
+            samples=samples,
+            seed=seed,
+            offset=ORIGIN_OFFSET * tree.world_diagonal,
+            max_distance=max_distance,
+            runtime=runtime,
+            accel=accel,
+            bar=bar,
+        )
     occlusion[idx] = counts / samples
     if points is None and at == "vertices":
         simplices = np.asarray(mesh_arrays(mesh)[1])
         _fill_flat_vertices(occlusion, simplices)
         alone = np.flatnonzero(_referenced(len(occlusion), simplices) & np.isnan(occlusion))
         if alone.size:  # clusters of zero measure only: no neighbour has an AO to share
-            occlusion[alone] = _both_sides(mesh, pts=np.asarray(mesh_arrays(mesh)[0])[alone],
-                                           samples=samples, seed=seed,
-                                           offset=ORIGIN_OFFSET * tree.world_diagonal,
-                                           max_distance=max_distance, runtime=runtime, accel=accel)
+            occlusion[alone] = _both_sides(
+                mesh,
+                pts=np.asarray(mesh_arrays(mesh)[0])[alone],
+                samples=samples,
+                seed=seed,
+                offset=ORIGIN_OFFSET * tree.world_diagonal,
+                max_distance=max_distance,
+                runtime=runtime,
+                accel=accel,
+            )
     return occlusion
 
 
@@ -255,8 +271,9 @@ def _referenced(n: int, simplices: np.ndarray) -> np.ndarray:
     return used
 
 
-def _both_sides(mesh, *, pts: np.ndarray, samples: int, seed: int, offset: float,
-                max_distance: float, runtime: Any, accel: str) -> np.ndarray:
+def _both_sides(
+    mesh, *, pts: np.ndarray, samples: int, seed: int, offset: float, max_distance: float, runtime: Any, accel: str
+) -> np.ndarray:
     """AO of points without a normal: the mean over the two hemispheres about the first axis.
 
     A cluster of zero-measure simplices that touches nothing else (a grid point exactly at the
@@ -269,8 +286,17 @@ def _both_sides(mesh, *, pts: np.ndarray, samples: int, seed: int, offset: float
     axis[:, 0] = 1.0
     total = np.zeros(len(pts))
     for sign in (1.0, -1.0):
-        total += count_occluded(mesh, pts, sign * axis, samples=samples, seed=seed, offset=offset,
-                                max_distance=max_distance, runtime=runtime, accel=accel)
+        total += count_occluded(
+            mesh,
+            pts,
+            sign * axis,
+            samples=samples,
+            seed=seed,
+            offset=offset,
+            max_distance=max_distance,
+            runtime=runtime,
+            accel=accel,
+        )
     return total / (2 * samples)
 
 

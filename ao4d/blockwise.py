@@ -66,6 +66,8 @@ from typing import Any
 
 import numpy as np
 
+from . import cells_device
+from ._validate import check_finite
 from .cells import (
     PROGRESS_CELLS,
     Geometry,
@@ -77,12 +79,17 @@ from .cells import (
     march_slabs,
     outside_value,
 )
-from . import cells_device
-from ._validate import check_finite
 from .mesh import SimplexMesh
 
-__all__ = ["extract_blocks", "extract_field_blocks", "field_array", "is_dask_array", "worker_environment",
-           "WorkerEnvironmentWarning", "MAX_BLOCKS"]
+__all__ = [
+    "extract_blocks",
+    "extract_field_blocks",
+    "field_array",
+    "is_dask_array",
+    "worker_environment",
+    "WorkerEnvironmentWarning",
+    "MAX_BLOCKS",
+]
 
 # More tasks than this is a chunking mistake (the graph alone would not fit a client).
 MAX_BLOCKS = 1 << 20
@@ -162,8 +169,10 @@ def _check_workers(client: Any) -> None:
             f"{len(slow)} of {len(settings)} dask workers run with MALLOC_TRIM_THRESHOLD_="
             f"{settings[slow[0]][1]} (dask's default), which made ao4d's block-wise extraction 3.4x "
             "slower here: start them inside `with ao4d.blockwise.worker_environment():` (see its "
-            "docstring)", WorkerEnvironmentWarning,
-            stacklevel=5)
+            "docstring)",
+            WorkerEnvironmentWarning,
+            stacklevel=5,
+        )
 
 
 def is_dask_array(value: Any) -> bool:
@@ -222,8 +231,9 @@ def _empty_block(d: int) -> _BlockMesh:
     return _BlockMesh(np.zeros((0, d)), np.zeros((0, d), dtype=np.int64), z, z, z)
 
 
-def _to_global(local: np.ndarray, block: tuple[int, ...], start: Sequence[int],
-               grid: tuple[int, ...], n_dirs: int = 1) -> np.ndarray:
+def _to_global(
+    local: np.ndarray, block: tuple[int, ...], start: Sequence[int], grid: tuple[int, ...], n_dirs: int = 1
+) -> np.ndarray:
     """Engine linear index (times ``n_dirs`` plus direction) in a block -> the same in the grid."""
     point, direction = np.divmod(local, n_dirs)
     index = np.unravel_index(point, block)
@@ -238,12 +248,16 @@ def _block_mesh(values: np.ndarray, offset: tuple[int, ...], spec: _Spec) -> _Bl
     if any(n < 2 for n in values.shape):
         return _empty_block(d)
     if spec.padded:  # the data (not the infinite padding) must be finite
-        inner = tuple(slice(max(1, o) - o, min(n - 1, o + m) - o)
-                      for o, m, n in zip(offset, values.shape, spec.shape))
+        inner = tuple(slice(max(1, o) - o, min(n - 1, o + m) - o) for o, m, n in zip(offset, values.shape, spec.shape))
         check_finite(values[inner], "values")
     shift = 1 if spec.padded else 0
-    geom = Geometry(tuple(values.shape), spec.perm, np.asarray(spec.origin),
-                     np.asarray(spec.spacing), np.asarray(offset, dtype=np.int64) - shift)
+    geom = Geometry(
+        tuple(values.shape),
+        spec.perm,
+        np.asarray(spec.origin),
+        np.asarray(spec.spacing),
+        np.asarray(offset, dtype=np.int64) - shift,
+    )
     table = cell_table(d, spec.method)
 
     def read(a: int, b: int) -> np.ndarray:  # as ao4d.extract reads its slabs
@@ -264,13 +278,16 @@ def _block_mesh(values: np.ndarray, offset: tuple[int, ...], spec: _Spec) -> _Bl
     grid = tuple(spec.shape[axis] for axis in spec.perm)
     keys = _to_global(np.concatenate([p.keys for p in parts]), geom.shape, start, grid, n_dirs)
     cells = _to_global(np.concatenate([p.cells for p in parts]), geom.shape, start, grid)
-    return _BlockMesh(np.concatenate([p.vertices for p in parts]),
-                      np.concatenate([p.simplices for p in parts]), keys, cells,
-                      np.concatenate([p.counts for p in parts]))
+    return _BlockMesh(
+        np.concatenate([p.vertices for p in parts]),
+        np.concatenate([p.simplices for p in parts]),
+        keys,
+        cells,
+        np.concatenate([p.counts for p in parts]),
+    )
 
 
-def _field_block_mesh(field: Callable, axes: list[np.ndarray], offset: tuple[int, ...],
-                      spec: _Spec) -> _BlockMesh:
+def _field_block_mesh(field: Callable, axes: list[np.ndarray], offset: tuple[int, ...], spec: _Spec) -> _BlockMesh:
     """Sample ``field`` on one block's points (with overlap) and march it."""
     from .fields import evaluate_layers
 
@@ -279,9 +296,11 @@ def _field_block_mesh(field: Callable, axes: list[np.ndarray], offset: tuple[int
     if bad.any():  # as ao4d.extract_field says it: name `field` and a point
         k, *rest = np.unravel_index(int(np.argmax(bad)), values.shape)  # engine axis 0 = last
         point = [float(axes[i][j]) for i, j in enumerate(rest)] + [float(axes[-1][k])]
-        raise ValueError(f"`field` returned {int(bad.sum())} non-finite value(s) (NaN or inf) in "
-                         f"the block at grid index {offset}, e.g. at point "
-                         f"{tuple(round(x, 6) for x in point)}")
+        raise ValueError(
+            f"`field` returned {int(bad.sum())} non-finite value(s) (NaN or inf) in "
+            f"the block at grid index {offset}, e.g. at point "
+            f"{tuple(round(x, 6) for x in point)}"
+        )
     return _block_mesh(values, offset, spec)
 
 
@@ -297,15 +316,19 @@ def _block_ranges(chunks: tuple[tuple[int, ...], ...]) -> list[tuple[tuple[int, 
     for sizes in chunks:
         n = sum(sizes)
         starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)
-        axes.append([(int(s), min(int(s) + int(c) + 1, n)) for s, c in zip(starts, sizes)
-                     if min(int(s) + int(c) + 1, n) - int(s) >= 2])
+        axes.append(
+            [
+                (int(s), min(int(s) + int(c) + 1, n))
+                for s, c in zip(starts, sizes)
+                if min(int(s) + int(c) + 1, n) - int(s) >= 2
+            ]
+        )
     return list(itertools.product(*axes))
 
 
 def _check_blocks(ranges: list, spec: _Spec, itemsize: int, what: str) -> None:
     if len(ranges) > MAX_BLOCKS:
-        raise ValueError(f"{what} would make {len(ranges):,} blocks (at most {MAX_BLOCKS:,}); "
-                         "use larger chunks")
+        raise ValueError(f"{what} would make {len(ranges):,} blocks (at most {MAX_BLOCKS:,}); use larger chunks")
     # the largest block must fit one worker's slab working set (checked before any work)
     biggest = tuple(max(r[k][1] - r[k][0] for r in ranges) for k in range(len(spec.shape)))
     engine = tuple(biggest[axis] for axis in spec.perm)
@@ -391,14 +414,12 @@ def _weld(blocks: list[_BlockMesh], spec: _Spec, d: int) -> SimplexMesh:
     return SimplexMesh(vertices, simplices)
 
 
-def _run(func: Callable, block_args: list[tuple], spec: _Spec, progress: bool | None,
-         token: str) -> SimplexMesh:
+def _run(func: Callable, block_args: list[tuple], spec: _Spec, progress: bool | None, token: str) -> SimplexMesh:
     """Run ``func(*args)`` for every block as a named task on the active scheduler, then weld."""
     import dask
 
     prefix = f"ao4d-block-{token}-"
-    tasks = [dask.delayed(func)(*args, dask_key_name=f"{prefix}{n}")
-             for n, args in enumerate(block_args)]
+    tasks = [dask.delayed(func)(*args, dask_key_name=f"{prefix}{n}") for n, args in enumerate(block_args)]
     n_cells = math.prod(n - 1 for n in spec.shape)
     bar = None
     if (n_cells >= PROGRESS_CELLS) if progress is None else progress:
@@ -439,8 +460,6 @@ def block_sizes(chunks: Any, shape: tuple[int, ...]) -> tuple[tuple[int, ...], .
     if any(c < 1 for sizes in out for c in sizes):
         raise ValueError(f"`chunks` must be positive, got {chunks!r}")
     return out
-
-
 
 
 # --------------------------------------------------------------------------------------------
@@ -510,8 +529,18 @@ def extract_blocks(
         if values.dtype.kind != "f":
             values = values.astype(np.float64)
         values = da.pad(values, 1, mode="constant", constant_values=outside_value(inside))
-    spec = _Spec(float(level), method, inside, tuple(range(d)), tuple(int(n) for n in values.shape),
-                 tuple(map(float, origin)), tuple(map(float, spacing)), chunk, closed, backend)
+    spec = _Spec(
+        float(level),
+        method,
+        inside,
+        tuple(range(d)),
+        tuple(int(n) for n in values.shape),
+        tuple(map(float, origin)),
+        tuple(map(float, spacing)),
+        chunk,
+        closed,
+        backend,
+    )
     ranges = _block_ranges(values.chunks)
     _check_blocks(ranges, spec, values.dtype.itemsize, f"`values` in chunks of {values.chunksize}")
     # one more point along every axis from the next blocks (thin slices move, not whole chunks)
@@ -519,8 +548,10 @@ def extract_blocks(
     pieces = grown.to_delayed(optimize_graph=False)
     args = []
     for index in np.ndindex(*pieces.shape):
-        box = tuple((int(sum(sizes[:i])), int(sum(sizes[:i])) + grown.chunks[k][i])
-                    for k, (sizes, i) in enumerate(zip(values.chunks, index)))
+        box = tuple(
+            (int(sum(sizes[:i])), int(sum(sizes[:i])) + grown.chunks[k][i])
+            for k, (sizes, i) in enumerate(zip(values.chunks, index))
+        )
         if all(hi - lo >= 2 for lo, hi in box):
             args.append((pieces[index], tuple(lo for lo, _ in box), spec))
     return _run(_block_mesh, args, spec, progress, dask.base.tokenize(values.name, spec))
@@ -578,12 +609,20 @@ def extract_field_blocks(
 
     d = len(axes)
     shape = tuple(len(a) for a in axes)
-    spec = _Spec(float(level), method, inside, (d - 1, *range(d - 1)), shape,
-                 tuple(map(float, origin)), tuple(map(float, spacing)), chunk, backend=backend)
+    spec = _Spec(
+        float(level),
+        method,
+        inside,
+        (d - 1, *range(d - 1)),
+        shape,
+        tuple(map(float, origin)),
+        tuple(map(float, spacing)),
+        chunk,
+        backend=backend,
+    )
     ranges = _block_ranges(block_sizes(chunks, shape))
     _check_blocks(ranges, spec, 8, f"`chunks={chunks!r}` on a grid of shape {shape}")
-    args = [(field, [a[lo:hi] for a, (lo, hi) in zip(axes, box)], tuple(lo for lo, _ in box), spec)
-            for box in ranges]
+    args = [(field, [a[lo:hi] for a, (lo, hi) in zip(axes, box)], tuple(lo for lo, _ in box), spec) for box in ranges]
     token = dask.base.tokenize(dask.base.tokenize(field), [a.tobytes() for a in axes], spec)
     return _run(_field_block_mesh, args, spec, progress, token)
 
@@ -632,5 +671,6 @@ def field_array(field: Callable, shape: Any, bounds: Any, *, chunks: Any = "auto
         raise TypeError(f"`field` must be callable on (..., d) points, got {type(field).__name__}")
     axes = grid_axes(shape, bounds, dim=getattr(field, "dim", None))
     n = tuple(len(a) for a in axes)
-    return da.map_blocks(_sample_block, field, axes, chunks=block_sizes(chunks, n), dtype=np.float64,
-                         meta=np.empty((0,) * len(n)))
+    return da.map_blocks(
+        _sample_block, field, axes, chunks=block_sizes(chunks, n), dtype=np.float64, meta=np.empty((0,) * len(n))
+    )

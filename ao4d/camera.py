@@ -191,8 +191,9 @@ class Camera4D:
             distance, half_width = lateral + along + 1.0, lateral
         else:
             distance, half_width = lateral / tan + along, lateral + along * tan
-        return cls(centre - distance * direction, centre, up, over, fov=fov,
-                   projection=projection, half_width=half_width)
+        return cls(
+            centre - distance * direction, centre, up, over, fov=fov, projection=projection, half_width=half_width
+        )
 
     # basis vectors by name
     @property

@@ -99,9 +99,7 @@ def cube_table(dim: int) -> CellTable:
     table = _load_table(dim, "cube")
     u, v = table.edges[:, 0].astype(np.int64), table.edges[:, 1].astype(np.int64)
     offsets = table.offsets.astype(np.int64)
-    return CellTable(
-        dim, offsets, np.diff(offsets), table.simplices.astype(np.uint8), u & v, u ^ v
-    )
+    return CellTable(dim, offsets, np.diff(offsets), table.simplices.astype(np.uint8), u & v, u ^ v)
 
 
 @functools.lru_cache(maxsize=None)
@@ -172,8 +170,11 @@ class Geometry:
         same float in every slab and block, and on the device (kernels/march.cl)."""
         start = [0] * len(self.shape) if self.offset is None else [int(k) for k in self.offset]
         index = [(z0 if e == 0 else 0) + start[axis] for e, axis in enumerate(self.perm)]
-        return (index, [float(self.origin[axis]) for axis in self.perm],
-                [float(self.spacing[axis]) for axis in self.perm])
+        return (
+            index,
+            [float(self.origin[axis]) for axis in self.perm],
+            [float(self.spacing[axis]) for axis in self.perm],
+        )
 
 
 def corner_offsets(geom: Geometry, d: int) -> np.ndarray:
@@ -280,9 +281,7 @@ class Plan:
         return len(self.dirs)
 
 
-def _slab_keys(
-    case: np.ndarray, plan: Plan, n_keys: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def _slab_keys(case: np.ndarray, plan: Plan, n_keys: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Edge keys of the simplices of all active cells of one slab, or None if empty.
 
     ``case`` holds every cell's case at its lowest corner (flat slab index). Returns (keys
@@ -414,8 +413,13 @@ def march_slabs(job: Job) -> Iterator[SlabMesh]:
         if simplices is not None:
             lin, dir_ = np.divmod(new_keys, plan.n_dirs)
             shift = z0 * geom.layer  # slab -> grid linear index
-            yield SlabMesh(interpolate(slab, lin, plan.dirs[dir_], z0, level, plan), simplices,
-                           new_keys + shift * plan.n_dirs, found[1] + shift, found[2])
+            yield SlabMesh(
+                interpolate(slab, lin, plan.dirs[dir_], z0, level, plan),
+                simplices,
+                new_keys + shift * plan.n_dirs,
+                found[1] + shift,
+                found[2],
+            )
 
 
 def march(job: Job) -> tuple[np.ndarray, np.ndarray]:
@@ -446,9 +450,7 @@ def join(parts: Iterable[SlabMesh], d: int, *, widen: bool = False) -> tuple[np.
     return vertices, simplices
 
 
-def interpolate(
-    slab: np.ndarray, lin: np.ndarray, masks: np.ndarray, z0: int, level: float, plan: Plan
-) -> np.ndarray:
+def interpolate(slab: np.ndarray, lin: np.ndarray, masks: np.ndarray, z0: int, level: float, plan: Plan) -> np.ndarray:
     """Positions (K, d) of the crossings on edges (slab point ``lin``, direction ``masks``):
     the reference whose float64 operations the device's ``interpolate`` kernel repeats."""
     geom = plan.geom

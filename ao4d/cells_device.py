@@ -92,9 +92,18 @@ PROFILE = False
 profile: dict[str, float] = {}
 
 # value dtype -> (OpenCL type as stored, VKIND of kernels/march.cl)
-_NATIVE = {"f2": ("half", 1), "f4": ("float", 0), "i1": ("char", 0), "u1": ("uchar", 0),
-           "i2": ("short", 0), "u2": ("ushort", 0), "i4": ("int", 0), "u4": ("uint", 0),
-           "i8": ("long", 0), "u8": ("ulong", 0)}
+_NATIVE = {
+    "f2": ("half", 1),
+    "f4": ("float", 0),
+    "i1": ("char", 0),
+    "u1": ("uchar", 0),
+    "i2": ("short", 0),
+    "u2": ("ushort", 0),
+    "i4": ("int", 0),
+    "u4": ("uint", 0),
+    "i8": ("long", 0),
+    "u8": ("ulong", 0),
+}
 
 
 def _stage(name: str, queue: Any, since: float) -> float:
@@ -185,8 +194,7 @@ def _kernel_value(dtype: np.dtype, fp64: bool) -> tuple[str, int] | None:
 class _Engine:
     """Kernels and buffers of one extraction on one device, reused slab after slab."""
 
-    def __init__(self, runtime: cl.Runtime, table: CellTable, geom: Geometry, layers: int,
-                 period: int) -> None:
+    def __init__(self, runtime: cl.Runtime, table: CellTable, geom: Geometry, layers: int, period: int) -> None:
         import pyopencl
 
         self.cl = pyopencl
@@ -227,12 +235,17 @@ class _Engine:
         case_size = 2 if d == 4 else 1
         mask_size = 2 if plan.n_dirs > 8 else 1
         carry = geom.layer * plan.n_dirs * 4
-        cl.check_device_memory(runtime, {
-            "the slab's values": points * 8,
-            "the slab's values, signs, cases, edge masks and vertex numbers":
-                padded * (8 + 1 + case_size + mask_size + 8),
-            "the shared layer's vertices (twice)": 2 * carry,
-        }, task=f"extracting a grid of shape {geom.shape} on the device", fallback="thinner slabs (`chunk=`)")
+        cl.check_device_memory(
+            runtime,
+            {
+                "the slab's values": points * 8,
+                "the slab's values, signs, cases, edge masks and vertex numbers": padded
+                * (8 + 1 + case_size + mask_size + 8),
+                "the shared layer's vertices (twice)": 2 * carry,
+            },
+            task=f"extracting a grid of shape {geom.shape} on the device",
+            fallback="thinner slabs (`chunk=`)",
+        )
         self.case_size, self.mask_size = case_size, mask_size
         # carry[key]: the vertex of a crossed in-plane edge of the shared layer (only those are
         # read, and each is written by the slab below: no fill needed)
@@ -243,14 +256,22 @@ class _Engine:
     def kernels(self, vtype: str, vkind: int) -> dict[str, Any]:
         if vtype not in self._built:
             self._built[vtype] = cl.build_kernels(
-                self.runtime, "march.cl",
-                {"DIM": self.d, "NDIRS": self.n_dirs, "CHUNK": _CHUNK, "SCAN_BLOCK": _SCAN_BLOCK,
-                 "VTYPE": vtype, "VKIND": vkind, "FP64": int(self.fp64)})
+                self.runtime,
+                "march.cl",
+                {
+                    "DIM": self.d,
+                    "NDIRS": self.n_dirs,
+                    "CHUNK": _CHUNK,
+                    "SCAN_BLOCK": _SCAN_BLOCK,
+                    "VTYPE": vtype,
+                    "VKIND": vkind,
+                    "FP64": int(self.fp64),
+                },
+            )
         return self._built[vtype]
 
     def _const(self, array: np.ndarray):
-        return self.cl.Buffer(self.ctx, self.mf.READ_ONLY | self.mf.COPY_HOST_PTR,
-                              hostbuf=np.ascontiguousarray(array))
+        return self.cl.Buffer(self.ctx, self.mf.READ_ONLY | self.mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(array))
 
     def _buf(self, nbytes: int):
         return self.cl.Buffer(self.ctx, self.mf.READ_WRITE, max(int(nbytes), 4))
@@ -281,9 +302,16 @@ class _Engine:
             return np.int64(bits if bits >= 0 else bits ^ 0x7FFFFFFFFFFFFFFF), np.int32(mode)
         return dtype.type(value), np.int32(mode)
 
-    def slab(self, slab: np.ndarray, z0: int, level: float, inside: str, want_cells: bool,
-             take: Callable[[int, int], tuple[np.ndarray, np.ndarray]] | None,
-             below: bool | None = None):
+    def slab(
+        self,
+        slab: np.ndarray,
+        z0: int,
+        level: float,
+        inside: str,
+        want_cells: bool,
+        take: Callable[[int, int], tuple[np.ndarray, np.ndarray]] | None,
+        below: bool | None = None,
+    ):
         """March one slab (its first layer ``z0`` in the grid), or None when it has no simplex.
 
         With ``take=None`` only count: (new vertices, simplices) of the slab, ``below`` saying
@@ -327,22 +355,31 @@ class _Engine:
         cur, nxt = self.carry
         if chunks * _CHUNK > n:  # zero the last chunk's padding
             zero = np.uint8(0)
-            cl_.enqueue_fill_buffer(q, cases, zero, n * self.case_size,
-                                    (chunks * _CHUNK - n) * self.case_size)
-            cl_.enqueue_fill_buffer(q, vmask, zero, n * self.mask_size,
-                                    (chunks * _CHUNK - n) * self.mask_size)
+            cl_.enqueue_fill_buffer(q, cases, zero, n * self.case_size, (chunks * _CHUNK - n) * self.case_size)
+            cl_.enqueue_fill_buffer(q, vmask, zero, n * self.mask_size, (chunks * _CHUNK - n) * self.mask_size)
         e = slab.shape
         grid = (e[-1], e[-2], n // (e[-1] * e[-2]))
         shared = self.in_plane if (self.has_below if below is None else below) else 0
-        k["classify"](q, grid, None, sign, cases, vmask, self.tables["counts"],
-                      i32(shared), *self.strides, *self.user_bits, i32(e[0]),
-                      i32(e[1] if d == 4 else 1))
+        k["classify"](
+            q,
+            grid,
+            None,
+            sign,
+            cases,
+            vmask,
+            self.tables["counts"],
+            i32(shared),
+            *self.strides,
+            *self.user_bits,
+            i32(e[0]),
+            i32(e[1] if d == 4 else 1),
+        )
         t = _stage("classify", q, t)
         in_plane = i32(self.in_plane)
-        k["count"](q, (chunks,), None, cases, vmask, self.tables["counts"], chunk_vi, chunk_va,
-                   chunk_s, chunk_a, in_plane)
-        k["scan_chunks"](q, (blocks,), None, chunk_vi, chunk_va, chunk_s, chunk_a, blk,
-                         i32(chunks), i32(blocks))
+        k["count"](
+            q, (chunks,), None, cases, vmask, self.tables["counts"], chunk_vi, chunk_va, chunk_s, chunk_a, in_plane
+        )
+        k["scan_chunks"](q, (blocks,), None, chunk_vi, chunk_va, chunk_s, chunk_a, blk, i32(chunks), i32(blocks))
         k["scan_blocks"](q, (1,), None, blk, i32(blocks), totals_buf)
         totals = np.empty(4, dtype=np.int32)
         cl_.enqueue_copy(q, totals, totals_buf)
@@ -355,17 +392,22 @@ class _Engine:
         if n_simp == 0:  # an empty slab shares no crossed edge with the next one
             return None
         if self.n_vertices + n_new > _INT_MAX:
-            raise MemoryError(f"the mesh would have more than {_INT_MAX:,} vertices, more than the "
-                              "device engine indexes; use backend='numpy' (AO4D_DEVICE=none)")
+            raise MemoryError(
+                f"the mesh would have more than {_INT_MAX:,} vertices, more than the "
+                "device engine indexes; use backend='numpy' (AO4D_DEVICE=none)"
+            )
         if n_simp * d > _INT_MAX:
-            raise MemoryError(f"one slab makes {n_simp:,} simplices, more than the device engine "
-                              "indexes in one slab; use thinner slabs (`chunk=`)")
+            raise MemoryError(
+                f"one slab makes {n_simp:,} simplices, more than the device engine "
+                "indexes in one slab; use thinner slabs (`chunk=`)"
+            )
         simplices, vertices = take(n_simp, n_new)
         wide = simplices.dtype == np.int64
         # the final rows themselves where the device can write them in place: a CPU device and
         # rows that start on a page (the first slab's; other slabs' would be copied)
-        in_place = self.in_place and simplices.ctypes.data % 4096 == 0 and (
-            n_new == 0 or vertices.ctypes.data % 4096 == 0)
+        in_place = (
+            self.in_place and simplices.ctypes.data % 4096 == 0 and (n_new == 0 or vertices.ctypes.data % 4096 == 0)
+        )
         if in_place:
             flags = self.mf.WRITE_ONLY | self.mf.USE_HOST_PTR
             out = cl_.Buffer(self.ctx, flags, hostbuf=simplices)
@@ -379,17 +421,71 @@ class _Engine:
         act_p, act_s = scratch("active points", n_active * 4), scratch("active first", n_active * 4)
         act_b = scratch("active flags", n_active)
         z0_, period = i32(z0), i32(self.period)
-        k["layer_prefix"](q, (n0 + 1,), None, vmask, chunk_vi, chunk_va, blk, totals_buf,
-                          layer_in, layer_ax, i32(self.layer), i32(n), i32(blocks), in_plane)
-        k["number"](q, (chunks,), None, cases, vmask, self.tables["counts"], chunk_vi, chunk_va,
-                    chunk_s, chunk_a, blk, layer_in, layer_ax, vfirst, vax, keys_buf, nxt,
-                    act_p, act_s, act_b, i32(blocks), i32(self.n_vertices), in_plane, i32(top_start),
-                    i32(self.layer), z0_, period)
+        k["layer_prefix"](
+            q,
+            (n0 + 1,),
+            None,
+            vmask,
+            chunk_vi,
+            chunk_va,
+            blk,
+            totals_buf,
+            layer_in,
+            layer_ax,
+            i32(self.layer),
+            i32(n),
+            i32(blocks),
+            in_plane,
+        )
+        k["number"](
+            q,
+            (chunks,),
+            None,
+            cases,
+            vmask,
+            self.tables["counts"],
+            chunk_vi,
+            chunk_va,
+            chunk_s,
+            chunk_a,
+            blk,
+            layer_in,
+            layer_ax,
+            vfirst,
+            vax,
+            keys_buf,
+            nxt,
+            act_p,
+            act_s,
+            act_b,
+            i32(blocks),
+            i32(self.n_vertices),
+            in_plane,
+            i32(top_start),
+            i32(self.layer),
+            z0_,
+            period,
+        )
         t = _stage("number", q, t)
         k["emit64" if wide else "emit32"](
-            q, (n_active,), None, cases, vmask, vfirst, vax, cur, act_p, act_s, act_b,
-            self.tables["offsets"], self.tables["table"], self.edge_off, self.edge_dir, in_plane,
-            out)
+            q,
+            (n_active,),
+            None,
+            cases,
+            vmask,
+            vfirst,
+            vax,
+            cur,
+            act_p,
+            act_s,
+            act_b,
+            self.tables["offsets"],
+            self.tables["table"],
+            self.edge_off,
+            self.edge_dir,
+            in_plane,
+            out,
+        )
         t = _stage("emit", q, t)
         if n_new:
             real, pad = self.real, [0] * (4 - d)
@@ -399,16 +495,29 @@ class _Engine:
             base = index + pad
             origin = [real(x) for x in origin + pad]
             spacing = [real(x) for x in spacing + pad]
-            k["interpolate"](q, (n_new,), None, values, keys_buf, verts, real(level),
-                             *(i32(x) for x in shape[:3]), *self.strides,
-                             *(i32(x) for x in perm), *(i32(x) for x in base), *origin, *spacing)
+            k["interpolate"](
+                q,
+                (n_new,),
+                None,
+                values,
+                keys_buf,
+                verts,
+                real(level),
+                *(i32(x) for x in shape[:3]),
+                *self.strides,
+                *(i32(x) for x in perm),
+                *(i32(x) for x in base),
+                *origin,
+                *spacing,
+            )
         t = _stage("interpolate", q, t)
         mapped = []
         if in_place:
             for buf, rows in ((out, simplices), (verts, vertices)):
                 if buf is not None:
-                    view, _ = cl_.enqueue_map_buffer(q, buf, cl_.map_flags.READ, 0, rows.shape,
-                                                     rows.dtype, is_blocking=False)
+                    view, _ = cl_.enqueue_map_buffer(
+                        q, buf, cl_.map_flags.READ, 0, rows.shape, rows.dtype, is_blocking=False
+                    )
                     mapped.append((buf, view))
         else:
             cl_.enqueue_copy(q, simplices, out, is_blocking=False)
@@ -488,8 +597,10 @@ def march_slabs(
     """
     geom, level, inside, layers_per_slab = job.geom, job.level, job.inside, job.layers_per_slab
     if take is None:
+
         def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
             return _aligned_empty((n_simp, d), np.int32), _aligned_empty((n_new, d), np.float64)
+
     d = len(geom.shape)
     layers = device_layers(geom, layers_per_slab, job.table, slab_points) if grow else layers_per_slab
     with _lock:
@@ -509,16 +620,20 @@ def march_slabs(
         for z0, z1, slab in job.slabs(layers):
             done = z1 / (n0 - 1)
             with _lock:
-                found = engine.slab(slab, z0, level, inside, cells,
-                                    lambda n_simp, n_new, done=done: take(n_simp, n_new, done))
+                found = engine.slab(
+                    slab, z0, level, inside, cells, lambda n_simp, n_new, done=done: take(n_simp, n_new, done)
+                )
             del slab
             if found is not None:
                 simplices, vertices, new_keys, active, counts = found
                 shift = z0 * geom.layer
-                yield SlabMesh(vertices, simplices,
-                               empty if new_keys is None else new_keys + shift * plan.n_dirs,
-                               empty if active is None else active + shift,
-                               empty if counts is None else counts)
+                yield SlabMesh(
+                    vertices,
+                    simplices,
+                    empty if new_keys is None else new_keys + shift * plan.n_dirs,
+                    empty if active is None else active + shift,
+                    empty if counts is None else counts,
+                )
     finally:
         with _lock:
             engine.release()

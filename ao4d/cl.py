@@ -470,18 +470,14 @@ def _device_list(reports: list[DeviceReport]) -> str:
     )
 
 
-def _selection_error(
-    source: str, problem: str, reports: list[DeviceReport], hint: str
-) -> DeviceSelectionError:
+def _selection_error(source: str, problem: str, reports: list[DeviceReport], hint: str) -> DeviceSelectionError:
     text = f"{source}: {problem}. OpenCL devices in this process:\n{_device_list(reports)}"
     if not reports and _problems:
         text += "\nWhy platforms are missing:\n" + "\n".join(f"  {p}" for p in _problems)
     return DeviceSelectionError(f"{text}\n{hint}")
 
 
-def select_device(
-    reports: list[DeviceReport], request: str, *, source: str = "AO4D_DEVICE"
-) -> Selection:
+def select_device(reports: list[DeviceReport], request: str, *, source: str = "AO4D_DEVICE") -> Selection:
     """Choose a device among ``reports`` for ``request`` (see :func:`device_request`).
 
     Parameters
@@ -508,8 +504,13 @@ def select_device(
     request, _, which = request.partition("#")
     order = sorted(range(len(reports)), key=lambda i: _rank(reports[i], i))
     ranked = [reports[i] for i in order]
-    accepted = ["cpu", "gpu", "none", "or part of a platform/device name", "each optionally with :k "
-                "for the k-th match (from 0)"]
+    accepted = [
+        "cpu",
+        "gpu",
+        "none",
+        "or part of a platform/device name",
+        "each optionally with :k for the k-th match (from 0)",
+    ]
     usage = "AO4D_DEVICE takes " + ", ".join(accepted) + "; unset it to choose automatically."
     if request == "none":
         return Selection(request, None, tuple((r, "not used: AO4D_DEVICE=none") for r in reports))
@@ -520,9 +521,7 @@ def select_device(
         pool = [r for r in ranked if r.usable and r.kind == kind]
         if not pool:
             asked = [r for r in reports if r.kind == kind]
-            problem = (
-                f"no {kind} device works" if asked else f"there is no {kind} among the OpenCL devices"
-            )
+            problem = f"no {kind} device works" if asked else f"there is no {kind} among the OpenCL devices"
             working = [r.line for r in ranked if r.usable and r.kind in ("GPU", "CPU")]
             hint = (
                 f"Devices that work: {'; '.join(working)}. Unset AO4D_DEVICE to use "
@@ -537,20 +536,23 @@ def select_device(
         pool = [r for r in matches if r.usable]
         if not matches:
             raise _selection_error(
-                source, f"{text!r} is not cpu, gpu or none and names no OpenCL platform or device",
-                reports, usage,
+                source,
+                f"{text!r} is not cpu, gpu or none and names no OpenCL platform or device",
+                reports,
+                usage,
             )
         if not pool:
-            raise _selection_error(
-                source, f"the device(s) named by {text!r} do not work", reports, usage
-            )
+            raise _selection_error(source, f"the device(s) named by {text!r} do not work", reports, usage)
     else:
         raise ValueError(f"`request` must be auto, cpu, gpu, none or name:<text>; got {request!r}")
     if which:
         if int(which) >= len(pool):
             raise _selection_error(
-                source, f"asks for working device {which} (from 0) of those it matches, but "
-                f"{len(pool)} match{'es' if len(pool) == 1 else ''}", reports, usage,
+                source,
+                f"asks for working device {which} (from 0) of those it matches, but "
+                f"{len(pool)} match{'es' if len(pool) == 1 else ''}",
+                reports,
+                usage,
             )
     chosen = pool[int(which or 0)] if pool else None
     notes = []
@@ -695,8 +697,9 @@ def _make_runtime(rep: DeviceReport) -> Runtime:
 # -- kernels ----------------------------------------------------------------------------------
 
 
-def check_device_memory(runtime: Runtime, nbytes: dict[str, int], *, task: str,
-                        fallback: str = "backend='numpy'") -> None:
+def check_device_memory(
+    runtime: Runtime, nbytes: dict[str, int], *, task: str, fallback: str = "backend='numpy'"
+) -> None:
     """Refuse, before any work, buffers the device cannot hold: one of them, or all at once.
 
     ``nbytes`` maps what each buffer holds to its size; ``task`` names the work in the message
@@ -718,9 +721,7 @@ def check_device_memory(runtime: Runtime, nbytes: dict[str, int], *, task: str,
         )
 
 
-def build_kernels(
-    runtime: Runtime, source: str, defines: dict[str, Any] | None = None
-) -> dict[str, Any]:
+def build_kernels(runtime: Runtime, source: str, defines: dict[str, Any] | None = None) -> dict[str, Any]:
     """Build ``kernels/<source>`` for ``runtime`` once and return its kernels by name.
 
     Shared code is reached with ``#include`` (the kernels folder is passed with ``-I``);

@@ -37,8 +37,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"ao4d {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--no-progress", action="store_true",
-                        help="no progress bars or progress lines (errors and results still print)")
+    common.add_argument(
+        "--no-progress", action="store_true", help="no progress bars or progress lines (errors and results still print)"
+    )
     for name in COMMANDS:
         module = _load(name)
         cmd = sub.add_parser(

@@ -560,8 +560,7 @@ def gyroid(period: float = 1.0, thickness: float = 0.3) -> Field:
         g = sum(s[..., i] * c[..., (i + 1) % 4] for i in range(4))
         return np.abs(g) - t
 
-    return Field(f, dim=4, name=f"gyroid(period={period:g}, thickness={t:g})",
-                 program=_program("gyroid", (k, t)))
+    return Field(f, dim=4, name=f"gyroid(period={period:g}, thickness={t:g})", program=_program("gyroid", (k, t)))
 
 
 def ground(height: float = 0.0, axis: int = 1, *, dim: int = 4) -> Field:
@@ -585,8 +584,12 @@ def ground(height: float = 0.0, axis: int = 1, *, dim: int = 4) -> Field:
     dim = check_positive_int(dim, "dim")
     if axis not in range(dim):
         raise ValueError(f"`axis` must be in 0..{dim - 1}, got {axis!r}")
-    return Field(lambda p: p[..., axis] - h, dim=dim, name=f"ground(height={h:g}, axis={axis})",
-                 program=_program("ground", (h, axis, dim)))
+    return Field(
+        lambda p: p[..., axis] - h,
+        dim=dim,
+        name=f"ground(height={h:g}, axis={axis})",
+        program=_program("ground", (h, axis, dim)),
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -949,8 +952,10 @@ def evaluate_layers(field: Callable, axes: Sequence[np.ndarray], start: int, sto
                 pts[..., axis] = coords.reshape([-1 if q == pos else 1 for q in range(d)])
             vals = np.asarray(field(pts))
             if vals.dtype.kind not in "fiub":  # complex parts would be dropped with a warning
-                raise TypeError(f"`field` must return real numbers, got dtype {vals.dtype} (as "
-                                "ao4d.extract refuses such values: take .real or abs() first)")
+                raise TypeError(
+                    f"`field` must return real numbers, got dtype {vals.dtype} (as "
+                    "ao4d.extract refuses such values: take .real or abs() first)"
+                )
             vals = vals.astype(np.float64, copy=False)
             if vals.shape != pts.shape[:-1]:
                 raise ValueError(f"`field` returned shape {vals.shape} for points of shape {pts.shape}")

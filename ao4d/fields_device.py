@@ -117,16 +117,15 @@ def host_matches() -> dict[str, Any]:
             found = None
             for lanes in (2, 1):
                 ok = all(
-                    np.array_equal(np.einsum("...i,...i->...", sub, sub),
-                                   [_sumsq(row, lanes) for row in sub.tolist()])
-                    for sub in (pts[:, :2], pts[:, :3], pts, np.ascontiguousarray(pts[:, :3])))
+                    np.array_equal(np.einsum("...i,...i->...", sub, sub), [_sumsq(row, lanes) for row in sub.tolist()])
+                    for sub in (pts[:, :2], pts[:, :3], pts, np.ascontiguousarray(pts[:, :3]))
+                )
                 if ok:
                     found = lanes
                     break
             a, b = pts[:, 0], pts[:, 1] * rng.uniform(1e-3, 1e3, 4096)
             hyp = np.array_equal(np.hypot(a, b), [_glibc_hypot(x, y) for x, y in zip(a.tolist(), b.tolist())])
-            _matches.update(lanes=found or 2, einsum=found is not None, hypot=hyp,
-                            exact=found is not None and hyp)
+            _matches.update(lanes=found or 2, einsum=found is not None, hypot=hyp, exact=found is not None and hyp)
         return dict(_matches)
 
 
@@ -168,27 +167,33 @@ def _emit(node: Any, dim: int, funcs: list[str], prm: list[float]) -> str | None
     loop = "double q[DIM];\n    for (int i = 0; i < DIM; ++i) "
     if op in ("union", "intersection") and names:
         how = "np_min" if op == "union" else "np_max"
-        body = f"double v = {names[0]}(p, prm);\n" + "".join(
-            f"    v = {how}(v, {n}(p, prm));\n" for n in names[1:]) + "    return v;"
+        body = (
+            f"double v = {names[0]}(p, prm);\n"
+            + "".join(f"    v = {how}(v, {n}(p, prm));\n" for n in names[1:])
+            + "    return v;"
+        )
     elif op == "difference" and len(names) == 2 and not params:
         body = f"return np_max({names[0]}(p, prm), -{names[1]}(p, prm));"
     elif op == "smooth_union" and len(names) == 2 and len(params) == 1:
-        body = (f"const double k = prm[{base}];\n"
-                f"    const double fa = {names[0]}(p, prm), fb = {names[1]}(p, prm);\n"
-                "    const double h = np_clip01(0.5 + 0.5 * (fb - fa) / k);\n"
-                "    return fb * (1.0 - h) + fa * h - k * h * (1.0 - h);")
+        body = (
+            f"const double k = prm[{base}];\n"
+            f"    const double fa = {names[0]}(p, prm), fb = {names[1]}(p, prm);\n"
+            "    const double h = np_clip01(0.5 + 0.5 * (fb - fa) / k);\n"
+            "    return fb * (1.0 - h) + fa * h - k * h * (1.0 - h);"
+        )
     elif op == "translate" and len(names) == 1 and len(params) == dim:
         body = f"{loop}q[i] = p[i] - prm[{base} + i];\n    return {names[0]}(q, prm);"
     elif op == "scale" and len(names) == 1 and len(params) == 1:
-        body = (f"const double s = prm[{base}];\n    {loop}q[i] = p[i] / s;\n"
-                f"    return s * {names[0]}(q, prm);")
+        body = f"const double s = prm[{base}];\n    {loop}q[i] = p[i] / s;\n    return s * {names[0]}(q, prm);"
     elif op == "rotate" and len(names) == 1 and len(params) == 5:
         i, j = int(params[0]), int(params[1])
         if not (0 <= i < dim and 0 <= j < dim and i != j):
             return None
         c, s, ms = (f"prm[{base + k}]" for k in (2, 3, 4))
-        body = (f"{loop}q[i] = p[i];\n    q[{i}] = {c} * p[{i}] + {s} * p[{j}];\n"
-                f"    q[{j}] = {ms} * p[{i}] + {c} * p[{j}];\n    return {names[0]}(q, prm);")
+        body = (
+            f"{loop}q[i] = p[i];\n    q[{i}] = {c} * p[{i}] + {s} * p[{j}];\n"
+            f"    q[{j}] = {ms} * p[{i}] + {c} * p[{j}];\n    return {names[0]}(q, prm);"
+        )
     elif not names and _primitive_ok(op, params, dim):
         extra = f", {(len(params) - 2) // (dim + 1)}" if op == "metaballs" else ""
         body = f"return f_{op}(p, {q}{extra});"
@@ -223,8 +228,9 @@ def device_source(field: Any, dim: int) -> tuple[str, np.ndarray] | None:
     top = _emit(program, dim, funcs, prm)
     if top is None:
         return None
-    funcs.append(f"double field_value(const double *p, __constant const double *prm)\n"
-                 f"{{\n    return {top}(p, prm);\n}}\n")
+    funcs.append(
+        f"double field_value(const double *p, __constant const double *prm)\n{{\n    return {top}(p, prm);\n}}\n"
+    )
     return "".join(funcs), np.array(prm or [0.0], dtype=np.float64)
 
 
@@ -235,20 +241,27 @@ def _kernel(runtime: cl.Runtime, generated: str, dim: int) -> Any:
     from ._resources import data_dir
 
     lanes = host_matches()["lanes"]
-    text = (f"#define DIM {dim}\n#define SUMSQ_LANES {lanes}\n"
-            + (data_dir("kernels") / "fields.cl").read_text() + "\n" + generated)
+    text = (
+        f"#define DIM {dim}\n#define SUMSQ_LANES {lanes}\n"
+        + (data_dir("kernels") / "fields.cl").read_text()
+        + "\n"
+        + generated
+    )
     key = (id(runtime.context), text)
     with _lock:
         if key not in _built:
             import pyopencl as clmod
+
             options = ["-cl-std=CL1.2"]
             try:
-                program = _kernel_binaries.built_program(clmod, runtime.context, runtime.device, "fields.cl",
-                                                         text, options)
+                program = _kernel_binaries.built_program(
+                    clmod, runtime.context, runtime.device, "fields.cl", text, options
+                )
             except clmod.RuntimeError as exc:
                 raise RuntimeError(
                     f"building OpenCL kernels fields.cl for {runtime.name} failed; compiler log:\n"
-                    f"{_kernel_binaries.build_log(exc, runtime.report.platform)}") from None
+                    f"{_kernel_binaries.build_log(exc, runtime.report.platform)}"
+                ) from None
             _built[key] = program.sample_field
         return _built[key]
 
@@ -258,15 +271,20 @@ def usable(runtime: cl.Runtime | None) -> bool:
     :data:`ao4d.cells_device.FLOAT32` (the path of devices without it) is not set."""
     from . import cells_device
 
-    return (runtime is not None and not cells_device.FLOAT32
-            and "cl_khr_fp64" in runtime.device.extensions)
+    return runtime is not None and not cells_device.FLOAT32 and "cl_khr_fp64" in runtime.device.extensions
 
 
 class _Sampler:
     """One field on one grid: the kernel's arguments, and slabs sampled into device buffers."""
 
-    def __init__(self, generated: str, params: np.ndarray, axes: Sequence[np.ndarray],
-                 check: Callable[[np.ndarray, int], None] | None, first: list[float] | None) -> None:
+    def __init__(
+        self,
+        generated: str,
+        params: np.ndarray,
+        axes: Sequence[np.ndarray],
+        check: Callable[[np.ndarray, int], None] | None,
+        first: list[float] | None,
+    ) -> None:
         self.generated, self.params = generated, params
         self.axes = [np.asarray(a, dtype=np.float64) for a in axes]
         self.dim = len(self.axes)
@@ -279,12 +297,15 @@ class _Sampler:
         key = id(runtime.context)
         if key not in self._bufs:
             import pyopencl as clmod
+
             mf = clmod.mem_flags
             ro = mf.READ_ONLY | mf.COPY_HOST_PTR
-            self._bufs[key] = (_kernel(runtime, self.generated, self.dim),
-                               clmod.Buffer(runtime.context, ro, hostbuf=np.concatenate(self.axes)),
-                               clmod.Buffer(runtime.context, ro, hostbuf=self.params),
-                               clmod.Buffer(runtime.context, mf.READ_WRITE, 4))
+            self._bufs[key] = (
+                _kernel(runtime, self.generated, self.dim),
+                clmod.Buffer(runtime.context, ro, hostbuf=np.concatenate(self.axes)),
+                clmod.Buffer(runtime.context, ro, hostbuf=self.params),
+                clmod.Buffer(runtime.context, mf.READ_WRITE, 4),
+            )
         return self._bufs[key]
 
     def shape(self, a: int, b: int) -> tuple[int, ...]:
@@ -294,13 +315,18 @@ class _Sampler:
         """Sample layers [a, b) into the device ``buffer`` (float64, the slab's C order); check
         that every value is finite, and record the grid's first value when ``a == 0``."""
         import pyopencl as clmod
+
         queue = runtime.queue
         kernel, axes, prm, bad = self._buffers(runtime)
         shape = self.shape(a, b)
         inner = self.inner
-        grid = ((inner[0], b - a, 1) if self.dim == 2 else
-                (inner[1], inner[0], b - a) if self.dim == 3 else
-                (inner[2], inner[1], (b - a) * inner[0]))
+        grid = (
+            (inner[0], b - a, 1)
+            if self.dim == 2
+            else (inner[1], inner[0], b - a)
+            if self.dim == 3
+            else (inner[2], inner[1], (b - a) * inner[0])
+        )
         offs = [np.int32(x) for x in (list(self.offsets) + [0] * 4)[:4]]
         flag = np.zeros(1, dtype=np.int32)
         clmod.enqueue_copy(queue, bad, flag, is_blocking=False)
@@ -318,6 +344,7 @@ class _Sampler:
     def download(self, runtime: cl.Runtime, a: int, b: int) -> np.ndarray:
         """Layers [a, b) sampled on the device, as a host array."""
         import pyopencl as clmod
+
         values = np.empty(self.shape(a, b), dtype=np.float64)
         buffer = clmod.Buffer(runtime.context, clmod.mem_flags.READ_WRITE, max(values.nbytes, 8))
         try:
@@ -360,10 +387,15 @@ class _Reader:
         return self.sampler.download(self.runtime, a, b)
 
 
-def reader(field: Callable, axes: Sequence[np.ndarray], backend: str,
-           host_read: Callable[[int, int], np.ndarray], *,
-           check: Callable[[np.ndarray, int], None] | None = None,
-           first: list[float] | None = None) -> Callable[[int, int], Any]:
+def reader(
+    field: Callable,
+    axes: Sequence[np.ndarray],
+    backend: str,
+    host_read: Callable[[int, int], np.ndarray],
+    *,
+    check: Callable[[np.ndarray, int], None] | None = None,
+    first: list[float] | None = None,
+) -> Callable[[int, int], Any]:
     """The slab reader of :func:`ao4d.march.extract_field`: on the device where it can be.
 
     Parameters
@@ -401,8 +433,9 @@ def reader(field: Callable, axes: Sequence[np.ndarray], backend: str,
     return _Reader(_Sampler(*found, axes, check, first), runtime)
 
 
-def sample_layers(field: Callable, axes: Sequence[np.ndarray], start: int, stop: int,
-                  runtime: cl.Runtime | None = None) -> np.ndarray:
+def sample_layers(
+    field: Callable, axes: Sequence[np.ndarray], start: int, stop: int, runtime: cl.Runtime | None = None
+) -> np.ndarray:
     """:func:`ao4d.fields.evaluate_layers` on the device: the same layout and values.
 
     Parameters
@@ -433,8 +466,7 @@ def sample_layers(field: Callable, axes: Sequence[np.ndarray], start: int, stop:
     if found is None:
         raise ValueError(f"`field` {field!r} has no device program for a {len(axes)}D grid")
     if not 0 <= start < stop <= len(axes[-1]):
-        raise ValueError(f"`start`, `stop` must be layers 0 <= start < stop <= {len(axes[-1])}, "
-                         f"got {start}, {stop}")
+        raise ValueError(f"`start`, `stop` must be layers 0 <= start < stop <= {len(axes[-1])}, got {start}, {stop}")
     runtime = runtime if runtime is not None else cl.get_runtime(warn=False)
     if not usable(runtime):
         raise RuntimeError("sampling fields on the device needs an OpenCL device with cl_khr_fp64")

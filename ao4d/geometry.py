@@ -91,9 +91,7 @@ def cross(*vectors: Any) -> np.ndarray:
     arrays = np.broadcast_arrays(*arrays)
     d = arrays[0].shape[-1] if arrays[0].ndim else 0
     if d not in (2, 3, 4) or len(arrays) != d - 1:
-        raise ValueError(
-            f"`vectors` must be d - 1 vectors of length d (d in 2, 3, 4), got {len(arrays)} of length {d}"
-        )
+        raise ValueError(f"`vectors` must be d - 1 vectors of length d (d in 2, 3, 4), got {len(arrays)} of length {d}")
     out = np.moveaxis(cross_components([np.moveaxis(a, -1, 0) for a in arrays]), 0, -1)
     return out + 0 if out.dtype.kind != "f" else out + 0.0  # -0.0 -> 0.0 for readable output
 
@@ -122,8 +120,8 @@ def simplex_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
     coords = np.ascontiguousarray(vertices.T, dtype=np.float64)  # (d, V): contiguous gathers
     out = np.empty((len(simplices), d), dtype=np.float64)
     for start in range(0, len(simplices), _BLOCK):
-        ids = np.ascontiguousarray(simplices[start:start + _BLOCK].T)  # (d, B)
+        ids = np.ascontiguousarray(simplices[start : start + _BLOCK].T)  # (d, B)
         p0 = np.take(coords, ids[0], axis=1)
         edges = [np.take(coords, ids[k], axis=1) - p0 for k in range(1, d)]
-        out[start:start + _BLOCK] = cross_components(edges).T
+        out[start : start + _BLOCK] = cross_components(edges).T
     return out

@@ -8,6 +8,9 @@ function (colour map presets and an opacity ramp dragged on the page), axis-alig
 planes and the orbit camera of the slicing page (:mod:`ao4d.viewer`). It needs no network and
 opens from ``file://``. :func:`reference_march` is the same ray-march in numpy, sample for sample.
 
+Why this stays one module: the page's JavaScript mirrors every convention below, and
+:func:`reference_march` is their executable statement; split, the two halves would drift apart.
+
 Conventions (the page and this module agree exactly)
 ----------------------------------------------------
 Voxels
@@ -110,9 +113,22 @@ MAX_STEPS = 8192  # the shader's loop bound
 BLOCK = 8  # voxels per side of the blocks the page skips when they hold no hit voxel
 MAX_BYTES = 150_000_000
 # array = None: "rgba" when the image has colours, else "shade"
-DEFAULT_STATE: dict[str, Any] = {"array": None, "cmap": "magma", "lo": 0.0, "hi": 0.0,
-                                 "opacity": 1.0, "x0": 0.0, "x1": 1.0, "y0": 0.0, "y1": 1.0,
-                                 "z0": 0.0, "z1": 1.0, "az": 30.0, "el": 20.0, "zoom": 1.0}
+DEFAULT_STATE: dict[str, Any] = {
+    "array": None,
+    "cmap": "magma",
+    "lo": 0.0,
+    "hi": 0.0,
+    "opacity": 1.0,
+    "x0": 0.0,
+    "x1": 1.0,
+    "y0": 0.0,
+    "y1": 1.0,
+    "z0": 0.0,
+    "z1": 1.0,
+    "az": 30.0,
+    "el": 20.0,
+    "zoom": 1.0,
+}
 CLIPS = ("x0", "x1", "y0", "y1", "z0", "z1")
 # transfer-function presets: the page's buttons (colour map and opacity ramp)
 PRESETS: dict[str, dict[str, Any]] = {
@@ -127,6 +143,7 @@ _SHADE_SLACK = 1e-6
 
 
 # --------------------------------------------------------------------------- the image
+
 
 class ImageRangeWarning(UserWarning):
     """An image's shade lies outside [0, 1] and is shown mapped from its own range."""
@@ -202,26 +219,42 @@ def encode(image: Any, *, name: str | None = None) -> ImageData:
         return image
     if isinstance(image, (str, os.PathLike)):
         return load_image(image)
-    if all(hasattr(image, k) for k in ("shade", "depth", "object_id", "occlusion", "rgba8",
-                                       "geometry")):  # a RenderResult
+    if all(
+        hasattr(image, k) for k in ("shade", "depth", "object_id", "occlusion", "rgba8", "geometry")
+    ):  # a RenderResult
         geo = image.geometry
         spacing = np.broadcast_to(np.asarray(geo.spacing, dtype=np.float64), (3,)).copy()
-        return _encode_arrays(np.asarray(image.shade), depth=np.asarray(image.depth),
-                              occlusion=np.asarray(image.occlusion),
-                              hit=np.asarray(image.object_id) >= 0, colors=np.asarray(image.rgba8),
-                              spacing=spacing, origin=np.asarray(geo.origin, dtype=np.float64),
-                              name=name or "image")
+        return _encode_arrays(
+            np.asarray(image.shade),
+            depth=np.asarray(image.depth),
+            occlusion=np.asarray(image.occlusion),
+            hit=np.asarray(image.object_id) >= 0,
+            colors=np.asarray(image.rgba8),
+            spacing=spacing,
+            origin=np.asarray(geo.origin, dtype=np.float64),
+            name=name or "image",
+        )
     try:
         shade = np.asarray(image)
     except Exception:  # pragma: no cover - numpy refuses the object
         shade = None
     if shade is None or shade.ndim != 3 or shade.dtype.kind not in "iufb":
-        raise TypeError("`image` must be a RenderResult, a path to a .vti or .mhd file, or a 3D "
-                        f"array of shade values; got {type(image).__name__}"
-                        + (f" of shape {shade.shape}" if shade is not None and shade.ndim else ""))
+        raise TypeError(
+            "`image` must be a RenderResult, a path to a .vti or .mhd file, or a 3D "
+            f"array of shade values; got {type(image).__name__}"
+            + (f" of shape {shade.shape}" if shade is not None and shade.ndim else "")
+        )
     shade = shade.astype(np.float64)
-    return _encode_arrays(shade, depth=None, occlusion=None, hit=None, colors=None,
-                          spacing=np.ones(3), origin=np.zeros(3), name=name or "image")
+    return _encode_arrays(
+        shade,
+        depth=None,
+        occlusion=None,
+        hit=None,
+        colors=None,
+        spacing=np.ones(3),
+        origin=np.zeros(3),
+        name=name or "image",
+    )
 
 
 def _shade_range(shade: np.ndarray, name: str) -> tuple[np.ndarray, tuple[float, float], tuple[str, ...]]:
@@ -239,14 +272,15 @@ def _shade_range(shade: np.ndarray, name: str) -> tuple[np.ndarray, tuple[float,
     else:
         rel = np.where(finite, 1.0, 0.0)
         empty = "every voxel is drawn"
-    note = (f"`image` {name}: shade spans [{lo:g}, {hi:g}], outside the [0, 1] of ao4d's images "
-            f"(not written by ao4d?); shown mapped linearly from [{lo:g}, {hi:g}] onto [0, 1] "
-            f"({empty})")
+    note = (
+        f"`image` {name}: shade spans [{lo:g}, {hi:g}], outside the [0, 1] of ao4d's images "
+        f"(not written by ao4d?); shown mapped linearly from [{lo:g}, {hi:g}] onto [0, 1] "
+        f"({empty})"
+    )
     return rel, (lo, hi), (note,)
 
 
-def _encode_arrays(shade, *, depth, occlusion, hit, colors, spacing, origin, name,
-                   present=None) -> ImageData:
+def _encode_arrays(shade, *, depth, occlusion, hit, colors, spacing, origin, name, present=None) -> ImageData:
     if shade.ndim != 3 or min(shade.shape) < 1:
         raise ValueError(f"`image` must be a 3D image with at least one voxel, got shape {shade.shape}")
     if not np.isfinite(spacing).all() or (spacing <= 0).any():
@@ -278,11 +312,22 @@ def _encode_arrays(shade, *, depth, occlusion, hit, colors, spacing, origin, nam
             raise ValueError(f"`image` rgba must have shape {shade.shape + (4,)}, got {colors.shape}")
         colors = np.where(hit[..., None], colors, 0).astype(np.uint8)
     if present is None:
-        present = ("shade",) + (("occlusion",) if occlusion is not None else ()) + \
-                  (("depth",) if depth is not None else ()) + (("rgba",) if colors is not None else ())
-    return ImageData(scalars, colors, np.asarray(spacing, np.float64), np.asarray(origin, np.float64),
-                     {"shade": shade_range, "occlusion": (0.0, 1.0), "depth": (d_lo, d_hi)}, name,
-                     tuple(present), notes)
+        present = (
+            ("shade",)
+            + (("occlusion",) if occlusion is not None else ())
+            + (("depth",) if depth is not None else ())
+            + (("rgba",) if colors is not None else ())
+        )
+    return ImageData(
+        scalars,
+        colors,
+        np.asarray(spacing, np.float64),
+        np.asarray(origin, np.float64),
+        {"shade": shade_range, "occlusion": (0.0, 1.0), "depth": (d_lo, d_hi)},
+        name,
+        tuple(present),
+        notes,
+    )
 
 
 def load_image(path: str | os.PathLike) -> ImageData:
@@ -307,9 +352,16 @@ def load_image(path: str | os.PathLike) -> ImageData:
         raise FileNotFoundError(f"`image`: no such file: {p}")
     if suffix == ".mhd":
         vol = read_mhd(p)
-        return _encode_arrays(np.asarray(vol.data, np.float64), depth=None, occlusion=None,
-                              hit=None, colors=None, spacing=np.asarray(vol.spacing, np.float64),
-                              origin=np.asarray(vol.origin, np.float64), name=p.stem)
+        return _encode_arrays(
+            np.asarray(vol.data, np.float64),
+            depth=None,
+            occlusion=None,
+            hit=None,
+            colors=None,
+            spacing=np.asarray(vol.spacing, np.float64),
+            origin=np.asarray(vol.origin, np.float64),
+            name=p.stem,
+        )
     grid = read_vtk_image(p, "image")  # an unreadable or truncated file is named as such
     dims = tuple(int(n) for n in grid.dimensions)
     names = list(grid.point_data.keys())
@@ -323,8 +375,10 @@ def load_image(path: str | os.PathLike) -> ImageData:
     shade = get("shade")
     if shade is None:
         if len(names) != 1:
-            raise ValueError(f"`image` {p.name} has no 'shade' array, and more than one other "
-                             f"(has {names}): which to show is unclear")
+            raise ValueError(
+                f"`image` {p.name} has no 'shade' array, and more than one other "
+                f"(has {names}): which to show is unclear"
+            )
         shade = get(names[0])
     if shade.ndim != 3:
         raise ValueError(f"`image` {p.name}: shade must be one value per voxel, got shape {shade.shape}")
@@ -333,10 +387,16 @@ def load_image(path: str | os.PathLike) -> ImageData:
         rgba = None
     if rgba is not None and rgba.dtype != np.uint8:
         rgba = _quantise(np.asarray(rgba, np.float64))
-    return _encode_arrays(np.asarray(shade, np.float64), depth=get("depth"), occlusion=get("occlusion"),
-                          hit=None if ids is None else ids >= 0, colors=rgba,
-                          spacing=np.asarray(grid.spacing, np.float64),
-                          origin=np.asarray(grid.origin, np.float64), name=p.stem)
+    return _encode_arrays(
+        np.asarray(shade, np.float64),
+        depth=get("depth"),
+        occlusion=get("occlusion"),
+        hit=None if ids is None else ids >= 0,
+        colors=rgba,
+        spacing=np.asarray(grid.spacing, np.float64),
+        origin=np.asarray(grid.origin, np.float64),
+        name=p.stem,
+    )
 
 
 def image_frame(image: ImageData) -> Frame:
@@ -347,6 +407,7 @@ def image_frame(image: ImageData) -> Frame:
 
 
 # --------------------------------------------------------------------------- state and TF
+
 
 def full_state(state: Mapping[str, Any] | None = None, *, image: ImageData | None = None) -> dict:
     """Complete and check a view state of the image page, the way the page does.
@@ -370,9 +431,11 @@ def full_state(state: Mapping[str, Any] | None = None, *, image: ImageData | Non
     if out["array"] is None:
         out["array"] = arrays[0]
     if image is not None and out["array"] in ARRAYS and out["array"] not in arrays:
-        raise ValueError(f"`state['array']` {out['array']!r} is not in the image {image.name!r}, "
-                         f"which holds {', '.join(map(repr, arrays))} (a .mhd file or a bare array "
-                         "holds shade only)")
+        raise ValueError(
+            f"`state['array']` {out['array']!r} is not in the image {image.name!r}, "
+            f"which holds {', '.join(map(repr, arrays))} (a .mhd file or a bare array "
+            "holds shade only)"
+        )
     out["array"] = check_choice(out["array"], "state['array']", arrays)
     out["cmap"] = check_choice(out["cmap"], "state['cmap']", CMAPS)
     for key in ("lo", "hi", "opacity", *CLIPS):
@@ -412,17 +475,20 @@ def transfer_function(state: Mapping[str, Any] | None = None) -> tuple[np.ndarra
 
 # --------------------------------------------------------------------------- the reference
 
+
 def _rays(cam: Camera) -> tuple[np.ndarray, np.ndarray]:
     """(H, W, 3) unit directions through the pixel centres and the eye, in page coordinates."""
     i = np.arange(cam.width) + 0.5 - cam.width / 2.0
     j = np.arange(cam.height) + 0.5 - cam.height / 2.0
-    d = (cam.forward[None, None, :] + (i[None, :, None] / cam.scale) * cam.right
-         - (j[:, None, None] / cam.scale) * cam.up)
+    d = (
+        cam.forward[None, None, :]
+        + (i[None, :, None] / cam.scale) * cam.right
+        - (j[:, None, None] / cam.scale) * cam.up
+    )
     return d / np.linalg.norm(d, axis=2, keepdims=True), cam.eye - cam.target
 
 
-def reference_march(image: Any, state: Mapping[str, Any] | None, width: int, height: int
-                    ) -> np.ndarray:
+def reference_march(image: Any, state: Mapping[str, Any] | None, width: int, height: int) -> np.ndarray:
     """The page's ray-march in numpy, sample for sample (see the module conventions).
 
     Parameters
@@ -498,6 +564,7 @@ def reference_march(image: Any, state: Mapping[str, Any] | None, width: int, hei
 
 # --------------------------------------------------------------------------- the page
 
+
 def _histogram(data: ImageData) -> dict[str, list[int]]:
     hit = data.hit
     out = {}
@@ -524,13 +591,19 @@ def _blocks(data: ImageData) -> np.ndarray:
     hit = data.hit
     shape = [-(-n // BLOCK) for n in hit.shape]
     padded = np.zeros([b * BLOCK for b in shape], dtype=bool)
-    padded[:hit.shape[0], :hit.shape[1], :hit.shape[2]] = hit
+    padded[: hit.shape[0], : hit.shape[1], : hit.shape[2]] = hit
     occupied = padded.reshape(shape[0], BLOCK, shape[1], BLOCK, shape[2], BLOCK).any(axis=(1, 3, 5))
     return np.where(occupied, 255, 0).astype(np.uint8)
 
 
-def image_page_text(image: Any, *, state: Mapping[str, Any] | None = None, title: str | None = None,
-                    compress: bool = True, max_bytes: int = MAX_BYTES) -> str:
+def image_page_text(
+    image: Any,
+    *,
+    state: Mapping[str, Any] | None = None,
+    title: str | None = None,
+    compress: bool = True,
+    max_bytes: int = MAX_BYTES,
+) -> str:
     """The page of :func:`view_image` as a string (for notebooks and the demo's result page).
 
     Parameters are those of :func:`view_image`.
@@ -592,8 +665,7 @@ def image_page_text(image: Any, *, state: Mapping[str, Any] | None = None, title
     parts.append(tail)
     text = "".join(parts)
     if len(text) > max_bytes:
-        raise ValueError(f"the page would be {len(text) / 1e6:.0f} MB, over `max_bytes` = "
-                         f"{max_bytes / 1e6:.0f} MB")
+        raise ValueError(f"the page would be {len(text) / 1e6:.0f} MB, over `max_bytes` = {max_bytes / 1e6:.0f} MB")
     return text
 
 
@@ -632,8 +704,9 @@ def view_image(
     ValueError
         A bad image, state or option; a page over ``max_bytes``.
     """
-    return write_page(path, lambda: image_page_text(image, state=state, title=title, compress=compress,
-                                                    max_bytes=max_bytes))
+    return write_page(
+        path, lambda: image_page_text(image, state=state, title=title, compress=compress, max_bytes=max_bytes)
+    )
 
 
 def _state_fragment(state: Mapping[str, Any]) -> str:
@@ -644,9 +717,11 @@ def _state_fragment(state: Mapping[str, Any]) -> str:
 
 def page_info(text: str) -> dict:
     """The scene JSON object of an image page's text (for tests and tools)."""
-    for tag in ('<script type="application/json" id="ao4d-scene">',
-                '<script type="application/json" id="ao4d-image">'):  # the latter: older image pages
+    for tag in (
+        '<script type="application/json" id="ao4d-scene">',
+        '<script type="application/json" id="ao4d-image">',
+    ):  # the latter: older image pages
         if tag in text:
             start = text.index(tag) + len(tag)
-            return json.loads(text[start:text.index("</script>", start)])  # "<\\/" is JSON for "</"
+            return json.loads(text[start : text.index("</script>", start)])  # "<\\/" is JSON for "</"
     raise ValueError("`text` is not an ao4d image page: it holds no scene")

@@ -92,15 +92,13 @@ class TetSolid:
         ValueError
             If the shapes are wrong, indices are out of range, or a tetrahedron is flat.
         """
-        points = as_array(points, "points", ndim=2, shape_tail=(3,), dtype=np.float64, finite=True,
-                          min_size=12)
+        points = as_array(points, "points", ndim=2, shape_tail=(3,), dtype=np.float64, finite=True, min_size=12)
         tets = as_array(tets, "tets", ndim=2, shape_tail=(4,), min_size=4)
         if tets.dtype.kind not in "iu":
             raise TypeError(f"`tets` must hold integer vertex indices, got dtype {tets.dtype}")
         tets = tets.astype(np.int64)
         if tets.min() < 0 or tets.max() >= len(points):
-            raise ValueError(f"`tets` indices must lie in [0, {len(points)}), "
-                             f"got [{tets.min()}, {tets.max()}]")
+            raise ValueError(f"`tets` indices must lie in [0, {len(points)}), got [{tets.min()}, {tets.max()}]")
         det = _tet_dets(points, tets)
         flat = np.abs(det) <= 1e-14 * _scale(points) ** 3
         if flat.any():
@@ -240,14 +238,19 @@ def tetrahedralize(
     _check_surface(surface, "surface")
     check_choice(method, "method", ("auto", "star", "tetwild"))
     if method != "tetwild":
-        centre = surface.center_mass if center is None else as_array(
-            center, "center", ndim=1, shape_tail=(3,), dtype=np.float64, finite=True)
+        centre = (
+            surface.center_mass
+            if center is None
+            else as_array(center, "center", ndim=1, shape_tail=(3,), dtype=np.float64, finite=True)
+        )
         star = _star_tets(surface, centre)
         if star is not None:
             return star
         if method == "star":
-            raise ValueError("`surface` is not star-shaped from `center` (some face is not "
-                             "visible from it); use method='tetwild' or another `center`")
+            raise ValueError(
+                "`surface` is not star-shaped from `center` (some face is not "
+                "visible from it); use method='tetwild' or another `center`"
+            )
     edge_length = as_real(edge_length, "edge_length", gt=0, le=1)
     threads = check_positive_int(threads, "threads")
     import pytetwild
@@ -314,11 +317,13 @@ def prism(solid: MeshLike, height: float = 1.0, *, base: float = 0.0) -> Simplex
     n = len(pts)
     vertices = np.concatenate([_with_w(pts, base), _with_w(pts, base + height)])
     ids = np.arange(n)
-    simplices = np.concatenate([
-        _reversed(tets),  # lower cap: outward is -w, opposite to a positive tet's normal (+w)
-        tets + n,  # upper cap: outward is +w
-        _wall_tets(tris, ids, ids + n),
-    ])
+    simplices = np.concatenate(
+        [
+            _reversed(tets),  # lower cap: outward is -w, opposite to a positive tet's normal (+w)
+            tets + n,  # upper cap: outward is +w
+            _wall_tets(tris, ids, ids + n),
+        ]
+    )
     return _mesh(vertices, simplices)
 
 
@@ -357,8 +362,11 @@ def cone(
     tet_solid = _as_solid(solid, "solid")
     height = as_real(height, "height", gt=0)
     base = as_real(base, "base")
-    top = tet_solid.centroid if apex is None else as_array(
-        apex, "apex", ndim=1, shape_tail=(3,), dtype=np.float64, finite=True)
+    top = (
+        tet_solid.centroid
+        if apex is None
+        else as_array(apex, "apex", ndim=1, shape_tail=(3,), dtype=np.float64, finite=True)
+    )
     pts, tris = tet_solid.points, tet_solid.boundary
     n = len(pts)
     vertices = np.concatenate([_with_w(pts, base), [[*top, base + height]]])
@@ -416,8 +424,10 @@ def spin(surface: MeshLike, k: int = 32, *, axis_tolerance: float = 1e-9) -> Sim
     k = check_positive_int(k, "k", minimum=3)
     tol = as_real(axis_tolerance, "axis_tolerance", ge=0) * _scale(pts)
     if pts[:, 0].min() < -tol:
-        raise ValueError(f"`surface` must lie in the half-space x >= 0 to spin about x = w = 0; "
-                         f"its smallest x is {pts[:, 0].min():.6g} (translate it first)")
+        raise ValueError(
+            f"`surface` must lie in the half-space x >= 0 to spin about x = w = 0; "
+            f"its smallest x is {pts[:, 0].min():.6g} (translate it first)"
+        )
     on_axis = pts[:, 0] <= tol
     tris = _drop_axis_faces(tris, on_axis)
 
@@ -473,11 +483,14 @@ def _wall_tets(tris: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     # In staircase order the 2nd tetrahedron is negative with respect to the product orientation,
     # so its last two vertices are swapped here; all three then share the orientation of
     # (sorted triangle) x interval.
-    stair = np.stack([
-        np.column_stack([lo[a], lo[b], lo[c], hi[c]]),
-        np.column_stack([lo[a], lo[b], hi[c], hi[b]]),
-        np.column_stack([lo[a], hi[a], hi[b], hi[c]]),
-    ], axis=1)
+    stair = np.stack(
+        [
+            np.column_stack([lo[a], lo[b], lo[c], hi[c]]),
+            np.column_stack([lo[a], lo[b], hi[c], hi[b]]),
+            np.column_stack([lo[a], hi[a], hi[b], hi[c]]),
+        ],
+        axis=1,
+    )
     # Sorting by an odd permutation reversed the triangle. (triangle x interval) with the triangle
     # outward has its DESIGN.md normal pointing inward (det expands to -h (B x C).n3), so the
     # product orientation is flipped once more; both flips together: reverse when sorting was even.
@@ -488,8 +501,7 @@ def _wall_tets(tris: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 
 def _is_odd_permutation(order: np.ndarray) -> np.ndarray:
     """Parity of each row of an (F, 3) permutation array: True when odd."""
-    inversions = ((order[:, 0] > order[:, 1]).astype(int) + (order[:, 0] > order[:, 2])
-                  + (order[:, 1] > order[:, 2]))
+    inversions = (order[:, 0] > order[:, 1]).astype(int) + (order[:, 0] > order[:, 2]) + (order[:, 1] > order[:, 2])
     return inversions % 2 == 1
 
 
@@ -516,7 +528,8 @@ def _drop_axis_faces(tris: np.ndarray, on_axis: np.ndarray) -> np.ndarray:
         raise ValueError(
             "`surface` touches the rotation plane x = 0 at isolated points (e.g. vertices "
             f"{bad.tolist()}); spinning would pinch the boundary. Move it into x > 0, or let it "
-            "rest on x = 0 with whole faces")
+            "rest on x = 0 with whole faces"
+        )
     edges = np.sort(tris[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2), axis=1)
     axis_edges = edges[on_axis[edges].all(axis=1)]
     face_edges = np.sort(tris[flat][:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2), axis=1)
@@ -524,7 +537,8 @@ def _drop_axis_faces(tris: np.ndarray, on_axis: np.ndarray) -> np.ndarray:
     if loose.any():
         raise ValueError(
             "`surface` touches the rotation plane x = 0 along edges that bound no face on it "
-            f"(e.g. edge {axis_edges[loose][0].tolist()}); spinning would pinch the boundary")
+            f"(e.g. edge {axis_edges[loose][0].tolist()}); spinning would pinch the boundary"
+        )
     return tris[~flat]
 
 
@@ -556,18 +570,18 @@ def _check_surface(surface: object, name: str) -> None:
     import trimesh
 
     if not isinstance(surface, trimesh.Trimesh):
-        raise TypeError(f"`{name}` must be a trimesh.Trimesh or TetSolid, "
-                        f"got {type(surface).__name__}")
+        raise TypeError(f"`{name}` must be a trimesh.Trimesh or TetSolid, got {type(surface).__name__}")
     if len(surface.faces) < 4:
         raise ValueError(f"`{name}` must have at least 4 faces, got {len(surface.faces)}")
     if not surface.is_watertight:
-        raise ValueError(f"`{name}` is not watertight (it has boundary or non-manifold edges); "
-                         "it must bound a solid (try trimesh's fill_holes / repair)")
+        raise ValueError(
+            f"`{name}` is not watertight (it has boundary or non-manifold edges); "
+            "it must bound a solid (try trimesh's fill_holes / repair)"
+        )
     if not surface.is_winding_consistent:
         raise ValueError(f"`{name}` has inconsistent face winding (try trimesh.repair.fix_winding)")
     if surface.volume <= 0:
-        raise ValueError(f"`{name}` is inside-out (negative volume {surface.volume:.6g}); "
-                         "call its .invert() first")
+        raise ValueError(f"`{name}` is inside-out (negative volume {surface.volume:.6g}); call its .invert() first")
 
 
 def _as_solid(solid: MeshLike, name: str) -> TetSolid:

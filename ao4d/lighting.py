@@ -32,8 +32,7 @@ import numpy as np
 
 from ._validate import as_array, as_real, as_vector
 
-__all__ = ["Light", "as_lights", "lambert", "blinn_phong", "half_vectors", "depth_cue",
-           "check_depth_cue"]
+__all__ = ["Light", "as_lights", "lambert", "blinn_phong", "half_vectors", "depth_cue", "check_depth_cue"]
 
 
 class Light:
@@ -68,11 +67,11 @@ class Light:
 
     __slots__ = ("direction", "position", "color", "intensity")
 
-    def __init__(self, *, direction=None, position=None, color=(1.0, 1.0, 1.0),
-                 intensity: float = 1.0) -> None:
+    def __init__(self, *, direction=None, position=None, color=(1.0, 1.0, 1.0), intensity: float = 1.0) -> None:
         if (direction is None) == (position is None):
-            raise ValueError("a Light needs exactly one of `direction` (directional light) and "
-                             "`position` (point light)")
+            raise ValueError(
+                "a Light needs exactly one of `direction` (directional light) and `position` (point light)"
+            )
         if direction is not None:
             d = as_vector(direction, "direction", 4, scalar=False, nonzero=True)
             self.direction: np.ndarray | None = d / np.linalg.norm(d)
@@ -123,8 +122,7 @@ class Light:
 
     def __repr__(self) -> str:
         fmt = lambda v: "(" + ", ".join(f"{x:g}" for x in v) + ")"  # noqa: E731
-        where = (f"direction={fmt(self.direction)}" if self.direction is not None
-                 else f"position={fmt(self.position)}")
+        where = f"direction={fmt(self.direction)}" if self.direction is not None else f"position={fmt(self.position)}"
         return f"Light({where}, color={fmt(self.color)}, intensity={self.intensity:g})"
 
 
@@ -149,13 +147,17 @@ def as_lights(light: Any, name: str = "light") -> tuple[Light, ...]:
     if isinstance(light, Light):
         return (light,)
     several = (isinstance(light, np.ndarray) and light.ndim == 2) or (
-        isinstance(light, Sequence) and not isinstance(light, (str, bytes))
-        and any(isinstance(item, Light) or np.ndim(item) >= 1 for item in light))
+        isinstance(light, Sequence)
+        and not isinstance(light, (str, bytes))
+        and any(isinstance(item, Light) or np.ndim(item) >= 1 for item in light)
+    )
     if several:
         return tuple(
-            item if isinstance(item, Light) else
-            Light(direction=as_vector(item, f"{name}[{i}]", 4, scalar=False, nonzero=True))
-            for i, item in enumerate(light))
+            item
+            if isinstance(item, Light)
+            else Light(direction=as_vector(item, f"{name}[{i}]", 4, scalar=False, nonzero=True))
+            for i, item in enumerate(light)
+        )
     return (Light(direction=as_vector(light, name, 4, scalar=False, nonzero=True)),)
 
 
@@ -210,8 +212,7 @@ def half_vectors(to_light: np.ndarray, to_eye: np.ndarray) -> np.ndarray:
     return np.where(length > 1e-12, h / np.maximum(length, 1e-300), 0.0)
 
 
-def blinn_phong(normals: np.ndarray, to_light: np.ndarray, to_eye: np.ndarray,
-                shininess) -> np.ndarray:
+def blinn_phong(normals: np.ndarray, to_light: np.ndarray, to_eye: np.ndarray, shininess) -> np.ndarray:
     """Blinn-Phong specular term ``max(0, n·h)^shininess`` where ``n·l > 0``, else 0.
 
     Parameters
@@ -264,12 +265,12 @@ def check_depth_cue(depth_cue: Any) -> tuple[float, float, float] | None:
     """
     if depth_cue is None:
         return None
-    values = as_array(depth_cue, "depth_cue", ndim=1, shape_tail=(3,), dtype=np.float64,
-                      finite=True)
+    values = as_array(depth_cue, "depth_cue", ndim=1, shape_tail=(3,), dtype=np.float64, finite=True)
     near, far, strength = (float(v) for v in values)
     if not 0 <= near < far:
-        raise ValueError(f"`depth_cue` must be (near, far, strength) with 0 <= near < far, "
-                         f"got near={near:g}, far={far:g}")
+        raise ValueError(
+            f"`depth_cue` must be (near, far, strength) with 0 <= near < far, got near={near:g}, far={far:g}"
+        )
     if not 0 <= strength <= 1:
         raise ValueError(f"`depth_cue` strength must be in [0, 1], got {strength:g}")
     return near, far, strength

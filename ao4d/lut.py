@@ -85,8 +85,7 @@ GENERATOR = {
     "cube_edge_order": "by (axis, index of the lower corner)",
     "simplex_edge_order": "pairs (i, j), i < j of Kuhn chain positions, lexicographic",
     "symmetry": "hyperoctahedral group (2^d d!) for cubes; none for the simplex",
-    "orientation": "n . x = det[p1-p0; ...; p_{d-1}-p0; x] points to the positive side "
-    "(f >= level)",
+    "orientation": "n . x = det[p1-p0; ...; p_{d-1}-p0; x] points to the positive side (f >= level)",
     "simplex_rows": "vertices ascending, first two swapped when that orientation is wrong; "
     "rows sorted by their sorted vertex labels",
 }
@@ -196,9 +195,7 @@ class Table:
         if (self.dim, self.kind) != (other.dim, other.kind):
             return False
         mine, theirs = self.arrays(), other.arrays()
-        return mine.keys() == theirs.keys() and all(
-            np.array_equal(mine[k], theirs[k]) for k in mine
-        )
+        return mine.keys() == theirs.keys() and all(np.array_equal(mine[k], theirs[k]) for k in mine)
 
 
 @dataclass(frozen=True)
@@ -297,9 +294,7 @@ def _cube_corners(dim: int) -> np.ndarray:
 def _cube_edges(dim: int) -> np.ndarray:
     """(E, 2) corner pairs sorted by (axis, lower corner): translation-invariant label order."""
     corners = np.arange(2**dim)
-    rows = [
-        (u, u | 1 << k) for k in range(dim) for u in corners if not (u >> k) & 1
-    ]
+    rows = [(u, u | 1 << k) for k in range(dim) for u in corners if not (u >> k) & 1]
     return np.array(rows, dtype=np.int64)
 
 
@@ -347,9 +342,7 @@ def _cell(dim: int, kind: str) -> _Cell:
         group = _point_maps(_hyperoctahedral_corner_maps(dim), edges)
         # facet x_k = b holds the corners whose bit k equals b
         ids = np.arange(2**dim)
-        boundary = [
-            int(((1 << ids[((ids >> k) & 1) == b]).sum())) for k in range(dim) for b in (0, 1)
-        ]
+        boundary = [int(((1 << ids[((ids >> k) & 1) == b]).sum())) for k in range(dim) for b in (0, 1)]
     else:
         corners = np.tril(np.ones((dim + 1, dim), dtype=np.int8), -1)
         edges = np.array(list(itertools.combinations(range(dim + 1), 2)), dtype=np.int64)
@@ -668,6 +661,8 @@ _MEMORY_DTYPES = {
     "cells": np.int64,
     "cell_parity": np.int8,
 }
+
+
 def table_filename(dim: int, kind: str) -> str:
     """File name of a table in ``lut/``.
 

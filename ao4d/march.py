@@ -17,9 +17,18 @@ from typing import Any
 
 import numpy as np
 
+from . import cells_device
 from ._deprecation import DEPRECATED, renamed
-from ._validate import (as_array, as_real, as_vector, check_bool, check_choice, check_finite, check_grid_lengths,
-                        check_positive_int)
+from ._validate import (
+    as_array,
+    as_real,
+    as_vector,
+    check_bool,
+    check_choice,
+    check_finite,
+    check_grid_lengths,
+    check_positive_int,
+)
 from .cells import PROGRESS_CELLS as _PROGRESS_CELLS
 from .cells import Geometry as _Geometry
 from .cells import Job as _Job
@@ -28,7 +37,6 @@ from .cells import check_slab_memory as _check_slab_memory
 from .cells import layers_per_slab as _layers_per_slab
 from .cells import march as _march
 from .cells import outside_value
-from . import cells_device
 from .cl import BACKENDS
 from .mesh import SimplexMesh
 from .topology import GRID_EDGE_KEY
@@ -38,7 +46,6 @@ __all__ = ["extract", "extract_field", "METHODS"]
 METHODS = ("cubes", "simplices")
 _INSIDE = ("below", "above")
 _KIND = {"cubes": "cube", "simplices": "simplex"}
-
 
 
 # --------------------------------------------------------------------------------------------
@@ -79,20 +86,19 @@ def _run(
     extra: dict[str, Any] = {}
     if runtime is not None and cells_device.fits(geom, layers, table):
         # device slabs grow past the numpy engine's unless the user chose them (chunk=)
-        engine, extra = cells_device.march, {"runtime": runtime, "reread": reread,
-                                             "grow": chunk is None}
+        engine, extra = cells_device.march, {"runtime": runtime, "reread": reread, "grow": chunk is None}
     else:  # slabs of fields sampled on the device, as host arrays (ao4d.fields_device)
         read = getattr(read, "host", read)
     bar = _progress_bar(progress, math.prod(n - 1 for n in geom.shape), geom.shape[0] - 1)
     try:
-        vertices, simplices = engine(_Job(read, geom, level, table, inside, layers, check_values, bar),
-                                     **extra)
+        vertices, simplices = engine(_Job(read, geom, level, table, inside, layers, check_values, bar), **extra)
     finally:
         if bar is not None:
             bar.close()
     # the engines' own fresh arrays: taken without the constructor's copies and checks
-    return SimplexMesh._adopt(np.ascontiguousarray(vertices, dtype=np.float64),
-                              np.ascontiguousarray(simplices, dtype=np.int64))
+    return SimplexMesh._adopt(
+        np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(simplices, dtype=np.int64)
+    )
 
 
 def extract(
@@ -193,28 +199,33 @@ def extract(
     if isinstance(values, np.ma.MaskedArray):
         masked = int(np.ma.count_masked(values))
         if masked:
-            raise ValueError(f"`values` is a masked array with {masked} masked entries; extraction "
-                             "needs a value at every grid point: fill them with a value on the "
-                             "side they belong to (values.filled(...))")
+            raise ValueError(
+                f"`values` is a masked array with {masked} masked entries; extraction "
+                "needs a value at every grid point: fill them with a value on the "
+                "side they belong to (values.filled(...))"
+            )
         values = values.data  # nothing masked: the plain array (NaN in it is still refused)
     if isinstance(spacing, (list, tuple)) and any(step is None for step in spacing):
         spacing = [1.0 if step is None else step for step in spacing]  # None keeps the default
     if affine is not None:
-        d = getattr(values, "ndim", None) if is_dask_array(values) or isinstance(values, np.ndarray) \
+        d = (
+            getattr(values, "ndim", None)
+            if is_dask_array(values) or isinstance(values, np.ndarray)
             else as_array(values, "values").ndim
+        )
         matrix, shift = _affine(affine, d, spacing, origin)
         corners = np.abs(matrix) @ (np.asarray(values.shape, dtype=np.float64) + 1.0)  # padding included
         check_grid_lengths(np.abs(matrix).max(axis=0), np.abs(shift) + corners, "affine")
-        mesh = extract(values, level, method=method, inside=inside, chunk=chunk, progress=progress,
-                       closed=closed, backend=backend)
+        mesh = extract(
+            values, level, method=method, inside=inside, chunk=chunk, progress=progress, closed=closed, backend=backend
+        )
         hint = mesh.cache.get(GRID_EDGE_KEY)
         mesh = mesh.transformed(matrix, shift)
         if hint is not None:
             mesh.cache[GRID_EDGE_KEY] = hint
         return mesh
     if is_dask_array(values):  # blocks as tasks on the active dask scheduler
-        return _extract_dask(values, level, spacing, origin, method, inside, chunk, progress, closed,
-                             backend)
+        return _extract_dask(values, level, spacing, origin, method, inside, chunk, progress, closed, backend)
     arr = values if isinstance(values, np.ndarray) else as_array(values, "values")
     if arr.ndim not in (2, 3, 4):
         raise ValueError(f"`values` must be a 2D, 3D or 4D array, got shape {arr.shape}")
@@ -239,8 +250,7 @@ def extract(
         engine, perm = arr, tuple(range(d))
     geom = _Geometry(tuple(engine.shape), perm, origin, spacing)
     if closed:
-        geom = _Geometry(tuple(n + 2 for n in engine.shape), perm, origin, spacing,
-                         np.full(d, -1, dtype=np.int64))
+        geom = _Geometry(tuple(n + 2 for n in engine.shape), perm, origin, spacing, np.full(d, -1, dtype=np.int64))
     layers = _layers_per_slab(chunk, geom, method)
     _check_slab_memory(geom, min(layers, geom.shape[0] - 1), method, 8 if closed else arr.dtype.itemsize)
     on_disk = isinstance(arr, np.memmap)
@@ -258,12 +268,28 @@ def extract(
 
     if closed:
         read = _padded_reader(read, engine.shape, outside_value(inside))
-    mesh = _run(read, geom, level, method, inside, chunk, progress, on_disk and not closed,
-                arr.dtype.itemsize, backend, reread=not on_disk)
+    mesh = _run(
+        read,
+        geom,
+        level,
+        method,
+        inside,
+        chunk,
+        progress,
+        on_disk and not closed,
+        arr.dtype.itemsize,
+        backend,
+        reread=not on_disk,
+    )
     if not closed:
         _mark_grid_edge(mesh, geom)
-    return _checked(mesh, level, inside, lambda: (float(np.min(arr)), float(np.max(arr))),
-                    lambda: outside_value(inside) if closed else float(arr[(0,) * d]))
+    return _checked(
+        mesh,
+        level,
+        inside,
+        lambda: (float(np.min(arr)), float(np.max(arr))),
+        lambda: outside_value(inside) if closed else float(arr[(0,) * d]),
+    )
 
 
 def _check_lengths(spacing: np.ndarray, origin: np.ndarray, shape: Any, name: str) -> None:
@@ -274,8 +300,9 @@ def _check_lengths(spacing: np.ndarray, origin: np.ndarray, shape: Any, name: st
     check_grid_lengths(spacing, extent, name)
 
 
-def _padded_reader(read: Callable[[int, int], np.ndarray], shape: tuple[int, ...],
-                   fill: float) -> Callable[[int, int], np.ndarray]:
+def _padded_reader(
+    read: Callable[[int, int], np.ndarray], shape: tuple[int, ...], fill: float
+) -> Callable[[int, int], np.ndarray]:
     """Serve slabs of the grid padded by one layer of ``fill`` on every side (engine axes)."""
     n0 = shape[0]
 
@@ -310,20 +337,23 @@ def _mark_grid_edge(mesh: SimplexMesh, geom: _Geometry) -> None:
         mesh.cache[GRID_EDGE_KEY] = (
             f"{int(on_edge.sum()):,} vertices lie on the grid's boundary, where the solid touches "
             "the grid's edge and the mesh is cut open; extract with closed=True (command line: "
-            "--closed) to close it there")
+            "--closed) to close it there"
+        )
 
 
 def _affine(affine: Any, d: int, spacing: Any, origin: Any) -> tuple[np.ndarray, np.ndarray]:
     """(linear part (d, d), translation (d,)) of a grid-index-to-coordinates affine."""
     m = as_array(affine, "affine", ndim=2, dtype=np.float64, finite=True)
     if m.shape not in ((d + 1, d + 1), (d, d + 1)):
-        raise ValueError(f"`affine` must have shape ({d + 1}, {d + 1}) or ({d}, {d + 1}) for "
-                         f"{d}D values, got {m.shape}")
+        raise ValueError(
+            f"`affine` must have shape ({d + 1}, {d + 1}) or ({d}, {d + 1}) for {d}D values, got {m.shape}"
+        )
     if m.shape[0] == d + 1 and not np.array_equal(m[d], np.eye(d + 1)[d]):
         raise ValueError(f"`affine`'s last row must be (0, ..., 0, 1), got {m[d].tolist()}")
     if np.any(np.asarray(spacing, dtype=float) != 1.0) or np.any(np.asarray(origin, dtype=float) != 0.0):
-        raise ValueError("give either `affine` or `spacing`/`origin`, not both (the affine holds "
-                         "the spacing and origin)")
+        raise ValueError(
+            "give either `affine` or `spacing`/`origin`, not both (the affine holds the spacing and origin)"
+        )
     # relative, not an absolute determinant: data stored in metres (steps of 1e-3) is fine
     # the columns (the grid's axes) scaled to unit size first: different steps per axis, however
     # small or large, are fine; axes (nearly) parallel are not
@@ -334,13 +364,14 @@ def _affine(affine: Any, d: int, spacing: Any, origin: Any) -> tuple[np.ndarray,
         axes = linear / top
         cond = float(np.linalg.cond(axes / np.linalg.norm(axes, axis=0)))
     if not cond < 1e12:
-        raise ValueError(f"`affine`'s linear part must be invertible (condition number below 1e12, "
-                         f"got {cond:.3g}), got {linear.tolist()}")
+        raise ValueError(
+            f"`affine`'s linear part must be invertible (condition number below 1e12, "
+            f"got {cond:.3g}), got {linear.tolist()}"
+        )
     return m[:d, :d], m[:d, d]
 
 
-def _extract_dask(values, level, spacing, origin, method, inside, chunk, progress,
-                  closed, backend) -> SimplexMesh:
+def _extract_dask(values, level, spacing, origin, method, inside, chunk, progress, closed, backend) -> SimplexMesh:
     """Validate the options as :func:`extract` does, then run the blocks (ao4d.blockwise)."""
     from .blockwise import extract_blocks
 
@@ -355,13 +386,19 @@ def _extract_dask(values, level, spacing, origin, method, inside, chunk, progres
     inside = check_choice(inside, "inside", _INSIDE)
     backend = check_choice(backend, "backend", BACKENDS)
     mesh = extract_blocks(
-        values, level, spacing=spacing, origin=origin,
-        method=check_choice(method, "method", METHODS), inside=inside,
-        chunk=None if chunk is None else check_positive_int(chunk, "chunk"), progress=progress,
-        closed=closed, backend=backend)
+        values,
+        level,
+        spacing=spacing,
+        origin=origin,
+        method=check_choice(method, "method", METHODS),
+        inside=inside,
+        chunk=None if chunk is None else check_positive_int(chunk, "chunk"),
+        progress=progress,
+        closed=closed,
+        backend=backend,
+    )
     if not closed:
-        _mark_grid_edge(mesh, _Geometry(tuple(int(n) for n in values.shape), tuple(range(d)),
-                                        origin, spacing))
+        _mark_grid_edge(mesh, _Geometry(tuple(int(n) for n in values.shape), tuple(range(d)), origin, spacing))
     return _checked(mesh, level, inside, None, (lambda: outside_value(inside)) if closed else None)
 
 
@@ -445,10 +482,25 @@ def extract_field(
 
         if progress is not None and not isinstance(progress, bool):
             raise TypeError(f"`progress` must be True, False or None, got {progress!r}")
-        return _checked(extract_field_blocks(
-            field, axes, level, origin=lo, spacing=spacing, method=method, inside=inside,
-            chunk=None if chunk is None else check_positive_int(chunk, "chunk"), chunks=blocks,
-            progress=progress, backend=backend), level, inside, None, None)
+        return _checked(
+            extract_field_blocks(
+                field,
+                axes,
+                level,
+                origin=lo,
+                spacing=spacing,
+                method=method,
+                inside=inside,
+                chunk=None if chunk is None else check_positive_int(chunk, "chunk"),
+                chunks=blocks,
+                progress=progress,
+                backend=backend,
+            ),
+            level,
+            inside,
+            None,
+            None,
+        )
     # engine axis 0 is the user's last axis, so each evaluated layer is one engine layer
     geom = _Geometry((n[-1], *n[:-1]), (d - 1, *range(d - 1)), lo, spacing)
     last: dict[int, np.ndarray] = {}
@@ -469,10 +521,16 @@ def extract_field(
 
     from . import fields_device  # the shape library's fields: sampled on the device
 
-    read = fields_device.reader(field, axes, backend, read, first=first,
-                                check=lambda slab, a: _check_field_values(slab, field, axes, a))
-    return _checked(_run(read, geom, level, method, inside, chunk, progress, False, 8, backend), level,
-                    inside, None, lambda: first[0])
+    read = fields_device.reader(
+        field, axes, backend, read, first=first, check=lambda slab, a: _check_field_values(slab, field, axes, a)
+    )
+    return _checked(
+        _run(read, geom, level, method, inside, chunk, progress, False, 8, backend),
+        level,
+        inside,
+        None,
+        lambda: first[0],
+    )
 
 
 def _check_field_values(slab: np.ndarray, field: Callable, axes: list, first: int) -> None:
@@ -499,17 +557,20 @@ def _empty_reason(level: float, inside: str, lo: float, hi: float) -> str:
         return f"`level` {level:g} is outside the data range [{lo:g}, {hi:g}]"
     # the level is the range's end on the solid's side: the solid (strict inequality) is empty
     end, side, sign = ("minimum", "below", "<") if inside == "below" else ("maximum", "above", ">")
-    return (f"`level` {level:g} equals the data's {end}: the solid is f {sign} level and no value "
-            f"lies {side} it (values equal to the level count as outside); choose a level strictly "
-            f"between {lo:g} and {hi:g}, e.g. {(lo + hi) / 2:g}")
+    return (
+        f"`level` {level:g} equals the data's {end}: the solid is f {sign} level and no value "
+        f"lies {side} it (values equal to the level count as outside); choose a level strictly "
+        f"between {lo:g} and {hi:g}, e.g. {(lo + hi) / 2:g}"
+    )
 
 
 class EmptyMeshWarning(UserWarning):
     """The extracted level set is empty (the level misses the data)."""
 
 
-def _checked(mesh: SimplexMesh, level: float, inside: str, value_range: Callable | None,
-             corner: Callable[[], float] | None) -> SimplexMesh:
+def _checked(
+    mesh: SimplexMesh, level: float, inside: str, value_range: Callable | None, corner: Callable[[], float] | None
+) -> SimplexMesh:
     """Warn about results that are almost always mistakes: empty, or closed and inside out.
 
     Cheap in the usual case: a closed result leaves the whole (connected) grid boundary on one
@@ -534,5 +595,7 @@ def _checked(mesh: SimplexMesh, level: float, inside: str, value_range: Callable
             f"the extracted mesh is closed but encloses a negative volume ({mesh.volume:.4g}): "
             f"the solid is the unbounded side of the level set, so `inside={inside!r}` is "
             f"probably wrong for this data (try inside={other!r})",
-            InsideOutWarning, stacklevel=3)
+            InsideOutWarning,
+            stacklevel=3,
+        )
     return mesh

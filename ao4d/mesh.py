@@ -40,8 +40,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
     import trimesh
 
-__all__ = ["SimplexMesh", "MeshReport", "as_mesh", "as_meshes", "concatenate", "InsideOutWarning",
-           "warn_if_inside_out"]
+__all__ = ["SimplexMesh", "MeshReport", "as_mesh", "as_meshes", "concatenate", "InsideOutWarning", "warn_if_inside_out"]
 
 DIMS = (2, 3, 4)
 
@@ -169,9 +168,14 @@ class SimplexMesh:
         For arrays that ao4d's own engines just made (marching extraction), which nobody else
         holds: the copies and checks of the constructor cost as much as the marching there.
         """
-        if (vertices.dtype != np.float64 or simplices.dtype != np.int64 or vertices.ndim != 2
-                or simplices.shape[1:] != vertices.shape[1:] or not vertices.flags.c_contiguous
-                or not simplices.flags.c_contiguous):
+        if (
+            vertices.dtype != np.float64
+            or simplices.dtype != np.int64
+            or vertices.ndim != 2
+            or simplices.shape[1:] != vertices.shape[1:]
+            or not vertices.flags.c_contiguous
+            or not simplices.flags.c_contiguous
+        ):
             return cls(vertices, simplices)
         mesh = cls.__new__(cls)
         mesh._derived, mesh._cache, mesh._version = {}, {}, 0
@@ -274,10 +278,7 @@ class SimplexMesh:
             data += f", point_data={sorted(self._point_data)}"
         if self._cell_data:
             data += f", cell_data={sorted(self._cell_data)}"
-        return (
-            f"SimplexMesh(dim={self.dim}, n_vertices={self.n_vertices}, "
-            f"n_simplices={self.n_simplices}{data})"
-        )
+        return f"SimplexMesh(dim={self.dim}, n_vertices={self.n_vertices}, n_simplices={self.n_simplices}{data})"
 
     def copy(self) -> SimplexMesh:
         """An independent copy (arrays and data copied; caches not shared).
@@ -503,15 +504,25 @@ class SimplexMesh:
         if proved:
             self._derived.setdefault("_singular_vertices", 0)
         n_singular = self._singular_vertices  # first: connected stars make the components cheaper
-        n_components = (topology.component_count(self._simplices, self.n_vertices, n_unused)
-                        if n_singular == 0 and "_component_labels" not in self._derived
-                        else int(self._component_labels.max(initial=-1)) + 1)
+        n_components = (
+            topology.component_count(self._simplices, self.n_vertices, n_unused)
+            if n_singular == 0 and "_component_labels" not in self._derived
+            else int(self._component_labels.max(initial=-1)) + 1
+        )
         report = MeshReport(
-            dim=self.dim, n_vertices=self.n_vertices, n_simplices=self.n_simplices, n_faces=n_faces,
-            n_boundary_faces=n_boundary, n_nonmanifold_faces=n_nonmanifold,
-            n_misoriented_faces=n_misoriented, n_singular_vertices=n_singular,
+            dim=self.dim,
+            n_vertices=self.n_vertices,
+            n_simplices=self.n_simplices,
+            n_faces=n_faces,
+            n_boundary_faces=n_boundary,
+            n_nonmanifold_faces=n_nonmanifold,
+            n_misoriented_faces=n_misoriented,
+            n_singular_vertices=n_singular,
             n_degenerate=int(np.count_nonzero(self.simplex_measures <= threshold)),
-            n_components=n_components, n_unused_vertices=n_unused, volume=self.volume, proved=proved,
+            n_components=n_components,
+            n_unused_vertices=n_unused,
+            volume=self.volume,
+            proved=proved,
             hint=self._cache.get(topology.GRID_EDGE_KEY, "") if n_boundary else "",
         )
         self._derived[key] = report
@@ -771,8 +782,9 @@ def _check_indices(simplices: np.ndarray, n_vertices: int) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-_MESH_FORMS = ("a SimplexMesh, a trimesh.Trimesh, a (vertices, simplices) pair or an object with "
-               "`vertices` and `simplices`")
+_MESH_FORMS = (
+    "a SimplexMesh, a trimesh.Trimesh, a (vertices, simplices) pair or an object with `vertices` and `simplices`"
+)
 
 
 def as_mesh(mesh: Any, name: str = "mesh") -> SimplexMesh:
@@ -842,8 +854,12 @@ def as_meshes(meshes: Any, name: str = "meshes") -> list[SimplexMesh]:
     ValueError
         ``meshes`` is empty, or a pair's arrays do not make a mesh.
     """
-    if (isinstance(meshes, SimplexMesh) or _is_trimesh(meshes) or _as_pair(meshes) is not None
-            or (hasattr(meshes, "vertices") and hasattr(meshes, "simplices"))):
+    if (
+        isinstance(meshes, SimplexMesh)
+        or _is_trimesh(meshes)
+        or _as_pair(meshes) is not None
+        or (hasattr(meshes, "vertices") and hasattr(meshes, "simplices"))
+    ):
         return [as_mesh(meshes, name)]
     if isinstance(meshes, (str, bytes)) or not isinstance(meshes, Iterable):
         raise TypeError(f"`{name}` must be {_MESH_FORMS}, or a sequence of them, got {type(meshes).__name__}")
@@ -851,8 +867,6 @@ def as_meshes(meshes: Any, name: str = "meshes") -> list[SimplexMesh]:
     if not items:
         raise ValueError(f"`{name}` must contain at least one mesh")
     return items
-
-
 
 
 def _is_trimesh(value: Any) -> bool:
@@ -910,18 +924,14 @@ def concatenate(meshes: Iterable[SimplexMesh]) -> SimplexMesh:
     simplices = np.concatenate([m.simplices + off for m, off in zip(meshes, offsets)])
     point_data = {k: np.concatenate([m.point_data[k] for m in meshes]) for k in sorted(point_names)}
     cell_data = {k: np.concatenate([m.cell_data[k] for m in meshes]) for k in sorted(cell_names)}
-    cell_data["object_id"] = np.repeat(
-        np.arange(len(meshes), dtype=np.int32), [m.n_simplices for m in meshes]
-    )
+    cell_data["object_id"] = np.repeat(np.arange(len(meshes), dtype=np.int32), [m.n_simplices for m in meshes])
     return SimplexMesh(vertices, simplices, point_data=point_data, cell_data=cell_data)
 
 
 def _common_names(meshes: list[SimplexMesh], kind: str) -> set[str]:
     sets = [set(getattr(m, kind)) - ({"object_id"} if kind == "cell_data" else set()) for m in meshes]
     if any(s != sets[0] for s in sets):
-        raise ValueError(
-            f"`meshes` must share the same {kind} names; got " + ", ".join(str(sorted(s)) for s in sets)
-        )
+        raise ValueError(f"`meshes` must share the same {kind} names; got " + ", ".join(str(sorted(s)) for s in sets))
     return sets[0]
 
 

@@ -49,7 +49,16 @@ from ._npz import write_npz
 from ._validate import check_choice
 from .pictures import ao_colors, slice_scalars
 
-__all__ = ["MeshArrays", "write", "read", "read_field_data", "to_pyvista", "save_slice_mesh", "SUFFIXES", "SLICE_SUFFIXES"]
+__all__ = [
+    "MeshArrays",
+    "write",
+    "read",
+    "read_field_data",
+    "to_pyvista",
+    "save_slice_mesh",
+    "SUFFIXES",
+    "SLICE_SUFFIXES",
+]
 
 SUFFIXES = (".npz", ".vtu", ".txt")  # the formats SimplexMesh.save writes (text: any other suffix)
 SLICE_SUFFIXES = (".ply", ".glb")  # 3D slice meshes (save_slice_mesh)
@@ -87,8 +96,7 @@ def _format(path: str | os.PathLike) -> str:
     return {".npz": "npz", ".vtu": "vtu"}.get(suffix, "text")
 
 
-def write(path: str | os.PathLike, mesh: MeshArrays, *,
-          field_data: Mapping[str, Any] | None = None) -> Path:
+def write(path: str | os.PathLike, mesh: MeshArrays, *, field_data: Mapping[str, Any] | None = None) -> Path:
     """Write ``mesh`` in the format its suffix names (``.npz``, ``.vtu``, else text), atomically.
 
     ``field_data`` (``.npz`` only): small arrays or strings about the whole mesh (how it was
@@ -218,8 +226,9 @@ def _load_npz(path: str | os.PathLike) -> MeshArrays:
     try:
         version = int(files.pop("format"))
     except (TypeError, ValueError):
-        raise ValueError(f"`path` {str(p)!r} is not an ao4d mesh file (its `format` entry is not "
-                         "a version number)") from None
+        raise ValueError(
+            f"`path` {str(p)!r} is not an ao4d mesh file (its `format` entry is not a version number)"
+        ) from None
     if version > NPZ_FORMAT:
         raise ValueError(f"`path` {str(p)!r} has mesh format {version}; this ao4d reads up to {NPZ_FORMAT}")
     point_data = {k.split("/", 1)[1]: v for k, v in files.items() if k.startswith("point_data/")}
@@ -301,7 +310,9 @@ def _load_vtu(path: str | os.PathLike) -> MeshArrays:
     kinds = {int(c) for c in np.unique(grid.celltypes)}
     known = {int(pv.CellType.TETRA): 4, int(pv.CellType.TRIANGLE): 3, int(pv.CellType.LINE): 2}
     if len(kinds) != 1 or next(iter(kinds)) not in known:
-        raise ValueError(f"`path` {str(p)!r} must hold cells of one type (tetra, triangle or line), got {sorted(kinds)}")
+        raise ValueError(
+            f"`path` {str(p)!r} must hold cells of one type (tetra, triangle or line), got {sorted(kinds)}"
+        )
     cell_type = next(iter(kinds))
     d = known[cell_type]
     simplices = grid.cells_dict[cell_type]
@@ -342,8 +353,7 @@ def _load_text(path: str | os.PathLike) -> MeshArrays:
             lines = [ln.split("#", 1)[0].strip() for ln in fh]
     except UnicodeDecodeError:
         raise ValueError(
-            f"`path` {str(p)!r} is not an ao4d mesh file (binary data; mesh files are .npz, .vtu "
-            "or ao4d text)"
+            f"`path` {str(p)!r} is not an ao4d mesh file (binary data; mesh files are .npz, .vtu or ao4d text)"
         ) from None
     lines = [ln for ln in lines if ln]
     where = f"`path` {str(p)!r}"
@@ -361,11 +371,13 @@ def _load_text(path: str | os.PathLike) -> MeshArrays:
         raise ValueError(f"{where} has text format {version}; this ao4d reads up to {TEXT_FORMAT}")
     dim = header(1, "dim")
     n_vertices = header(2, "vertices")
-    vertex_lines = lines[3:3 + n_vertices]
+    vertex_lines = lines[3 : 3 + n_vertices]
     n_simplices = header(3 + n_vertices, "simplices")
-    simplex_lines = lines[4 + n_vertices:4 + n_vertices + n_simplices]
+    simplex_lines = lines[4 + n_vertices : 4 + n_vertices + n_simplices]
     if len(simplex_lines) != n_simplices or len(lines) != 4 + n_vertices + n_simplices:
-        raise ValueError(f"{where}: expected {n_simplices} simplex lines after the header, file has {len(lines) - 4 - n_vertices}")
+        raise ValueError(
+            f"{where}: expected {n_simplices} simplex lines after the header, file has {len(lines) - 4 - n_vertices}"
+        )
     vertices = _parse_rows(vertex_lines, dim, float, where, "vertex")
     simplices = _parse_rows(simplex_lines, dim, int, where, "simplex")
     return MeshArrays(vertices, simplices, {}, {})
@@ -427,7 +439,7 @@ def _ply_safe(tri):
         for name in list(attrs):
             values = np.asarray(attrs[name])
             if values.dtype.kind in "iu" and values.dtype.itemsize > 4:
-                if values.size and (values.min() < -2**31 or values.max() >= 2**31):
+                if values.size and (values.min() < -(2**31) or values.max() >= 2**31):
                     del attrs[name]
                 else:
                     attrs[name] = values.astype(np.int32)

@@ -56,9 +56,11 @@ def is_image(what: Any) -> bool:
 
 
 def _iframe(page: str, height: int, title: str) -> str:
-    return (f'<iframe class="ao4d-view" srcdoc="{html.escape(page, quote=True)}" '
-            f'title="{html.escape(title, quote=True)}" style="width: 100%; height: {int(height)}px; '
-            f'border: 0" allowfullscreen></iframe>')
+    return (
+        f'<iframe class="ao4d-view" srcdoc="{html.escape(page, quote=True)}" '
+        f'title="{html.escape(title, quote=True)}" style="width: 100%; height: {int(height)}px; '
+        f'border: 0" allowfullscreen></iframe>'
+    )
 
 
 class InlinePage:
@@ -76,8 +78,7 @@ class InlinePage:
         The server, once a page too large to inline has been shown.
     """
 
-    def __init__(self, text: str, *, title: str = "ao4d view", height: int = HEIGHT,
-                 inline_limit: int = INLINE_LIMIT):
+    def __init__(self, text: str, *, title: str = "ao4d view", height: int = HEIGHT, inline_limit: int = INLINE_LIMIT):
         if isinstance(height, bool) or not isinstance(height, int) or height < 50:
             raise ValueError(f"`height` must be an integer number of pixels >= 50, got {height!r}")
         if isinstance(inline_limit, bool) or not isinstance(inline_limit, int) or inline_limit < 0:
@@ -92,10 +93,12 @@ class InlinePage:
             from .viewer import ViewServer
 
             self.server = ViewServer(self.html.encode("utf-8"), [], "127.0.0.1", 0)
-        return (f'<iframe class="ao4d-view" src="{self.server.url}" title="{html.escape(self.title)}" '
-                f'style="width: 100%; height: {self.height}px; border: 0"></iframe>'
-                f'<div style="font-size: 11px; color: #777">served by this kernel at '
-                f'{self.server.url} ({len(self.html) / 1e6:.0f} MB: over the inline limit)</div>')
+        return (
+            f'<iframe class="ao4d-view" src="{self.server.url}" title="{html.escape(self.title)}" '
+            f'style="width: 100%; height: {self.height}px; border: 0"></iframe>'
+            f'<div style="font-size: 11px; color: #777">served by this kernel at '
+            f"{self.server.url} ({len(self.html) / 1e6:.0f} MB: over the inline limit)</div>"
+        )
 
     def save(self, path: str | os.PathLike) -> Page:
         """Write the page (.html, atomically) and return it as a :class:`Page`."""
@@ -136,38 +139,47 @@ def _check_view_input(what: Any, options: dict) -> None:
     import numpy as np
 
     if isinstance(what, np.ndarray) and what.ndim != 3:
-        raise TypeError(f"`what` must be a SimplexMesh, a .npz path, a sequence of them, a RenderResult, "
-                        f"a .vti/.mhd path or a 3D array of shade values; got an array of shape "
-                        f"{what.shape}: extract a mesh from it first (ao4d.extract(values, level)) or "
-                        "render one (ao4d.render)")
+        raise TypeError(
+            f"`what` must be a SimplexMesh, a .npz path, a sequence of them, a RenderResult, "
+            f"a .vti/.mhd path or a 3D array of shade values; got an array of shape "
+            f"{what.shape}: extract a mesh from it first (ao4d.extract(values, level)) or "
+            "render one (ao4d.render)"
+        )
     if is_image(what):
         from .image_viewer import view_image as target
+
         kind = "an image's page"
     else:
         from .viewer import view as target
+
         kind = "the meshes' page"
-    known = [name for name, p in inspect.signature(target).parameters.items()
-             if p.kind == p.KEYWORD_ONLY]
+    known = [name for name, p in inspect.signature(target).parameters.items() if p.kind == p.KEYWORD_ONLY]
     unknown = sorted(set(options) - set(known))
     if unknown:
-        raise TypeError(f"ao4d.view got unknown option(s) {', '.join(map(repr, unknown))} for {kind}; "
-                        f"it takes {', '.join(known)} (and path, height, inline_limit)")
+        raise TypeError(
+            f"ao4d.view got unknown option(s) {', '.join(map(repr, unknown))} for {kind}; "
+            f"it takes {', '.join(known)} (and path, height, inline_limit)"
+        )
 
 
-def inline(what: Any, *, height: int = HEIGHT, inline_limit: int = INLINE_LIMIT,
-           **options: Any) -> InlinePage:
+def inline(what: Any, *, height: int = HEIGHT, inline_limit: int = INLINE_LIMIT, **options: Any) -> InlinePage:
     """The page of ``what`` (meshes or an image, as for :func:`view`) held in memory.
 
     ``options`` are those of :func:`ao4d.viewer.view` (meshes) or
     :func:`ao4d.image_viewer.view_image` (images); an unknown one is an error.
     """
     text = _page_text(what, options)
-    return InlinePage(text, title=str(options.get("title") or "ao4d view"), height=height,
-                      inline_limit=inline_limit)
+    return InlinePage(text, title=str(options.get("title") or "ao4d view"), height=height, inline_limit=inline_limit)
 
 
-def view(what: Any, path: str | os.PathLike | None = None, *, height: int = HEIGHT,
-         inline_limit: int = INLINE_LIMIT, **options: Any) -> Page | InlinePage:
+def view(
+    what: Any,
+    path: str | os.PathLike | None = None,
+    *,
+    height: int = HEIGHT,
+    inline_limit: int = INLINE_LIMIT,
+    **options: Any,
+) -> Page | InlinePage:
     """Show 4D meshes or a rendered 3D image in the browser or a notebook.
 
     Parameters
@@ -350,11 +362,16 @@ def result_page(
     slices = page_text(meshes, names=names, state=slice_state, title=title, max_bytes=max_bytes)
     picture = image_page_text(image, state=image_state, title=title, max_bytes=max_bytes)
     if len(slices) + len(picture) > max_bytes:
-        raise ValueError(f"the page would be {(len(slices) + len(picture)) / 1e6:.0f} MB, over "
-                         f"`max_bytes` = {max_bytes / 1e6:.0f} MB")
+        raise ValueError(
+            f"the page would be {(len(slices) + len(picture)) / 1e6:.0f} MB, over "
+            f"`max_bytes` = {max_bytes / 1e6:.0f} MB"
+        )
     meta = scene_json({"title": title, "tab": tab})
-    text = (with_common_script(_OUTER).replace("__TITLE__", html.escape(title))
-            .replace("__META__", meta)
-            .replace('srcdoc="__SLICES__"', f'srcdoc="{html.escape(slices, quote=True)}"', 1)
-            .replace('srcdoc="__IMAGE__"', f'srcdoc="{html.escape(picture, quote=True)}"', 1))
+    text = (
+        with_common_script(_OUTER)
+        .replace("__TITLE__", html.escape(title))
+        .replace("__META__", meta)
+        .replace('srcdoc="__SLICES__"', f'srcdoc="{html.escape(slices, quote=True)}"', 1)
+        .replace('srcdoc="__IMAGE__"', f'srcdoc="{html.escape(picture, quote=True)}"', 1)
+    )
     return Page(write_page(target, lambda: text))

@@ -26,9 +26,22 @@ from ._validate import as_array, as_vector, check_choice, check_positive_int
 from .compositing import over
 from .volumes import pyvista_offscreen, volume_array
 
-__all__ = ["save_montage", "save_volume_png", "composite", "save_slice_png", "ao_colors", "slice_scalars",
-           "rgba_array", "over_background", "save_rgba_montage", "composite_rgba", "save_rgba_volume_png",
-           "voxel_view", "triangle_view", "VIEW_DIRECTION"]
+__all__ = [
+    "save_montage",
+    "save_volume_png",
+    "composite",
+    "save_slice_png",
+    "ao_colors",
+    "slice_scalars",
+    "rgba_array",
+    "over_background",
+    "save_rgba_montage",
+    "composite_rgba",
+    "save_rgba_volume_png",
+    "voxel_view",
+    "triangle_view",
+    "VIEW_DIRECTION",
+]
 
 # Every 3D picture looks from the front (+z), above (+y) and a little to the right: x right and
 # y up on screen. The direction points from the scene towards the viewer.
@@ -50,8 +63,7 @@ def figure(width: float, height: float):
 
 def save_figure(fig, path: Path) -> Path:
     with atomic_path(path) as tmp:  # zlib level 1: a third of the encoding time, a little larger
-        fig.savefig(tmp, format="png", dpi=fig.dpi, facecolor=fig.get_facecolor(),
-                    pil_kwargs={"compress_level": 1})
+        fig.savefig(tmp, format="png", dpi=fig.dpi, facecolor=fig.get_facecolor(), pil_kwargs={"compress_level": 1})
     return path
 
 
@@ -83,12 +95,15 @@ def _value_range(data: np.ma.MaskedArray, vmin, vmax) -> tuple[float, float]:
 
 def _xy_extent(shape, spacing, origin) -> list[float]:
     """imshow's extent of an (x, y, ...) voxel array: voxel centres at origin + spacing * i."""
-    return [origin[0] - spacing[0] / 2, origin[0] + spacing[0] * (shape[0] - 0.5),
-            origin[1] - spacing[1] / 2, origin[1] + spacing[1] * (shape[1] - 0.5)]
+    return [
+        origin[0] - spacing[0] / 2,
+        origin[0] + spacing[0] * (shape[0] - 0.5),
+        origin[1] - spacing[1] / 2,
+        origin[1] + spacing[1] * (shape[1] - 0.5),
+    ]
 
 
-def _montage(occupied: np.ndarray, n_slices: int, columns: int, extent, z0: float, dz: float,
-             *, colorbar: bool):
+def _montage(occupied: np.ndarray, n_slices: int, columns: int, extent, z0: float, dz: float, *, colorbar: bool):
     """A figure of ``n_slices`` z-slice panels through the occupied z range only (empty panels
     say nothing), with a narrow last column for a colour bar if asked: (figure, grid spec,
     [(axes, z index)]); each panel is titled with its z and has no ticks."""
@@ -102,11 +117,19 @@ def _montage(occupied: np.ndarray, n_slices: int, columns: int, extent, z0: floa
     fig = figure(panel * columns + (1.2 if colorbar else 0.4), panel * aspect * rows + 0.9)
     top = 1 - 0.55 / fig.get_figheight()
     if colorbar:
-        grid = fig.add_gridspec(rows, columns + 1, width_ratios=[1] * columns + [0.06], left=0.04,
-                                right=0.9, top=top, bottom=0.03, wspace=0.08, hspace=0.25)
+        grid = fig.add_gridspec(
+            rows,
+            columns + 1,
+            width_ratios=[1] * columns + [0.06],
+            left=0.04,
+            right=0.9,
+            top=top,
+            bottom=0.03,
+            wspace=0.08,
+            hspace=0.25,
+        )
     else:
-        grid = fig.add_gridspec(rows, columns, left=0.03, right=0.97, top=top, bottom=0.03,
-                                wspace=0.08, hspace=0.25)
+        grid = fig.add_gridspec(rows, columns, left=0.03, right=0.97, top=top, bottom=0.03, wspace=0.08, hspace=0.25)
     panels = []
     for n, k in enumerate(ks):
         ax = fig.add_subplot(grid[n // columns, n % columns])
@@ -195,8 +218,14 @@ def save_montage(
     ny, nx = arr.shape[1], arr.shape[0]
     for n, k in enumerate(ks):
         r, c = divmod(n, columns)
-        ax.text(c * (nx + gap) + nx / 2 - 0.5, gap * 3 + r * (ny + gap * 3) - 0.6, f"z = {origin3[2] + spacing3[2] * k:.3g}",
-                fontsize=8, ha="center", va="bottom")
+        ax.text(
+            c * (nx + gap) + nx / 2 - 0.5,
+            gap * 3 + r * (ny + gap * 3) - 0.6,
+            f"z = {origin3[2] + spacing3[2] * k:.3g}",
+            fontsize=8,
+            ha="center",
+            va="bottom",
+        )
     cax = fig.add_axes((0.895, 0.03, 0.02, top - 0.03))
     bar = fig.colorbar(ScalarMappable(norm, colormap), cax=cax)
     bar.set_label(label, fontsize=9)
@@ -223,7 +252,7 @@ def _tile(panels: list[np.ndarray], columns: int, norm, colormap) -> tuple[np.nd
     for n, data in enumerate(panels):
         r, c = divmod(n, columns)
         y0, x0 = gap * 3 + r * (ny + gap * 3), c * (nx + gap)
-        out[y0:y0 + ny, x0:x0 + nx] = colormap(norm(data))
+        out[y0 : y0 + ny, x0 : x0 + nx] = colormap(norm(data))
     return out, gap
 
 
@@ -321,19 +350,27 @@ def save_volume_png(
     origin3 = tuple(as_vector(origin, "origin", 3))
     lo, hi = _value_range(arr, vmin, vmax)
     if backend == "pyvista":
-        _volume_png_pyvista(path, arr, lo, hi, title=title, label=label, cmap=cmap,
-                            spacing=spacing3, origin=origin3, size=size)
+        _volume_png_pyvista(
+            path, arr, lo, hi, title=title, label=label, cmap=cmap, spacing=spacing3, origin=origin3, size=size
+        )
     elif backend == "numpy":
-        _volume_png_numpy(path, arr, lo, hi, title=title, label=label, cmap=cmap,
-                          spacing=spacing3, origin=origin3)
+        _volume_png_numpy(path, arr, lo, hi, title=title, label=label, cmap=cmap, spacing=spacing3, origin=origin3)
     else:
         import matplotlib
 
         colormap = matplotlib.colormaps[cmap]
         colours = colormap((arr.filled(lo) - lo) / (hi - lo))[..., :3]
         mappable = matplotlib.cm.ScalarMappable(norm=matplotlib.colors.Normalize(lo, hi), cmap=colormap)
-        _voxel_picture(path, colours, ~np.ma.getmaskarray(arr), title=title, spacing=spacing3,
-                       origin=origin3, width=int(0.78 * size[0]), colorbar=(mappable, label))
+        _voxel_picture(
+            path,
+            colours,
+            ~np.ma.getmaskarray(arr),
+            title=title,
+            spacing=spacing3,
+            origin=origin3,
+            width=int(0.78 * size[0]),
+            colorbar=(mappable, label),
+        )
     return path
 
 
@@ -347,8 +384,9 @@ def _view_basis(direction=VIEW_DIRECTION) -> tuple[np.ndarray, np.ndarray, np.nd
     return right, np.cross(right, forward), forward
 
 
-def voxel_view(occupied, *, spacing=1.0, origin=0.0, width: int = 560,
-               direction=VIEW_DIRECTION) -> tuple[np.ndarray, np.ndarray, tuple[float, ...]]:
+def voxel_view(
+    occupied, *, spacing=1.0, origin=0.0, width: int = 560, direction=VIEW_DIRECTION
+) -> tuple[np.ndarray, np.ndarray, tuple[float, ...]]:
     """Which voxel each pixel of an orthographic view shows: the nearest occupied one its ray meets.
 
     The ray through each pixel centre is cut with every candidate voxel's box (slab test); the
@@ -394,8 +432,7 @@ def voxel_view(occupied, *, spacing=1.0, origin=0.0, width: int = 560,
     sx, sy, sz = corners @ right, corners @ up, corners @ forward
     pixel = (sx.max() - sx.min()) / width
     height = int(math.ceil((sy.max() - sy.min()) / pixel))
-    extent = (float(sx.min()), float(sx.min() + width * pixel), float(sy.max() - height * pixel),
-              float(sy.max()))
+    extent = (float(sx.min()), float(sx.min() + width * pixel), float(sy.max() - height * pixel), float(sy.max()))
     # candidates: occupied, with an empty (or outside) neighbour towards the viewer
     toward = np.where(forward < 0, 1, -1)  # the neighbour nearer the viewer along each axis
     covered = np.ones(occ.shape, bool)
@@ -450,8 +487,9 @@ def voxel_view(occupied, *, spacing=1.0, origin=0.0, width: int = 560,
     return voxel.reshape(height, width), depth.reshape(height, width), extent
 
 
-def triangle_view(points, faces, *, width: int = 560, direction=VIEW_DIRECTION, box=None
-                  ) -> tuple[np.ndarray, np.ndarray, tuple[float, ...]]:
+def triangle_view(
+    points, faces, *, width: int = 560, direction=VIEW_DIRECTION, box=None
+) -> tuple[np.ndarray, np.ndarray, tuple[float, ...]]:
     """Which triangle each pixel of an orthographic view shows, and where on it (a z-buffer).
 
     Parameters
@@ -483,8 +521,7 @@ def triangle_view(points, faces, *, width: int = 560, direction=VIEW_DIRECTION, 
     cy = corners @ up
     pixel = max(cx.max() - cx.min(), cy.max() - cy.min(), 1e-300) / width
     height = int(math.ceil((cy.max() - cy.min()) / pixel))
-    extent = (float(cx.min()), float(cx.min() + width * pixel), float(cy.max() - height * pixel),
-              float(cy.max()))
+    extent = (float(cx.min()), float(cx.min() + width * pixel), float(cy.max() - height * pixel), float(cy.max()))
     # pixel coordinates (column, row from the top) and depth of every point
     u = (pts @ right - extent[0]) / pixel
     v = (extent[3] - pts @ up) / pixel
@@ -530,9 +567,11 @@ def _voxel_axes(ax, shape, spacing, origin) -> None:
     to2d = lambda p: (float(np.dot(p, right)), float(np.dot(p, up)))  # noqa: E731
     # an edge per axis, as VTK's outer bounds: x along the bottom front, y up the left front,
     # z along the top left; ticks and labels point away from the box
-    for axis, fixed, offset in ((0, (None, lo[1], hi[2]), (0.0, -1.0)),
-                                (1, (lo[0], None, hi[2]), (-1.0, 0.0)),
-                                (2, (lo[0], hi[1], None), (-0.7, 0.7))):
+    for axis, fixed, offset in (
+        (0, (None, lo[1], hi[2]), (0.0, -1.0)),
+        (1, (lo[0], None, hi[2]), (-1.0, 0.0)),
+        (2, (lo[0], hi[1], None), (-0.7, 0.7)),
+    ):
         a = np.array([lo[axis] if f is None else f for f in fixed])
         b = np.array([hi[axis] if f is None else f for f in fixed])
         (x0, y0), (x1, y1) = to2d(a), to2d(b)
@@ -542,15 +581,21 @@ def _voxel_axes(ax, shape, spacing, origin) -> None:
             value = lo[axis] + frac * (hi[axis] - lo[axis])
             x, y = x0 + frac * (x1 - x0), y0 + frac * (y1 - y0)
             ax.plot([x, x + 0.4 * pad * offset[0]], [y, y + 0.4 * pad * offset[1]], color="black", lw=0.8)
-            ax.text(x + pad * offset[0], y + pad * offset[1], f"{value:.1f}", fontsize=8,
-                    ha="right" if offset[0] < 0 else "center",
-                    va="top" if offset[1] < 0 else "bottom" if offset[1] > 0 else "center")
+            ax.text(
+                x + pad * offset[0],
+                y + pad * offset[1],
+                f"{value:.1f}",
+                fontsize=8,
+                ha="right" if offset[0] < 0 else "center",
+                va="top" if offset[1] < 0 else "bottom" if offset[1] > 0 else "center",
+            )
         mid = (0.5 * (x0 + x1) + 4.5 * pad * offset[0], 0.5 * (y0 + y1) + 4.5 * pad * offset[1])
         ax.text(*mid, "xyz"[axis], fontsize=9, ha="center", va="center")
 
 
-def _voxel_picture(path: Path, colours: np.ndarray, occupied: np.ndarray, *, title: str, spacing,
-                   origin, width: int, colorbar=None) -> None:
+def _voxel_picture(
+    path: Path, colours: np.ndarray, occupied: np.ndarray, *, title: str, spacing, origin, width: int, colorbar=None
+) -> None:
     """A volume picture drawn by :func:`voxel_view`: voxel colours over white, labelled box,
     title, and a colour bar ``(mappable, label)`` if given."""
     voxel, _, extent = voxel_view(occupied, spacing=spacing, origin=origin, width=width)
@@ -578,9 +623,20 @@ def _voxel_picture(path: Path, colours: np.ndarray, occupied: np.ndarray, *, tit
 def _frame_and_save(plotter, path: Path, title: str, *, ticks: str | None) -> None:
     """Title, labelled x/y/z bounds and the shared view of every 3D picture, then the PNG."""
     plotter.add_title(title, font_size=7, color="black")
-    plotter.show_bounds(color="black", font_size=12, xtitle="x", ytitle="y", ztitle="z",
-                        n_xlabels=3, n_ylabels=3, n_zlabels=3, fmt="%.1f",
-                        location="outer", ticks=ticks, minor_ticks=False)
+    plotter.show_bounds(
+        color="black",
+        font_size=12,
+        xtitle="x",
+        ytitle="y",
+        ztitle="z",
+        n_xlabels=3,
+        n_ylabels=3,
+        n_zlabels=3,
+        fmt="%.1f",
+        location="outer",
+        ticks=ticks,
+        minor_ticks=False,
+    )
     # from the front (+z), above (+y) and a little to the right: x right, y up on screen
     plotter.view_vector((0.45, 0.55, 1.0), viewup=(0.0, 1.0, 0.0))
     plotter.camera.zoom(0.85)
@@ -604,11 +660,23 @@ def _volume_png_pyvista(path, arr, lo, hi, *, title, label, cmap, spacing, origi
     try:
         plotter.set_background("white")
         actor = plotter.add_volume(
-            grid, scalars=label or "value", cmap=cmap, clim=(floor, hi), opacity=opacity,
-            shade=False, mapper="smart",
-            scalar_bar_args={"title": label or "value", "color": "black", "vertical": True,
-                             "position_x": 0.86, "position_y": 0.15, "height": 0.7,
-                             "width": 0.07, "fmt": "%.2f"},
+            grid,
+            scalars=label or "value",
+            cmap=cmap,
+            clim=(floor, hi),
+            opacity=opacity,
+            shade=False,
+            mapper="smart",
+            scalar_bar_args={
+                "title": label or "value",
+                "color": "black",
+                "vertical": True,
+                "position_x": 0.86,
+                "position_y": 0.15,
+                "height": 0.7,
+                "width": 0.07,
+                "fmt": "%.2f",
+            },
         )
         # nearest-voxel sampling: trilinear blending of surface voxels with the background
         # value would paint a dark fringe (low values) along every silhouette
@@ -622,11 +690,9 @@ def _volume_png_numpy(path, arr, lo, hi, *, title, label, cmap, spacing, origin)
     import matplotlib
 
     rgba = composite(arr.data, background=arr.mask, cmap=cmap, vmin=lo, vmax=hi, axis=2)
-    fig = _composited_figure(rgba, _xy_extent(arr.shape, spacing, origin), title, (6.4, 5.4),
-                             [0.08, 0.08, 0.72, 0.8])
+    fig = _composited_figure(rgba, _xy_extent(arr.shape, spacing, origin), title, (6.4, 5.4), [0.08, 0.08, 0.72, 0.8])
     cax = fig.add_axes([0.85, 0.15, 0.03, 0.66])
-    mappable = matplotlib.cm.ScalarMappable(
-        norm=matplotlib.colors.Normalize(lo, hi), cmap=matplotlib.colormaps[cmap])
+    mappable = matplotlib.cm.ScalarMappable(norm=matplotlib.colors.Normalize(lo, hi), cmap=matplotlib.colormaps[cmap])
     fig.colorbar(mappable, cax=cax).set_label(label, fontsize=9)
     save_figure(fig, path)
 
@@ -705,12 +771,12 @@ def save_rgba_montage(
     spacing3 = tuple(as_vector(spacing, "spacing", 3, positive=True))
     origin3 = tuple(as_vector(origin, "origin", 3))
     extent = _xy_extent(arr.shape, spacing3, origin3)
-    fig, _, panels = _montage((arr[..., 3] > 0).any(axis=(0, 1)), n_slices, columns, extent,
-                              origin3[2], spacing3[2], colorbar=False)
+    fig, _, panels = _montage(
+        (arr[..., 3] > 0).any(axis=(0, 1)), n_slices, columns, extent, origin3[2], spacing3[2], colorbar=False
+    )
     shown = np.clip(over_background(arr), 0.0, 1.0)
     for ax, k in panels:
-        ax.imshow(np.swapaxes(shown[:, :, k], 0, 1), origin="lower", extent=extent,
-                  interpolation="nearest")
+        ax.imshow(np.swapaxes(shown[:, :, k], 0, 1), origin="lower", extent=extent, interpolation="nearest")
     fig.suptitle(title, fontsize=10)
     return save_figure(fig, path)
 
@@ -788,16 +854,17 @@ def save_rgba_volume_png(
     spacing3 = tuple(as_vector(spacing, "spacing", 3, positive=True))
     origin3 = tuple(as_vector(origin, "origin", 3))
     if backend == "pyvista":
-        _rgba_volume_png_pyvista(path, arr, title=title, spacing=spacing3, origin=origin3,
-                                 size=size)
+        _rgba_volume_png_pyvista(path, arr, title=title, spacing=spacing3, origin=origin3, size=size)
         return path
     if backend in ("auto", "voxels"):
         colours = arr[..., :3] * arr[..., 3:] + (1.0 - arr[..., 3:])  # over white
-        _voxel_picture(path, colours, arr[..., 3] > 0, title=title, spacing=spacing3,
-                       origin=origin3, width=int(0.78 * size[0]))
+        _voxel_picture(
+            path, colours, arr[..., 3] > 0, title=title, spacing=spacing3, origin=origin3, width=int(0.78 * size[0])
+        )
         return path
-    fig = _composited_figure(composite_rgba(arr, axis=2), _xy_extent(arr.shape, spacing3, origin3),
-                             title, (6.0, 5.4), [0.1, 0.08, 0.85, 0.8])
+    fig = _composited_figure(
+        composite_rgba(arr, axis=2), _xy_extent(arr.shape, spacing3, origin3), title, (6.0, 5.4), [0.1, 0.08, 0.85, 0.8]
+    )
     return save_figure(fig, path)
 
 
@@ -806,8 +873,7 @@ def _composited_figure(layered, extent, title: str, size, rect):
     picture = layered[..., :3] + (1.0 - layered[..., 3:])
     fig = figure(*size)
     ax = fig.add_axes(rect)
-    ax.imshow(np.swapaxes(np.clip(picture, 0, 1), 0, 1), origin="lower", extent=extent,
-              interpolation="nearest")
+    ax.imshow(np.swapaxes(np.clip(picture, 0, 1), 0, 1), origin="lower", extent=extent, interpolation="nearest")
     ax.set_xlabel("x")
     ax.set_ylabel("y")
     ax.set_title(f"{title}\n(composited along z)", fontsize=9)
@@ -823,8 +889,9 @@ def _rgba_volume_png_pyvista(path, arr, *, title, spacing, origin, size):
         plotter.set_background("white")
         # alpha is opacity per quarter voxel: an opaque voxel hides what lies behind it (at
         # VTK's default of about one voxel the solid looks hazy)
-        actor = plotter.add_volume(grid, scalars="rgba", mapper="smart", shade=False,
-                                   opacity_unit_distance=0.25 * min(spacing))
+        actor = plotter.add_volume(
+            grid, scalars="rgba", mapper="smart", shade=False, opacity_unit_distance=0.25 * min(spacing)
+        )
         actor.prop.interpolation_type = "nearest"  # no blending with transparent background
         _frame_and_save(plotter, path, title, ticks="outside")
     finally:
@@ -851,7 +918,8 @@ def ao_colors(occlusion, *, cmap: str = "magma") -> np.ndarray:
 
     occ = as_array(occlusion, "occlusion", ndim=1, dtype=np.float64)
     colours = matplotlib.colormaps[cmap].with_extremes(bad=(0.5, 0.5, 0.5))(
-        np.ma.masked_invalid(1.0 - np.clip(occ, 0.0, 1.0)))
+        np.ma.masked_invalid(1.0 - np.clip(occ, 0.0, 1.0))
+    )
     return (np.asarray(colours) * 255).round().astype(np.uint8)
 
 
@@ -867,8 +935,7 @@ def slice_scalars(tri, scalars, name: str) -> np.ndarray | None:
         scalars = attrs[scalars]
     arr = as_array(scalars, name, ndim=1, dtype=np.float64)
     if arr.shape[0] != len(tri.vertices):
-        raise ValueError(f"`{name}` must have one value per vertex ({len(tri.vertices)}), "
-                         f"got {arr.shape[0]}")
+        raise ValueError(f"`{name}` must have one value per vertex ({len(tri.vertices)}), got {arr.shape[0]}")
     return arr
 
 
@@ -922,10 +989,21 @@ def save_slice_png(
         else:
             poly.point_data["1 - AO"] = 1.0 - np.clip(occ, 0.0, 1.0)
             plotter.add_mesh(
-                poly, scalars="1 - AO", cmap=cmap, clim=(0.0, 1.0), smooth_shading=True,
-                scalar_bar_args={"title": "1 - AO", "color": "black", "vertical": True,
-                                 "position_x": 0.86, "position_y": 0.15, "height": 0.7,
-                                 "width": 0.07, "fmt": "%.1f"},
+                poly,
+                scalars="1 - AO",
+                cmap=cmap,
+                clim=(0.0, 1.0),
+                smooth_shading=True,
+                scalar_bar_args={
+                    "title": "1 - AO",
+                    "color": "black",
+                    "vertical": True,
+                    "position_x": 0.86,
+                    "position_y": 0.15,
+                    "height": 0.7,
+                    "width": 0.07,
+                    "fmt": "%.1f",
+                },
             )
         _frame_and_save(plotter, path, title, ticks=None)
     finally:

@@ -34,14 +34,28 @@ from typing import Any
 
 import numpy as np
 
-from . import bvh as _bvh
 from . import _progress, cl
-from .bvh import BUILDERS, get_bvh
+from . import bvh as _bvh
 from ._validate import as_array, as_real, check_bool, check_choice, check_memory
+from .bvh import BUILDERS, get_bvh
 from .sampling import cosine_hemisphere, sobol_table
 
-__all__ = ["cast_rays", "trace", "Tracer", "count_occluded", "sample_directions", "traversal_counts", "get_bvh", "RayHits",
-           "mesh_arrays", "unit_rows", "progress_bar", "RAYS_PER_LAUNCH", "ACCELS", "BUILDERS"]
+__all__ = [
+    "cast_rays",
+    "trace",
+    "Tracer",
+    "count_occluded",
+    "sample_directions",
+    "traversal_counts",
+    "get_bvh",
+    "RayHits",
+    "mesh_arrays",
+    "unit_rows",
+    "progress_bar",
+    "RAYS_PER_LAUNCH",
+    "ACCELS",
+    "BUILDERS",
+]
 
 AO_PACKET = 32  # rays of a point traced together by the AO kernel (kernels/bvh.h trace_packet)
 AO_TRAVERSALS = ("packet", "rays")  # kernels ao_bvh and ao_bvh_rays; same counts
@@ -70,8 +84,9 @@ class RayHits:
 
     __slots__ = ("simplex", "_t", "_barycentric", "_pending")
 
-    def __init__(self, t: np.ndarray | None, simplex: np.ndarray, barycentric: np.ndarray | None,
-                 *, pending: Any = None) -> None:
+    def __init__(
+        self, t: np.ndarray | None, simplex: np.ndarray, barycentric: np.ndarray | None, *, pending: Any = None
+    ) -> None:
         self.simplex = simplex
         self._t, self._barycentric, self._pending = t, barycentric, pending
 
@@ -189,8 +204,14 @@ def _morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
 
 
 def _kernels(runtime, dim: int, lanes: int, count_visits: bool = False) -> dict[str, Any]:
-    defines = {"DIM": dim, "BARY_EPS": f"{_bvh.BARY_EPS:.9g}f", "WIDTH": _bvh.WIDTH, "LANES": lanes,
-               "STACK_SIZE": _bvh.layout.STACK_SIZE, "PACKET": AO_PACKET}
+    defines = {
+        "DIM": dim,
+        "BARY_EPS": f"{_bvh.BARY_EPS:.9g}f",
+        "WIDTH": _bvh.WIDTH,
+        "LANES": lanes,
+        "STACK_SIZE": _bvh.layout.STACK_SIZE,
+        "PACKET": AO_PACKET,
+    }
     if count_visits:  # the debug variant of traversal_counts
         defines["COUNT_VISITS"] = 1
     return cl.build_kernels(runtime, "ao.cl", defines)
@@ -245,8 +266,9 @@ def _tree_order(dev: dict, hit: np.ndarray) -> np.ndarray:
     return dev["block_first"][hit // lanes] + hit % lanes
 
 
-def _traversal_kernel(runtime, dim: int, dev: dict, name: str, accel: str, count_visits: bool = False,
-                      suffix: str = ""):
+def _traversal_kernel(
+    runtime, dim: int, dev: dict, name: str, accel: str, count_visits: bool = False, suffix: str = ""
+):
     """The ``{name}_bvh{suffix}`` or ``{name}_brute`` kernel and its leading scene arguments."""
     kernels = _kernels(runtime, dim, dev["lanes"], count_visits)
     if accel == "bvh":
@@ -264,8 +286,9 @@ def _ao_traversal(runtime) -> str:
     return "packet" if runtime.device.type & pcl.device_type.CPU else "rays"
 
 
-def _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_distance, accel, bar,
-               visits=None, traversal=None):
+def _ao_opencl(
+    mesh, tree, runtime, points, normals, samples, seed, offset, max_distance, accel, bar, visits=None, traversal=None
+):
     """Occluded-ray counts per point on the device (points Morton-sorted for coherence); with
     ``visits`` ((N, 4) int64), the counting kernels fill it (see :func:`traversal_counts`).
     ``traversal``: ``"packet"`` (``ao_bvh``, the rays of a point together) or ``"rays"``
@@ -292,10 +315,17 @@ def _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_
     traversal = _ao_traversal(runtime) if traversal is None else check_choice(traversal, "traversal", AO_TRAVERSALS)
     suffix = "_rays" if traversal == "rays" else ""
     kernel, head = _traversal_kernel(runtime, tree.dim, dev, "ao", accel, visits is not None, suffix)
-    args = head + buffers + [
-        np.int32(samples), np.uint32(seed & 0xFFFFFFFF), np.float32(offset),
-        np.float32(max_distance), buf_counts,
-    ]
+    args = (
+        head
+        + buffers
+        + [
+            np.int32(samples),
+            np.uint32(seed & 0xFFFFFFFF),
+            np.float32(offset),
+            np.float32(max_distance),
+            buf_counts,
+        ]
+    )
     if visits is not None:
         counted = np.empty((n, 4), dtype=np.int32)
         buf_visits = pcl.Buffer(ctx, mf.WRITE_ONLY, counted.nbytes)
@@ -315,8 +345,7 @@ def _ao_opencl(mesh, tree, runtime, points, normals, samples, seed, offset, max_
     return out
 
 
-def sample_directions(runtime, normals: np.ndarray, samples: int, seed: int, *,
-                      eight: bool = False) -> np.ndarray:
+def sample_directions(runtime, normals: np.ndarray, samples: int, seed: int, *, eight: bool = False) -> np.ndarray:
     """The directions the AO kernel traces, computed on the device.
 
     For tests: they must equal :func:`ao4d.sampling.cosine_hemisphere` on the host. With
@@ -347,11 +376,15 @@ def sample_directions(runtime, normals: np.ndarray, samples: int, seed: int, *,
     out = np.empty((n * samples, 4), dtype=np.float32)
     buf = pcl.Buffer(ctx, pcl.mem_flags.WRITE_ONLY, out.nbytes)
     _kernels(runtime, d, _bvh.block_lanes(runtime))["sample_directions8" if eight else "sample_directions"](
-        queue, (n,), None,
+        queue,
+        (n,),
+        None,
         pcl.Buffer(ctx, ro, hostbuf=_pad4(normals)),
         pcl.Buffer(ctx, ro, hostbuf=np.arange(n, dtype=np.uint32)),
         pcl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(sobol_table(samples, d - 1, seed=seed))),
-        np.int32(samples), np.uint32(seed & 0xFFFFFFFF), buf,
+        np.int32(samples),
+        np.uint32(seed & 0xFFFFFFFF),
+        buf,
     )
     pcl.enqueue_copy(queue, out, buf)
     queue.finish()
@@ -533,8 +566,15 @@ def cast_rays(
     if len(origins) == 0:  # no tree is needed to miss
         return trace(None, origins, directions)
     with progress_bar(progress, len(origins), "rays") as bar:
-        return trace(Tracer.of(mesh, runtime), origins, directions, max_distance=max_distance,
-                     closest=closest, accel=accel, bar=bar)
+        return trace(
+            Tracer.of(mesh, runtime),
+            origins,
+            directions,
+            max_distance=max_distance,
+            closest=closest,
+            accel=accel,
+            bar=bar,
+        )
 
 
 class Tracer:
@@ -575,9 +615,16 @@ class Tracer:
         return cls(tree, runtime, None if runtime is None else _bvh.device_tree(mesh, tree, runtime))
 
 
-def trace(tracer: Tracer | None, origins: np.ndarray, directions: np.ndarray, *,
-          max_distance: float = math.inf, closest: bool = True, accel: str = "bvh",
-          bar: Any = None) -> RayHits:
+def trace(
+    tracer: Tracer | None,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    *,
+    max_distance: float = math.inf,
+    closest: bool = True,
+    accel: str = "bvh",
+    bar: Any = None,
+) -> RayHits:
     """:func:`cast_rays` on trusted inputs: one batch of rays, no validation.
 
     Parameters
@@ -621,8 +668,14 @@ def trace(tracer: Tracer | None, origins: np.ndarray, directions: np.ndarray, *,
     # the hit rays as they are now (the caller may change the arrays); mapped when t is read
     o, w = np.take(rays.origins, rows, axis=0), np.take(rays.directions, rows, axis=0)  # faster than [rows]
     inv_length = rays.inv_length[rows]
-    return RayHits(None, simplex, None, pending=lambda: _refine_hits(
-        tree, n, rows, p, tree.frame.points(o), w.astype(np.float64) * inv_length[:, None]))
+    return RayHits(
+        None,
+        simplex,
+        None,
+        pending=lambda: _refine_hits(
+            tree, n, rows, p, tree.frame.points(o), w.astype(np.float64) * inv_length[:, None]
+        ),
+    )
 
 
 def _float_rows(value: Any, name: str, d: int) -> np.ndarray:
@@ -663,8 +716,15 @@ class _Rays:
         np.sqrt(self.inv_length, out=self.inv_length)
         np.divide(1.0, self.inv_length, out=self.inv_length)
 
-    def chunk(self, start: int, stop: int, dtype, width: int | None = None, *,
-              out: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def chunk(
+        self,
+        start: int,
+        stop: int,
+        dtype,
+        width: int | None = None,
+        *,
+        out: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Origins and unit directions of rays ``start:stop`` in ``dtype``, zero-padded to
         ``width`` columns (the kernels' float4); written into ``out`` (two arrays of that
         shape and type, such as mapped device buffers) when given."""
@@ -749,8 +809,7 @@ def count_occluded(
     if len(points) == 0:
         return np.zeros(0, dtype=np.int64)
     frame = tree.frame
-    args = (frame.points(points), normals, samples, seed, frame.length(offset), frame.length(max_distance),
-            accel, bar)
+    args = (frame.points(points), normals, samples, seed, frame.length(offset), frame.length(max_distance), accel, bar)
     if runtime is not None:
         return _ao_opencl(mesh, tree, runtime, *args)
     return _ao_numpy(tree, *args)
@@ -797,7 +856,20 @@ def traversal_counts(
         return (math.nan,) * (4 if detail else 2)
     visits = np.zeros((len(points), 4), dtype=np.int64)
     frame = tree.frame
-    _ao_opencl(mesh, tree, runtime, frame.points(points), normals, samples, seed, frame.length(offset),
-               frame.length(max_distance), "bvh", _NullBar(), visits=visits, traversal=traversal)
+    _ao_opencl(
+        mesh,
+        tree,
+        runtime,
+        frame.points(points),
+        normals,
+        samples,
+        seed,
+        frame.length(offset),
+        frame.length(max_distance),
+        "bvh",
+        _NullBar(),
+        visits=visits,
+        traversal=traversal,
+    )
     per_ray = visits.sum(0) / (len(points) * samples)
     return tuple(float(x) for x in per_ray[: 4 if detail else 2])

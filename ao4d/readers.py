@@ -120,8 +120,10 @@ class Grid:
 
     def __repr__(self) -> str:
         kind = "dask" if self.lazy else type(self.values).__name__
-        return (f"Grid({self.source!r}, shape={self.shape}, dtype={self.values.dtype}, {kind}, "
-                f"spacing={self.spacing.tolist()}, origin={self.origin.tolist()})")
+        return (
+            f"Grid({self.source!r}, shape={self.shape}, dtype={self.values.dtype}, {kind}, "
+            f"spacing={self.spacing.tolist()}, origin={self.origin.tolist()})"
+        )
 
 
 def natural_key(text: str) -> list:
@@ -214,13 +216,11 @@ def read_grid(
     text = os.fspath(path)
     if not isinstance(text, str) or not text:
         raise TypeError(f"`path` must be a non-empty file name, got {path!r}")
-    if ndim is not None and not (_is_int(ndim) or (isinstance(ndim, tuple) and ndim
-                                                   and all(_is_int(k) for k in ndim))):
+    if ndim is not None and not (_is_int(ndim) or (isinstance(ndim, tuple) and ndim and all(_is_int(k) for k in ndim))):
         raise TypeError(f"`ndim` must be an int or a tuple of ints (2, 3, 4), got {ndim!r}")
     if w_scale is not None:
         w_scale = as_real(w_scale, "w_scale", gt=0)
-    keep_affine = check_bool(renamed("read_grid", "affine", affine, "keep_affine", keep_affine, False),
-                             "keep_affine")
+    keep_affine = check_bool(renamed("read_grid", "affine", affine, "keep_affine", keep_affine, False), "keep_affine")
     if text.endswith(("/", os.sep)) and text.rstrip("/" + os.sep).lower().endswith(".zarr"):
         text = text.rstrip("/" + os.sep)
     inner = _split_inner(text, _H5_SUFFIXES + (".zarr",))
@@ -234,18 +234,18 @@ def read_grid(
     allowed = (2, 3, 4) if ndim is None else ((ndim,) if isinstance(ndim, int) else tuple(ndim))
     if d not in allowed:
         if ndim is None:  # the words of ao4d.extract, with the file named
-            raise ValueError(f"`values` must be a 2D, 3D or 4D array, got shape "
-                             f"{tuple(values.shape)} from {text!r}")
+            raise ValueError(f"`values` must be a 2D, 3D or 4D array, got shape {tuple(values.shape)} from {text!r}")
         words = ", ".join(f"{k}D" for k in allowed[:-1])
         words = f"{words} or {allowed[-1]}D" if words else f"{allowed[-1]}D"
-        raise ValueError(f"{text!r} holds a {d}D grid of shape {tuple(values.shape)}; "
-                         f"a {words} grid is needed")
+        raise ValueError(f"{text!r} holds a {d}D grid of shape {tuple(values.shape)}; a {words} grid is needed")
     if any(n < 2 for n in values.shape):
         raise ValueError(f"{text!r} has shape {tuple(values.shape)}: every axis needs >= 2 points")
     notes = list(notes)
     if w_scale is not None and scale.get("w_scaled") is None:
-        raise ValueError(f"`w_scale` scales a time axis, and {text!r} has none (a 4D NIfTI with "
-                         "time units in xyzt_units); use `spacing` instead")
+        raise ValueError(
+            f"`w_scale` scales a time axis, and {text!r} has none (a 4D NIfTI with "
+            "time units in xyzt_units); use `spacing` instead"
+        )
     if spacing is not None:
         step = _merge_spacing(spacing, step, d)
         notes.append("spacing given")
@@ -259,8 +259,9 @@ def read_grid(
     if w_scale is not None and spacing is None:
         check_grid_lengths(step, extent, "w_scale", hint=f" (the grid steps of {text!r}: {step.tolist()})")
     else:
-        check_grid_lengths(step, extent, "spacing", hint=f" (the grid steps of {text!r}: {step.tolist()}; "
-                           "`spacing=` overrides them)")
+        check_grid_lengths(
+            step, extent, "spacing", hint=f" (the grid steps of {text!r}: {step.tolist()}; `spacing=` overrides them)"
+        )
     matrix = None
     if keep_affine:
         matrix = scale.get("affine_matrix")
@@ -274,13 +275,14 @@ def read_grid(
             if given.size:  # each given axis keeps its direction (oblique rotation included)
                 length = np.linalg.norm(matrix[:d, given], axis=0)
                 matrix[:d, given] *= step[given] / length
-                notes.append(f"the affine's axes {', '.join('xyzw'[k] for k in given)} "
-                             "take the given spacing (their directions kept)")
+                notes.append(
+                    f"the affine's axes {', '.join('xyzw'[k] for k in given)} "
+                    "take the given spacing (their directions kept)"
+                )
             if origin is not None:
                 matrix[:d, d] = start
                 notes.append("the affine's translation is the given origin")
-    return Grid(values, step, start, text, tuple(notes), tuple(scale.get("units", ())),
-                scale.get("w_scaled"), matrix)
+    return Grid(values, step, start, text, tuple(notes), tuple(scale.get("units", ())), scale.get("w_scaled"), matrix)
 
 
 def _is_int(value: Any) -> bool:
@@ -359,8 +361,10 @@ def _read_one(text: str, scale: dict | None = None) -> tuple[Any, np.ndarray, np
         return _read_metaimage(text)
     if suffix == ".vti":
         return _read_vti(text)
-    raise ValueError(f"{text!r}: unknown format {suffix or '(no suffix)'!r}; expected .npy, .nii, "
-                     ".nii.gz, .zarr, .h5:/dataset, .mhd, .mha, or a glob of 3D frames")
+    raise ValueError(
+        f"{text!r}: unknown format {suffix or '(no suffix)'!r}; expected .npy, .nii, "
+        ".nii.gz, .zarr, .h5:/dataset, .mhd, .mha, or a glob of 3D frames"
+    )
 
 
 def _as_dask(values: Any, chunks: Any, text: str) -> Any:
@@ -374,8 +378,13 @@ def _as_dask(values: Any, chunks: Any, text: str) -> Any:
         return values.rechunk(sizes)
     if isinstance(values, np.memmap) and values.filename:
         # a file-backed source pickles as its name (a memmap would pickle its whole contents)
-        return da.from_array(_view_source(values), chunks=sizes, asarray=True, fancy=False,
-                             name=f"file-{dask.base.tokenize(_view_source(values), os.path.getmtime(values.filename))}")
+        return da.from_array(
+            _view_source(values),
+            chunks=sizes,
+            asarray=True,
+            fancy=False,
+            name=f"file-{dask.base.tokenize(_view_source(values), os.path.getmtime(values.filename))}",
+        )
     return da.from_array(np.asarray(values), chunks=sizes)
 
 
@@ -387,8 +396,13 @@ def _view_source(values: np.memmap) -> _ViewSource:
         root = root.base
     # a view's `offset` is its root's; the data pointers give the view's own start
     start = int(root.offset) + (values.__array_interface__["data"][0] - root.__array_interface__["data"][0])
-    return _ViewSource(str(values.filename), tuple(int(n) for n in values.shape), values.dtype.str,
-                       start, tuple(int(s) for s in values.strides))
+    return _ViewSource(
+        str(values.filename),
+        tuple(int(n) for n in values.shape),
+        values.dtype.str,
+        start,
+        tuple(int(s) for s in values.strides),
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -426,10 +440,8 @@ class _ViewSource(_ArraySource):
     def __getitem__(self, index: Any) -> np.ndarray:
         first = self.start + sum(s * (n - 1) for s, n in zip(self.strides, self.shape) if s < 0)
         last = self.start + sum(s * (n - 1) for s, n in zip(self.strides, self.shape) if s > 0)
-        mm = np.memmap(self.path, dtype=np.uint8, mode="r", offset=first,
-                       shape=(last + self.dtype.itemsize - first,))
-        view = np.ndarray(self.shape, self.dtype, buffer=mm, offset=self.start - first,
-                          strides=self.strides)
+        mm = np.memmap(self.path, dtype=np.uint8, mode="r", offset=first, shape=(last + self.dtype.itemsize - first,))
+        view = np.ndarray(self.shape, self.dtype, buffer=mm, offset=self.start - first, strides=self.strides)
         return np.array(view[index])
 
 
@@ -449,7 +461,7 @@ class _NiftiSource(_ArraySource):
         except (OSError, EOFError, ValueError, zlib.error) as exc:
             raise ValueError(f"{self.path!r}: cannot read its data ({exc}); truncated?") from None
         # a 3D image stored with a time axis of one: drop it (see _nifti_open)
-        return values.reshape(values.shape[:len(self.shape)]) if values.ndim > len(self.shape) else values
+        return values.reshape(values.shape[: len(self.shape)]) if values.ndim > len(self.shape) else values
 
 
 @dataclass(frozen=True)
@@ -468,8 +480,7 @@ class _H5Source(_ArraySource):
             with h5py.File(self.path, "r") as fh:
                 return np.asarray(fh[self.dataset][index])
         except OSError as exc:
-            raise ValueError(f"{self.path!r}:{self.dataset}: cannot read its data ({exc}); "
-                             "truncated?") from None
+            raise ValueError(f"{self.path!r}:{self.dataset}: cannot read its data ({exc}); truncated?") from None
 
 
 def _read_frame(path: str, kind: str, shape: tuple[int, ...], dtype: str) -> np.ndarray:
@@ -499,8 +510,7 @@ def _open_npy(path: str) -> np.ndarray:
         values = np.load(path, mmap_mode="r", allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
         size = os.path.getsize(path)
-        raise ValueError(f"{path!r} is not a readable .npy array ({size} bytes; truncated?): "
-                         f"{exc}") from None
+        raise ValueError(f"{path!r} is not a readable .npy array ({size} bytes; truncated?): {exc}") from None
     if not isinstance(values, np.ndarray):
         raise ValueError(f"{path!r} holds no single array")
     return values
@@ -511,8 +521,7 @@ def _attrs_grid(attrs: Any, d: int, where: str) -> tuple[np.ndarray, np.ndarray,
     notes = []
     step, start = np.ones(d), np.zeros(d)
     if "spacing" in attrs:
-        step = as_vector(np.asarray(attrs["spacing"]), f"{where} attribute `spacing`", d,
-                         positive=True)
+        step = as_vector(np.asarray(attrs["spacing"]), f"{where} attribute `spacing`", d, positive=True)
         notes.append("spacing from the `spacing` attribute")
     if "origin" in attrs:
         start = as_vector(np.asarray(attrs["origin"]), f"{where} attribute `origin`", d)
@@ -532,16 +541,16 @@ def _read_hdf5(file: str, dataset: str) -> tuple[Any, np.ndarray, np.ndarray, li
         raise ValueError(f"{file!r} is not a readable HDF5 file (truncated?): {exc}") from None
     with fh:
         names: list[str] = []
-        fh.visititems(lambda name, obj: names.append("/" + name)
-                      if isinstance(obj, h5py.Dataset) else None)
+        fh.visititems(lambda name, obj: names.append("/" + name) if isinstance(obj, h5py.Dataset) else None)
         if not dataset:
             if len(names) != 1:
-                raise ValueError(f"{file!r} holds {len(names)} datasets ({', '.join(names[:8])}); "
-                                 f"name one as {file}:/path/to/dataset")
+                raise ValueError(
+                    f"{file!r} holds {len(names)} datasets ({', '.join(names[:8])}); "
+                    f"name one as {file}:/path/to/dataset"
+                )
             dataset = names[0]
         if dataset not in fh or not isinstance(fh[dataset], h5py.Dataset):
-            raise ValueError(f"{file!r} has no dataset {dataset!r}; datasets: "
-                             f"{', '.join(names[:8]) or '(none)'}")
+            raise ValueError(f"{file!r} has no dataset {dataset!r}; datasets: {', '.join(names[:8]) or '(none)'}")
         dset = fh[dataset]
         shape, dtype = tuple(int(n) for n in dset.shape), dset.dtype
         if dtype.kind not in "fiub":
@@ -551,16 +560,16 @@ def _read_hdf5(file: str, dataset: str) -> tuple[Any, np.ndarray, np.ndarray, li
     source = _H5Source(file, dataset, shape, dtype.str)
     # whole storage chunks per block (dask "auto" rounds to multiples of them)
     chunks = "auto" if stored is None else _auto_multiple(shape, stored, dtype.itemsize)
-    values = da.from_array(source, chunks=chunks, asarray=True, fancy=False,
-                           name=f"h5-{file}-{dataset}-{os.path.getmtime(file)}")
+    values = da.from_array(
+        source, chunks=chunks, asarray=True, fancy=False, name=f"h5-{file}-{dataset}-{os.path.getmtime(file)}"
+    )
     return values, step, start, notes
 
 
 def _auto_multiple(shape: tuple[int, ...], stored: tuple[int, ...], itemsize: int) -> tuple:
     from dask.array.core import normalize_chunks
 
-    return normalize_chunks("auto", shape, dtype=np.dtype(f"V{itemsize}"),
-                            previous_chunks=stored)
+    return normalize_chunks("auto", shape, dtype=np.dtype(f"V{itemsize}"), previous_chunks=stored)
 
 
 def _read_zarr(store: str, inner: str) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
@@ -582,8 +591,10 @@ def _read_zarr(store: str, inner: str) -> tuple[Any, np.ndarray, np.ndarray, lis
         if len(arrays) == 1:
             node = node[arrays[0]]
         else:
-            raise ValueError(f"{store}{':' + inner if inner else ''} is a group with arrays "
-                             f"{arrays or '(none)'}; name one as {store}:/array")
+            raise ValueError(
+                f"{store}{':' + inner if inner else ''} is a group with arrays "
+                f"{arrays or '(none)'}; name one as {store}:/array"
+            )
     if np.dtype(node.dtype).kind not in "fiub":
         raise ValueError(f"{store!r} holds {node.dtype}, not real numbers")
     step, start, notes = _attrs_grid(node.attrs, len(node.shape), store)
@@ -605,42 +616,43 @@ def _nifti_open(path: str) -> tuple[Any, tuple[int, ...], np.dtype, bool]:
     while len(shape) > 3 and shape[-1] == 1:  # a 3D image stored with a time axis of one
         shape = shape[:-1]
     if len(shape) not in (2, 3, 4):
-        raise ValueError(f"{path!r} holds a {len(shape)}D image of shape {shape}; a 2D, 3D or 4D "
-                         "grid is needed")
+        raise ValueError(f"{path!r} holds a {len(shape)}D image of shape {shape}; a 2D, 3D or 4D grid is needed")
     proxy = img.dataobj
     slope, inter = getattr(proxy, "slope", 1.0), getattr(proxy, "inter", 0.0)
     scaled = not (slope is None or math.isnan(slope) or slope == 1.0) or not (
-        inter is None or math.isnan(inter) or inter == 0.0)
+        inter is None or math.isnan(inter) or inter == 0.0
+    )
     dtype = np.dtype(np.float64) if scaled else np.dtype(img.header.get_data_dtype())
     return img, shape, dtype, scaled
 
 
-def _read_nifti(path: str, *, warn: bool = True, lazy: bool = True, scale: dict | None = None
-                ) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
+def _read_nifti(
+    path: str, *, warn: bool = True, lazy: bool = True, scale: dict | None = None
+) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
     img, shape, dtype, scaled = _nifti_open(path)
     stored = np.dtype(img.header.get_data_dtype())
     if not path.lower().endswith(".gz"):
         need = int(img.dataobj.offset) + math.prod(img.shape) * stored.itemsize
         have = os.path.getsize(path)
         if have < need:
-            raise ValueError(f"{path!r} is truncated: its header needs {need} bytes, the file has "
-                             f"{have}")
+            raise ValueError(f"{path!r} is truncated: its header needs {need} bytes, the file has {have}")
         if not scaled:
             values = img.dataobj.get_unscaled().reshape(shape, order="F")  # memory map
         elif lazy:
             import dask.array as da
 
-            values = da.from_array(_NiftiSource(path, shape, dtype.str), chunks="auto",
-                                   asarray=True, fancy=False)
+            values = da.from_array(_NiftiSource(path, shape, dtype.str), chunks="auto", asarray=True, fancy=False)
         else:
             values = _NiftiSource(path, shape, dtype.str)[...]
     else:  # gzip cannot be sliced cheaply: decompress once
-        check_memory(math.prod(shape) * dtype.itemsize, f"decompressing {path!r}",
-                     hint="gunzip it to .nii, which is memory-mapped")
+        check_memory(
+            math.prod(shape) * dtype.itemsize,
+            f"decompressing {path!r}",
+            hint="gunzip it to .nii, which is memory-mapped",
+        )
         values = _NiftiSource(path, shape, dtype.str)[...]
     scale = {} if scale is None else scale
-    step, start, flips, notes = _nifti_grid(img, shape, path, warn and not scale.get("affine"),
-                                            scale)
+    step, start, flips, notes = _nifti_grid(img, shape, path, warn and not scale.get("affine"), scale)
     if scale.get("affine"):
         flips = [False] * len(shape)  # the affine keeps the file's axes as they are
     if any(flips):
@@ -649,13 +661,24 @@ def _read_nifti(path: str, *, warn: bool = True, lazy: bool = True, scale: dict 
 
 
 # NIfTI xyzt_units names (nibabel) -> short unit names; time units scale a w axis
-_NIFTI_UNITS = {"mm": "mm", "micron": "um", "meter": "m", "sec": "s", "msec": "ms", "usec": "us",
-                "hz": "Hz", "ppm": "ppm", "rads": "rad/s", "unknown": "unknown"}
+_NIFTI_UNITS = {
+    "mm": "mm",
+    "micron": "um",
+    "meter": "m",
+    "sec": "s",
+    "msec": "ms",
+    "usec": "us",
+    "hz": "Hz",
+    "ppm": "ppm",
+    "rads": "rad/s",
+    "unknown": "unknown",
+}
 _TIME_UNITS = ("s", "ms", "us")
 
 
-def _nifti_grid(img: Any, shape: tuple[int, ...], path: str, warn: bool, scale: dict | None = None
-                ) -> tuple[np.ndarray, np.ndarray, list[bool], list[str]]:
+def _nifti_grid(
+    img: Any, shape: tuple[int, ...], path: str, warn: bool, scale: dict | None = None
+) -> tuple[np.ndarray, np.ndarray, list[bool], list[str]]:
     """(spacing, origin, flipped axes, notes) of a NIfTI image. ``scale`` (optional) passes
     ``w_scale``, ``w_step`` and ``affine`` in, and gets ``units``, ``w_scaled`` (the length per
     time unit used) and ``affine_matrix`` (index to coordinates, (d+1, d+1)) back."""
@@ -678,18 +701,23 @@ def _nifti_grid(img: Any, shape: tuple[int, ...], path: str, warn: bool, scale: 
                 flips[axis] = True
                 start[axis] = affine[axis, 3] + diag[axis] * (shape[axis] - 1)
         flipped = [a for a in range(k) if flips[a]]
-        notes.append("spacing and origin from the axis-aligned affine"
-                     + (f" (axes {flipped} flipped to run along +x, +y, +z)" if flipped else ""))
+        notes.append(
+            "spacing and origin from the axis-aligned affine"
+            + (f" (axes {flipped} flipped to run along +x, +y, +z)" if flipped else "")
+        )
     else:
         step[:k] = np.where(zooms[:k] > 0, zooms[:k], 1.0)
         start[:k] = affine[:k, 3]
         notes.append("oblique affine: voxel axes with the header's zooms")
         if warn:
-            warnings.warn(f"{path!r}: the affine is oblique (not axis-aligned):\n{affine[:3, :3]}\n"
-                          "using the voxel axes with the header's zooms as spacing and the "
-                          "affine's translation as origin; the mesh is not in scanner coordinates (read "
-                          "it with keep_affine=True, command line --affine, to place it there)",
-                          ObliqueAffineWarning, stacklevel=5)
+            warnings.warn(
+                f"{path!r}: the affine is oblique (not axis-aligned):\n{affine[:3, :3]}\n"
+                "using the voxel axes with the header's zooms as spacing and the "
+                "affine's translation as origin; the mesh is not in scanner coordinates (read "
+                "it with keep_affine=True, command line --affine, to place it there)",
+                ObliqueAffineWarning,
+                stacklevel=5,
+            )
     try:
         space_unit, time_unit = (_NIFTI_UNITS.get(u, "unknown") for u in img.header.get_xyzt_units())
     except (AttributeError, KeyError, ValueError):
@@ -709,17 +737,19 @@ def _nifti_grid(img: Any, shape: tuple[int, ...], path: str, warn: bool, scale: 
                 how = f"scaled by w_scale: {per:.6g} {length} per {time_unit}"
             else:
                 per = float(np.mean(step[:3])) / pixdim
-                how = (f"not taken as a length: one frame is one mean x/y/z step, "
-                       f"{per * pixdim:.6g} {length} (w_scale= or --w-scale sets {length} per "
-                       f"{time_unit})")
+                how = (
+                    f"not taken as a length: one frame is one mean x/y/z step, "
+                    f"{per * pixdim:.6g} {length} (w_scale= or --w-scale sets {length} per "
+                    f"{time_unit})"
+                )
             scale["w_scaled"] = per
             step[3], start[3] = pixdim * per, toffset * per
-            notes.append(f"w is time: pixdim[4] = {pixdim:g} {time_unit}, toffset {toffset:g}; "
-                         f"{how}")
+            notes.append(f"w is time: pixdim[4] = {pixdim:g} {time_unit}, toffset {toffset:g}; {how}")
         else:
             step[3], start[3] = pixdim, toffset
-            notes.append("w spacing from pixdim[4], origin from toffset"
-                         + (f" ({time_unit})" if time_unit != "unknown" else ""))
+            notes.append(
+                "w spacing from pixdim[4], origin from toffset" + (f" ({time_unit})" if time_unit != "unknown" else "")
+            )
     matrix = np.eye(d + 1)
     matrix[:k, :k] = rot
     matrix[:k, d] = affine[:k, 3]
@@ -734,9 +764,18 @@ def _nifti_grid(img: Any, shape: tuple[int, ...], path: str, warn: bool, scale: 
 # ---- MetaImage
 
 _MET_TYPES = {
-    "MET_CHAR": "i1", "MET_UCHAR": "u1", "MET_SHORT": "i2", "MET_USHORT": "u2",
-    "MET_INT": "i4", "MET_UINT": "u4", "MET_LONG": "i4", "MET_ULONG": "u4",
-    "MET_LONG_LONG": "i8", "MET_ULONG_LONG": "u8", "MET_FLOAT": "f4", "MET_DOUBLE": "f8",
+    "MET_CHAR": "i1",
+    "MET_UCHAR": "u1",
+    "MET_SHORT": "i2",
+    "MET_USHORT": "u2",
+    "MET_INT": "i4",
+    "MET_UINT": "u4",
+    "MET_LONG": "i4",
+    "MET_ULONG": "u4",
+    "MET_LONG_LONG": "i8",
+    "MET_ULONG_LONG": "u8",
+    "MET_FLOAT": "f4",
+    "MET_DOUBLE": "f8",
 }
 
 
@@ -807,18 +846,17 @@ def _read_metaimage(path: str, *, data: bool = True) -> tuple[Any, np.ndarray, n
     dtype = np.dtype(_MET_TYPES[met]).newbyteorder(">" if msb.lower() == "true" else "<")
     data_file = fields["ElementDataFile"]
     if data_file.upper() == "LIST" or data_file.split()[0].lower().find("%") >= 0:
-        raise ValueError(f"{path!r}: ElementDataFile = {data_file} (file lists) is not supported; "
-                         "give the frames as a glob instead")
+        raise ValueError(
+            f"{path!r}: ElementDataFile = {data_file} (file lists) is not supported; give the frames as a glob instead"
+        )
     if data_file.upper() == "LOCAL":
         raw, offset = path, header_end
     else:
         raw, offset = str(Path(path).parent / data_file), 0
         if not Path(raw).exists():
-            raise FileNotFoundError(f"{path!r} names the data file {data_file!r}, which does not "
-                                    "exist")
+            raise FileNotFoundError(f"{path!r} names the data file {data_file!r}, which does not exist")
         if not Path(raw).is_file():
-            raise ValueError(f"{path!r} names the data file {data_file!r}, which is a folder, not "
-                             "a file")
+            raise ValueError(f"{path!r} names the data file {data_file!r}, which is a folder, not a file")
     header_size = _header_int(fields, "HeaderSize", 0, path)
     if header_size > 0:
         offset += header_size
@@ -843,23 +881,30 @@ def _read_metaimage(path: str, *, data: bool = True) -> tuple[Any, np.ndarray, n
             offset = os.path.getsize(raw) - need
             have = need
         if have < need:
-            raise ValueError(f"{raw!r} is truncated: DimSize {shape} of {met} needs {need} bytes "
-                             f"of data, the file has {max(have, 0)}")
+            raise ValueError(
+                f"{raw!r} is truncated: DimSize {shape} of {met} needs {need} bytes "
+                f"of data, the file has {max(have, 0)}"
+            )
         values = np.memmap(raw, dtype=dtype, mode="r", offset=offset, shape=shape, order="F")
     step = _floats(fields, "ElementSpacing", d, 1.0, path)
     if (step <= 0).any():
         raise ValueError(f"{path!r}: ElementSpacing must be > 0, got {step.tolist()}")
     key = next((k for k in ("Offset", "Origin", "Position") if k in fields), "Offset")
     start = _floats(fields, key, d, 0.0, path)
-    notes = ["spacing from ElementSpacing" if "ElementSpacing" in fields else "no ElementSpacing: 1",
-             f"origin from {key}" if key in fields else "no Offset: 0"]
+    notes = [
+        "spacing from ElementSpacing" if "ElementSpacing" in fields else "no ElementSpacing: 1",
+        f"origin from {key}" if key in fields else "no Offset: 0",
+    ]
     matrix_key = next((k for k in ("TransformMatrix", "Rotation", "Orientation") if k in fields), None)
     if matrix_key is not None:
         matrix = _floats(fields, matrix_key, d * d, 0.0, path).reshape(d, d)
         if np.abs(matrix - np.eye(d)).max() > 1e-6:
-            warnings.warn(f"{path!r}: {matrix_key} is not the identity; using the voxel axes "
-                          "(the mesh is not in the rotated frame)", ObliqueAffineWarning,
-                          stacklevel=4)
+            warnings.warn(
+                f"{path!r}: {matrix_key} is not the identity; using the voxel axes "
+                "(the mesh is not in the rotated frame)",
+                ObliqueAffineWarning,
+                stacklevel=4,
+            )
             notes.append(f"{matrix_key} ignored")
     return values, step, start, notes
 
@@ -903,8 +948,9 @@ def _vti_values(path: str) -> np.ndarray:
     name = grid.point_data.active_scalars_name if grid.point_data.active_scalars_name in names else names[0]
     data = np.asarray(grid.point_data[name])
     if data.size != math.prod(grid.dimensions):
-        raise ValueError(f"{path!r}: point data {name!r} has {data.size} values for dimensions "
-                         f"{grid.dimensions} (truncated?)")
+        raise ValueError(
+            f"{path!r}: point data {name!r} has {data.size} values for dimensions {grid.dimensions} (truncated?)"
+        )
     return data.reshape(grid.dimensions, order="F")
 
 
@@ -951,8 +997,7 @@ def _read_frames(pattern: str) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
         raise ValueError(f"{pattern!r} matches frames of different kinds: {sorted(kinds)}")
     kind = kinds.pop()
     if kind not in FRAME_SUFFIXES:
-        raise ValueError(f"{pattern!r} matches {kind!r} files; frames must be one of "
-                         f"{', '.join(FRAME_SUFFIXES)}")
+        raise ValueError(f"{pattern!r} matches {kind!r} files; frames must be one of {', '.join(FRAME_SUFFIXES)}")
     if len(paths) < 2:
         raise ValueError(f"{pattern!r} matches one frame ({paths[0]!r}); a series needs >= 2")
     shape, dtype, step, start = _frame_header(paths[0], kind, warn=True)
@@ -963,11 +1008,12 @@ def _read_frames(pattern: str) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
     for path in paths[1:]:
         other = _frame_header(path, kind)[0]
         if other != shape:
-            raise ValueError(f"frames of different shapes: {paths[0]!r} is {shape}, {path!r} is "
-                             f"{other}")
+            raise ValueError(f"frames of different shapes: {paths[0]!r} is {shape}, {path!r} is {other}")
     read = dask.delayed(_read_frame, pure=True)
     frames = [da.from_delayed(read(p, kind, shape, dtype.str), shape, dtype=dtype) for p in paths]
     values = da.stack(frames, axis=-1)
-    notes = [f"{len(paths)} frames {Path(paths[0]).name} .. {Path(paths[-1]).name} stacked along w",
-             "x, y, z spacing and origin from the first frame; w: 1, 0"]
+    notes = [
+        f"{len(paths)} frames {Path(paths[0]).name} .. {Path(paths[-1]).name} stacked along w",
+        "x, y, z spacing and origin from the first frame; w: 1, 0",
+    ]
     return values, np.append(step, 1.0), np.append(start, 0.0), notes

@@ -55,21 +55,36 @@ from typing import Any, Literal
 import numpy as np
 
 from . import _progress, cl
-from ._validate import (as_array, as_real, check_bool, check_choice, check_int, check_memory,
-                        check_positive_int)
+from ._validate import as_array, as_real, check_bool, check_choice, check_int, check_memory, check_positive_int
 from .ao import ORIGIN_OFFSET, ambient_occlusion
 from .camera import Camera4D, ImageGeometry, image_shape
 from .compositing import over, unpremultiply
 from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, lambert
 from .mesh import SimplexMesh, as_meshes, concatenate, warn_if_inside_out
 from .raycast import RAYS_PER_SECOND, Tracer, check_distance, check_rays, trace
-from .screen_ao import (DENOISE_PER_SECOND, LOOKUPS_PER_SECOND, MAX_STEPS, MIN_STEPS, STEP_VOXELS, DepthVolume,
-                        default_steps, screen_space_occlusion, viewer_side)
+from .screen_ao import (
+    DENOISE_PER_SECOND,
+    LOOKUPS_PER_SECOND,
+    MAX_STEPS,
+    MIN_STEPS,
+    STEP_VOXELS,
+    DepthVolume,
+    default_steps,
+    screen_space_occlusion,
+    viewer_side,
+)
 from .screen_ao import denoise as denoise_occlusion
 from .volumes import write_mhd, write_vti
 
-__all__ = ["render", "RenderResult", "prepare_scene", "ShadeRangeWarning", "composite_layer", "MAX_LAYERS",
-           "default_weights"]
+__all__ = [
+    "render",
+    "RenderResult",
+    "prepare_scene",
+    "ShadeRangeWarning",
+    "composite_layer",
+    "MAX_LAYERS",
+    "default_weights",
+]
 
 # Default shading weights (the command line uses the same): 1 - AO alone without a light; with
 # lights 0.7 (1 - AO) + 0.3 Lambert, so one light of intensity 1 keeps shade in [0, 1].
@@ -142,11 +157,16 @@ class RenderResult:
         info = self.info
         shape = "x".join(map(str, self.shade.shape))
         hits = int(info.get("hits", int(self.hit.sum())))
-        parts = [f"{k} {info[f'{k}_seconds']:.2f} s" for k in ("primary", "layer", "shadow", "ao")
-                 if info.get(f"{k}_seconds")]
+        parts = [
+            f"{k} {info[f'{k}_seconds']:.2f} s"
+            for k in ("primary", "layer", "shadow", "ao")
+            if info.get(f"{k}_seconds")
+        ]
         timing = f", {info['seconds']:.2f} s ({', '.join(parts)})" if "seconds" in info else ""
-        return (f"RenderResult({shape} voxels, {hits:,} hit ({hits / max(self.shade.size, 1):.0%})"
-                f", backend={info.get('backend')!r}{timing})")
+        return (
+            f"RenderResult({shape} voxels, {hits:,} hit ({hits / max(self.shade.size, 1):.0%})"
+            f", backend={info.get('backend')!r}{timing})"
+        )
 
     def _repr_html_(self) -> str:
         """The image's ray-marching page (:mod:`ao4d.image_viewer`), shown inline in Jupyter."""
@@ -180,8 +200,13 @@ class RenderResult:
         if suffix == ".mhd":
             return write_mhd(path, self.shade, spacing=spacing, origin=origin)
         depth = np.where(self.hit, self.depth, np.nan).astype(np.float32)
-        arrays = {"shade": self.shade, "depth": depth, "object_id": self.object_id,
-                  "occlusion": self.occlusion, "rgba": self.rgba8}
+        arrays = {
+            "shade": self.shade,
+            "depth": depth,
+            "object_id": self.object_id,
+            "occlusion": self.occlusion,
+            "rgba": self.rgba8,
+        }
         return write_vti(path, arrays, spacing=spacing, origin=origin)
 
 
@@ -214,32 +239,42 @@ def _check_vertex_ao(values: np.ndarray, scene, name: str) -> np.ndarray:
     used[scene.simplices.ravel()] = True
     bad_nan = used & ~np.isfinite(values)
     if bad_nan.any():
-        raise ValueError(f"`{name}` is NaN at {int(bad_nan.sum())} vertices that simplices use "
-                         f"(first: vertex {int(np.argmax(bad_nan))}); recompute it with ao4d.ambient_occlusion")
+        raise ValueError(
+            f"`{name}` is NaN at {int(bad_nan.sum())} vertices that simplices use "
+            f"(first: vertex {int(np.argmax(bad_nan))}); recompute it with ao4d.ambient_occlusion"
+        )
     outside = used & ((values < 0) | (values > 1))
     if outside.any():
-        raise ValueError(f"`{name}` must be occlusion in [0, 1], got values in "
-                         f"[{values[used].min():.4g}, {values[used].max():.4g}]")
+        raise ValueError(
+            f"`{name}` must be occlusion in [0, 1], got values in [{values[used].min():.4g}, {values[used].max():.4g}]"
+        )
     return values
 
 
 def _given_ao(ao, meshes, scene) -> np.ndarray:
     """``render(ao=...)`` given as values: one (V,) array for the joined scene, or one array
     per mesh of the list (joined in the list's order, as the vertices are)."""
-    per_mesh = (isinstance(meshes, Sequence) and isinstance(ao, (list, tuple)) and len(ao) == len(meshes)
-                and all(np.ndim(item) == 1 for item in ao))
+    per_mesh = (
+        isinstance(meshes, Sequence)
+        and isinstance(ao, (list, tuple))
+        and len(ao) == len(meshes)
+        and all(np.ndim(item) == 1 for item in ao)
+    )
     if per_mesh:
         parts = [as_array(item, f"ao[{k}]", ndim=1, dtype=np.float64) for k, item in enumerate(ao)]
         for k, (part, mesh) in enumerate(zip(parts, meshes)):
             if len(part) != mesh.n_vertices:
-                raise ValueError(f"`ao[{k}]` must hold one value per vertex of meshes[{k}] "
-                                 f"({mesh.n_vertices}), got {len(part)}")
+                raise ValueError(
+                    f"`ao[{k}]` must hold one value per vertex of meshes[{k}] ({mesh.n_vertices}), got {len(part)}"
+                )
         values = np.concatenate(parts)
     else:
         values = as_array(ao, "ao", ndim=1, dtype=np.float64)
         if len(values) != scene.n_vertices:
-            raise ValueError(f"`ao` must hold one value per vertex ({scene.n_vertices}), or be one of "
-                             f"'vertices', 'hits', 'screen', 'none'; got {len(values)} values")
+            raise ValueError(
+                f"`ao` must hold one value per vertex ({scene.n_vertices}), or be one of "
+                f"'vertices', 'hits', 'screen', 'none'; got {len(values)} values"
+            )
     return _check_vertex_ao(values, scene, "ao")
 
 
@@ -252,7 +287,10 @@ def _check_weights(ambient: float, diffuse: float, specular: np.ndarray, lights)
 
         warnings.warn(
             f"`ambient` + light intensity x (`diffuse` + `specular`) = {brightest:.3g} > 1: shade can "
-            "exceed 1 (it is in [0, 1] when they sum to at most 1)", ShadeRangeWarning, stacklevel=4)
+            "exceed 1 (it is in [0, 1] when they sum to at most 1)",
+            ShadeRangeWarning,
+            stacklevel=4,
+        )
 
 
 class ShadeRangeWarning(UserWarning):
@@ -281,9 +319,7 @@ def prepare_scene(meshes) -> tuple[Any, np.ndarray]:
     elif isinstance(meshes, Sequence) and not isinstance(meshes, (str, bytes)):
         items = as_meshes(meshes)
     else:
-        raise TypeError(
-            f"`meshes` must be a SimplexMesh or a list of them, got {type(meshes).__name__}"
-        )
+        raise TypeError(f"`meshes` must be a SimplexMesh or a list of them, got {type(meshes).__name__}")
     scene = items[0] if len(items) == 1 else concatenate(items)
     if scene.dim != 4:
         raise ValueError(f"`meshes` must be 4D meshes (tetrahedra in R^4), got dimension {scene.dim}")
@@ -430,18 +466,35 @@ def render(
     if normals is not None:
         import warnings
 
-        warnings.warn("render(normals=...) is deprecated: use shading='smooth' or shading='flat'",
-                      DeprecationWarning, stacklevel=2)
+        warnings.warn(
+            "render(normals=...) is deprecated: use shading='smooth' or shading='flat'",
+            DeprecationWarning,
+            stacklevel=2,
+        )
         if shading != "smooth" and shading != normals:
-            raise ValueError(f"`normals` (deprecated) and `shading` disagree: {normals!r} and {shading!r}; "
-                             "pass `shading` only")
+            raise ValueError(
+                f"`normals` (deprecated) and `shading` disagree: {normals!r} and {shading!r}; pass `shading` only"
+            )
         shading = normals
-    opts = _Options.check(camera, shape, ao=ao, samples=samples, max_distance=max_distance, seed=seed,
-                          denoise=denoise, ambient=ambient, light=light, diffuse=diffuse,
-                          shadows=shadows, depth_cue=depth_cue, layers=layers, shading=shading,
-                          backend=backend, progress=progress)
-    scene = _Scene.of(meshes, opts, ao, color=color, opacity=opacity, specular=specular,
-                      shininess=shininess)
+    opts = _Options.check(
+        camera,
+        shape,
+        ao=ao,
+        samples=samples,
+        max_distance=max_distance,
+        seed=seed,
+        denoise=denoise,
+        ambient=ambient,
+        light=light,
+        diffuse=diffuse,
+        shadows=shadows,
+        depth_cue=depth_cue,
+        layers=layers,
+        shading=shading,
+        backend=backend,
+        progress=progress,
+    )
+    scene = _Scene.of(meshes, opts, ao, color=color, opacity=opacity, specular=specular, shininess=shininess)
     runtime = cl.resolve_backend(backend)
     name = cl.backend_name(runtime)  # what runs: every stage on the same device
     _check_budget(scene, opts, camera, name, max_rays)
@@ -449,8 +502,13 @@ def render(
         # only AO computed here: given or stored AO was checked where it was made, and the
         # check costs a pass over every simplex
         warn_if_inside_out(scene.mesh, "AO is 1 on its surface and the image dark")
-    run = _Run(opts=opts, scene=scene, backend=name, tracer=Tracer.of(scene.mesh, runtime),
-               stats=_Stats(primary_rays=math.prod(opts.shape), backend=name, device=cl.describe(runtime)))
+    run = _Run(
+        opts=opts,
+        scene=scene,
+        backend=name,
+        tracer=Tracer.of(scene.mesh, runtime),
+        stats=_Stats(primary_rays=math.prod(opts.shape), backend=name, device=cl.describe(runtime)),
+    )
     stats = run.stats
 
     origins, directions = (a.reshape(-1, 4) for a in camera.rays(opts.shape))
@@ -462,8 +520,15 @@ def render(
     rows = np.flatnonzero(hit)
     if rows.size:
         run = _with_first_hits(run, camera, directions, t, simplex)
-    first = _shade(run, origins[rows] + t[rows, None] * directions[rows], directions[rows], t[rows],
-                   simplex[rows], bary[rows], first=True)
+    first = _shade(
+        run,
+        origins[rows] + t[rows, None] * directions[rows],
+        directions[rows],
+        t[rows],
+        simplex[rows],
+        bary[rows],
+        first=True,
+    )
     rgba = _composite_rays(run, origins, directions, rows, t[rows], simplex[rows], first)
     stats.seconds = time.perf_counter() - started
     shape = opts.shape
@@ -518,8 +583,26 @@ class _Options:
     show: bool
 
     @classmethod
-    def check(cls, camera, shape, *, ao, samples, max_distance, seed, denoise, ambient, light, diffuse,
-              shadows, depth_cue, layers, shading, backend, progress) -> _Options:
+    def check(
+        cls,
+        camera,
+        shape,
+        *,
+        ao,
+        samples,
+        max_distance,
+        seed,
+        denoise,
+        ambient,
+        light,
+        diffuse,
+        shadows,
+        depth_cue,
+        layers,
+        shading,
+        backend,
+        progress,
+    ) -> _Options:
         if not isinstance(camera, Camera4D):
             raise TypeError(f"`camera` must be an ao4d.Camera4D, got {type(camera).__name__}")
         shape = image_shape(shape)
@@ -536,11 +619,22 @@ class _Options:
             raise ValueError(f"`layers` must be <= {_LAYER_LIMIT}, got {layers}")
         n_voxels = math.prod(shape)
         check_memory(n_voxels * 4 * 8 * 10, "rendering an image of this shape")
-        return cls(shape=shape, ao=ao, samples=check_positive_int(samples, "samples"),
-                   max_distance=check_distance(max_distance), seed=check_int(seed, "seed"), denoise=denoise,
-                   ambient=ambient, diffuse=diffuse, lights=lights, shadows=check_bool(shadows, "shadows"),
-                   cue=check_depth_cue(depth_cue), layers=layers, shading=shading,
-                   show=n_voxels >= _PROGRESS_VOXELS if progress is None else bool(progress))
+        return cls(
+            shape=shape,
+            ao=ao,
+            samples=check_positive_int(samples, "samples"),
+            max_distance=check_distance(max_distance),
+            seed=check_int(seed, "seed"),
+            denoise=denoise,
+            ambient=ambient,
+            diffuse=diffuse,
+            lights=lights,
+            shadows=check_bool(shadows, "shadows"),
+            cue=check_depth_cue(depth_cue),
+            layers=layers,
+            shading=shading,
+            show=n_voxels >= _PROGRESS_VOXELS if progress is None else bool(progress),
+        )
 
 
 _AO_MODES = ("vertices", "hits", "screen", "none")
@@ -593,31 +687,38 @@ class _Scene:
         lo, hi = np.asarray(mesh.bounds, dtype=np.float64)
         diagonal = float(np.linalg.norm(hi - lo))
         smooth = opts.lights and opts.shading == "smooth"
-        return cls(mesh=mesh, object_ids=object_ids, material=material, simplices=mesh.simplices,
-                   simplex_normals=np.asarray(mesh.simplex_normals),
-                   vertex_normals=np.asarray(mesh.vertex_normals) if smooth else None,
-                   vertex_ao=vertex_ao, offset=ORIGIN_OFFSET * diagonal, diagonal=diagonal)
+        return cls(
+            mesh=mesh,
+            object_ids=object_ids,
+            material=material,
+            simplices=mesh.simplices,
+            simplex_normals=np.asarray(mesh.simplex_normals),
+            vertex_normals=np.asarray(mesh.vertex_normals) if smooth else None,
+            vertex_ao=vertex_ao,
+            offset=ORIGIN_OFFSET * diagonal,
+            diagonal=diagonal,
+        )
 
 
-def _per_object(value, name: str, n_objects: int, default, *, unit: bool,
-                positive: bool = False) -> np.ndarray:
+def _per_object(value, name: str, n_objects: int, default, *, unit: bool, positive: bool = False) -> np.ndarray:
     """``value`` for every object: one entry (or RGB triple) for all, or one per object id."""
     width = np.size(default)
     if value is None:
         value = default
     if np.asarray(value).dtype == bool:  # True would silently be 1
         raise TypeError(f"`{name}` must be a number (or one per object), got {value!r}")
-    arr = as_array(value, name, ndim=(0, 1) if width == 1 else (1, 2), dtype=np.float64,
-                   finite=True)
+    arr = as_array(value, name, ndim=(0, 1) if width == 1 else (1, 2), dtype=np.float64, finite=True)
     if arr.ndim == (0 if width == 1 else 1):
         if width > 1 and arr.shape[0] != width:
-            raise ValueError(f"`{name}` must be an RGB triple or one per object ({n_objects}, 3), "
-                             f"got shape {arr.shape}")
+            raise ValueError(
+                f"`{name}` must be an RGB triple or one per object ({n_objects}, 3), got shape {arr.shape}"
+            )
         arr = np.broadcast_to(arr, (n_objects,) + arr.shape)
     elif arr.shape[0] != n_objects or (width > 1 and arr.shape[1] != width):
         want = f"({n_objects},)" if width == 1 else f"({n_objects}, {width})"
-        raise ValueError(f"`{name}` must be one value for all objects or {want} (one per object "
-                         f"id), got shape {arr.shape}")
+        raise ValueError(
+            f"`{name}` must be one value for all objects or {want} (one per object id), got shape {arr.shape}"
+        )
     if unit and ((arr < 0) | (arr > 1)).any():
         raise ValueError(f"`{name}` must be in [0, 1], got {value!r}")
     if positive and (arr <= 0).any():
@@ -682,12 +783,18 @@ def _check_budget(scene: _Scene, opts: _Options, camera, backend: str, max_rays)
         window = n_voxels * (2 * denoise + 1) ** 3 if denoise else 0
         seconds = lookups / LOOKUPS_PER_SECOND[backend] + window / DENOISE_PER_SECOND[backend]
         total += seconds * RAYS_PER_SECOND[backend]
-        what += (f"{f', `denoise`={denoise}' if denoise else ''} ({lookups:.3g} depth look-ups"
-                 f"{f' and {window:.3g} filter-window voxels' if window else ''}, counted as rays "
-                 "at their cost)")
-    check_rays(total, backend, max_rays, what=what,
-               hint="use fewer `samples`, a smaller `denoise` or `shape`, or pass max_rays=math.inf "
-                    "(CLI: --force)")
+        what += (
+            f"{f', `denoise`={denoise}' if denoise else ''} ({lookups:.3g} depth look-ups"
+            f"{f' and {window:.3g} filter-window voxels' if window else ''}, counted as rays "
+            "at their cost)"
+        )
+    check_rays(
+        total,
+        backend,
+        max_rays,
+        what=what,
+        hint="use fewer `samples`, a smaller `denoise` or `shape`, or pass max_rays=math.inf (CLI: --force)",
+    )
 
 
 def _screen_steps(scene: _Scene, camera, opts: _Options) -> int:
@@ -711,8 +818,14 @@ def _cast(run: _Run, origins, directions, desc, *, closest=True, max_distance=ma
     with _progress.bar(n, desc, unit="ray", show=run.opts.show, unit_scale=True) as bar:
         for start in range(0, n, _CHUNK):
             stop = min(start + _CHUNK, n)
-            hits = trace(run.tracer, origins[start:stop], directions[start:stop], closest=closest,
-                         max_distance=max_distance, bar=bar)
+            hits = trace(
+                run.tracer,
+                origins[start:stop],
+                directions[start:stop],
+                closest=closest,
+                max_distance=max_distance,
+                bar=bar,
+            )
             t[start:stop], simplex[start:stop], bary[start:stop] = hits.t, hits.simplex, hits.barycentric
     return t, simplex, bary
 
@@ -725,9 +838,15 @@ def _with_first_hits(run: _Run, camera, directions, t, simplex) -> _Run:
         values = scene.vertex_ao
         if values is None:
             start = time.perf_counter()
-            values = ambient_occlusion(scene.mesh, samples=opts.samples, max_distance=opts.max_distance,
-                                       at="vertices", seed=opts.seed, backend=run.backend,
-                                       max_rays=math.inf)  # render checked its budget
+            values = ambient_occlusion(
+                scene.mesh,
+                samples=opts.samples,
+                max_distance=opts.max_distance,
+                at="vertices",
+                seed=opts.seed,
+                backend=run.backend,
+                max_rays=math.inf,
+            )  # render checked its budget
             run.stats.ao_seconds += time.perf_counter() - start
             run.stats.ao_rays += scene.mesh.n_vertices * opts.samples
         return replace(run, vertex_ao=np.asarray(values, dtype=np.float64))
@@ -748,20 +867,36 @@ def _occlusion(run: _Run, points, face_n, tri, bary, first: bool) -> np.ndarray:
         return np.clip(np.einsum("hk,hk->h", bary, run.vertex_ao[tri]), 0.0, 1.0)
     start = time.perf_counter()
     if opts.ao == "hits":  # the hemisphere around the normal that faces the viewer
-        occ = ambient_occlusion(run.scene.mesh, samples=opts.samples, max_distance=opts.max_distance,
-                                points=points, normals=face_n, seed=opts.seed, backend=run.backend,
-                                progress=opts.show, max_rays=math.inf)  # render checked its budget
+        occ = ambient_occlusion(
+            run.scene.mesh,
+            samples=opts.samples,
+            max_distance=opts.max_distance,
+            points=points,
+            normals=face_n,
+            seed=opts.seed,
+            backend=run.backend,
+            progress=opts.show,
+            max_rays=math.inf,
+        )  # render checked its budget
         stats.ao_rays += len(points) * opts.samples
     else:
         volume = run.volume
-        occ = screen_space_occlusion(volume, points, face_n, samples=opts.samples,
-                                     max_distance=opts.max_distance, seed=opts.seed, backend=run.backend)
+        occ = screen_space_occlusion(
+            volume,
+            points,
+            face_n,
+            samples=opts.samples,
+            max_distance=opts.max_distance,
+            seed=opts.seed,
+            backend=run.backend,
+        )
         stats.screen_lookups += len(points) * opts.samples * default_steps(volume, opts.max_distance)
         if first and opts.denoise:
             image = np.full(volume.depth.size, np.nan)
             image[volume.hit.reshape(-1)] = occ
-            occ = denoise_occlusion(image.reshape(opts.shape), volume, radius=opts.denoise,
-                                    backend=run.backend)[volume.hit]
+            occ = denoise_occlusion(image.reshape(opts.shape), volume, radius=opts.denoise, backend=run.backend)[
+                volume.hit
+            ]
     stats.ao_seconds += time.perf_counter() - start
     return np.asarray(occ, dtype=np.float64)
 

@@ -227,9 +227,7 @@ def ball_points(u: np.ndarray) -> np.ndarray:
     raise ValueError(f"ball points are implemented for 1 to 3 dimensions, got {k}")
 
 
-def cosine_hemisphere(
-    normals: np.ndarray, samples: int, *, seed: int = 0, index_offset: int = 0
-) -> np.ndarray:
+def cosine_hemisphere(normals: np.ndarray, samples: int, *, seed: int = 0, index_offset: int = 0) -> np.ndarray:
     """Cosine-weighted directions on the hemisphere around each normal.
 
     Parameters

@@ -164,42 +164,58 @@ def default_scene() -> Scene:
     # the slab is flat: linear interpolation reproduces its faces exactly on a coarse grid
     ground_lo, ground_hi = (-2.7, -0.24, -1.7, -0.95), (2.7, 0.0, 1.7, 0.95)
     # (8 points across its thickness so that coarse settings keep it)
-    ground = SceneObject("ground", box(ground_lo, ground_hi), *_padded(ground_lo, ground_hi, pad),
-                         coarseness=1.6, min_points=(4, 8, 4, 4), min_step=0.1,
-                         color=(0.95, 0.93, 0.87))
+    ground = SceneObject(
+        "ground",
+        box(ground_lo, ground_hi),
+        *_padded(ground_lo, ground_hi, pad),
+        coarseness=1.6,
+        min_points=(4, 8, 4, 4),
+        min_step=0.1,
+        color=(0.95, 0.93, 0.87),
+    )
 
     r_sphere = 0.75
     c_sphere = np.array([-1.45, r_sphere, 0.35, 0.0])
     sphere = SceneObject(
-        "hypersphere", fields.hypersphere(r_sphere, c_sphere),
+        "hypersphere",
+        fields.hypersphere(r_sphere, c_sphere),
         *_padded(c_sphere - r_sphere, c_sphere + r_sphere, pad),
-        color=(0.95, 0.24, 0.17), specular=0.3,
+        color=(0.95, 0.24, 0.17),
+        specular=0.3,
     )
 
     # torisphere: core circle of radius R in the xy plane, swept 3-ball of radius r; turned
     # into the xz plane (lying flat), resting on the ground at y = 0
     big, small = 0.55, 0.24
     c_torus = np.array([0.15, small, -0.55, 0.0])
-    torus_field = fields.translate(fields.rotate(fields.torisphere(big, small), (1, 2), math.pi / 2),
-                                   c_torus)
+    torus_field = fields.translate(fields.rotate(fields.torisphere(big, small), (1, 2), math.pi / 2), c_torus)
     reach = np.array([big + small, small, big + small, small])
-    torus = SceneObject("torisphere", torus_field, *_padded(c_torus - reach, c_torus + reach, pad),
-                        color=(0.2, 0.55, 0.95), specular=0.3)
+    torus = SceneObject(
+        "torisphere",
+        torus_field,
+        *_padded(c_torus - reach, c_torus + reach, pad),
+        color=(0.2, 0.55, 0.95),
+        specular=0.3,
+    )
 
     # tesseract of half side h with a round indent in its +z facet, which faces the viewer of
     # the 3D image (camera over = +z)
     half, indent = 0.55, 0.38
     c_cube = np.array([1.5, half, 0.25, 0.0])
     cube_field = fields.translate(fields.indented_cube(half, indent, axis=2), c_cube)
-    cube = SceneObject("indented tesseract", cube_field,
-                       *_padded(c_cube - half, c_cube + half, pad),
-                       color=(1.0, 0.78, 0.2), specular=0.3)
+    cube = SceneObject(
+        "indented tesseract",
+        cube_field,
+        *_padded(c_cube - half, c_cube + half, pad),
+        color=(1.0, 0.78, 0.2),
+        specular=0.3,
+    )
 
-    camera = Camera4D(eye=[0.0, 1.6, -0.6, -5.5], target=[0.0, 0.45, 0.0, 0.0],
-                      up=[0, 1, 0, 0], over=[0, 0, 1, 0], fov=40.0)
+    camera = Camera4D(
+        eye=[0.0, 1.6, -0.6, -5.5], target=[0.0, 0.45, 0.0, 0.0], up=[0, 1, 0, 0], over=[0, 0, 1, 0], fov=40.0
+    )
     light = np.array([-0.35, 1.0, -0.25, -0.45])
-    return Scene("default", (ground, sphere, torus, cube), camera, light / np.linalg.norm(light),
-                 shininess=20.0)
+    return Scene("default", (ground, sphere, torus, cube), camera, light / np.linalg.norm(light), shininess=20.0)
 
 
 def extract_scene(
@@ -237,7 +253,6 @@ def extract_scene(
     for obj in scene.objects:
         lo, hi = np.asarray(obj.lo), np.asarray(obj.hi)
         step = max(cell * obj.coarseness, obj.min_step)
-        shape = tuple(max(m, int(math.ceil((h - l) / step)) + 1)
-                      for l, h, m in zip(lo, hi, obj.min_points))
+        shape = tuple(max(m, int(math.ceil((h - l) / step)) + 1) for l, h, m in zip(lo, hi, obj.min_points))
         meshes.append(extract_field(obj.field, shape, (lo, hi), method=method, progress=progress))
     return meshes

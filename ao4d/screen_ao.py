@@ -81,8 +81,19 @@ from ._validate import as_array, as_real, check_int, check_memory, check_positiv
 from .camera import Camera4D, image_shape
 from .sampling import cosine_hemisphere, sobol_table
 
-__all__ = ["DepthVolume", "screen_space_occlusion", "denoise", "default_steps", "viewer_side",
-           "STEP_VOXELS", "MIN_STEPS", "MAX_STEPS", "GRAZING", "LOOKUPS_PER_SECOND", "DENOISE_PER_SECOND"]
+__all__ = [
+    "DepthVolume",
+    "screen_space_occlusion",
+    "denoise",
+    "default_steps",
+    "viewer_side",
+    "STEP_VOXELS",
+    "MIN_STEPS",
+    "MAX_STEPS",
+    "GRAZING",
+    "LOOKUPS_PER_SECOND",
+    "DENOISE_PER_SECOND",
+]
 
 # Default march: one point per STEP_VOXELS voxels of reach (at the target's distance), between
 # MIN_STEPS and MAX_STEPS: a short reach needs few points (more only add look-ups that land on
@@ -149,8 +160,7 @@ class DepthVolume:
             raise ValueError("`depth` must be > 0 where a ray hit")
         arr = as_array(normals, "normals", shape_tail=(4,), dtype=np.float64)
         if arr.size != 4 * depth.size:
-            raise ValueError(f"`normals` must hold (voxels, 4) = ({depth.size}, 4) values, "
-                             f"got shape {arr.shape}")
+            raise ValueError(f"`normals` must hold (voxels, 4) = ({depth.size}, 4) values, got shape {arr.shape}")
         arr = np.where(hit[..., None], arr.reshape(shape + (4,)), 0.0)
         length = np.linalg.norm(arr, axis=-1)
         if not (np.isfinite(length[hit]).all() and (length[hit] > 0).all()):
@@ -187,13 +197,19 @@ class DepthVolume:
             raise ValueError("`mesh` must be a 4D SimplexMesh (tetrahedra in R^4)")
         origins, directions = (a.reshape(-1, 4) for a in camera.rays(shape))
         hits = cast_rays(mesh, origins, directions, backend=backend)
-        built = cls.of_first_hits(camera, shape, directions, hits.t, hits.simplex,
-                                  np.asarray(mesh.simplex_normals))
+        built = cls.of_first_hits(camera, shape, directions, hits.t, hits.simplex, np.asarray(mesh.simplex_normals))
         return cls.from_hits(camera, shape, built.depth, built.normals)
 
     @classmethod
-    def of_first_hits(cls, camera: Camera4D, shape: tuple[int, int, int], directions: np.ndarray,
-                      t: np.ndarray, simplex: np.ndarray, simplex_normals: np.ndarray) -> DepthVolume:
+    def of_first_hits(
+        cls,
+        camera: Camera4D,
+        shape: tuple[int, int, int],
+        directions: np.ndarray,
+        t: np.ndarray,
+        simplex: np.ndarray,
+        simplex_normals: np.ndarray,
+    ) -> DepthVolume:
         """The volume of one closest-hit ray per voxel, built without checks (valid by
         construction: the caller cast the rays).
 
@@ -222,8 +238,7 @@ class DepthVolume:
         rows = np.flatnonzero(hit)
         raw = simplex_normals[simplex[rows]]
         normals[rows] = raw * viewer_side(raw, directions[rows])[:, None]
-        return cls(depth=np.where(hit, t, np.inf).reshape(shape), normals=normals.reshape(shape + (4,)),
-                   camera=camera)
+        return cls(depth=np.where(hit, t, np.inf).reshape(shape), normals=normals.reshape(shape + (4,)), camera=camera)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -500,8 +515,7 @@ def _surfaces(g: np.ndarray, idx: np.ndarray, f: dict) -> tuple[np.ndarray, np.n
     d = np.abs(g[..., 3])
     m = g.copy()
     m[..., 3] = np.copysign(np.sqrt(np.maximum(0.0, 1.0 - (g[..., :3] ** 2).sum(-1))), g[..., 3])
-    centre = np.concatenate([f["origin"] + f["spacing"] * idx,
-                             np.full(idx.shape[:-1] + (1,), f["distance"])], axis=-1)
+    centre = np.concatenate([f["origin"] + f["spacing"] * idx, np.full(idx.shape[:-1] + (1,), f["distance"])], axis=-1)
     if f["perspective"]:
         s = d[..., None] * centre / np.linalg.norm(centre, axis=-1, keepdims=True)
     else:
@@ -516,8 +530,7 @@ def _numpy_denoise(volume, occ, f, radius, tolerance, normal_min) -> np.ndarray:
     idx = np.stack(np.meshgrid(*[np.arange(k) for k in shape], indexing="ij"), axis=-1)
     s, m = _surfaces(np.where(hit[..., None], g, 0.0), idx, f)
     if f["perspective"]:
-        centre = np.concatenate([f["origin"] + f["spacing"] * idx,
-                                 np.full(shape + (1,), f["distance"])], axis=-1)
+        centre = np.concatenate([f["origin"] + f["spacing"] * idx, np.full(shape + (1,), f["distance"])], axis=-1)
         size = f["spacing"] * np.linalg.norm(s, axis=-1) / np.linalg.norm(centre, axis=-1)
     else:
         size = np.full(shape, f["spacing"])
@@ -544,20 +557,30 @@ def _opencl_denoise(runtime, volume, occ, f, radius, tolerance, normal_min) -> n
     import pyopencl as pcl
 
     n_vox = volume.depth.size
-    cl.check_device_memory(runtime, {"the G-buffer": n_vox * 16, "the occlusion": n_vox * 8},
-                           task="denoising screen-space AO")
+    cl.check_device_memory(
+        runtime, {"the G-buffer": n_vox * 16, "the occlusion": n_vox * 8}, task="denoising screen-space AO"
+    )
     kernel = cl.build_kernels(runtime, "screen_ao.cl", {"DIM": 4})["denoise"]
     ctx, queue = runtime.context, runtime.queue
     ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
     values = np.ascontiguousarray(np.where(volume.hit, occ, 0.0).reshape(-1), dtype=np.float32)
     out = np.empty(n_vox, dtype=np.float32)
     buf_out = pcl.Buffer(ctx, pcl.mem_flags.WRITE_ONLY, out.nbytes)
-    kernel(queue, (n_vox,), None,
-           pcl.Buffer(ctx, ro, hostbuf=volume._gbuffer32),
-           pcl.Buffer(ctx, ro, hostbuf=values), *[np.int32(k) for k in volume.shape],
-           np.asarray(list(f["origin"]) + [f["spacing"]], dtype=np.float32),
-           np.float32(f["distance"]), np.int32(f["perspective"]), np.int32(radius),
-           np.float32(tolerance), np.float32(normal_min), buf_out)
+    kernel(
+        queue,
+        (n_vox,),
+        None,
+        pcl.Buffer(ctx, ro, hostbuf=volume._gbuffer32),
+        pcl.Buffer(ctx, ro, hostbuf=values),
+        *[np.int32(k) for k in volume.shape],
+        np.asarray(list(f["origin"]) + [f["spacing"]], dtype=np.float32),
+        np.float32(f["distance"]),
+        np.int32(f["perspective"]),
+        np.int32(radius),
+        np.float32(tolerance),
+        np.float32(normal_min),
+        buf_out,
+    )
     pcl.enqueue_copy(queue, out, buf_out)
     queue.finish()
     return out.reshape(volume.shape).astype(np.float64)
@@ -586,9 +609,14 @@ def _frame(volume: DepthVolume, pts, nrm):
     """Query points relative to the eye in the camera's basis; the G-buffer (kernel comment)."""
     cam = volume.camera
     geo = cam.geometry(volume.shape)
-    return dict(points=np.einsum("nk,jk->nj", pts - cam.eye, cam.basis), gbuffer=volume.gbuffer,
-                distance=cam.distance, perspective=cam.projection == "perspective",
-                origin=np.asarray(geo.origin, dtype=np.float64), spacing=geo.spacing)
+    return dict(
+        points=np.einsum("nk,jk->nj", pts - cam.eye, cam.basis),
+        gbuffer=volume.gbuffer,
+        distance=cam.distance,
+        perspective=cam.projection == "perspective",
+        origin=np.asarray(geo.origin, dtype=np.float64),
+        spacing=geo.spacing,
+    )
 
 
 def _numpy_counts(volume: DepthVolume, pts, nrm, *, samples, steps, reach, bias, thickness, seed):
@@ -635,15 +663,13 @@ def _numpy_counts(volume: DepthVolume, pts, nrm, *, samples, steps, reach, bias,
     return counts
 
 
-def _opencl_counts(runtime, volume: DepthVolume, pts, nrm, *, samples, steps, reach, bias,
-                   thickness, seed):
+def _opencl_counts(runtime, volume: DepthVolume, pts, nrm, *, samples, steps, reach, bias, thickness, seed):
     """The same counts from ``kernels/screen_ao.cl`` (float32, camera basis)."""
     import pyopencl as pcl
 
     n_vox = volume.depth.size
     n = len(pts)
-    cl.check_device_memory(runtime, {"the G-buffer": n_vox * 16, "the AO points": n * 36},
-                           task="screen-space AO")
+    cl.check_device_memory(runtime, {"the G-buffer": n_vox * 16, "the AO points": n * 36}, task="screen-space AO")
     f = _frame(volume, pts, nrm)
     kernel = cl.build_kernels(runtime, "screen_ao.cl", {"DIM": 4})["screen_ao"]
     ctx, queue = runtime.context, runtime.queue
@@ -655,13 +681,29 @@ def _opencl_counts(runtime, volume: DepthVolume, pts, nrm, *, samples, steps, re
     cam = volume.camera
     eye = np.zeros(4, dtype=np.float32)
     axes = cam.basis.astype(np.float32)
-    args = [pcl.Buffer(ctx, ro, hostbuf=volume._gbuffer32)] + [np.int32(s) for s in volume.shape] + [
-        eye, axes[0], axes[1], axes[2], axes[3], np.float32(f["distance"]),
-        np.int32(f["perspective"]), vec(list(f["origin"]) + [f["spacing"]]),
-        pcl.Buffer(ctx, ro, hostbuf=f4(pts - cam.eye)), pcl.Buffer(ctx, ro, hostbuf=f4(nrm)),
-        pcl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(sobol_table(samples, 3, seed=seed))),
-        np.int32(samples), np.uint32(seed & 0xFFFFFFFF), np.int32(steps), np.float32(reach),
-        np.float32(bias), np.float32(min(thickness, 3e38))]
+    args = (
+        [pcl.Buffer(ctx, ro, hostbuf=volume._gbuffer32)]
+        + [np.int32(s) for s in volume.shape]
+        + [
+            eye,
+            axes[0],
+            axes[1],
+            axes[2],
+            axes[3],
+            np.float32(f["distance"]),
+            np.int32(f["perspective"]),
+            vec(list(f["origin"]) + [f["spacing"]]),
+            pcl.Buffer(ctx, ro, hostbuf=f4(pts - cam.eye)),
+            pcl.Buffer(ctx, ro, hostbuf=f4(nrm)),
+            pcl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(sobol_table(samples, 3, seed=seed))),
+            np.int32(samples),
+            np.uint32(seed & 0xFFFFFFFF),
+            np.int32(steps),
+            np.float32(reach),
+            np.float32(bias),
+            np.float32(min(thickness, 3e38)),
+        ]
+    )
     counts = np.empty(n, dtype=np.int32)
     buf_counts = pcl.Buffer(ctx, pcl.mem_flags.WRITE_ONLY, counts.nbytes)
     args.append(buf_counts)

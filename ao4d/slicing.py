@@ -15,6 +15,7 @@ from ._validate import as_array
 
 __all__ = ["hyperplane_basis", "unit_normal", "slice_mesh", "SLICE_CASES"]
 
+
 def hyperplane_basis(normal: Any) -> np.ndarray:
     """Deterministic orthonormal basis (b1, b2, b3) of the hyperplane orthogonal to ``normal`` in R^4.
 
@@ -76,7 +77,6 @@ def unit_normal(normal: Any, d: int) -> np.ndarray:
     if not length > 0.0:
         raise ValueError("`normal` must be a nonzero vector")
     return n / length
-
 
 
 def _slice_cases() -> list[list[tuple[tuple[int, int], ...]]]:
@@ -165,9 +165,7 @@ def slice_mesh(mesh: Any, origin: np.ndarray, normal: np.ndarray, names: list[st
                 ga, gb = simplices[tets, a], simplices[tets, b]
                 # The positive end lying on the plane is the corner itself: key it by that
                 # vertex so every tetrahedron around it finds the same output vertex.
-                corner_keys.append(
-                    np.where(s[gb] == 0.0, n_vertices * n_vertices + gb, ga * n_vertices + gb)
-                )
+                corner_keys.append(np.where(s[gb] == 0.0, n_vertices * n_vertices + gb, ga * n_vertices + gb))
             keys.append(np.stack(corner_keys, axis=1))
             sources.append(tets)
     if not keys:
@@ -206,4 +204,3 @@ def slice_mesh(mesh: Any, origin: np.ndarray, normal: np.ndarray, names: list[st
         face_attributes=face_attributes,
         process=False,
     )
-

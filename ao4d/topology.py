@@ -17,8 +17,22 @@ import numpy as np
 
 from ._validate import check_memory
 
-__all__ = ["Faces", "MeshReport", "MARCHING_PROVED", "InsideOutWarning", "warn_if_inside_out", "face_structure", "face_adjacency", "boundary_faces",
-           "singular_vertices", "connected_labels", "component_labels", "component_count", "misoriented_faces", "face_counts"]
+__all__ = [
+    "Faces",
+    "MeshReport",
+    "MARCHING_PROVED",
+    "InsideOutWarning",
+    "warn_if_inside_out",
+    "face_structure",
+    "face_adjacency",
+    "boundary_faces",
+    "singular_vertices",
+    "connected_labels",
+    "component_labels",
+    "component_count",
+    "misoriented_faces",
+    "face_counts",
+]
 
 # --------------------------------------------------------------------------------------------
 # face structure: (d-2)-faces keyed and grouped, vectorised with one sort
@@ -92,8 +106,9 @@ def face_structure(simplices: np.ndarray, n_vertices: int) -> Faces:
     return Faces(order=order, starts=starts, sign=sign, columns=columns, perm=perm)
 
 
-def _sort_simplices(simplices: np.ndarray, local: bool = True
-                    ) -> tuple[list[np.ndarray], list[np.ndarray] | None, np.ndarray]:
+def _sort_simplices(
+    simplices: np.ndarray, local: bool = True
+) -> tuple[list[np.ndarray], list[np.ndarray] | None, np.ndarray]:
     """Each row sorted by a compare-exchange network: d contiguous (S,) int64 columns of the
     sorted vertex indices (one per rank), d (S,) int8 columns of their local indices (None
     unless ``local``), and (S,) bool the odd parity of each row's sorting permutation."""
@@ -206,21 +221,32 @@ def face_counts(simplices: np.ndarray, n_vertices: int, faces: Faces | None = No
         # closed, manifold and oriented: the sorted words pair up as (face, +) (face, -), and
         # each pair's face differs from the next pair's
         first, second = words[0::2], words[1::2]
-        if len(words) % 2 == 0 and np.array_equal(second - first, np.ones_like(first)) and \
-                np.all((words[2::2] ^ words[1:-1:2]) > 1):
+        if (
+            len(words) % 2 == 0
+            and np.array_equal(second - first, np.ones_like(first))
+            and np.all((words[2::2] ^ words[1:-1:2]) > 1)
+        ):
             return len(first), 0, 0, 0
         face = words >> np.uint64(1)
         starts = np.concatenate([[0], np.flatnonzero(face[1:] != face[:-1]) + 1, [len(words)]])
         counts = np.diff(starts)
         two = starts[:-1][counts == 2]
         same_sign = (words[two] & np.uint64(1)) == (words[two + 1] & np.uint64(1))
-        return (len(counts), int(np.count_nonzero(counts == 1)), int(np.count_nonzero(counts > 2)),
-                int(np.count_nonzero(same_sign)))
+        return (
+            len(counts),
+            int(np.count_nonzero(counts == 1)),
+            int(np.count_nonzero(counts > 2)),
+            int(np.count_nonzero(same_sign)),
+        )
     if faces is None:
         faces = face_structure(simplices, n_vertices)
     counts = faces.counts
-    return (len(counts), int(np.count_nonzero(counts == 1)), int(np.count_nonzero(counts > 2)),
-            misoriented_faces(faces))
+    return (
+        len(counts),
+        int(np.count_nonzero(counts == 1)),
+        int(np.count_nonzero(counts > 2)),
+        misoriented_faces(faces),
+    )
 
 
 def _face_sign_words(simplices: np.ndarray, n_vertices: int) -> np.ndarray:
@@ -230,7 +256,7 @@ def _face_sign_words(simplices: np.ndarray, n_vertices: int) -> np.ndarray:
     cols, _, odd = _sort_simplices(simplices, local=False)
     words = np.empty(s * d, dtype=np.uint64)
     for k, kept in enumerate(_opposite(d)):
-        view = _pack_face(cols, kept, _bits(n_vertices), words[k * s:(k + 1) * s])
+        view = _pack_face(cols, kept, _bits(n_vertices), words[k * s : (k + 1) * s])
         view <<= np.uint64(1)
         view |= (odd ^ bool(k % 2)).view(np.uint8)  # sign (-1)^k * parity negative
     return words
@@ -372,16 +398,17 @@ class MeshReport:
         """Closed, manifold, consistently oriented, outward and measurable (degenerate simplices
         are otherwise only reported: extraction legitimately makes zero-measure simplices where
         values equal the level)."""
-        return (self.closed and self.manifold and self.oriented and not self.inside_out
-                and self.measurable)
+        return self.closed and self.manifold and self.oriented and not self.inside_out and self.measurable
 
     def __str__(self) -> str:
         def flag(value: bool) -> str:
             return "yes" if value else "NO"
 
         if self.empty:
-            return (f"{self.dim}D simplex mesh: empty ({self.n_vertices} vertices, no simplices)\n"
-                    "  => NOT OK (an empty mesh encloses nothing)")
+            return (
+                f"{self.dim}D simplex mesh: empty ({self.n_vertices} vertices, no simplices)\n"
+                "  => NOT OK (an empty mesh encloses nothing)"
+            )
         if not self.closed:
             outward = "n/a (open mesh: no enclosed volume)"
         elif self.inside_out:
@@ -402,12 +429,13 @@ class MeshReport:
         if self.hint and not self.closed:
             lines.append(f"  open at the grid's edge: {self.hint}")
         if not self.measurable:
-            lines.append(f"  measures: NO (volume {self.volume:.6g}, {self.n_degenerate} of {self.n_simplices} "
-                         "simplices degenerate: coordinates whose products underflow or overflow "
-                         "float64; rescale the mesh)")
+            lines.append(
+                f"  measures: NO (volume {self.volume:.6g}, {self.n_degenerate} of {self.n_simplices} "
+                "simplices degenerate: coordinates whose products underflow or overflow "
+                "float64; rescale the mesh)"
+            )
         lines.append(f"  => {'OK' if self.ok else 'NOT OK'}")
         return "\n".join(lines)
-
 
 
 class InsideOutWarning(UserWarning):
@@ -436,7 +464,9 @@ def warn_if_inside_out(mesh: Any, consequence: str, *, stacklevel: int = 3) -> N
         warnings.warn(
             f"the mesh is inside out: closed, but it encloses a negative volume ({mesh.volume:.4g}), "
             f"so its normals point inwards and {consequence}; use mesh.flipped()",
-            InsideOutWarning, stacklevel=stacklevel)
+            InsideOutWarning,
+            stacklevel=stacklevel,
+        )
 
 
 # --------------------------------------------------------------------------------------------
@@ -599,7 +629,8 @@ def _link_euler_defect(simplices: np.ndarray, n: int, faces: Faces) -> np.ndarra
         rows = np.concatenate([cols[[i, j]].T for i in range(4) for j in range(i + 1, 4)])
         lo, hi = np.unique(rows, axis=0).T
     chi = (
-        np.bincount(lo, minlength=n) + np.bincount(hi, minlength=n)
+        np.bincount(lo, minlength=n)
+        + np.bincount(hi, minlength=n)
         - np.bincount(tri_vertices.ravel(), minlength=n)
         + np.bincount(simplices.ravel(), minlength=n)
     )

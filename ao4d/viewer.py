@@ -114,8 +114,15 @@ __all__ = [
 ANGLES = ("xy", "xz", "xw", "yz", "yw", "zw")
 _PLANES = {"xy": (0, 1), "xz": (0, 2), "xw": (0, 3), "yz": (1, 2), "yw": (1, 3), "zw": (2, 3)}
 # w = None means the centre of the scene in w
-DEFAULT_STATE: dict[str, Any] = {"w": None, **{a: 0.0 for a in ANGLES}, "az": 30.0, "el": 20.0,
-                                 "zoom": 1.0, "light": 1, "hide": ()}
+DEFAULT_STATE: dict[str, Any] = {
+    "w": None,
+    **{a: 0.0 for a in ANGLES},
+    "az": 30.0,
+    "el": 20.0,
+    "zoom": 1.0,
+    "light": 1,
+    "hide": (),
+}
 _NUMBER_KEYS = ("w", *ANGLES, "az", "el", "zoom")
 
 HALF_FOV_DEG = 15.0  # half the view angle across the canvas' shorter side at zoom 1
@@ -125,12 +132,12 @@ AMBIENT = 0.3
 MAX_BYTES = 150_000_000
 CHUNK = 256  # tetrahedra per culling chunk (the page skips chunks the hyperplane misses)
 # Tableau 10: object colours when several meshes are shown
-PALETTE = ("#4e79a7", "#f28e2b", "#e15759", "#76b7b2", "#59a14f", "#edc948", "#b07aa1",
-           "#ff9da7", "#9c755f", "#bab0ac")
+PALETTE = ("#4e79a7", "#f28e2b", "#e15759", "#76b7b2", "#59a14f", "#edc948", "#b07aa1", "#ff9da7", "#9c755f", "#bab0ac")
 _TEMPLATE = "viewer_page.html"
 
 
 # --------------------------------------------------------------------------- state and geometry
+
 
 @dataclass(frozen=True)
 class Frame:
@@ -173,8 +180,7 @@ def _frame(meshes: list, center: Any, offsets: np.ndarray) -> Frame:
         c = 0.5 * (lo + hi)
     else:
         c = as_array(center, "center", ndim=1, shape_tail=(d,), dtype=np.float64, finite=True)
-    radius = max(float(np.linalg.norm(np.asarray(m.vertices) + o - c, axis=1).max())
-                 for m, o in zip(meshes, offsets))
+    radius = max(float(np.linalg.norm(np.asarray(m.vertices) + o - c, axis=1).max()) for m, o in zip(meshes, offsets))
     if not radius > 0.0:
         raise ValueError("`meshes` span a single point: nothing to frame")
     return Frame(np.array(c, dtype=np.float64), radius)
@@ -185,8 +191,7 @@ def merged_state(state: Mapping[str, Any] | None, defaults: Mapping[str, Any], e
     unknown key is an error naming ``state`` (``example``: a valid one, for the message)."""
     if state is not None and not isinstance(state, Mapping):
         hint = " (a URL fragment such as 'w=0.3' goes after the page's #)" if isinstance(state, str) else ""
-        raise TypeError(f"`state` must be a mapping such as {example}, got "
-                        f"{type(state).__name__} {state!r}{hint}")
+        raise TypeError(f"`state` must be a mapping such as {example}, got {type(state).__name__} {state!r}{hint}")
     given = {} if state is None else dict(state)
     unknown = sorted(set(given) - set(defaults))
     if unknown:
@@ -268,8 +273,7 @@ def rotation(state: Mapping[str, Any] | None = None) -> np.ndarray:
     return r
 
 
-def transform(points: Any, state: Mapping[str, Any] | None = None, *, frame: Frame,
-              offset: Any = None) -> np.ndarray:
+def transform(points: Any, state: Mapping[str, Any] | None = None, *, frame: Frame, offset: Any = None) -> np.ndarray:
     """Scene positions ``R (x + offset - c) + c`` of 4D points, as the page turns them.
 
     Parameters
@@ -288,14 +292,18 @@ def transform(points: Any, state: Mapping[str, Any] | None = None, *, frame: Fra
     x = as_array(points, "points", ndim=2, shape_tail=(4,), dtype=np.float64, finite=True)
     if frame.dim != 4:
         raise ValueError(f"`frame` must be a 4D scene's frame, got dimension {frame.dim}")
-    o = np.zeros(4) if offset is None else as_array(offset, "offset", ndim=1, shape_tail=(4,),
-                                                    dtype=np.float64, finite=True)
+    o = (
+        np.zeros(4)
+        if offset is None
+        else as_array(offset, "offset", ndim=1, shape_tail=(4,), dtype=np.float64, finite=True)
+    )
     c = frame.center
     return (x + o - c) @ rotation(state).T + c
 
 
-def slice_for_state(mesh: Any, state: Mapping[str, Any] | None = None, *,
-                    frame: Frame | None = None, offset: Any = None) -> trimesh.Trimesh:
+def slice_for_state(
+    mesh: Any, state: Mapping[str, Any] | None = None, *, frame: Frame | None = None, offset: Any = None
+) -> trimesh.Trimesh:
     """The slice the page shows for ``state``, by :meth:`SimplexMesh.slice` in float64.
 
     Parameters
@@ -325,8 +333,11 @@ def slice_for_state(mesh: Any, state: Mapping[str, Any] | None = None, *,
     if frame is None:
         frame = _frame([m], None, np.zeros((1, 4)))
     st = full_state(state, frame=frame)
-    turned = SimplexMesh(transform(m.vertices, st, frame=frame, offset=offset), m.simplices,
-                         point_data={k: np.asarray(v) for k, v in m.point_data.items()})
+    turned = SimplexMesh(
+        transform(m.vertices, st, frame=frame, offset=offset),
+        m.simplices,
+        point_data={k: np.asarray(v) for k, v in m.point_data.items()},
+    )
     return turned.slice([0.0, 0.0, 0.0, st["w"]], [0.0, 0.0, 0.0, 1.0])
 
 
@@ -366,11 +377,21 @@ def camera(state: Mapping[str, Any] | None, width: int, height: int, *, frame: F
     target = np.array(frame.center[:3], dtype=np.float64)
     tan_half = math.tan(half) / st["zoom"]
     light = back + 0.45 * up - 0.3 * right
-    return Camera(eye=target + distance * back, target=target, right=right, up=up,
-                  forward=forward, distance=distance, tan_half=tan_half,
-                  scale=min(w_px, h_px) / 2.0 / tan_half, width=w_px, height=h_px,
-                  near=distance - 1.05 * frame.radius, far=distance + 1.05 * frame.radius,
-                  light=light / np.linalg.norm(light))
+    return Camera(
+        eye=target + distance * back,
+        target=target,
+        right=right,
+        up=up,
+        forward=forward,
+        distance=distance,
+        tan_half=tan_half,
+        scale=min(w_px, h_px) / 2.0 / tan_half,
+        width=w_px,
+        height=h_px,
+        near=distance - 1.05 * frame.radius,
+        far=distance + 1.05 * frame.radius,
+        light=light / np.linalg.norm(light),
+    )
 
 
 def _size(value: Any, name: str) -> int:
@@ -379,8 +400,7 @@ def _size(value: Any, name: str) -> int:
     return int(value)
 
 
-def project(points: Any, state: Mapping[str, Any] | None, width: int, height: int, *,
-            frame: Frame) -> np.ndarray:
+def project(points: Any, state: Mapping[str, Any] | None, width: int, height: int, *, frame: Frame) -> np.ndarray:
     """Project 3D scene points with the page's camera.
 
     Parameters
@@ -424,6 +444,7 @@ def _view_projection(cam: Camera) -> np.ndarray:
 
 # --------------------------------------------------------------------------- the cut table
 
+
 def cut_table() -> list[int]:
     """The page's marching-tetrahedra table: 16 ints, 4 bits per output vertex (6 per case).
 
@@ -439,8 +460,9 @@ def cut_table() -> list[int]:
     return packed
 
 
-def _page_triangles(mesh: Any, state: Mapping[str, Any] | None, *, frame: Frame,
-                    offset: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _page_triangles(
+    mesh: Any, state: Mapping[str, Any] | None, *, frame: Frame, offset: Any = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """numpy mirror of the page's vertex shader: (T, 3, 3) corners, (T, 3) AO, (T,) tet index."""
     st = full_state(state, frame=frame)
     x = transform(mesh.vertices, st, frame=frame, offset=offset)
@@ -464,14 +486,13 @@ def _page_triangles(mesh: Any, state: Mapping[str, Any] | None, *, frame: Frame,
         aos.append(ao[ia] + t * (ao[ib] - ao[ia]))
         sources.append(r)
     order = np.argsort(np.concatenate(sources), kind="stable")
-    return (np.concatenate(corners)[order], np.concatenate(aos)[order],
-            np.concatenate(sources)[order])
+    return (np.concatenate(corners)[order], np.concatenate(aos)[order], np.concatenate(sources)[order])
 
 
 # --------------------------------------------------------------------------- chunks
 
-def _chunk_order(vertices: np.ndarray, simplices: np.ndarray, size: int = CHUNK
-                 ) -> tuple[np.ndarray, np.ndarray]:
+
+def _chunk_order(vertices: np.ndarray, simplices: np.ndarray, size: int = CHUNK) -> tuple[np.ndarray, np.ndarray]:
     """Tetrahedra in Morton (Z-curve) order of their centroids, and a bounding ball per chunk.
 
     One sort of 64-bit Morton codes (16 bits per axis of R^4) puts tetrahedra that lie
@@ -505,8 +526,7 @@ def _chunk_order(vertices: np.ndarray, simplices: np.ndarray, size: int = CHUNK
 
 
 # spread 16 bits to every 4th bit of 64 ("part 1 by 3"): (shift, mask) per step
-_SPREAD4 = ((24, 0x000000FF000000FF), (12, 0x000F000F000F000F), (6, 0x0303030303030303),
-            (3, 0x1111111111111111))
+_SPREAD4 = ((24, 0x000000FF000000FF), (12, 0x000F000F000F000F), (6, 0x0303030303030303), (3, 0x1111111111111111))
 
 
 def _morton(points: np.ndarray) -> np.ndarray:
@@ -568,12 +588,18 @@ def split_objects(mesh: Any, *, key: str = "object_id") -> list[SimplexMesh]:
     for value in np.unique(ids):
         own = simplices[ids == value]
         used, local = np.unique(own, return_inverse=True)
-        out.append(SimplexMesh(np.asarray(mesh.vertices)[used], local.reshape(own.shape),
-                               point_data={k: np.asarray(v)[used] for k, v in mesh.point_data.items()}))
+        out.append(
+            SimplexMesh(
+                np.asarray(mesh.vertices)[used],
+                local.reshape(own.shape),
+                point_data={k: np.asarray(v)[used] for k, v in mesh.point_data.items()},
+            )
+        )
     return out
 
 
 # --------------------------------------------------------------------------- input meshes
+
 
 def _as_meshes(meshes: Any, names: Any, *, name: str = "meshes") -> list[tuple[Any, str]]:
     from . import SimplexMesh
@@ -583,8 +609,10 @@ def _as_meshes(meshes: Any, names: Any, *, name: str = "meshes") -> list[tuple[A
     try:
         items = list(meshes)
     except TypeError:
-        raise TypeError(f"`{name}` must be a SimplexMesh, a path to an .npz mesh, or a sequence "
-                        f"of them; got {type(meshes).__name__}") from None
+        raise TypeError(
+            f"`{name}` must be a SimplexMesh, a path to an .npz mesh, or a sequence "
+            f"of them; got {type(meshes).__name__}"
+        ) from None
     if not items:
         raise ValueError(f"`{name}` must hold at least one mesh")
     if names is not None:
@@ -649,7 +677,7 @@ def _facing(vertices: np.ndarray, simplices: np.ndarray) -> str:
     for i in range(d):
         cols = [simplices[:, k].astype(np.int64) for k in range(d) if k != i]
         odd = np.full(len(simplices), i % 2 == 1)  # dropping vertex i: sign (-1)^i ...
-        for a, b in ((0, 1), (1, 2), (0, 1))[:3 if d == 4 else 1]:  # ... times the sort's parity
+        for a, b in ((0, 1), (1, 2), (0, 1))[: 3 if d == 4 else 1]:  # ... times the sort's parity
             swap = cols[a] > cols[b]
             cols[a], cols[b] = np.minimum(cols[a], cols[b]), np.maximum(cols[a], cols[b])
             odd ^= swap
@@ -713,14 +741,16 @@ def _ramps(n: int, *, colors: Any, cmap: str) -> np.ndarray:
 
 # --------------------------------------------------------------------------- the page
 
+
 @dataclass
 class _Blob:
     data: bytes  # possibly compressed
     meta: dict
 
 
-def _build(meshes: Any, *, names, state, center, offsets, colors, cmap, title, compress, cull,
-           progress, external: bool) -> tuple[dict, list[_Blob]]:
+def _build(
+    meshes: Any, *, names, state, center, offsets, colors, cmap, title, compress, cull, progress, external: bool
+) -> tuple[dict, list[_Blob]]:
     """Validate everything, then encode the scene: (scene JSON object, blobs)."""
     items = _as_meshes(meshes, names)
     check_bool(compress, "compress")
@@ -751,8 +781,7 @@ def _build(meshes: Any, *, names, state, center, offsets, colors, cmap, title, c
         if compress:
             data, encoding = zlib.compress(data, 1), "deflate"  # level 6: 5 % smaller, 5x slower
         k = len(blobs)
-        meta = {"encoding": encoding, "dtype": dtype, "shape": list(raw.shape),
-                "nbytes": raw.nbytes}
+        meta = {"encoding": encoding, "dtype": dtype, "shape": list(raw.shape), "nbytes": raw.nbytes}
         meta["url" if external else "id"] = f"data/{k}" if external else f"ao4d-blob-{k}"
         blobs.append(_Blob(data, meta))
         return meta
@@ -775,20 +804,22 @@ def _build(meshes: Any, *, names, state, center, offsets, colors, cmap, title, c
             simplices = simplices[order]
             chunks = blob(balls, "float64")
         pb.update(1)
-        objects.append({
-            "name": label,
-            "cull": facing,
-            "n_vertices": int(mesh.n_vertices),
-            "n_simplices": int(mesh.n_simplices),
-            "offset": offs[i].tolist(),
-            "has_ao": ao is not None,
-            "ao_range": None if ao is None else [float(ao.min()), float(ao.max())],
-            "ramp": base64.b64encode(ramps[i].tobytes()).decode("ascii"),
-            "vertices": blob(vertices, "float32"),
-            "simplices": blob(simplices, "uint32"),
-            "ao": None if ao is None else blob(ao, "float32"),
-            "chunks": chunks,
-        })
+        objects.append(
+            {
+                "name": label,
+                "cull": facing,
+                "n_vertices": int(mesh.n_vertices),
+                "n_simplices": int(mesh.n_simplices),
+                "offset": offs[i].tolist(),
+                "has_ao": ao is not None,
+                "ao_range": None if ao is None else [float(ao.min()), float(ao.max())],
+                "ramp": base64.b64encode(ramps[i].tobytes()).decode("ascii"),
+                "vertices": blob(vertices, "float32"),
+                "simplices": blob(simplices, "uint32"),
+                "ao": None if ao is None else blob(ao, "float32"),
+                "chunks": chunks,
+            }
+        )
         pb.update(1)
     pb.close()
     scene = {
@@ -810,12 +841,14 @@ def _build(meshes: Any, *, names, state, center, offsets, colors, cmap, title, c
 def _options(given: Mapping[str, Any], where: str, *, without: tuple[str, ...] = ()) -> dict:
     """The keyword options of :func:`view` (but ``without``), defaults filled in from its
     signature; an unknown one is a ``TypeError`` naming ``where``."""
-    known = {name: p.default for name, p in inspect.signature(view).parameters.items()
-             if p.kind == p.KEYWORD_ONLY and name not in without}
+    known = {
+        name: p.default
+        for name, p in inspect.signature(view).parameters.items()
+        if p.kind == p.KEYWORD_ONLY and name not in without
+    }
     unknown = sorted(set(given) - set(known))
     if unknown:
-        raise TypeError(f"{where}() got unknown option(s) {', '.join(map(repr, unknown))}; "
-                        f"it takes {', '.join(known)}")
+        raise TypeError(f"{where}() got unknown option(s) {', '.join(map(repr, unknown))}; it takes {', '.join(known)}")
     return {**known, **given}
 
 
@@ -881,8 +914,19 @@ def view(
         Bad meshes, state or options; a page over ``max_bytes``.
     """
     check_max_bytes(max_bytes)
-    options = dict(names=names, state=state, center=center, offsets=offsets, colors=colors, cmap=cmap,
-                   title=title, compress=compress, cull=cull, max_bytes=max_bytes, progress=progress)
+    options = dict(
+        names=names,
+        state=state,
+        center=center,
+        offsets=offsets,
+        colors=colors,
+        cmap=cmap,
+        title=title,
+        compress=compress,
+        cull=cull,
+        max_bytes=max_bytes,
+        progress=progress,
+    )
     return write_page(path, lambda: page_text(meshes, **options))  # the path checked before any work
 
 
@@ -904,10 +948,10 @@ def page_text(meshes: Any, **options: Any) -> str:
     options = _options(options, "page_text")
     max_bytes, compress = check_max_bytes(options.pop("max_bytes")), options["compress"]
     items = _as_meshes(meshes, options.pop("names"))
-    raw = sum(m.n_vertices * m.dim * 4 + m.n_simplices * m.dim * 4 + m.n_vertices * 4
-              for m, _ in items)
-    limit_text = (f"over `max_bytes` = {max_bytes / 1e6:.0f} MB; serve it instead: "
-                  "`ao4d view ... --serve` (or ao4d.viewer.serve)")
+    raw = sum(m.n_vertices * m.dim * 4 + m.n_simplices * m.dim * 4 + m.n_vertices * 4 for m, _ in items)
+    limit_text = (
+        f"over `max_bytes` = {max_bytes / 1e6:.0f} MB; serve it instead: `ao4d view ... --serve` (or ao4d.viewer.serve)"
+    )
     if not compress and b64_size(raw) > max_bytes:
         raise ValueError(f"the page would be about {b64_size(raw) / 1e6:.0f} MB, {limit_text}")
     if b64_size(raw) > 8 * max_bytes:  # beyond what compression can bring under the limit
@@ -929,6 +973,7 @@ def page_text(meshes: Any, **options: Any) -> str:
 
 
 # --------------------------------------------------------------------------- serving
+
 
 class ViewServer:
     """A page and its buffers served over HTTP on 127.0.0.1 (from :func:`serve`)."""
@@ -959,14 +1004,15 @@ class ViewServer:
         try:
             self._httpd = http.server.ThreadingHTTPServer((host, port), Handler)
         except OSError as exc:
-            raise OSError(exc.errno, f"cannot serve on {host} port {port}: {exc.strerror}"
-                          + ("; pick another `port` (--port) or 0 for any free one" if port else "")
-                          ) from None
+            raise OSError(
+                exc.errno,
+                f"cannot serve on {host} port {port}: {exc.strerror}"
+                + ("; pick another `port` (--port) or 0 for any free one" if port else ""),
+            ) from None
         self._httpd.daemon_threads = True
         self.host, self.port = host, int(self._httpd.server_address[1])
         self.url = f"http://{host}:{self.port}/"
-        self._thread = threading.Thread(target=self._httpd.serve_forever, name="ao4d-view-server",
-                                        daemon=True)
+        self._thread = threading.Thread(target=self._httpd.serve_forever, name="ao4d-view-server", daemon=True)
         self._thread.start()
 
     def wait(self) -> None:

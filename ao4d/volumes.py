@@ -29,18 +29,28 @@ import math
 import os
 import zlib
 from collections.abc import Mapping
-from xml.sax.saxutils import quoteattr
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
 from ._atomic import all_or_nothing, atomic_open
 from ._validate import as_array, as_vector, check_choice
 
-__all__ = ["Volume", "write_mhd", "read_mhd", "write_vti", "read_vti", "write_volume", "read_volume",
-           "volume_array", "pyvista_offscreen", "check_mhd_path"]
+__all__ = [
+    "Volume",
+    "write_mhd",
+    "read_mhd",
+    "write_vti",
+    "read_vti",
+    "write_volume",
+    "read_volume",
+    "volume_array",
+    "pyvista_offscreen",
+    "check_mhd_path",
+]
 
 # numpy dtype -> MetaImage ElementType (the types both ITK and VTK's reader understand)
 _MET_TYPES = {
@@ -191,8 +201,10 @@ def check_mhd_path(path: str | os.PathLike, name: str = "path") -> Path:
         raise ValueError(f"`{name}` must end in .mhd, got {path.name!r}")
     raw = path.with_suffix(".raw").name
     if not raw.isascii() or any(c in raw for c in "\r\n"):
-        raise ValueError(f"`{name}` {path.name!r}: a MetaImage header names its data file in ASCII, "
-                         f"and {raw!r} is not; use an ASCII file name (or .vti)")
+        raise ValueError(
+            f"`{name}` {path.name!r}: a MetaImage header names its data file in ASCII, "
+            f"and {raw!r} is not; use an ASCII file name (or .vti)"
+        )
     return path
 
 
@@ -309,8 +321,7 @@ def read_vtk_image(path: str | os.PathLike, name: str = "path") -> Any:
         if points == 0 or short:
             why = f"arrays {short} do not hold one value per grid point" if short else "an empty grid"
     if why is not None:
-        raise ValueError(f"`{name}` {str(path)!r} is unreadable or truncated as VTK ImageData "
-                         f"(.vti): {why}")
+        raise ValueError(f"`{name}` {str(path)!r} is unreadable or truncated as VTK ImageData (.vti): {why}")
     return grid
 
 
@@ -364,27 +375,31 @@ def write_vti(path: str | os.PathLike, arrays, *, spacing=1.0, origin=0.0) -> Pa
             raise TypeError(f"`arrays[{name!r}]` dtype {arr.dtype} has no VTK type")
         components = arr.shape[3] if arr.ndim == 4 else 1
         block = _vtk_compressed(_vtk_point_bytes(arr))
-        entries.append(f'        <DataArray type="{vtk_type}" Name={quoteattr(name)} '
-                       f'NumberOfComponents="{components}" format="appended" offset="{offset}"/>')
+        entries.append(
+            f'        <DataArray type="{vtk_type}" Name={quoteattr(name)} '
+            f'NumberOfComponents="{components}" format="appended" offset="{offset}"/>'
+        )
         blocks.append(block)
         offset += len(block)
-    head = "\n".join([
-        '<?xml version="1.0"?>',
-        '<VTKFile type="ImageData" version="1.0" byte_order="LittleEndian" header_type="UInt64" '
-        'compressor="vtkZLibDataCompressor">',
-        f'  <ImageData WholeExtent="{extent}" Origin="{fmt(origin3)}" Spacing="{fmt(spacing3)}" '
-        'Direction="1 0 0 0 1 0 0 0 1">',
-        f'    <Piece Extent="{extent}">',
-        f'      <PointData Scalars={quoteattr(next(iter(checked)))}>',
-        *entries,
-        "      </PointData>",
-        "      <CellData>",
-        "      </CellData>",
-        "    </Piece>",
-        "  </ImageData>",
-        '  <AppendedData encoding="raw">',
-        "   _",
-    ]).encode("utf-8")
+    head = "\n".join(
+        [
+            '<?xml version="1.0"?>',
+            '<VTKFile type="ImageData" version="1.0" byte_order="LittleEndian" header_type="UInt64" '
+            'compressor="vtkZLibDataCompressor">',
+            f'  <ImageData WholeExtent="{extent}" Origin="{fmt(origin3)}" Spacing="{fmt(spacing3)}" '
+            'Direction="1 0 0 0 1 0 0 0 1">',
+            f'    <Piece Extent="{extent}">',
+            f"      <PointData Scalars={quoteattr(next(iter(checked)))}>",
+            *entries,
+            "      </PointData>",
+            "      <CellData>",
+            "      </CellData>",
+            "    </Piece>",
+            "  </ImageData>",
+            '  <AppendedData encoding="raw">',
+            "   _",
+        ]
+    ).encode("utf-8")
     with atomic_open(path, "wb") as fh:
         fh.write(head)
         for block in blocks:
@@ -394,10 +409,21 @@ def write_vti(path: str | os.PathLike, arrays, *, spacing=1.0, origin=0.0) -> Pa
 
 
 # numpy dtype -> VTK XML type name
-_VTK_TYPES = {np.dtype(t): n for t, n in [
-    (np.int8, "Int8"), (np.uint8, "UInt8"), (np.int16, "Int16"), (np.uint16, "UInt16"),
-    (np.int32, "Int32"), (np.uint32, "UInt32"), (np.int64, "Int64"), (np.uint64, "UInt64"),
-    (np.float32, "Float32"), (np.float64, "Float64")]}
+_VTK_TYPES = {
+    np.dtype(t): n
+    for t, n in [
+        (np.int8, "Int8"),
+        (np.uint8, "UInt8"),
+        (np.int16, "Int16"),
+        (np.uint16, "UInt16"),
+        (np.int32, "Int32"),
+        (np.uint32, "UInt32"),
+        (np.int64, "Int64"),
+        (np.uint64, "UInt64"),
+        (np.float32, "Float32"),
+        (np.float64, "Float64"),
+    ]
+}
 _VTK_BLOCK = 1 << 20  # uncompressed bytes per compressed block
 
 
@@ -411,9 +437,8 @@ def _vtk_compressed(raw: bytes) -> bytes:
     """VTK's compressed-array layout: a UInt64 header (blocks, block size, size of a partial
     last block or 0, each block's compressed size), then the zlib blocks (level 1)."""
     view = memoryview(raw)
-    chunks = [zlib.compress(view[i:i + _VTK_BLOCK], 1) for i in range(0, len(raw), _VTK_BLOCK)]
-    header = np.array([len(chunks), _VTK_BLOCK, len(raw) % _VTK_BLOCK]
-                      + [len(c) for c in chunks], dtype="<u8")
+    chunks = [zlib.compress(view[i : i + _VTK_BLOCK], 1) for i in range(0, len(raw), _VTK_BLOCK)]
+    header = np.array([len(chunks), _VTK_BLOCK, len(raw) % _VTK_BLOCK] + [len(c) for c in chunks], dtype="<u8")
     return header.tobytes() + b"".join(chunks)
 
 

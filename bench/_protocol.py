@@ -25,8 +25,19 @@ from typing import Iterable
 
 LOAD_LIMIT = 0.5  # CPUs busy with other work before a round above which the round is flagged
 
-_UNITS = {"": 1, "B": 1, "K": 1 << 10, "KB": 1 << 10, "KIB": 1 << 10, "M": 1 << 20, "MB": 1 << 20,
-          "MIB": 1 << 20, "G": 1 << 30, "GB": 1 << 30, "GIB": 1 << 30}
+_UNITS = {
+    "": 1,
+    "B": 1,
+    "K": 1 << 10,
+    "KB": 1 << 10,
+    "KIB": 1 << 10,
+    "M": 1 << 20,
+    "MB": 1 << 20,
+    "MIB": 1 << 20,
+    "G": 1 << 30,
+    "GB": 1 << 30,
+    "GIB": 1 << 30,
+}
 
 
 def use_checkout(bench_dir: str) -> None:
@@ -96,34 +107,46 @@ def cpu_info() -> dict:
     """CPU model, SIMD width (bits), L2 and L3 in bytes (totals as lscpu reports them; else one
     instance from sysfs), logical CPUs."""
     try:
-        lscpu = parse_lscpu(subprocess.run(["lscpu"], capture_output=True, text=True, check=False,
-                                           env=dict(os.environ, LC_ALL="C")).stdout)
+        lscpu = parse_lscpu(
+            subprocess.run(
+                ["lscpu"], capture_output=True, text=True, check=False, env=dict(os.environ, LC_ALL="C")
+            ).stdout
+        )
     except OSError:
         lscpu = {}
     flags = lscpu.get("Flags", "").split()
     if not flags:
         try:
             text = Path("/proc/cpuinfo").read_text()
-            flags = next((ln.split(":", 1)[1].split() for ln in text.splitlines()
-                          if ln.startswith(("flags", "Features"))), [])
+            flags = next(
+                (ln.split(":", 1)[1].split() for ln in text.splitlines() if ln.startswith(("flags", "Features"))), []
+            )
         except OSError:
             pass
     sysfs = _sysfs_caches()
     l2 = parse_size(lscpu["L2 cache"]) if "L2 cache" in lscpu else sysfs.get(2)
     l3 = parse_size(lscpu["L3 cache"]) if "L3 cache" in lscpu else sysfs.get(3)
-    return {"model": lscpu.get("Model name", "unknown CPU"), "simd": simd_width(flags),
-            "l2": l2, "l3": l3, "cpus": os.cpu_count() or 0}
+    return {
+        "model": lscpu.get("Model name", "unknown CPU"),
+        "simd": simd_width(flags),
+        "l2": l2,
+        "l3": l3,
+        "cpus": os.cpu_count() or 0,
+    }
 
 
 def machine_line(runtime=None, info: dict | None = None) -> str:
     """One line naming the machine: CPU, SIMD width, L2, L3, OpenCL device and driver."""
     info = cpu_info() if info is None else info
-    line = (f"machine: {info['model']}, {info['cpus']} CPUs, SIMD {info['simd']} bit, "
-            f"L2 {format_bytes(info['l2'])}, L3 {format_bytes(info['l3'])}")
+    line = (
+        f"machine: {info['model']}, {info['cpus']} CPUs, SIMD {info['simd']} bit, "
+        f"L2 {format_bytes(info['l2'])}, L3 {format_bytes(info['l3'])}"
+    )
     if runtime is not None:
         device = runtime.device
-        line += (f"; OpenCL: {device.name.strip()} ({device.platform.name.strip()}, "
-                 f"driver {device.driver_version.strip()})")
+        line += (
+            f"; OpenCL: {device.name.strip()} ({device.platform.name.strip()}, driver {device.driver_version.strip()})"
+        )
     return line
 
 
@@ -169,11 +192,13 @@ def check_round(index: int, rounds: int, limit: float = LOAD_LIMIT, pause: float
     others = others_load(pause)
     loud = others is not None and others > limit
     what = f"other processes keep {others:.2f} CPUs busy" if others is not None else "others' load unknown"
-    print(f"round {index + 1}/{rounds}: load average {load_average()} (includes this benchmark); {what}",
-          flush=True)
+    print(f"round {index + 1}/{rounds}: load average {load_average()} (includes this benchmark); {what}", flush=True)
     if loud:
-        print(f"!!! WARNING: round {index + 1} starts on a busy machine ({others:.2f} CPUs busy with other "
-              f"work, above {limit}): its figures are not quiet figures !!!", flush=True)
+        print(
+            f"!!! WARNING: round {index + 1} starts on a busy machine ({others:.2f} CPUs busy with other "
+            f"work, above {limit}): its figures are not quiet figures !!!",
+            flush=True,
+        )
     return not loud
 
 

@@ -110,8 +110,12 @@ def shape_mesh(name: str, tets: float):
     if name == "csg":
         field, lo, hi = csg_field(), np.full(4, -1.0), np.full(4, 1.0)
     else:
-        field = {"tiger": ao4d.fields.tiger, "ditorus": ao4d.fields.ditorus, "tori": tori_field,
-                 "metaballs": metaballs_field}[name]()
+        field = {
+            "tiger": ao4d.fields.tiger,
+            "ditorus": ao4d.fields.ditorus,
+            "tori": tori_field,
+            "metaballs": metaballs_field,
+        }[name]()
         lo, hi = np.asarray(field.extent[0], float), np.asarray(field.extent[1], float)
     pad = 0.1 * float((hi - lo).max())
     lo, hi = lo - pad, hi + pad
@@ -198,8 +202,10 @@ def open3d_worker() -> int:
         hit = scene.test_occlusions(rays, tfar=tfar).numpy()
         trace = clock.lap()
         first = [b + t for b, t in zip(build, trace)]
-        print(json.dumps(dict(build=build, trace=trace, first=first, hit=float(hit.mean()),
-                              rays=int(len(hit)))), flush=True)
+        print(
+            json.dumps(dict(build=build, trace=trace, first=first, hit=float(hit.mean()), rays=int(len(hit)))),
+            flush=True,
+        )
     return 0
 
 
@@ -214,8 +220,13 @@ class Open3D:
 
     def __init__(self):
         env = dict(os.environ, AO4D_PRELOAD_TBB="0")  # the worker never uses OpenCL
-        self.proc = subprocess.Popen([open3d_python(), os.path.abspath(__file__), "--open3d-worker"],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+        self.proc = subprocess.Popen(
+            [open3d_python(), os.path.abspath(__file__), "--open3d-worker"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
         self.info = json.loads(self.proc.stdout.readline())
 
     def run(self, triangles: int, points: int, samples: int, reach: float = 0.0) -> dict:
@@ -231,8 +242,13 @@ class Open3D:
 
 def have_open3d() -> str | None:
     """None when Open3D imports in a fresh process, else why not."""
-    run = subprocess.run([open3d_python(), "-c", "import open3d"], capture_output=True, text=True,
-                         env=dict(os.environ, AO4D_PRELOAD_TBB="0"), check=False)
+    run = subprocess.run(
+        [open3d_python(), "-c", "import open3d"],
+        capture_output=True,
+        text=True,
+        env=dict(os.environ, AO4D_PRELOAD_TBB="0"),
+        check=False,
+    )
     return None if run.returncode == 0 else (run.stderr.strip().splitlines() or ["import failed"])[-1]
 
 
@@ -245,8 +261,13 @@ def embree_run(tm, o, w) -> dict:
     build = clock.lap()
     hit = intersector.intersects_any(o, w)
     trace = clock.lap()
-    return {"build": build, "trace": trace, "first": [b + t for b, t in zip(build, trace)],
-            "hit": float(hit.mean()), "rays": len(o)}
+    return {
+        "build": build,
+        "trace": trace,
+        "first": [b + t for b, t in zip(build, trace)],
+        "hit": float(hit.mean()),
+        "rays": len(o),
+    }
 
 
 # -- ao4d ---------------------------------------------------------------------------------------
@@ -272,8 +293,13 @@ def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, reach: fl
     assert (builder == "device") == (type(tree).__name__ == "DeviceBVH")
     occlusion = ao4d.ambient_occlusion(mesh, **kwargs)
     trace = clock.lap()
-    return {"first": first, "trace": trace, "build": tuple(f - t for f, t in zip(first, trace)),
-            "hit": float(np.nanmean(occlusion)), "rays": int(np.isfinite(occlusion).sum()) * samples}
+    return {
+        "first": first,
+        "trace": trace,
+        "build": tuple(f - t for f, t in zip(first, trace)),
+        "hit": float(np.nanmean(occlusion)),
+        "rays": int(np.isfinite(occlusion).sum()) * samples,
+    }
 
 
 @functools.lru_cache(maxsize=None)
@@ -308,13 +334,24 @@ def quality(vertices, simplices, runtime, samples, n_points, rng) -> dict:
     for reach in (0.0, 0.25):
         for traversal in ("rays", "packet"):
             out[traversal, reach] = raycast.traversal_counts(
-                mesh, mesh.vertices[idx], normals[idx], samples=samples, runtime=runtime,
-                offset=ao.ORIGIN_OFFSET * tree.world_diagonal, traversal=traversal, detail=True,
+                mesh,
+                mesh.vertices[idx],
+                normals[idx],
+                samples=samples,
+                runtime=runtime,
+                offset=ao.ORIGIN_OFFSET * tree.world_diagonal,
+                traversal=traversal,
+                detail=True,
                 max_distance=reach * tree.world_diagonal if reach else math.inf,
             )
     _, children, _, _, wide_depth = bvh.widen_topology(tree)
-    return {"counts": out, "sah": bvh.sah_cost(tree), "wide": len(children),
-            "used": float((children != 0).mean()), "wide_depth": wide_depth}
+    return {
+        "counts": out,
+        "sah": bvh.sah_cost(tree),
+        "wide": len(children),
+        "used": float((children != 0).mean()),
+        "wide_depth": wide_depth,
+    }
 
 
 def timed(fn, repeat):
@@ -346,24 +383,43 @@ def tree_bytes(vertices, simplices, runtime) -> dict:
     nodes = len(children) * (2 * d * bvh.WIDTH * 4 + bvh.WIDTH * 4)
     blocks = n_blocks * (d + 1) * d * lanes * 4
     tets = len(simplices)
-    return {"tets": tets, "nodes": nodes, "blocks": blocks, "node_per_tet": nodes / tets,
-            "block_per_tet": blocks / tets, "occupancy": tree.n_prims / (n_blocks * lanes)}
+    return {
+        "tets": tets,
+        "nodes": nodes,
+        "blocks": blocks,
+        "node_per_tet": nodes / tets,
+        "block_per_tet": blocks / tets,
+        "occupancy": tree.n_prims / (n_blocks * lanes),
+    }
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true",
-                        help="small sizes: --tets 1.5e5 --quality-points 3000 --numpy-tets 3e4 --rounds 2")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="small sizes: --tets 1.5e5 --quality-points 3000 --numpy-tets 3e4 --rounds 2",
+    )
     parser.add_argument("--tets", type=float, default=None, help="4D mesh size (1.05e6)")
     parser.add_argument("--samples", type=int, default=64, help="rays per point (64)")
-    parser.add_argument("--rounds", "--repeat", dest="rounds", type=int, default=None,
-                        help="rounds of measurements taken in turn (5; --quick: 2)")
+    parser.add_argument(
+        "--rounds",
+        "--repeat",
+        dest="rounds",
+        type=int,
+        default=None,
+        help="rounds of measurements taken in turn (5; --quick: 2)",
+    )
     parser.add_argument("--shapes", default=",".join(SHAPES), help=f"4D shapes, of {', '.join(SHAPES)}")
     parser.add_argument("--quality-points", type=int, default=None, help="points for node-visit counts (20000)")
     parser.add_argument("--numpy-tets", type=float, default=None, help="mesh for the numpy rate (1.5e5)")
     parser.add_argument("--numpy-points", type=int, default=500)
-    parser.add_argument("--no-per-ray", dest="per_ray", action="store_false",
-                        help="leave out the per-ray kernel (the packets' reference)")
+    parser.add_argument(
+        "--no-per-ray",
+        dest="per_ray",
+        action="store_false",
+        help="leave out the per-ray kernel (the packets' reference)",
+    )
     parser.add_argument("--host-tree", action="store_true", help="also ao4d with the numpy-built tree")
     parser.add_argument("--embreex", action="store_true", help="also trimesh + embreex (one thread)")
     parser.add_argument("--open3d-worker", action="store_true", help=argparse.SUPPRESS)
@@ -401,13 +457,17 @@ def main(argv=None) -> int:
         meshes[name] = (np.asarray(mesh.vertices), np.asarray(mesh.simplices))
         points[name] = int((np.linalg.norm(mesh.vertex_normals, axis=1) > 0.5).sum())
         print(f"{name}: {mesh.n_simplices:,} tetrahedra, {mesh.n_vertices:,} vertices", flush=True)
-    print(f"\nbytes the traversal reads (8-wide nodes and leaf blocks), against L2 {protocol.format_bytes(cpu['l2'])}"
-          f" and L3 {protocol.format_bytes(cpu['l3'])}:")
+    print(
+        f"\nbytes the traversal reads (8-wide nodes and leaf blocks), against L2 {protocol.format_bytes(cpu['l2'])}"
+        f" and L3 {protocol.format_bytes(cpu['l3'])}:"
+    )
     for name in shapes:
         b = tree_bytes(*meshes[name], runtime)
-        print(f"  {name:<12} wide nodes {b['node_per_tet']:5.1f} B/tet ({protocol.format_bytes(b['nodes'])}), "
-              f"leaf blocks {b['block_per_tet']:5.1f} B/tet ({protocol.format_bytes(b['blocks'])}, lanes "
-              f"{b['occupancy']:.0%} used); {b['tets']:,} tets: {protocol.format_bytes(b['nodes'] + b['blocks'])}")
+        print(
+            f"  {name:<12} wide nodes {b['node_per_tet']:5.1f} B/tet ({protocol.format_bytes(b['nodes'])}), "
+            f"leaf blocks {b['block_per_tet']:5.1f} B/tet ({protocol.format_bytes(b['blocks'])}, lanes "
+            f"{b['occupancy']:.0%} used); {b['tets']:,} tets: {protocol.format_bytes(b['nodes'] + b['blocks'])}"
+        )
     # warm up: kernels loaded (4D and 3D, both traversals), sampling tables ready
     v0, s0 = meshes[shapes[0]]
     small = ao4d.SimplexMesh(v0, s0[:1000])
@@ -458,21 +518,28 @@ def main(argv=None) -> int:
 
     lanes = bvh.block_lanes(runtime)
     node_bytes, block_bytes = 2 * 4 * bvh.WIDTH * 4 + bvh.WIDTH * 4, 5 * 4 * lanes * 4  # 4D
-    print(f"\ntraversal work per AO ray ({args.quality_points:,} random vertices, deterministic): "
-          "wide nodes fetched, leaf blocks fetched, and the bytes they hold "
-          f"({node_bytes} B a node, {block_bytes} B a block); before = per-ray kernel, after = packet kernel")
-    print(f"{'':<22} {'nodes before':>12} {'after':>7} {'ratio':>6} {'blocks before':>14} {'after':>7} {'ratio':>6}"
-          f" {'B/ray after':>11} {'SAH':>6} {'wide nodes':>11} {'slots used':>11} {'wide depth':>11}")
+    print(
+        f"\ntraversal work per AO ray ({args.quality_points:,} random vertices, deterministic): "
+        "wide nodes fetched, leaf blocks fetched, and the bytes they hold "
+        f"({node_bytes} B a node, {block_bytes} B a block); before = per-ray kernel, after = packet kernel"
+    )
+    print(
+        f"{'':<22} {'nodes before':>12} {'after':>7} {'ratio':>6} {'blocks before':>14} {'after':>7} {'ratio':>6}"
+        f" {'B/ray after':>11} {'SAH':>6} {'wide nodes':>11} {'slots used':>11} {'wide depth':>11}"
+    )
     for name in shapes:
         qd = quality(*meshes[name], runtime, args.samples, args.quality_points, rng)
         for reach in (0.0, 0.25):
             before, after = qd["counts"]["rays", reach], qd["counts"]["packet", reach]
             label = name + (", reach d/4" if reach else "")
-            tail = (f" {qd['sah']:>6.1f} {qd['wide']:>11,} {qd['used']:>11.0%} {qd['wide_depth']:>11}"
-                    if not reach else "")
+            tail = (
+                f" {qd['sah']:>6.1f} {qd['wide']:>11,} {qd['used']:>11.0%} {qd['wide_depth']:>11}" if not reach else ""
+            )
             moved = after[0] * node_bytes + after[1] * block_bytes
-            print(f"{label:<22} {before[0]:>12.2f} {after[0]:>7.2f} {before[0] / after[0]:>5.1f}x"
-                  f" {before[1]:>14.2f} {after[1]:>7.2f} {before[1] / after[1]:>5.1f}x {moved:>11.0f}{tail}")
+            print(
+                f"{label:<22} {before[0]:>12.2f} {after[0]:>7.2f} {before[0] / after[0]:>5.1f}x"
+                f" {before[1]:>14.2f} {after[1]:>7.2f} {before[1] / after[1]:>5.1f}x {moved:>11.0f}{tail}"
+            )
         assert qd["counts"]["packet", 0.0][2:] == qd["counts"]["rays", 0.0][2:]  # same tests per ray
     numpy_and_brute(args, runtime, rng)
     print(f"\n{protocol.machine_line(runtime, cpu)}")
@@ -490,8 +557,10 @@ def report(runs, shapes, rounds, quiet=None) -> None:
     min–max over the rounds."""
     quiet = [True] * rounds if quiet is None else quiet
     noisy = [i + 1 for i, q in enumerate(quiet) if not q]
-    print(f"\nmedians of {rounds} rounds taken in turn (wall clock; CPU time of all threads in brackets); "
-          f"load average after: {protocol.load_average()}")
+    print(
+        f"\nmedians of {rounds} rounds taken in turn (wall clock; CPU time of all threads in brackets); "
+        f"load average after: {protocol.load_average()}"
+    )
     if noisy:
         print(f"!!! WARNING: rounds {noisy} started on a busy machine: these are not quiet figures !!!")
     print(f"{'':<34} {'rays':>11} {'build s':>8} {'trace Mrays/s':>14} {'first call Mrays/s':>19} {'hit/AO':>7}")
@@ -501,12 +570,16 @@ def report(runs, shapes, rounds, quiet=None) -> None:
         first = [rays / med(rs, "first", k) for k in (0, 1)]
         build = med(rs, "build")
         hit = statistics.median(r["hit"] for r in rs)
-        print(f"{name + ', ' + label:<34} {rays:>11,} {build:>8.2f} {row[0] / 1e6:>6.2f} ({row[1] / 1e6:>5.2f})"
-              f" {first[0] / 1e6:>10.2f} ({first[1] / 1e6:>5.2f}) {hit:>7.3f}")
+        print(
+            f"{name + ', ' + label:<34} {rays:>11,} {build:>8.2f} {row[0] / 1e6:>6.2f} ({row[1] / 1e6:>5.2f})"
+            f" {first[0] / 1e6:>10.2f} ({first[1] / 1e6:>5.2f}) {hit:>7.3f}"
+        )
     if not any(label == "Open3D" for _, label in runs):
         return
-    print(f"\nratios, median (min–max) over {rounds} rounds, each round's ao4d against the same round's "
-          "Open3D (> 1: ao4d faster; wall clock); targets: trace and first call >= 1.0x Open3D")
+    print(
+        f"\nratios, median (min–max) over {rounds} rounds, each round's ao4d against the same round's "
+        "Open3D (> 1: ao4d faster; wall clock); targets: trace and first call >= 1.0x Open3D"
+    )
     print(f"  {'shape':<18} {'trace':>20} {'trace (CPU time)':>20} {'first call':>20} {'packets / per-ray':>20}")
     for name in shapes:
         for reach in ("", " d/4"):
@@ -515,14 +588,22 @@ def report(runs, shapes, rounds, quiet=None) -> None:
             ratio = {}
             for key, k in (("trace", 0), ("trace cpu", 1), ("first", 0)):
                 part = key.split()[0]
-                ratio[key] = [_rates(a, a["rays"])[part][k] / _rates(b, b["rays"])[part][k]
-                              for a, b in zip(ours, peer)]
-            packets = ("–" if per_ray is None else protocol.format_ratio(
-                _rates(a, a["rays"])["trace"][0] / _rates(b, b["rays"])["trace"][0] for a, b in zip(ours, per_ray)))
-            verdict = "met" if min(statistics.median(ratio["trace"]), statistics.median(ratio["first"])) >= 1.0 else "missed"
-            print(f"  {name + reach + ':':<18} {protocol.format_ratio(ratio['trace']):>20} "
-                  f"{protocol.format_ratio(ratio['trace cpu']):>20} {protocol.format_ratio(ratio['first']):>20} "
-                  f"{packets:>20}  {verdict}")
+                ratio[key] = [_rates(a, a["rays"])[part][k] / _rates(b, b["rays"])[part][k] for a, b in zip(ours, peer)]
+            packets = (
+                "–"
+                if per_ray is None
+                else protocol.format_ratio(
+                    _rates(a, a["rays"])["trace"][0] / _rates(b, b["rays"])["trace"][0] for a, b in zip(ours, per_ray)
+                )
+            )
+            verdict = (
+                "met" if min(statistics.median(ratio["trace"]), statistics.median(ratio["first"])) >= 1.0 else "missed"
+            )
+            print(
+                f"  {name + reach + ':':<18} {protocol.format_ratio(ratio['trace']):>20} "
+                f"{protocol.format_ratio(ratio['trace cpu']):>20} {protocol.format_ratio(ratio['first']):>20} "
+                f"{packets:>20}  {verdict}"
+            )
 
 
 def numpy_and_brute(args, runtime, rng) -> None:
@@ -539,18 +620,24 @@ def numpy_and_brute(args, runtime, rng) -> None:
     t_np, _ = timed(lambda: ao4d.ambient_occlusion(small, points=p2, normals=n2, samples=samples2, backend="numpy"), 1)
     p3, n3 = p2[:40], n2[:40]
     t_brute, a_brute = timed(
-        lambda: ao4d.ambient_occlusion(small, points=p3, normals=n3, samples=samples2, backend="opencl", accel="brute"), 1
+        lambda: ao4d.ambient_occlusion(small, points=p3, normals=n3, samples=samples2, backend="opencl", accel="brute"),
+        1,
     )
     a_bvh = ao4d.ambient_occlusion(small, points=p3, normals=n3, samples=samples2, backend="opencl")
     assert np.array_equal(a_brute, a_bvh), "BVH and brute force disagree"
     pick4 = rng.choice(ok, size=min(20000, ok.size), replace=False)
-    t_bvh, _ = timed(lambda: ao4d.ambient_occlusion(small, points=small.vertices[pick4],
-                                                    normals=small.vertex_normals[pick4], samples=samples2,
-                                                    backend="opencl"), args.rounds)
+    t_bvh, _ = timed(
+        lambda: ao4d.ambient_occlusion(
+            small, points=small.vertices[pick4], normals=small.vertex_normals[pick4], samples=samples2, backend="opencl"
+        ),
+        args.rounds,
+    )
     per_ray_bvh = t_bvh / (len(pick4) * samples2)
     print(f"\nao4d numpy backend, 4D, {small_tree.n_prims:,} tets: {len(p2) * samples2 / t_np / 1e6:.3f} M rays/s")
-    print(f"BVH speed-up over brute force ({small_tree.n_prims:,} tets, per ray): "
-          f"{(t_brute / (len(p3) * samples2)) / per_ray_bvh:.0f}x")
+    print(
+        f"BVH speed-up over brute force ({small_tree.n_prims:,} tets, per ray): "
+        f"{(t_brute / (len(p3) * samples2)) / per_ray_bvh:.0f}x"
+    )
 
 
 if __name__ == "__main__":

@@ -111,15 +111,18 @@ def rays_4d(tets: float, samples: int):
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="example: python bench/cast.py --rounds 5")
+    parser = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="example: python bench/cast.py --rounds 5",
+    )
     parser.add_argument("--triangles", type=float, default=1e6, help="3D torus size (default 1e6)")
     parser.add_argument("--tets", type=float, default=1.1e6, help="4D spheritorus size (default 1.1e6)")
     parser.add_argument("--points", type=int, default=160_000, help="AO points (default 160000: 10.2 M rays)")
     parser.add_argument("--samples", type=int, default=64)
-    parser.add_argument("--rounds", "--repeat", dest="rounds", type=int, default=5,
-                        help="rounds taken in turn (default 5)")
+    parser.add_argument(
+        "--rounds", "--repeat", dest="rounds", type=int, default=5, help="rounds taken in turn (default 5)"
+    )
     parser.add_argument("--quick", action="store_true", help="small sizes, two rounds (seconds)")
     args = parser.parse_args(argv)
     if args.quick:
@@ -146,14 +149,18 @@ def main(argv=None) -> int:
     raycast.cast_rays(mesh4, o4[:1], w4[:1], backend="opencl")
     why_not = ao_bench.have_open3d()
     peer = None if why_not else ao_bench.Open3D()
-    print(f"3D torus: {len(tm.faces):,} triangles, {len(o3):,} rays; 4D spheritorus: "
-          f"{len(mesh4.simplices):,} tets, {len(o4):,} rays")
+    print(
+        f"3D torus: {len(tm.faces):,} triangles, {len(o3):,} rays; 4D spheritorus: "
+        f"{len(mesh4.simplices):,} tets, {len(o4):,} rays"
+    )
     runs: dict[str, list[dict]] = {}
     quiet = []
     for index in range(args.rounds):
         quiet.append(protocol.check_round(index, args.rounds))
         if peer is not None:
-            runs.setdefault("Open3D test_occlusions (3D)", []).append(peer.run(int(args.triangles), args.points, args.samples))
+            runs.setdefault("Open3D test_occlusions (3D)", []).append(
+                peer.run(int(args.triangles), args.points, args.samples)
+            )
         runs.setdefault("ao4d cast_rays any hit (3D)", []).append(ao4d_cast(torus, o3, w3, False))
         runs.setdefault("ao4d cast_rays closest (3D)", []).append(ao4d_cast(torus, o3, w3, True))
         runs.setdefault("ao4d cast_rays any hit (4D)", []).append(ao4d_cast(mesh4, o4, w4, False))
@@ -164,8 +171,10 @@ def main(argv=None) -> int:
     noisy = [i + 1 for i, q in enumerate(quiet) if not q]
     if noisy:
         print(f"!!! WARNING: rounds {noisy} started on a busy machine: these are not quiet figures !!!")
-    print(f"\nmedians of {args.rounds} rounds (wall clock); host share: the part of the call outside "
-          "its kernel launches, median (min–max)")
+    print(
+        f"\nmedians of {args.rounds} rounds (wall clock); host share: the part of the call outside "
+        "its kernel launches, median (min–max)"
+    )
     print("\n| | M rays/s | host share of the call | hits |\n|---|---|---|---|")
     rates = {}
     for name, rs in runs.items():
@@ -181,8 +190,10 @@ def main(argv=None) -> int:
     if peer is not None:
         base = rates["Open3D test_occlusions (3D)"]
         ours = rates["ao4d cast_rays any hit (3D)"]
-        print(f"\nao4d any-hit cast_rays / Open3D test_occlusions (identical rays), median (min–max) over "
-              f"{args.rounds} rounds: {protocol.format_ratio(a / b for a, b in zip(ours, base))}")
+        print(
+            f"\nao4d any-hit cast_rays / Open3D test_occlusions (identical rays), median (min–max) over "
+            f"{args.rounds} rounds: {protocol.format_ratio(a / b for a, b in zip(ours, base))}"
+        )
     else:
         print(f"\nOpen3D not measured: {why_not}")
     print(f"\n{protocol.machine_line(runtime)}")

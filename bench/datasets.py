@@ -57,16 +57,17 @@ def bench_writes(config: str, workers: int) -> None:
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "run"
             tracemalloc.start()
-            summary = run(config, out, executor=Dask(f"local:{workers}", workers_write=shared),
-                          progress=False)
+            summary = run(config, out, executor=Dask(f"local:{workers}", workers_write=shared), progress=False)
             _, peak = tracemalloc.get_traced_memory()
             tracemalloc.stop()
             manifests[shared] = (out / "manifest.json").read_bytes()
             n = max(summary.made, 1)
-            print(f"workers write: {str(shared):5}  {summary.made} items, {summary.seconds:.1f} s; "
-                  f"client received {summary.received / 2**20:.2f} MiB ({summary.received / n / 2**20:.2f} "
-                  f"MiB per item), client peak traced memory {peak / 2**20:.1f} MiB "
-                  f"({peak / n / 2**20:.2f} MiB per item); dataset {summary.bytes / 2**20:.1f} MiB")
+            print(
+                f"workers write: {str(shared):5}  {summary.made} items, {summary.seconds:.1f} s; "
+                f"client received {summary.received / 2**20:.2f} MiB ({summary.received / n / 2**20:.2f} "
+                f"MiB per item), client peak traced memory {peak / 2**20:.1f} MiB "
+                f"({peak / n / 2**20:.2f} MiB per item); dataset {summary.bytes / 2**20:.1f} MiB"
+            )
     print("manifests identical:", manifests[False] == manifests[True])
 
 

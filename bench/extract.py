@@ -64,8 +64,10 @@ def machine_line() -> tuple[str, float]:
             caches.append(f"{level} ?")
     load = os.getloadavg()
     device = cl.describe(cl.get_runtime(warn=False))
-    line = (f"machine: {model}, {os.cpu_count()} CPUs, SIMD {simd}, {', '.join(caches)}; OpenCL: "
-            f"{device}; load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
+    line = (
+        f"machine: {model}, {os.cpu_count()} CPUs, SIMD {simd}, {', '.join(caches)}; OpenCL: "
+        f"{device}; load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}"
+    )
     return line, load[0]
 
 
@@ -123,10 +125,13 @@ def _cases(sizes3, sizes4, threaded: str):
         sphere = ao4d.sample(fields.hypersphere(1.0, dim=3), n, (-1.2, 1.2))
         group = f"3D sphere {n}^3"
         cases += [
-            (group, "ao4d device", sphere,
-             lambda v=sphere: ao4d.extract(v, 0.0, progress=False).n_simplices),
-            (group, "ao4d numpy", sphere,
-             lambda v=sphere: ao4d.extract(v, 0.0, progress=False, backend="numpy").n_simplices),
+            (group, "ao4d device", sphere, lambda v=sphere: ao4d.extract(v, 0.0, progress=False).n_simplices),
+            (
+                group,
+                "ao4d numpy",
+                sphere,
+                lambda v=sphere: ao4d.extract(v, 0.0, progress=False, backend="numpy").n_simplices,
+            ),
             (group, "VTK FE 1 thread", sphere, _vtk_runner(sphere, "Sequential")),
             (group, f"VTK FE {threaded}", sphere, _vtk_runner(sphere, threaded)),
         ]
@@ -135,10 +140,20 @@ def _cases(sizes3, sizes4, threaded: str):
         for method in ("cubes", "simplices"):
             group = f"4D {method} {n}^4"
             cases += [
-                (group, "ao4d device", ball, lambda v=ball, m=method:
-                 ao4d.extract(v, 0.0, method=m, progress=False).n_simplices),
-                (group, "ao4d numpy", ball, lambda v=ball, m=method:
-                 ao4d.extract(v, 0.0, method=m, progress=False, backend="numpy").n_simplices),
+                (
+                    group,
+                    "ao4d device",
+                    ball,
+                    lambda v=ball, m=method: ao4d.extract(v, 0.0, method=m, progress=False).n_simplices,
+                ),
+                (
+                    group,
+                    "ao4d numpy",
+                    ball,
+                    lambda v=ball, m=method: (
+                        ao4d.extract(v, 0.0, method=m, progress=False, backend="numpy").n_simplices
+                    ),
+                ),
             ]
     return cases
 
@@ -184,8 +199,7 @@ def _subprocess(code: str, *args: str, env: dict | None = None) -> dict:
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = {**os.environ, **(env or {})}
     env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")  # this checkout's ao4d
-    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
-                         env=env, check=True)
+    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, env=env, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -200,9 +214,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rounds", type=int, default=5, help="timed rounds, cases in turn")
     parser.add_argument("--torus", type=int, default=128, help="spheritorus grid (0: skip)")
     parser.add_argument("--no-first-call", action="store_true", help="skip the fresh processes")
-    parser.add_argument("--profile", action="store_true",
-                        help="also print the device engine's time per stage (drains the queue "
-                             "after every stage)")
+    parser.add_argument(
+        "--profile",
+        action="store_true",
+        help="also print the device engine's time per stage (drains the queue after every stage)",
+    )
     args = parser.parse_args(argv)
     start = time.perf_counter()
 
@@ -211,12 +227,13 @@ def main(argv: list[str] | None = None) -> int:
     line, load = machine_line()
     print(line)
     if load > 0.5:
-        print(f"WARNING: load average {load:.2f} > 0.5: other work shares the CPUs, times are "
-              "noisy (the rounds run in turn, so ratios suffer less than times)")
+        print(
+            f"WARNING: load average {load:.2f} > 0.5: other work shares the CPUs, times are "
+            "noisy (the rounds run in turn, so ratios suffer less than times)"
+        )
     threaded = vtk_threaded_backend() if args.sizes3 else "Sequential"
     if args.sizes3:
-        print(f"VTK's vtkSMPTools backends: Sequential (1 thread) and {threaded} (all threads) "
-              "in this wheel")
+        print(f"VTK's vtkSMPTools backends: Sequential (1 thread) and {threaded} (all threads) in this wheel")
     cases = _cases(args.sizes3, args.sizes4, threaded)
     times: dict[tuple[str, str], list[float]] = {(g, n): [] for g, n, _, _ in cases}
     outputs: dict[tuple[str, str], int] = {}
@@ -230,10 +247,13 @@ def main(argv: list[str] | None = None) -> int:
             outputs[(group, name)] = run()
             times[(group, name)].append(time.perf_counter() - t0)
 
-    print(f"\nmedian (min-max) of {args.rounds} rounds taken in turn; 'device is': the other's "
-          "median time over the device's (higher: ao4d's device engine faster)")
-    print(f"{'case':20s} {'engine':22s} {'time s (min-max)':>24s} {'Mcells/s':>9s} "
-          f"{'simplices':>10s} {'device is':>10s}")
+    print(
+        f"\nmedian (min-max) of {args.rounds} rounds taken in turn; 'device is': the other's "
+        "median time over the device's (higher: ao4d's device engine faster)"
+    )
+    print(
+        f"{'case':20s} {'engine':22s} {'time s (min-max)':>24s} {'Mcells/s':>9s} {'simplices':>10s} {'device is':>10s}"
+    )
     for group in dict.fromkeys(g for g, _, _, _ in cases):
         rows = [(n, v) for g, n, v, _ in cases if g == group]
         dev = float(np.median(times[(group, "ao4d device")]))
@@ -241,18 +261,24 @@ def main(argv: list[str] | None = None) -> int:
             med = float(np.median(times[(group, name)]))
             cells = int(np.prod(np.array(values.shape) - 1))
             ratio = "" if name == "ao4d device" else f"{med / dev:9.2f}x"
-            print(f"{group:20s} {name:22s} {_spread(times[(group, name)]):>24s} "
-                  f"{cells / med / 1e6:9.2f} {outputs[(group, name)]:10d} {ratio:>10s}")
+            print(
+                f"{group:20s} {name:22s} {_spread(times[(group, name)]):>24s} "
+                f"{cells / med / 1e6:9.2f} {outputs[(group, name)]:10d} {ratio:>10s}"
+            )
 
     if not args.no_first_call:
         with tempfile.TemporaryDirectory() as cache:
             cold = _subprocess(_FIRST_CALL, env={"XDG_CACHE_HOME": cache})
             warm = _subprocess(_FIRST_CALL, env={"XDG_CACHE_HOME": cache})
         print(f"\nfirst call in a fresh process, 256^3 sphere ({cold['device']}), once:")
-        print(f"  empty kernel cache: first {cold['first']:.3f} s (programs compiled: "
-              f"{cold['stats']['compiled']}), second {cold['second']:.3f} s")
-        print(f"  warm kernel cache:  first {warm['first']:.3f} s (programs from cache: "
-              f"{warm['stats']['from_cache']}), second {warm['second']:.3f} s")
+        print(
+            f"  empty kernel cache: first {cold['first']:.3f} s (programs compiled: "
+            f"{cold['stats']['compiled']}), second {cold['second']:.3f} s"
+        )
+        print(
+            f"  warm kernel cache:  first {warm['first']:.3f} s (programs from cache: "
+            f"{warm['stats']['from_cache']}), second {warm['second']:.3f} s"
+        )
 
     if args.torus:
         n = args.torus
@@ -260,13 +286,14 @@ def main(argv: list[str] | None = None) -> int:
         res = {be: _subprocess(_TORUS, str(n), be) for be in ("numpy", "auto", "sample")}
         for be, r in res.items():
             label = {"auto": "device", "numpy": "numpy", "sample": "sampling the field alone"}[be]
-            print(f"  {label:6s} {r['time']:8.2f} s  peak {r['peak_mib']:7.0f} MiB  "
-                  f"{r['simplices']:,} simplices")
-        print(f"  device is {res['numpy']['time'] / res['auto']['time']:.2f}x faster, peak memory "
-              f"{res['auto']['peak_mib'] / res['numpy']['peak_mib']:.2f}x the numpy path's; "
-              f"extraction alone (minus sampling): numpy "
-              f"{res['numpy']['time'] - res['sample']['time']:.2f} s, device "
-              f"{res['auto']['time'] - res['sample']['time']:.2f} s")
+            print(f"  {label:6s} {r['time']:8.2f} s  peak {r['peak_mib']:7.0f} MiB  {r['simplices']:,} simplices")
+        print(
+            f"  device is {res['numpy']['time'] / res['auto']['time']:.2f}x faster, peak memory "
+            f"{res['auto']['peak_mib'] / res['numpy']['peak_mib']:.2f}x the numpy path's; "
+            f"extraction alone (minus sampling): numpy "
+            f"{res['numpy']['time'] - res['sample']['time']:.2f} s, device "
+            f"{res['auto']['time'] - res['sample']['time']:.2f} s"
+        )
 
     if args.profile:
         import ao4d
@@ -274,10 +301,14 @@ def main(argv: list[str] | None = None) -> int:
 
         print("\ndevice engine stages (seconds, summed over slabs; queue drained after each):")
         cells_device.PROFILE = True
-        profiled = ([(f"3D sphere {n}^3", ao4d.sample(fields.hypersphere(1.0, dim=3), n, (-1.2, 1.2)),
-                      "cubes") for n in args.sizes3]
-                    + [(f"4D {m} {n}^4", ao4d.sample(fields.hypersphere(1.0), n, (-1.2, 1.2)), m)
-                       for n in args.sizes4 for m in ("cubes", "simplices")])
+        profiled = [
+            (f"3D sphere {n}^3", ao4d.sample(fields.hypersphere(1.0, dim=3), n, (-1.2, 1.2)), "cubes")
+            for n in args.sizes3
+        ] + [
+            (f"4D {m} {n}^4", ao4d.sample(fields.hypersphere(1.0), n, (-1.2, 1.2)), m)
+            for n in args.sizes4
+            for m in ("cubes", "simplices")
+        ]
         for label, values, method in profiled:
             ao4d.extract(values, 0.0, method=method, progress=False)  # warm
             gc.collect()
@@ -287,8 +318,11 @@ def main(argv: list[str] | None = None) -> int:
             total = time.perf_counter() - t0
             stages = dict(cells_device.profile)
             rest = total - sum(stages.values())
-            print(f"  {label:20s} total {total:6.3f}: " + ", ".join(
-                f"{k} {v:.3f}" for k, v in stages.items()) + f", outside the engine {rest:.3f}")
+            print(
+                f"  {label:20s} total {total:6.3f}: "
+                + ", ".join(f"{k} {v:.3f}" for k, v in stages.items())
+                + f", outside the engine {rest:.3f}"
+            )
         cells_device.PROFILE = False
     line, _ = machine_line()
     print(f"\nafter: {line.split('; ')[-1]}; the whole run took {time.perf_counter() - start:.0f} s")

@@ -30,12 +30,12 @@ from pathlib import Path
 # A dataset of moderate items (grid 24, AO with 32 samples): seconds each, so that start-up
 # does not dominate.
 DATASET = {
-    "name": "scale-bench", "seed": 11,
+    "name": "scale-bench",
+    "seed": 11,
     "defaults": {"grid": 24, "padding": 0.15, "rotation": "random", "ao": {"samples": 32}},
     "family": [
         {"kind": "hypersphere", "count": 6, "params": {"radius": {"uniform": [0.6, 0.9]}}},
-        {"kind": "spheritorus", "count": 6,
-         "params": {"R": {"uniform": [0.6, 0.8]}, "r": {"uniform": [0.25, 0.35]}}},
+        {"kind": "spheritorus", "count": 6, "params": {"R": {"uniform": [0.6, 0.8]}, "r": {"uniform": [0.25, 0.35]}}},
     ],
 }
 
@@ -86,8 +86,7 @@ def _case(kind: str, grid: int, chunks: int) -> dict:
         warnings.simplefilter("ignore", WorkerEnvironmentWarning)  # the default case is measured
         env = worker_environment() if kind == "cluster-tuned" else contextlib.nullcontext()
         with env:
-            cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0")
+            cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0")
         with cluster, Client(cluster) as client:
             client.run(lambda: __import__("ao4d.blockwise"))  # warm the workers' imports
             t0 = time.perf_counter()
@@ -106,8 +105,12 @@ def _case(kind: str, grid: int, chunks: int) -> dict:
 
 
 def _run_case(kind: str, grid: int, chunks: int) -> dict:
-    out = subprocess.run([sys.executable, __file__, "--_case", kind, "--grid", str(grid),
-                          "--chunks", str(chunks)], capture_output=True, text=True, check=False)
+    out = subprocess.run(
+        [sys.executable, __file__, "--_case", kind, "--grid", str(grid), "--chunks", str(chunks)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     if out.returncode != 0:
         raise RuntimeError(f"case {kind} failed:\n{out.stderr[-3000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -122,15 +125,26 @@ def _datasets(folder: Path) -> list[dict]:
     for label, extra in (("--workers 2", ["--workers", "2"]), ("--scheduler local:2", ["--scheduler", "local:2"])):
         out = folder / label.replace(" ", "_").replace(":", "").strip("-")
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-m", "datasets_gen", str(config), "--out", str(out),
-                               "--no-progress", *extra], capture_output=True, text=True, check=False)
+        proc = subprocess.run(
+            [sys.executable, "-m", "datasets_gen", str(config), "--out", str(out), "--no-progress", *extra],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
         wall = time.perf_counter() - t0
         if proc.returncode != 0:
             raise RuntimeError(f"datasets {label} failed:\n{proc.stderr[-3000:]}")
         summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
-        rows.append({"label": label, "made": summary["made"], "run_seconds": summary["seconds"],
-                     "wall": wall, "items_per_minute": summary["items_per_minute"],
-                     "manifest": (out / "manifest.json").read_bytes()})
+        rows.append(
+            {
+                "label": label,
+                "made": summary["made"],
+                "run_seconds": summary["seconds"],
+                "wall": wall,
+                "items_per_minute": summary["items_per_minute"],
+                "manifest": (out / "manifest.json").read_bytes(),
+            }
+        )
     return rows
 
 
@@ -149,34 +163,40 @@ def main(argv: list[str] | None = None) -> int:
     print(f"machine: {os.cpu_count()} CPUs; runs one after the other, each in a fresh process")
     if not args.skip_extract:
         field, bounds = _field()
-        print(f"\nextraction of {field!r} on a {args.grid}^4 grid over {bounds} "
-              f"({args.grid ** 4 * 8 / 2**30:.1f} GiB as float64, never held), cubes")
+        print(
+            f"\nextraction of {field!r} on a {args.grid}^4 grid over {bounds} "
+            f"({args.grid**4 * 8 / 2**30:.1f} GiB as float64, never held), cubes"
+        )
         slab = _run_case("slab", args.grid, args.chunks)
         cluster = _run_case("cluster", args.grid, args.chunks)
         tuned = _run_case("cluster-tuned", args.grid, args.chunks)
-        print(f"{'path':52s} {'wall s':>8s} {'Mcells/s':>9s} {'client MiB':>11s} "
-              f"{'worker MiB (peak each)':>24s}")
-        for row, name in ((slab, "in-process slab path (extract_field)"),
-                          (cluster, f"LocalCluster(2), {args.chunks}^4 blocks, dask env"),
-                          (tuned, f"LocalCluster(2), {args.chunks}^4 blocks, worker_environment")):
+        print(f"{'path':52s} {'wall s':>8s} {'Mcells/s':>9s} {'client MiB':>11s} {'worker MiB (peak each)':>24s}")
+        for row, name in (
+            (slab, "in-process slab path (extract_field)"),
+            (cluster, f"LocalCluster(2), {args.chunks}^4 blocks, dask env"),
+            (tuned, f"LocalCluster(2), {args.chunks}^4 blocks, worker_environment"),
+        ):
             workers = ", ".join(f"{m:.0f}" for m in row["workers_mib"]) or "-"
-            print(f"{name:52s} {row['seconds']:8.1f} {row['cells'] / row['seconds'] / 1e6:9.2f} "
-                  f"{row['client_mib']:11.0f} {workers:>24s}")
+            print(
+                f"{name:52s} {row['seconds']:8.1f} {row['cells'] / row['seconds'] / 1e6:9.2f} "
+                f"{row['client_mib']:11.0f} {workers:>24s}"
+            )
         same = slab["digest"] == cluster["digest"] == tuned["digest"]
-        print(f"mesh: {slab['vertices']:,} vertices, {slab['simplices']:,} simplices "
-              f"({slab['mesh_mib']:.0f} MiB as float64/int64 arrays), closed "
-              f"{slab['closed'] and cluster['closed'] and tuned['closed']}; identical arrays on all "
-              f"paths: {same}; speed-up over the slab path {slab['seconds'] / cluster['seconds']:.2f}x "
-              f"(dask's worker environment), {slab['seconds'] / tuned['seconds']:.2f}x "
-              "(ao4d.blockwise.worker_environment)")
+        print(
+            f"mesh: {slab['vertices']:,} vertices, {slab['simplices']:,} simplices "
+            f"({slab['mesh_mib']:.0f} MiB as float64/int64 arrays), closed "
+            f"{slab['closed'] and cluster['closed'] and tuned['closed']}; identical arrays on all "
+            f"paths: {same}; speed-up over the slab path {slab['seconds'] / cluster['seconds']:.2f}x "
+            f"(dask's worker environment), {slab['seconds'] / tuned['seconds']:.2f}x "
+            "(ao4d.blockwise.worker_environment)"
+        )
     if not args.skip_datasets:
         with tempfile.TemporaryDirectory(prefix="ao4d-scale-") as tmp:
             rows = _datasets(Path(tmp))
         print("\ndatasets_gen, 12 items (grid 24, AO 32 samples), start-up included")
         print(f"{'run':24s} {'items':>6s} {'run s':>8s} {'items/min':>10s}")
         for row in rows:
-            print(f"{row['label']:24s} {row['made']:6d} {row['run_seconds']:8.1f} "
-                  f"{row['items_per_minute']:10.1f}")
+            print(f"{row['label']:24s} {row['made']:6d} {row['run_seconds']:8.1f} {row['items_per_minute']:10.1f}")
         print(f"manifests byte-identical: {rows[0]['manifest'] == rows[1]['manifest']}")
     return 0
 

@@ -95,23 +95,39 @@ def bench(sizes, window, out_dir: Path) -> list[dict]:
                 t = time.perf_counter()
                 mesh.slice([0, 0, 0, 0.0], [0, 0, 0, 1])
                 cpu.append(time.perf_counter() - t)
-            rows.append(dict(tets=mesh.n_simplices, grid=n, triangles=stats["triangles"],
-                             submitted=stats["submitted_tets"], mb=page.stat().st_size / 1e6,
-                             write_s=write_s, load_s=load_s, draw_ms=draw, draw_aa_ms=draw_aa,
-                             play_fps=play, cpu_slice_ms=1000 * statistics.median(cpu),
-                             canvas=stats["canvas"], renderer=stats["renderer"]))
+            rows.append(
+                dict(
+                    tets=mesh.n_simplices,
+                    grid=n,
+                    triangles=stats["triangles"],
+                    submitted=stats["submitted_tets"],
+                    mb=page.stat().st_size / 1e6,
+                    write_s=write_s,
+                    load_s=load_s,
+                    draw_ms=draw,
+                    draw_aa_ms=draw_aa,
+                    play_fps=play,
+                    cpu_slice_ms=1000 * statistics.median(cpu),
+                    canvas=stats["canvas"],
+                    renderer=stats["renderer"],
+                )
+            )
             print(_row(rows[-1]), flush=True)
     return rows
 
 
-HEADER = (f"{'tets':>10} {'grid':>5} {'tris(w=0)':>10} {'drawn':>9} {'page MB':>8} {'load s':>7} "
-          f"{'draw ms':>8} {'fps':>6} {'4xAA ms':>8} {'play fps':>9} {'CPU slice ms':>13}")
+HEADER = (
+    f"{'tets':>10} {'grid':>5} {'tris(w=0)':>10} {'drawn':>9} {'page MB':>8} {'load s':>7} "
+    f"{'draw ms':>8} {'fps':>6} {'4xAA ms':>8} {'play fps':>9} {'CPU slice ms':>13}"
+)
 
 
 def _row(r: dict) -> str:
-    return (f"{r['tets']:>10,} {r['grid']:>4}^4 {r['triangles']:>10,} {r['submitted']:>9,} "
-            f"{r['mb']:>8.1f} {r['load_s']:>7.1f} {r['draw_ms']:>8.1f} {1000 / r['draw_ms']:>6.1f} "
-            f"{r['draw_aa_ms']:>8.1f} {r['play_fps']:>9.1f} {r['cpu_slice_ms']:>13.1f}")
+    return (
+        f"{r['tets']:>10,} {r['grid']:>4}^4 {r['triangles']:>10,} {r['submitted']:>9,} "
+        f"{r['mb']:>8.1f} {r['load_s']:>7.1f} {r['draw_ms']:>8.1f} {1000 / r['draw_ms']:>6.1f} "
+        f"{r['draw_aa_ms']:>8.1f} {r['play_fps']:>9.1f} {r['cpu_slice_ms']:>13.1f}"
+    )
 
 
 def screenshots(out: Path, window) -> list[Path]:
@@ -126,17 +142,16 @@ def screenshots(out: Path, window) -> list[Path]:
     with tempfile.TemporaryDirectory() as tmp:
         field = ao4d.fields.tiger()
         lo, hi = field.extent
-        mesh = ao4d.extract_field(field, (36,) * 4, (np.asarray(lo) - 0.1, np.asarray(hi) + 0.1),
-                                  progress=False)
+        mesh = ao4d.extract_field(field, (36,) * 4, (np.asarray(lo) - 0.1, np.asarray(hi) + 0.1), progress=False)
         mesh.point_data["ao"] = ao4d.ambient_occlusion(mesh, samples=64, seed=0, progress=False)
-        tiger = ao4d.view(mesh, Path(tmp) / "tiger.html", names=["tiger"],
-                          title="4D tiger, 4D AO (64 samples)")
+        tiger = ao4d.view(mesh, Path(tmp) / "tiger.html", names=["tiger"], title="4D tiger, 4D AO (64 samples)")
         import io
 
         run_demo(Path(tmp) / "demo", progress=False, stream=io.StringIO())
-        shots = [(tiger, "#w=0.15&xy=0&xz=0&xw=20&yz=0&yw=35&zw=0&az=35&el=35&zoom=1.05",
-                  out / "view_tiger.png"),
-                 (Path(tmp) / "demo" / "view.html", "#w=0&az=25&el=22&zoom=1.8", out / "view_demo.png")]
+        shots = [
+            (tiger, "#w=0.15&xy=0&xz=0&xw=20&yz=0&yw=35&zw=0&az=35&el=35&zoom=1.05", out / "view_tiger.png"),
+            (Path(tmp) / "demo" / "view.html", "#w=0&az=25&el=22&zoom=1.8", out / "view_demo.png"),
+        ]
         with Chromium(width=window[0], height=window[1], timeout=600) as browser:
             for page, fragment, png in shots:
                 _open(browser, page.as_uri() + fragment)
@@ -150,11 +165,13 @@ def screenshots(out: Path, window) -> list[Path]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000],
-                        help="approximate tetrahedra per mesh")
+    parser.add_argument(
+        "--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000], help="approximate tetrahedra per mesh"
+    )
     parser.add_argument("--window", type=int, nargs=2, default=[1024, 640], metavar=("W", "H"))
-    parser.add_argument("--screenshots", type=Path, metavar="DIR",
-                        help="write the README pictures into DIR instead of benchmarking")
+    parser.add_argument(
+        "--screenshots", type=Path, metavar="DIR", help="write the README pictures into DIR instead of benchmarking"
+    )
     args = parser.parse_args(argv)
     from _chromium import find_chromium
 
@@ -169,14 +186,18 @@ def main(argv: list[str] | None = None) -> int:
         rows = bench(args.sizes, args.window, Path(tmp))
     r = rows[-1]
     print(f"\nrenderer: {r['renderer']}; canvas {r['canvas'][0]}x{r['canvas'][1]}")
-    print("draw ms: back-to-back frames (w sweeping), page defaults (no AA on software GL); "
-          "fps = 1000 / draw ms; 4xAA ms: the same with #aa=1; play fps: the page's own counter "
-          "of rendered frames while it sweeps w (at most 60)")
+    print(
+        "draw ms: back-to-back frames (w sweeping), page defaults (no AA on software GL); "
+        "fps = 1000 / draw ms; 4xAA ms: the same with #aa=1; play fps: the page's own counter "
+        "of rendered frames while it sweeps w (at most 60)"
+    )
     for r in rows:
-        print(f"{r['tets']:>10,} tets: GPU-path frame {r['draw_ms']:.0f} ms vs CPU slice "
-              f"{r['cpu_slice_ms']:.0f} ms (x{r['cpu_slice_ms'] / r['draw_ms']:.2f}); "
-              f"1 M-tet target at 60 fps = {1e6 / r['tets'] * r['draw_ms'] / (1000 / 60):.0f}x "
-              f"this renderer's speed")
+        print(
+            f"{r['tets']:>10,} tets: GPU-path frame {r['draw_ms']:.0f} ms vs CPU slice "
+            f"{r['cpu_slice_ms']:.0f} ms (x{r['cpu_slice_ms'] / r['draw_ms']:.2f}); "
+            f"1 M-tet target at 60 fps = {1e6 / r['tets'] * r['draw_ms'] / (1000 / 60):.0f}x "
+            f"this renderer's speed"
+        )
     return 0
 
 

@@ -60,8 +60,10 @@ def main(argv=None) -> int:
     from ao4d import image_viewer as iv
 
     rows = []
-    with tempfile.TemporaryDirectory() as tmp, \
-            Chromium(width=args.window[0], height=args.window[1], timeout=600) as browser:
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        Chromium(width=args.window[0], height=args.window[1], timeout=600) as browser,
+    ):
         # warm up: the first page a fresh browser draws pays SwiftShader's shader compilation
         warm = iv.view_image(_image(16), Path(tmp) / "warm.html")
         for preset in ("surface", "glass"):
@@ -95,18 +97,23 @@ def main(argv=None) -> int:
                     row["numpy_ms"] = 1000 * (time.perf_counter() - t)
             row["canvas"] = canvas
             rows.append(row)
-            print(f"{n}^3: render {render_s:.1f} s, page {mb:.1f} MB, load {row['load_s']:.1f} s, "
-                  f"surface {row['surface']:.0f} ms ({1000 / row['surface']:.1f} fps), glass "
-                  f"{row['glass']:.0f} ms ({1000 / row['glass']:.1f} fps)"
-                  + (f", numpy {row['numpy_ms']:.0f} ms" if "numpy_ms" in row else ""), flush=True)
+            print(
+                f"{n}^3: render {render_s:.1f} s, page {mb:.1f} MB, load {row['load_s']:.1f} s, "
+                f"surface {row['surface']:.0f} ms ({1000 / row['surface']:.1f} fps), glass "
+                f"{row['glass']:.0f} ms ({1000 / row['glass']:.1f} fps)"
+                + (f", numpy {row['numpy_ms']:.0f} ms" if "numpy_ms" in row else ""),
+                flush=True,
+            )
     print()
     print(f"canvas {rows[0]['canvas'][0]} x {rows[0]['canvas'][1]}, SwiftShader")
     print("| image | page | ms per frame (surface) | fps | ms per frame (glass) | fps | numpy ray-march, per frame |")
     print("|---|---|---|---|---|---|---|")
     for r in rows:
         numpy_ms = f"{r['numpy_ms']:.0f} ms" if "numpy_ms" in r else "-"
-        print(f"| {r['size']}³ | {r['page_mb']:.1f} MB | {r['surface']:.0f} | {1000 / r['surface']:.1f} | "
-              f"{r['glass']:.0f} | {1000 / r['glass']:.1f} | {numpy_ms} |")
+        print(
+            f"| {r['size']}³ | {r['page_mb']:.1f} MB | {r['surface']:.0f} | {1000 / r['surface']:.1f} | "
+            f"{r['glass']:.0f} | {1000 / r['glass']:.1f} | {numpy_ms} |"
+        )
     return 0
 
 

@@ -27,5 +27,15 @@ from .items import item_seed
 from .loader import Dataset, DatasetError, load
 from .runner import run
 
-__all__ = ["run", "RunSummary", "load_config", "shipped_configs", "Config", "ConfigError",
-           "item_seed", "load", "Dataset", "DatasetError"]
+__all__ = [
+    "run",
+    "RunSummary",
+    "load_config",
+    "shipped_configs",
+    "Config",
+    "ConfigError",
+    "item_seed",
+    "load",
+    "Dataset",
+    "DatasetError",
+]

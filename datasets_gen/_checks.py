@@ -28,5 +28,6 @@ def check_keys(table: dict[str, Any], allowed: Iterable[str], where: str) -> Non
     allowed = set(allowed)
     unknown = sorted(set(table) - allowed)
     if unknown:
-        raise ValueError(f"{where}: unknown key(s) {', '.join(map(repr, unknown))}; "
-                         f"allowed: {', '.join(sorted(allowed))}")
+        raise ValueError(
+            f"{where}: unknown key(s) {', '.join(map(repr, unknown))}; allowed: {', '.join(sorted(allowed))}"
+        )

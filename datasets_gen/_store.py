@@ -45,9 +45,11 @@ def check_url(out: str) -> str:
     """
     protocol, _, path = out.partition("://")
     if not _PROTOCOL.fullmatch(protocol) or not path.strip("/"):
-        raise ValueError(f"`out` {out!r} is not a URL of the form PROTOCOL://PATH (such as "
-                         "s3://bucket/run or file:///data/run) nor a local folder; give a folder "
-                         "path without '://' or a complete URL")
+        raise ValueError(
+            f"`out` {out!r} is not a URL of the form PROTOCOL://PATH (such as "
+            "s3://bucket/run or file:///data/run) nor a local folder; give a folder "
+            "path without '://' or a complete URL"
+        )
     return out
 
 
@@ -192,13 +194,13 @@ class LocalStore(Store):
     def prepare(self) -> bool:
         out = self.root
         if out.exists() and not out.is_dir():
-            raise ValueError(f"`out` {self.name!r} is a file; it must be a folder (new, empty, or "
-                             "of an earlier run of this config)")
+            raise ValueError(
+                f"`out` {self.name!r} is a file; it must be a folder (new, empty, or of an earlier run of this config)"
+            )
         try:
             out.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise ValueError(f"cannot create the output folder `out` {self.name!r}: "
-                             f"{exc.strerror or exc}") from None
+            raise ValueError(f"cannot create the output folder `out` {self.name!r}: {exc.strerror or exc}") from None
         return any(out.iterdir())
 
 
@@ -225,8 +227,7 @@ class MemoryStore(Store):
 
     def files(self, rel: str = "") -> list[str]:
         prefix = f"{rel}/" if rel else ""
-        return sorted(k[len(prefix):] for k in self._files
-                      if k.startswith(prefix) and "/" not in k[len(prefix):])
+        return sorted(k[len(prefix) :] for k in self._files if k.startswith(prefix) and "/" not in k[len(prefix) :])
 
     def size(self, rel: str) -> int:
         return len(self.read_bytes(rel))
@@ -313,10 +314,11 @@ class FsspecStore(Store):
     def prepare(self) -> bool:
         try:
             if self.fs.isfile(self.root):
-                raise ValueError(f"`out` {self.name!r} is a file; it must be a folder (new, "
-                                 "empty, or of an earlier run of this config)")
+                raise ValueError(
+                    f"`out` {self.name!r} is a file; it must be a folder (new, "
+                    "empty, or of an earlier run of this config)"
+                )
             self.fs.makedirs(self.root, exist_ok=True)
             return bool(self.fs.ls(self.root))
         except OSError as exc:
-            raise ValueError(f"cannot create the output folder `out` {self.name!r}: "
-                             f"{exc.strerror or exc}") from None
+            raise ValueError(f"cannot create the output folder `out` {self.name!r}: {exc.strerror or exc}") from None

@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from ao4d.cl import BACKENDS
 
 from ._checks import check_keys
@@ -57,13 +58,31 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["Config", "Family", "ItemSpec", "load_config", "config_text", "shipped_configs",
-           "sample_params", "ConfigError"]
+__all__ = [
+    "Config",
+    "Family",
+    "ItemSpec",
+    "load_config",
+    "config_text",
+    "shipped_configs",
+    "sample_params",
+    "ConfigError",
+]
 
 DISTRIBUTIONS = ("uniform", "loguniform", "normal", "integers", "choice")
 _TOP_KEYS = {"name", "description", "seed", "backend", "defaults", "family", "split"}
-_SETTING_KEYS = {"grid", "method", "padding", "bounds", "rotation", "ao", "renders", "tetrahedra",
-                 "samples", "sequence"}
+_SETTING_KEYS = {
+    "grid",
+    "method",
+    "padding",
+    "bounds",
+    "rotation",
+    "ao",
+    "renders",
+    "tetrahedra",
+    "samples",
+    "sequence",
+}
 _FAMILY_KEYS = _SETTING_KEYS | {"kind", "count", "params", "name"}
 _AO_KEYS = {"samples", "max_distance", "at"}
 _RENDER_KEYS = {"name", "shape", "samples", "projection", "fov"}
@@ -177,8 +196,7 @@ def _toml_value(value: Any, where: str) -> str:
     if isinstance(value, int):
         return str(value)
     if isinstance(value, float):
-        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf") if math.isinf(value) \
-            else repr(value)
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf") if math.isinf(value) else repr(value)
     if isinstance(value, str):
         return json.dumps(value, ensure_ascii=False)
     if isinstance(value, (list, tuple)):
@@ -186,8 +204,7 @@ def _toml_value(value: Any, where: str) -> str:
     if isinstance(value, Mapping):
         if not value:
             return "{}"
-        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(v, where)}"
-                                for k, v in value.items()) + " }"
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(v, where)}" for k, v in value.items()) + " }"
     raise ConfigError(f"{where}: a value of type {type(value).__name__} has no TOML form: {value!r}")
 
 
@@ -215,8 +232,7 @@ def config_text(data: Mapping[str, Any]) -> str:
     """
     if not isinstance(data, Mapping):
         raise ConfigError(f"`config` must be a mapping, got {type(data).__name__}")
-    lines = [f"{_toml_key(k)} = {_toml_value(v, k)}" for k, v in data.items()
-             if k not in ("defaults", "family")]
+    lines = [f"{_toml_key(k)} = {_toml_value(v, k)}" for k, v in data.items() if k not in ("defaults", "family")]
 
     def table(header: str, values: Any, where: str) -> None:
         if not isinstance(values, Mapping):
@@ -268,7 +284,8 @@ def load_config(config: str | Path | Mapping[str, Any]) -> Config:
         if "/" in name or not res.is_file():
             raise FileNotFoundError(
                 f"`config` {str(config)!r} is neither a file nor a shipped configuration "
-                f"({', '.join(shipped_configs())})")
+                f"({', '.join(shipped_configs())})"
+            )
         text, source = res.read_text(encoding="utf-8"), f"shipped:{name}"
     try:
         data = tomllib.loads(text)
@@ -306,8 +323,7 @@ def _parse(data: dict, text: str, source: str) -> Config:
         _no_unknown(fam, _FAMILY_KEYS, source, where)
         kind = fam.get("kind")
         if kind not in KINDS:
-            raise ConfigError(f"{source}: {where}: `kind` must be one of {', '.join(KINDS)}; "
-                              f"got {kind!r}")
+            raise ConfigError(f"{source}: {where}: `kind` must be one of {', '.join(KINDS)}; got {kind!r}")
         count = fam.get("count", 1)
         if isinstance(count, bool) or not isinstance(count, int) or count < 1:
             raise ConfigError(f"{source}: {where}: `count` must be an integer >= 1, got {count!r}")
@@ -342,14 +358,12 @@ def _check_settings(s: dict[str, Any], where: str) -> None:
         raise ConfigError(f"{where}: `padding` must be a number in [0, 2], got {s['padding']!r}")
     if s["bounds"] is not None:
         b = s["bounds"]
-        if not (isinstance(b, list) and len(b) == 2 and all(isinstance(v, (int, float)) for v in b)
-                and b[0] < b[1]):
+        if not (isinstance(b, list) and len(b) == 2 and all(isinstance(v, (int, float)) for v in b) and b[0] < b[1]):
             raise ConfigError(f"{where}: `bounds` must be [lo, hi] with lo < hi, got {b!r}")
     if s["rotation"] not in ("none", "random"):
         raise ConfigError(f"{where}: `rotation` must be 'none' or 'random', got {s['rotation']!r}")
     if s["tetrahedra"] not in ("star", "auto", "tetwild"):
-        raise ConfigError(f"{where}: `tetrahedra` must be 'star', 'auto' or 'tetwild', "
-                          f"got {s['tetrahedra']!r}")
+        raise ConfigError(f"{where}: `tetrahedra` must be 'star', 'auto' or 'tetwild', got {s['tetrahedra']!r}")
     ao = s["ao"]
     if ao is not False:
         if ao is True:
@@ -378,11 +392,14 @@ def _check_settings(s: dict[str, Any], where: str) -> None:
             raise ConfigError(f"{where}: every render needs a distinct identifier `name`, got {name!r}")
         names.add(name)
         if r.get("projection", "orthographic") not in ("orthographic", "perspective"):
-            raise ConfigError(f"{where}: render {name!r}: `projection` must be 'orthographic' or "
-                              f"'perspective', got {r['projection']!r}")
+            raise ConfigError(
+                f"{where}: render {name!r}: `projection` must be 'orthographic' or "
+                f"'perspective', got {r['projection']!r}"
+            )
         shape = r.get("shape", [32, 32, 32])
-        if not (isinstance(shape, list) and len(shape) == 3
-                and all(isinstance(v, int) and 2 <= v <= 512 for v in shape)):
+        if not (
+            isinstance(shape, list) and len(shape) == 3 and all(isinstance(v, int) and 2 <= v <= 512 for v in shape)
+        ):
             raise ConfigError(f"{where}: render {name!r}: `shape` must be 3 integers in [2, 512]")
 
 
@@ -390,15 +407,17 @@ def _check_distribution(spec: Any, where: str) -> None:
     if not isinstance(spec, dict):
         return  # a constant
     if len(spec) != 1 or next(iter(spec)) not in DISTRIBUTIONS:
-        raise ConfigError(f"{where}: a distribution is one key of {', '.join(DISTRIBUTIONS)}, "
-                          f"got {sorted(spec)}")
-    (kind, args), = spec.items()
+        raise ConfigError(f"{where}: a distribution is one key of {', '.join(DISTRIBUTIONS)}, got {sorted(spec)}")
+    ((kind, args),) = spec.items()
     if kind == "choice":
         if not isinstance(args, list) or not args:
             raise ConfigError(f"{where}: `choice` needs a non-empty list")
         return
-    if not (isinstance(args, list) and len(args) == 2
-            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in args)):
+    if not (
+        isinstance(args, list)
+        and len(args) == 2
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in args)
+    ):
         raise ConfigError(f"{where}: `{kind}` needs two numbers, got {args!r}")
     a, b = args
     if kind == "normal":
@@ -408,8 +427,7 @@ def _check_distribution(spec: Any, where: str) -> None:
         if not (isinstance(a, int) and isinstance(b, int) and a <= b):
             raise ConfigError(f"{where}: `integers` needs integers lo <= hi, got {args!r}")
     elif not a <= b or (kind == "loguniform" and a <= 0):
-        raise ConfigError(f"{where}: `{kind}` needs {'0 < ' if kind == 'loguniform' else ''}"
-                          f"a <= b, got {args!r}")
+        raise ConfigError(f"{where}: `{kind}` needs {'0 < ' if kind == 'loguniform' else ''}a <= b, got {args!r}")
 
 
 def sample_params(specs: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
@@ -423,7 +441,7 @@ def sample_params(specs: dict[str, Any], rng: np.random.Generator) -> dict[str, 
         if not isinstance(spec, dict):
             out[name] = copy.deepcopy(spec)
             continue
-        (kind, args), = spec.items()
+        ((kind, args),) = spec.items()
         if kind == "uniform":
             out[name] = float(rng.uniform(*args))
         elif kind == "loguniform":
@@ -439,6 +457,7 @@ def sample_params(specs: dict[str, Any], rng: np.random.Generator) -> dict[str, 
 
 def describe(config: Config) -> str:
     """One line per family: name, kind, count, grid."""
+
     def how(f: Family) -> str:
         if f.kind == "lifted":
             return f"lifted with ao4d.lift, caps cut by {f.settings['tetrahedra']!r}"
@@ -447,4 +466,3 @@ def describe(config: Config) -> str:
         return f"grid fitted, {f.settings['grid']} points across, {f.settings['method']}"
 
     return "\n".join(f"  {f.name}: {f.count} x {f.kind} ({how(f)})" for f in config.families)
-

@@ -29,8 +29,7 @@ from ._store import MemoryStore, Store, is_url, open_store
 from .index import RunSummary
 from .items import Job, item_folder, make_item, write_item
 
-__all__ = ["Executor", "InProcess", "ProcessPool", "Dask", "executor_for",
-           "SCHEDULER_PROBE_SECONDS"]
+__all__ = ["Executor", "InProcess", "ProcessPool", "Dask", "executor_for", "SCHEDULER_PROBE_SECONDS"]
 
 # How long a scheduler address may take to accept a connection and greet it: a dask scheduler
 # sends its handshake at once, so silence means something else listens there
@@ -110,8 +109,9 @@ class ProcessPool(Executor):
             InProcess().make(todo, store, summary, bar)
             return
         context = multiprocessing.get_context("spawn")  # no fork: OpenCL state must not be copied
-        with ProcessPoolExecutor(max_workers=min(self.workers, len(todo)), mp_context=context,
-                                 initializer=_ignore_sigint) as pool:
+        with ProcessPoolExecutor(
+            max_workers=min(self.workers, len(todo)), mp_context=context, initializer=_ignore_sigint
+        ) as pool:
             pending: dict[Future, Job] = {pool.submit(_make_here, job): job for job in todo}
             try:
                 while pending:
@@ -190,24 +190,23 @@ class Dask(Executor):
 
                 # glibc's default malloc in the workers: dask's MALLOC_TRIM_THRESHOLD_ slows numpy
                 with worker_environment():
-                    cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
-                                           dashboard_address=":0")
+                    cluster = LocalCluster(
+                        n_workers=count, threads_per_worker=1, processes=True, dashboard_address=":0"
+                    )
                 client = Client(cluster)
             else:
                 client = Client(self.scheduler)  # waits distributed.comm.timeouts.connect (30 s)
         except (OSError, TimeoutError) as exc:
             if cluster is not None:
                 cluster.close()
-            raise ValueError(f"cannot reach the dask scheduler at `scheduler` {self.scheduler!r}: "
-                             f"{exc}") from None
+            raise ValueError(f"cannot reach the dask scheduler at `scheduler` {self.scheduler!r}: {exc}") from None
         run_id = uuid.uuid4().hex[:8]
         futures: dict[Any, Job] = {}
         try:
             for job in todo:
                 key = f"datasets_gen-item-{job.spec.index:05d}-{run_id}"
                 where = job.out if is_url(job.out) else str(Path(job.out).resolve())
-                task = dataclasses.replace(job, out=where,
-                                           run_sha256=job.run_sha256 if self.workers_write else "")
+                task = dataclasses.replace(job, out=where, run_sha256=job.run_sha256 if self.workers_write else "")
                 futures[client.submit(_make_on_worker, task, key=key, pure=False)] = job
             for future in as_completed(list(futures)):
                 job = futures[future]
@@ -264,7 +263,7 @@ def _check_scheduler(scheduler: Any) -> int | None:
     if not isinstance(scheduler, str) or not scheduler.strip():
         raise TypeError(f"`scheduler` must be an address or 'local:N', got {scheduler!r}")
     if scheduler.startswith("local:"):
-        count = scheduler[len("local:"):]
+        count = scheduler[len("local:") :]
         if not count.isdigit() or int(count) < 1:
             raise ValueError(f"`scheduler` 'local:N' needs a worker count N >= 1, got {scheduler!r}")
         return int(count)
@@ -298,8 +297,7 @@ def _probe_scheduler(scheduler: str, seconds: float = SCHEDULER_PROBE_SECONDS) -
     except ValueError:
         host = port = None
     if not host or port is None:
-        raise ValueError(f"`scheduler` {scheduler!r} is not an address of the form "
-                         "tcp://HOST:PORT (or 'local:N')")
+        raise ValueError(f"`scheduler` {scheduler!r} is not an address of the form tcp://HOST:PORT (or 'local:N')")
     where = f"the dask scheduler at `scheduler` {scheduler!r}"
     wait = seconds
     try:
@@ -319,12 +317,17 @@ def _probe_scheduler(scheduler: str, seconds: float = SCHEDULER_PROBE_SECONDS) -
         except OSError as exc:
             raise ValueError(f"cannot reach {where}: {exc}") from None
     if not head:
-        raise ValueError(f"cannot reach {where}: it accepted the connection but sent nothing in "
-                         f"{wait:g} s (a dask scheduler greets every connection at once); is it a "
-                         "dask scheduler's address (usually port 8786)?")
+        raise ValueError(
+            f"cannot reach {where}: it accepted the connection but sent nothing in "
+            f"{wait:g} s (a dask scheduler greets every connection at once); is it a "
+            "dask scheduler's address (usually port 8786)?"
+        )
     if head[:5].upper() in (b"HTTP/", b"<HTML", b"<!DOC") or not (
-            len(head) == 8 and 0 < int.from_bytes(head, "little") <= _HANDSHAKE_MAX_BYTES):
+        len(head) == 8 and 0 < int.from_bytes(head, "little") <= _HANDSHAKE_MAX_BYTES
+    ):
         kind = "an HTTP server" if head[:5].upper() == b"HTTP/" else "something else"
-        raise ValueError(f"cannot use {where}: it answers like {kind}, not a dask scheduler "
-                         f"(first bytes {head!r}); is it the dashboard's port (8787) instead of "
-                         "the scheduler's (8786)?")
+        raise ValueError(
+            f"cannot use {where}: it answers like {kind}, not a dask scheduler "
+            f"(first bytes {head!r}); is it the dashboard's port (8787) instead of "
+            "the scheduler's (8786)?"
+        )

@@ -139,17 +139,18 @@ def _check_out(out: Path, marker: dict) -> None:
         except (OSError, ValueError):
             pass
         if previous != marker:
-            raise FileExistsError(f"`out` {str(out)!r} is not empty; shards go into a new or empty "
-                                  "folder (or the folder of an interrupted export of the same "
-                                  "dataset, format and shard size, to resume it)")
+            raise FileExistsError(
+                f"`out` {str(out)!r} is not empty; shards go into a new or empty "
+                "folder (or the folder of an interrupted export of the same "
+                "dataset, format and shard size, to resume it)"
+            )
         for stray in out.iterdir():  # temporary files of a killed write
             if stray.name.startswith(".") and ".tmp" in stray.name:
                 stray.unlink()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise ValueError(f"cannot create the folder `out` {str(out)!r}: "
-                         f"{exc.strerror or exc}") from None
+        raise ValueError(f"cannot create the folder `out` {str(out)!r}: {exc.strerror or exc}") from None
 
 
 def _sha256(path: Path) -> str:
@@ -160,9 +161,16 @@ def _sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def export(dataset: str | os.PathLike, out: str | os.PathLike, *, format: str = "webdataset",
-           shard_size: int = DEFAULT_SHARD_SIZE, split: str | None = None,
-           verify: bool = True, progress: bool | None = None) -> dict[str, Any]:
+def export(
+    dataset: str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    format: str = "webdataset",
+    shard_size: int = DEFAULT_SHARD_SIZE,
+    split: str | None = None,
+    verify: bool = True,
+    progress: bool | None = None,
+) -> dict[str, Any]:
     """Write the items of ``dataset`` as shards into the folder ``out``; return the manifest.
 
     Parameters
@@ -200,29 +208,51 @@ def export(dataset: str | os.PathLike, out: str | os.PathLike, *, format: str = 
             raise ImportError("`format` 'parquet' needs pyarrow: pip install pyarrow") from None
     ds = load(dataset, split=split, verify=verify)
     out = Path(out)
-    marker = {"dataset": str(dataset), "manifest_sha256": hashlib.sha256(json_bytes(ds._manifest)).hexdigest(),
-              "format": format, "shard_size": shard_size, "split": split}
+    marker = {
+        "dataset": str(dataset),
+        "manifest_sha256": hashlib.sha256(json_bytes(ds._manifest)).hexdigest(),
+        "format": format,
+        "shard_size": shard_size,
+        "split": split,
+    }
     _check_out(out, marker)
     with atomic_open(out / _MARKER, "wb") as fh:
         fh.write(json_bytes(marker))
 
     from ao4d import _progress
 
-    bar = _progress.bar(len(ds), f"export {format}", unit="item",
-                        show=sys.stderr.isatty() if progress is None else bool(progress))
+    bar = _progress.bar(
+        len(ds), f"export {format}", unit="item", show=sys.stderr.isatty() if progress is None else bool(progress)
+    )
     shards: list[dict[str, Any]] = []
     for batch in _batches(ds, format, shard_size, bar):
         name = f"shard-{len(shards):06d}{_SUFFIX[format]}"
         data = batch["bytes"]
         path = out / name
-        if not (path.is_file() and path.stat().st_size == len(data) and _sha256(path) == hashlib.sha256(data).hexdigest()):
+        if not (
+            path.is_file() and path.stat().st_size == len(data) and _sha256(path) == hashlib.sha256(data).hexdigest()
+        ):
             with atomic_open(path, "wb") as fh:
                 fh.write(data)
-        shards.append({"name": name, "sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data),
-                       "items": batch["items"], "oversize": len(data) > shard_size})
+        shards.append(
+            {
+                "name": name,
+                "sha256": hashlib.sha256(data).hexdigest(),
+                "bytes": len(data),
+                "items": batch["items"],
+                "oversize": len(data) > shard_size,
+            }
+        )
     bar.close()
-    manifest = {"format": format, "dataset": str(dataset), "dataset_manifest_sha256": marker["manifest_sha256"],
-                "split": split, "shard_size": shard_size, "n_items": len(ds), "shards": shards}
+    manifest = {
+        "format": format,
+        "dataset": str(dataset),
+        "dataset_manifest_sha256": marker["manifest_sha256"],
+        "split": split,
+        "shard_size": shard_size,
+        "n_items": len(ds),
+        "shards": shards,
+    }
     with atomic_open(out / "manifest.json", "wb") as fh:
         fh.write(json_bytes(manifest))
     (out / _MARKER).unlink()
@@ -258,8 +288,7 @@ def _batches(ds: Dataset, format: str, shard_size: int, bar) -> Iterator[dict[st
             total = -(-(size + cost) // tarfile.RECORDSIZE) * tarfile.RECORDSIZE
         else:
             part = item
-            cost = 4096 + len(json_bytes(item["record"])) + sum(
-                v.nbytes for k, v in item.items() if k != "record")
+            cost = 4096 + len(json_bytes(item["record"])) + sum(v.nbytes for k, v in item.items() if k != "record")
             total = size + cost
         if pending and total > shard_size:
             yield from flush(pending)
@@ -276,21 +305,30 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(
         prog="python -m datasets_gen export",
-        description="Write a dataset's items as WebDataset tar or Parquet shards, with a manifest "
-                    "of their hashes.")
+        description="Write a dataset's items as WebDataset tar or Parquet shards, with a manifest of their hashes.",
+    )
     parser.add_argument("dataset", help="a datasets_gen output folder or fsspec URL")
     parser.add_argument("--format", required=True, choices=FORMATS)
     parser.add_argument("--out", required=True, help="a new or empty folder for the shards")
-    parser.add_argument("--shard-size", default=str(DEFAULT_SHARD_SIZE),
-                        help="largest shard: bytes, or with a suffix kB, MB, GB (default 1GB)")
+    parser.add_argument(
+        "--shard-size",
+        default=str(DEFAULT_SHARD_SIZE),
+        help="largest shard: bytes, or with a suffix kB, MB, GB (default 1GB)",
+    )
     parser.add_argument("--split", default=None, help="only this split's items")
     parser.add_argument("--no-verify", action="store_true", help="skip the item checksums")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     try:
-        manifest = export(args.dataset, args.out, format=args.format,
-                          shard_size=parse_size(args.shard_size), split=args.split,
-                          verify=not args.no_verify, progress=False if args.no_progress else None)
+        manifest = export(
+            args.dataset,
+            args.out,
+            format=args.format,
+            shard_size=parse_size(args.shard_size),
+            split=args.split,
+            verify=not args.no_verify,
+            progress=False if args.no_progress else None,
+        )
     except (FileExistsError, ValueError, ImportError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -298,8 +336,10 @@ def main(argv: list[str] | None = None) -> int:
         print("\ninterrupted: whole shards are kept; rerun the same command to resume", file=sys.stderr)
         return 130
     total = sum(s["bytes"] for s in manifest["shards"])
-    print(f"{args.out}: {manifest['n_items']} items in {len(manifest['shards'])} {args.format} "
-          f"shards, {total / 2**20:.2f} MiB")
+    print(
+        f"{args.out}: {manifest['n_items']} items in {len(manifest['shards'])} {args.format} "
+        f"shards, {total / 2**20:.2f} MiB"
+    )
     return 0
 
 

@@ -32,8 +32,18 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["KINDS", "kinds", "Kind", "Shape", "random_rotation", "build_shape", "MARGIN_CELLS",
-           "shape_support", "support_extent", "fitted_grid"]
+__all__ = [
+    "KINDS",
+    "kinds",
+    "Kind",
+    "Shape",
+    "random_rotation",
+    "build_shape",
+    "MARGIN_CELLS",
+    "shape_support",
+    "support_extent",
+    "fitted_grid",
+]
 
 # Grid cells between the solid's extent (plus padding) and the grid's outermost points: keeps the
 # zero set off the boundary points (which must be positive for a closed mesh) with room to spare.
@@ -105,8 +115,14 @@ def _rotated_field(f: Any, rotation: np.ndarray | None) -> Any:
     if ext is not None:
         corners = np.array(list(product(*ext.T))) @ rotation.T
         ext = (corners.min(axis=0), corners.max(axis=0))
-    return Field(lambda p: f(p @ rotation), dim=f.dim, name=f"rotated({f.name})",
-                 volume=f.volume, boundary_measure=f.boundary_measure, extent=ext)
+    return Field(
+        lambda p: f(p @ rotation),
+        dim=f.dim,
+        name=f"rotated({f.name})",
+        volume=f.volume,
+        boundary_measure=f.boundary_measure,
+        extent=ext,
+    )
 
 
 # --------------------------------------------------------------------------- support functions
@@ -192,7 +208,7 @@ def shape_support(kind: str, args: dict[str, Any]) -> Support | None:
         return lambda u: R1 * _norm(u, slice(0, 2)) + R2 * _norm(u, slice(2, 4)) + r * _norm(u)
     if kind == "ditorus":
         R, r1, r2 = float(a["R"]), float(a["r1"]), float(a["r2"])
-        return lambda u: (R * _norm(u, slice(0, 2)) + r1 * _norm(u, slice(0, 3)) + r2 * _norm(u))
+        return lambda u: R * _norm(u, slice(0, 2)) + r1 * _norm(u, slice(0, 3)) + r2 * _norm(u)
     if kind == "duocylinder":
         r1, r2 = float(a["r1"]), float(a["r2"])
         return lambda u: r1 * _norm(u, slice(0, 2)) + r2 * _norm(u, slice(2, 4))
@@ -213,8 +229,7 @@ def support_extent(support: Support, rotation: np.ndarray | None = None, *, dim:
     return np.stack([-support(-q), support(q)])
 
 
-def fitted_grid(extent: Any, n: int, *, padding: float = 0.0,
-                margin: float = MARGIN_CELLS) -> dict[str, Any]:
+def fitted_grid(extent: Any, n: int, *, padding: float = 0.0, margin: float = MARGIN_CELLS) -> dict[str, Any]:
     """Grid of cubic cells over ``extent`` grown by ``padding`` and ``margin`` cells.
 
     The widest axis gets ``n`` points: its extent, widened by ``padding`` times its width,
@@ -243,8 +258,7 @@ def fitted_grid(extent: Any, n: int, *, padding: float = 0.0,
     ext = np.asarray(extent, dtype=float).reshape(2, -1)
     cells = n - 1 - 2 * margin
     if cells < 1:
-        raise ValueError(f"`grid` must exceed 2 * {margin:g} + 2 points for a margin of {margin:g} "
-                         f"cells, got {n}")
+        raise ValueError(f"`grid` must exceed 2 * {margin:g} + 2 points for a margin of {margin:g} cells, got {n}")
     width = (ext[1] - ext[0]) * (1 + padding)
     if not np.all(np.isfinite(width)) or not np.all(width > 0):
         raise ValueError(f"the solid's extent must be finite and not flat, got {ext.tolist()}")
@@ -253,8 +267,12 @@ def fitted_grid(extent: Any, n: int, *, padding: float = 0.0,
     counts = np.ceil(width / h + 2 * margin - 1e-9).astype(int) + 1
     centre = ext.mean(axis=0)
     lo, hi = centre - (counts - 1) * h / 2, centre + (counts - 1) * h / 2
-    return {"shape": counts.tolist(), "bounds": [lo.tolist(), hi.tolist()],
-            "spacing": ((hi - lo) / (counts - 1)).tolist(), "extent": ext.tolist()}
+    return {
+        "shape": counts.tolist(),
+        "bounds": [lo.tolist(), hi.tolist()],
+        "spacing": ((hi - lo) / (counts - 1)).tolist(),
+        "extent": ext.tolist(),
+    }
 
 
 def _grid_for(g: Any, support: Support | None, rotation: np.ndarray | None, settings: dict) -> dict:
@@ -264,8 +282,12 @@ def _grid_for(g: Any, support: Support | None, rotation: np.ndarray | None, sett
     if settings["bounds"] is not None:
         lo, hi = (float(v) for v in settings["bounds"])
         lo_v, hi_v = np.full(4, lo), np.full(4, hi)
-        return {"shape": [n] * 4, "bounds": [lo_v.tolist(), hi_v.tolist()],
-                "spacing": ((hi_v - lo_v) / (n - 1)).tolist(), "extent": None}
+        return {
+            "shape": [n] * 4,
+            "bounds": [lo_v.tolist(), hi_v.tolist()],
+            "spacing": ((hi_v - lo_v) / (n - 1)).tolist(),
+            "extent": None,
+        }
     if support is not None:
         extent = support_extent(support, rotation)
     elif g.extent is not None:
@@ -275,15 +297,21 @@ def _grid_for(g: Any, support: Support | None, rotation: np.ndarray | None, sett
     return fitted_grid(extent, n, padding=float(settings["padding"]))
 
 
-def _extract(f: Any, settings: dict, rotation: np.ndarray | None, derived: dict,
-             support: Support | None = None) -> Shape:
+def _extract(
+    f: Any, settings: dict, rotation: np.ndarray | None, derived: dict, support: Support | None = None
+) -> Shape:
     """Extract ``f`` (rotated) on its fitted grid; ``support`` is the unrotated solid's."""
     from ao4d.march import extract_field
 
     g = _rotated_field(f, rotation)
     grid = _grid_for(g, support, rotation, settings)
-    mesh = extract_field(g, grid["shape"], (np.array(grid["bounds"][0]), np.array(grid["bounds"][1])),
-                         method=settings["method"], progress=False)
+    mesh = extract_field(
+        g,
+        grid["shape"],
+        (np.array(grid["bounds"][0]), np.array(grid["bounds"][1])),
+        method=settings["method"],
+        progress=False,
+    )
     if mesh.n_simplices == 0:
         raise ValueError(f"{f.name}: extraction gave an empty mesh (shape smaller than a cell?)")
     return Shape(mesh, g.volume, derived, grid, g)
@@ -295,8 +323,7 @@ def _field_kind(name: str) -> Kind:
 
     func = getattr(fields, name)
     signature = inspect.signature(func)
-    params = tuple(p.name for p in signature.parameters.values()
-                   if p.kind is inspect.Parameter.POSITIONAL_OR_KEYWORD)
+    params = tuple(p.name for p in signature.parameters.values() if p.kind is inspect.Parameter.POSITIONAL_OR_KEYWORD)
 
     def build(params_: dict, settings: dict, rng: np.random.Generator, rotation) -> Shape:
         del rng
@@ -372,8 +399,9 @@ def _gyroid_ball(p: dict, settings: dict, rng: np.random.Generator, rotation) ->
 
     del rng
     radius = float(p.get("radius", 1.0))
-    f = fields.intersection(fields.gyroid(float(p.get("period", 1.0)), float(p.get("thickness", 0.3))),
-                            fields.hypersphere(radius))
+    f = fields.intersection(
+        fields.gyroid(float(p.get("period", 1.0)), float(p.get("thickness", 0.3))), fields.hypersphere(radius)
+    )
     return _extract(f, settings, rotation, {}, lambda u: radius * _norm(u))  # a bound: the ball
 
 
@@ -395,8 +423,9 @@ def _solid_3d(shape: str, size: float, aspect: float, detail: int):
     if shape == "cylinder":
         return trimesh.creation.cylinder(radius=size, height=2 * size * aspect, sections=8 * detail)
     if shape == "torus":
-        return trimesh.creation.torus(size, size * min(aspect, 0.9), major_sections=8 * detail,
-                                      minor_sections=4 * detail + 4)
+        return trimesh.creation.torus(
+            size, size * min(aspect, 0.9), major_sections=8 * detail, minor_sections=4 * detail + 4
+        )
     raise ValueError(f"`shape` must be one of {', '.join(SHAPES_3D)}, got {shape!r}")  # file: above
 
 
@@ -450,16 +479,25 @@ def _lifted(p: dict, settings: dict, rng: np.random.Generator, rotation) -> Shap
 
 
 def _kinds() -> dict[str, Kind]:
-    kinds = {name: _field_kind(name) for name in (
-        "hypersphere", "spheritorus", "torisphere", "ditorus", "tiger", "duocylinder",
-        "tesseract", "indented_cube")}
-    kinds["metaballs"] = Kind(("n", "spread", "radius", "jitter", "sharpness"), _metaballs,
-                              _metaballs.__doc__)
-    kinds["tesseracts"] = Kind(("n", "half", "spread", "rounding", "operation"), _tesseracts,
-                               _tesseracts.__doc__)
+    kinds = {
+        name: _field_kind(name)
+        for name in (
+            "hypersphere",
+            "spheritorus",
+            "torisphere",
+            "ditorus",
+            "tiger",
+            "duocylinder",
+            "tesseract",
+            "indented_cube",
+        )
+    }
+    kinds["metaballs"] = Kind(("n", "spread", "radius", "jitter", "sharpness"), _metaballs, _metaballs.__doc__)
+    kinds["tesseracts"] = Kind(("n", "half", "spread", "rounding", "operation"), _tesseracts, _tesseracts.__doc__)
     kinds["gyroid_ball"] = Kind(("period", "thickness", "radius"), _gyroid_ball, _gyroid_ball.__doc__)
-    kinds["lifted"] = Kind(("shape", "path", "op", "size", "aspect", "detail", "height", "k", "offset"),
-                           _lifted, _lifted.__doc__)
+    kinds["lifted"] = Kind(
+        ("shape", "path", "op", "size", "aspect", "detail", "height", "k", "offset"), _lifted, _lifted.__doc__
+    )
     return kinds
 
 
@@ -475,9 +513,9 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-
-def build_shape(kind: str, params: dict, settings: dict, rng: np.random.Generator,
-                rotation: np.ndarray | None) -> Shape:
+def build_shape(
+    kind: str, params: dict, settings: dict, rng: np.random.Generator, rotation: np.ndarray | None
+) -> Shape:
     """Build one item's mesh; errors name the family kind."""
     try:
         return kinds()[kind].build(params, settings, rng, rotation)

@@ -23,8 +23,7 @@ from ._store import Store
 from .config import Config, ItemSpec
 from .items import RUN_FORMAT, item_folder, versions
 
-__all__ = ["RunSummary", "UNHASHED", "run_info", "claim_out", "check_same_run", "write_index",
-           "device_name"]
+__all__ = ["RunSummary", "UNHASHED", "run_info", "claim_out", "check_same_run", "write_index", "device_name"]
 
 UNHASHED = ("timing.json", "summary.json", "manifest.json")
 
@@ -96,8 +95,10 @@ class RunSummary:
         rows = [(n, grouped[n]) for n in names] + ([("other", other)] if other > 0.005 * total else [])
         lines = [f"  {'stage':<10} {'seconds':>9} {'per item':>9} {'share':>7}"]
         lines += [f"  {n:<10} {v:9.2f} {v / self.made:9.3f} {100 * v / total:6.1f}%" for n, v in rows]
-        lines.append(f"  {'items':<10} {total:9.2f} {total / self.made:9.3f} {100.0:6.1f}%  "
-                     f"(summed over {self.made} items; {self.items_per_minute:.1f} items/min wall)")
+        lines.append(
+            f"  {'items':<10} {total:9.2f} {total / self.made:9.3f} {100.0:6.1f}%  "
+            f"(summed over {self.made} items; {self.items_per_minute:.1f} items/min wall)"
+        )
         return "\n".join(lines)
 
     @property
@@ -107,9 +108,11 @@ class RunSummary:
 
     def __str__(self) -> str:
         rate = f"{self.items_per_minute:.1f} items/min" if self.made else "nothing to make"
-        lines = [f"{self.out}: {self.made} made, {self.skipped} skipped (already complete), "
-                 f"{len(self.failed)} failed of {self.n_items}; {self.seconds:.1f} s, {rate}, "
-                 f"{self.bytes / 2**20:.2f} MiB"]
+        lines = [
+            f"{self.out}: {self.made} made, {self.skipped} skipped (already complete), "
+            f"{len(self.failed)} failed of {self.n_items}; {self.seconds:.1f} s, {rate}, "
+            f"{self.bytes / 2**20:.2f} MiB"
+        ]
         lines += [f"  item {i}: {msg}" for i, msg in sorted(self.failed.items())]
         table = self.stage_table()
         return "\n".join(lines + ([table] if table else []))
@@ -121,14 +124,22 @@ def _read_run_info(store: Store) -> dict[str, Any]:
     try:
         info = json.loads(store.read_text("run.json"))
     except (OSError, ValueError) as exc:  # unreadable, not UTF-8, not JSON
-        raise ValueError(f"`out` {store.name!r}: its run.json ({where}) is unreadable or damaged "
-                         f"({type(exc).__name__}: {exc}); it names the run the folder holds, so "
-                         "nothing can be resumed there: restore it, or choose another folder") from None
-    if not isinstance(info, dict) or not isinstance(info.get("config_sha256"), str) \
-            or isinstance(info.get("seed"), bool) or not isinstance(info.get("seed"), int):
-        raise ValueError(f"`out` {store.name!r}: its run.json ({where}) is damaged (no "
-                         "config_sha256 and seed of a datasets_gen run); restore it, or choose "
-                         "another folder")
+        raise ValueError(
+            f"`out` {store.name!r}: its run.json ({where}) is unreadable or damaged "
+            f"({type(exc).__name__}: {exc}); it names the run the folder holds, so "
+            "nothing can be resumed there: restore it, or choose another folder"
+        ) from None
+    if (
+        not isinstance(info, dict)
+        or not isinstance(info.get("config_sha256"), str)
+        or isinstance(info.get("seed"), bool)
+        or not isinstance(info.get("seed"), int)
+    ):
+        raise ValueError(
+            f"`out` {store.name!r}: its run.json ({where}) is damaged (no "
+            "config_sha256 and seed of a datasets_gen run); restore it, or choose "
+            "another folder"
+        )
     return info
 
 
@@ -147,11 +158,18 @@ def run_info(config: Config, seed: int) -> bytes:
         Canonical JSON: the configuration's name, source, text and hash, the seed, the
         versions (:func:`datasets_gen.items.versions`) and the item count.
     """
-    return json_bytes({
-        "format": RUN_FORMAT, "config_name": config.name, "config_source": config.source,
-        "config_sha256": config.sha256, "config_text": config.text, "seed": seed,
-        "versions": versions(), "n_items": len(config.items()),
-    })
+    return json_bytes(
+        {
+            "format": RUN_FORMAT,
+            "config_name": config.name,
+            "config_source": config.source,
+            "config_sha256": config.sha256,
+            "config_text": config.text,
+            "seed": seed,
+            "versions": versions(),
+            "n_items": len(config.items()),
+        }
+    )
 
 
 def check_same_run(store: Store, config: Config, seed: int) -> None:
@@ -172,15 +190,22 @@ def check_same_run(store: Store, config: Config, seed: int) -> None:
     previous = _read_run_info(store)
     if previous["config_sha256"] == config.sha256 and previous["seed"] == seed:
         return
-    theirs = f"config {previous.get('config_name')!r} with seed {previous['seed']} " \
-             f"({previous.get('config_source')}, text sha256 {previous['config_sha256'][:12]})"
+    theirs = (
+        f"config {previous.get('config_name')!r} with seed {previous['seed']} "
+        f"({previous.get('config_source')}, text sha256 {previous['config_sha256'][:12]})"
+    )
     ours = f"config {config.name!r} with seed {seed} ({config.source}, text sha256 {config.sha256[:12]})"
-    why = ("the seeds differ" if previous["config_sha256"] == config.sha256 else
-           "the configs' texts differ" if previous.get("config_name") == config.name else
-           "another config")
+    why = (
+        "the seeds differ"
+        if previous["config_sha256"] == config.sha256
+        else "the configs' texts differ"
+        if previous.get("config_name") == config.name
+        else "another config"
+    )
     raise FileExistsError(
         f"`out` {store.name!r} holds a run of {theirs}, not of {ours} ({why}); one folder holds "
-        "one run (that run may still be going): choose another folder, or delete it")
+        "one run (that run may still be going): choose another folder, or delete it"
+    )
 
 
 def claim_out(store: Store, config: Config, seed: int) -> None:
@@ -210,13 +235,13 @@ def claim_out(store: Store, config: Config, seed: int) -> None:
         check_same_run(store, config, seed)
         return
     if holds_something:
-        raise FileExistsError(f"`out` {out!r} exists, is not empty and holds no run.json; "
-                              "choose an empty or new folder")
+        raise FileExistsError(
+            f"`out` {out!r} exists, is not empty and holds no run.json; choose an empty or new folder"
+        )
     try:
         created = store.create_bytes("run.json", run_info(config, seed))
     except OSError as exc:  # a read-only file system, a full disk, no permission
-        raise ValueError(f"cannot write into the output folder `out` {out!r}: "
-                         f"{exc.strerror or exc}") from None
+        raise ValueError(f"cannot write into the output folder `out` {out!r}: {exc.strerror or exc}") from None
     if not created:  # another run created it since prepare() looked
         check_same_run(store, config, seed)
 
@@ -255,14 +280,38 @@ def write_index(store: Store, items: list[ItemSpec], summary: RunSummary) -> int
     rows = []
     for index, rec in records.items():
         m = rec["mesh"]
-        rows.append([index, rec["family"], rec["kind"], m["vertices"], m["simplices"],
-                     m["check"]["ok"], repr(m["volume"]), repr(m["volume_expected"]),
-                     repr(m["volume_rel_error"]), repr(rec["ao"]["mean"]) if rec["ao"] else "",
-                     rec.get("split") or ""])
+        rows.append(
+            [
+                index,
+                rec["family"],
+                rec["kind"],
+                m["vertices"],
+                m["simplices"],
+                m["check"]["ok"],
+                repr(m["volume"]),
+                repr(m["volume_expected"]),
+                repr(m["volume_rel_error"]),
+                repr(rec["ao"]["mean"]) if rec["ao"] else "",
+                rec.get("split") or "",
+            ]
+        )
     text = io.StringIO()
     writer = csv.writer(text, lineterminator="\n")
-    writer.writerow(["index", "family", "kind", "vertices", "simplices", "ok", "volume",
-                     "volume_expected", "volume_rel_error", "ao_mean", "split"])
+    writer.writerow(
+        [
+            "index",
+            "family",
+            "kind",
+            "vertices",
+            "simplices",
+            "ok",
+            "volume",
+            "volume_expected",
+            "volume_rel_error",
+            "ao_mean",
+            "split",
+        ]
+    )
     writer.writerows(rows)
     store.write_bytes("items.csv", text.getvalue().encode("utf-8"))
 
@@ -282,22 +331,36 @@ def write_index(store: Store, items: list[ItemSpec], summary: RunSummary) -> int
         if name not in UNHASHED and not name.startswith("."):
             files[rel] = {"sha256": known[rel] or store.sha256(rel), "bytes": store.size(rel)}
     info = json.loads(store.read_text("run.json"))
-    store.write_bytes("manifest.json", json_bytes({
-        "format": RUN_FORMAT,
-        "config_sha256": info["config_sha256"],
-        "seed": info["seed"],
-        "n_items": len(items),
-        "complete": len(rows) == len(items),
-        "unhashed": list(UNHASHED),
-        "files": files,
-    }))
+    store.write_bytes(
+        "manifest.json",
+        json_bytes(
+            {
+                "format": RUN_FORMAT,
+                "config_sha256": info["config_sha256"],
+                "seed": info["seed"],
+                "n_items": len(items),
+                "complete": len(rows) == len(items),
+                "unhashed": list(UNHASHED),
+                "files": files,
+            }
+        ),
+    )
     size = sum(f["bytes"] for f in files.values())
-    store.write_bytes("summary.json", json_bytes({
-        "device": device_name(),
-        "made": summary.made, "skipped": summary.skipped, "failed": summary.failed,
-        "seconds": summary.seconds, "items_per_minute": summary.items_per_minute,
-        "bytes": size, "stages": summary.stages,
-    }))
+    store.write_bytes(
+        "summary.json",
+        json_bytes(
+            {
+                "device": device_name(),
+                "made": summary.made,
+                "skipped": summary.skipped,
+                "failed": summary.failed,
+                "seconds": summary.seconds,
+                "items_per_minute": summary.items_per_minute,
+                "bytes": size,
+                "stages": summary.stages,
+            }
+        ),
+    )
     return size
 
 

@@ -35,8 +35,7 @@ from ._files import json_bytes, written_bytes
 from ._store import Store, open_store
 from .config import ItemSpec, sample_params
 
-__all__ = ["RUN_FORMAT", "Job", "item_seed", "item_folder", "item_complete", "make_item",
-           "write_item", "versions"]
+__all__ = ["RUN_FORMAT", "Job", "item_seed", "item_folder", "item_complete", "make_item", "write_item", "versions"]
 
 RUN_FORMAT = 1
 
@@ -123,8 +122,9 @@ def item_complete(store: Store, index: int) -> bool:
         files = json.loads(store.read_text(f"{rel}/record.json"))["files"]
     except (OSError, ValueError, KeyError, TypeError):
         return False
-    return all(store.is_file(f"{rel}/{name}") and store.sha256(f"{rel}/{name}") == digest
-               for name, digest in files.items())
+    return all(
+        store.is_file(f"{rel}/{name}") and store.sha256(f"{rel}/{name}") == digest for name, digest in files.items()
+    )
 
 
 def write_item(store: Store, index: int, files: Mapping[str, bytes]) -> None:
@@ -243,8 +243,7 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
     params_ss, rotation_ss, ao_ss, samples_ss, sequence_ss = item_seed(job.seed, spec.index).spawn(5)
     rng = np.random.default_rng(params_ss)
     params = sample_params(spec.family.params, rng)
-    rotation = (random_rotation(np.random.default_rng(rotation_ss))
-                if settings["rotation"] == "random" else None)
+    rotation = random_rotation(np.random.default_rng(rotation_ss)) if settings["rotation"] == "random" else None
     ao_seed = int(ao_ss.generate_state(1)[0])
 
     with _stage(timing, "build"):
@@ -266,9 +265,15 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
 
         ao = settings["ao"]
         with _stage(timing, "ao"):
-            occlusion = ao4d.ambient_occlusion(mesh, samples=ao["samples"], max_distance=ao["max_distance"],
-                                               at=ao["at"], seed=ao_seed, backend=job.backend,
-                                               progress=False)
+            occlusion = ao4d.ambient_occlusion(
+                mesh,
+                samples=ao["samples"],
+                max_distance=ao["max_distance"],
+                at=ao["at"],
+                seed=ao_seed,
+                backend=job.backend,
+                progress=False,
+            )
         with _stage(timing, "write"):
             data = npz_bytes({"occlusion": np.asarray(occlusion, np.float64)})
         write("ao.npz", data)
@@ -280,8 +285,14 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
 
         with _stage(timing, "samples"):
             arrays, extra["samples"] = make_samples(
-                shape, spec.family.kind, settings["samples"], np.random.default_rng(samples_ss),
-                occlusion=occlusion, ao_at=ao_at, backend=job.backend)
+                shape,
+                spec.family.kind,
+                settings["samples"],
+                np.random.default_rng(samples_ss),
+                occlusion=occlusion,
+                ao_at=ao_at,
+                backend=job.backend,
+            )
         with _stage(timing, "write"):
             data = npz_bytes(arrays)
         write("samples.npz", data)
@@ -290,17 +301,22 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
 
         with _stage(timing, "sequence"):
             arrays, extra["sequence"] = make_sequence(
-                shape, spec.family.kind, settings["sequence"], occlusion=occlusion, ao_at=ao_at,
-                samples=settings.get("samples") or None, rng=np.random.default_rng(sequence_ss),
-                backend=job.backend)
+                shape,
+                spec.family.kind,
+                settings["sequence"],
+                occlusion=occlusion,
+                ao_at=ao_at,
+                samples=settings.get("samples") or None,
+                rng=np.random.default_rng(sequence_ss),
+                backend=job.backend,
+            )
         with _stage(timing, "write"):
             data = npz_bytes(arrays)
         write("sequence.npz", data)
 
     for render in settings["renders"]:
         title = f"item {spec.index}: {spec.family.name} ({spec.family.kind}), looking along +w"
-        write(f"{render['name']}.png",
-              _render(render, mesh, occlusion, settings, ao_seed, job.backend, title, timing))
+        write(f"{render['name']}.png", _render(render, mesh, occlusion, settings, ao_seed, job.backend, title, timing))
 
     with _stage(timing, "write"):
         expected = shape.volume_expected
@@ -328,10 +344,15 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
                 "volume_rel_error": None if not expected else volume / expected - 1.0,
                 "bounds": mesh.bounds,
             },
-            "ao": None if occlusion is None else {
-                "mean": float(np.mean(occlusion)), "min": float(np.min(occlusion)),
-                "max": float(np.max(occlusion)), "values": len(occlusion),
-                "backend": _backend_ran(job.backend)},
+            "ao": None
+            if occlusion is None
+            else {
+                "mean": float(np.mean(occlusion)),
+                "min": float(np.min(occlusion)),
+                "max": float(np.max(occlusion)),
+                "values": len(occlusion),
+                "backend": _backend_ran(job.backend),
+            },
             "files": dict(write.hashes),
             "split": job.split,
             "normalization": normalization(mesh),
@@ -358,8 +379,16 @@ def _backend_ran(backend: str) -> str:
     return cl.backend_name(cl.resolve_backend(backend, warn=False))
 
 
-def _render(render: dict, mesh: Any, occlusion: Any, settings: dict, seed: int, backend: str,
-            title: str, timing: dict[str, float]) -> bytes:
+def _render(
+    render: dict,
+    mesh: Any,
+    occlusion: Any,
+    settings: dict,
+    seed: int,
+    backend: str,
+    title: str,
+    timing: dict[str, float],
+) -> bytes:
     """The PNG of the item seen along +w from its centre: a z-slice montage.
 
     Orthographic by default, framed tightly on the mesh's x, y, z extent (a perspective
@@ -372,9 +401,14 @@ def _render(render: dict, mesh: Any, occlusion: Any, settings: dict, seed: int, 
     if render.get("projection", "orthographic") == "orthographic":
         centre = (lo + hi) / 2
         eye = centre - [0, 0, 0, (hi[3] - lo[3]) + 1.0]
-        camera = ao4d.Camera4D(eye, centre, up=(0, 1, 0, 0), over=(0, 0, 1, 0),
-                               projection="orthographic",
-                               half_width=1.05 * float(np.max(hi[:3] - lo[:3])) / 2)
+        camera = ao4d.Camera4D(
+            eye,
+            centre,
+            up=(0, 1, 0, 0),
+            over=(0, 0, 1, 0),
+            projection="orthographic",
+            half_width=1.05 * float(np.max(hi[:3] - lo[:3])) / 2,
+        )
     else:
         camera = ao4d.Camera4D.framing(mesh.bounds, fov=float(render.get("fov", 40.0)), margin=1.0)
     vertex_ao = occlusion is not None and settings["ao"]["at"] == "vertices"
@@ -384,16 +418,33 @@ def _render(render: dict, mesh: Any, occlusion: Any, settings: dict, seed: int, 
         mesh.point_data["ao"] = occlusion
     try:
         with _stage(timing, f"render_{render['name']}"):
-            result = ao4d.render(mesh, camera, tuple(render.get("shape", (32, 32, 32))),
-                                 ao="vertices" if vertex_ao else "hits",
-                                 samples=int(render.get("samples", 32)), seed=seed, backend=backend,
-                                 progress=False)
+            result = ao4d.render(
+                mesh,
+                camera,
+                tuple(render.get("shape", (32, 32, 32))),
+                ao="vertices" if vertex_ao else "hits",
+                samples=int(render.get("samples", 32)),
+                seed=seed,
+                backend=backend,
+                progress=False,
+            )
     finally:
         if vertex_ao:
             del mesh.point_data["ao"]
     # a fixed colour scale (shade = 1 - A in [0, 1]) makes items comparable, and a flat,
     # unoccluded view shows white rather than an arbitrary stretch of a constant image
     with _stage(timing, f"picture_{render['name']}"):
-        return written_bytes(f"{render['name']}.png", lambda path: save_montage(
-            path, result.shade, background=~result.hit, label="shade (1 - A)", title=title,
-            vmin=0.0, vmax=1.0, spacing=result.geometry.spacing, origin=result.geometry.origin))
+        return written_bytes(
+            f"{render['name']}.png",
+            lambda path: save_montage(
+                path,
+                result.shade,
+                background=~result.hit,
+                label="shade (1 - A)",
+                title=title,
+                vmin=0.0,
+                vmax=1.0,
+                spacing=result.geometry.spacing,
+                origin=result.geometry.origin,
+            ),
+        )

@@ -39,8 +39,14 @@ class DatasetError(ValueError):
     the item and the file)."""
 
 
-def load(path_or_url: str | os.PathLike, *, split: str | None = None, verify: bool = False,
-         normalize: bool = False, transform: Callable[[dict], Any] | None = None) -> Dataset:
+def load(
+    path_or_url: str | os.PathLike,
+    *,
+    split: str | None = None,
+    verify: bool = False,
+    normalize: bool = False,
+    transform: Callable[[dict], Any] | None = None,
+) -> Dataset:
     """Open the dataset made by ``python -m datasets_gen CONFIG --out PATH`` at ``path_or_url``.
 
     Parameters
@@ -93,9 +99,15 @@ class Dataset:
         Called on each item's dict.
     """
 
-    def __init__(self, path_or_url: str | os.PathLike, *, split: str | None = None,
-                 verify: bool = False, normalize: bool = False,
-                 transform: Callable[[dict], Any] | None = None) -> None:
+    def __init__(
+        self,
+        path_or_url: str | os.PathLike,
+        *,
+        split: str | None = None,
+        verify: bool = False,
+        normalize: bool = False,
+        transform: Callable[[dict], Any] | None = None,
+    ) -> None:
         if transform is not None and not callable(transform):
             raise TypeError(f"`transform` must be callable, got {type(transform).__name__}")
         self.location = str(path_or_url) if isinstance(path_or_url, str) else os.fspath(path_or_url)
@@ -105,12 +117,16 @@ class Dataset:
             self._manifest = json.loads(store.read_text("manifest.json"))
             rows = list(csv.DictReader(io.StringIO(store.read_text("items.csv"))))
         except (OSError, ValueError) as exc:
-            raise DatasetError(f"`path_or_url` {self.location!r} holds no readable dataset "
-                               f"(manifest.json and items.csv of a datasets_gen run): {exc}") from None
+            raise DatasetError(
+                f"`path_or_url` {self.location!r} holds no readable dataset "
+                f"(manifest.json and items.csv of a datasets_gen run): {exc}"
+            ) from None
         splits = sorted({r.get("split") or "" for r in rows} - {""})
         if split is not None and split not in splits:
-            raise DatasetError(f"`split` {split!r} is not a split of {self.location!r}; it has "
-                               f"{', '.join(map(repr, splits)) or 'no splits'}")
+            raise DatasetError(
+                f"`split` {split!r} is not a split of {self.location!r}; it has "
+                f"{', '.join(map(repr, splits)) or 'no splits'}"
+            )
         self.indices = [int(r["index"]) for r in rows if split is None or r.get("split") == split]
         self._records: dict[int, dict] = {}
 
@@ -153,9 +169,11 @@ class Dataset:
             if entry is None:
                 raise DatasetError(f"item {index}: {name} ({rel}) is not in manifest.json")
             if hashlib.sha256(data).hexdigest() != entry["sha256"]:
-                raise DatasetError(f"item {index}: {name} ({rel}) fails its checksum: sha256 "
-                                   f"{hashlib.sha256(data).hexdigest()} != manifest "
-                                   f"{entry['sha256']}")
+                raise DatasetError(
+                    f"item {index}: {name} ({rel}) fails its checksum: sha256 "
+                    f"{hashlib.sha256(data).hexdigest()} != manifest "
+                    f"{entry['sha256']}"
+                )
         return data
 
     def _npz(self, index: int, name: str) -> dict[str, np.ndarray]:

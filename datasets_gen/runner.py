@@ -52,9 +52,16 @@ from .splits import split_of
 __all__ = ["run", "RunSummary", "item_seed", "main"]
 
 
-def run(config: str | os.PathLike | Mapping[str, Any] | Config, out: str | os.PathLike, *,
-        workers: int = 1, scheduler: str | None = None, executor: Executor | None = None,
-        seed: int | None = None, progress: bool | None = None) -> RunSummary:
+def run(
+    config: str | os.PathLike | Mapping[str, Any] | Config,
+    out: str | os.PathLike,
+    *,
+    workers: int = 1,
+    scheduler: str | None = None,
+    executor: Executor | None = None,
+    seed: int | None = None,
+    progress: bool | None = None,
+) -> RunSummary:
     """Make (or finish) the dataset of ``config`` in the folder ``out``.
 
     Parameters
@@ -119,10 +126,12 @@ def run(config: str | os.PathLike | Mapping[str, Any] | Config, out: str | os.Pa
         raise ValueError(f"give `executor` ({executor!r}) or `workers`/`scheduler`, not both")
     store = open_store(out)  # an unknown URL protocol fails here, before any work
     if store.process_local and isinstance(executor, ProcessPool) and executor.workers > 1:
-        raise ValueError(f"`out` {store.name!r} lives in this process only, so the "
-                         f"{executor.workers} "
-                         "`workers` processes could not write their items into it: use "
-                         "workers=1, a folder, or a URL every process reaches (file://, s3://)")
+        raise ValueError(
+            f"`out` {store.name!r} lives in this process only, so the "
+            f"{executor.workers} "
+            "`workers` processes could not write their items into it: use "
+            "workers=1, a folder, or a URL every process reaches (file://, s3://)"
+        )
     executor.check()  # a scheduler address that is no scheduler: before the output is touched
     seed = cfg.seed if seed is None else check_positive_int(seed, "seed", minimum=0)
     device_name()  # an impossible AO4D_DEVICE fails here, before the folder is touched
@@ -136,19 +145,26 @@ def run(config: str | os.PathLike | Mapping[str, Any] | Config, out: str | os.Pa
         if item_complete(store, spec.index):
             summary.skipped += 1
         else:
-            todo.append(Job(spec, seed, str(out), cfg.backend, run_sha256,
-                            split_of(cfg.split, seed, spec.index)))
+            todo.append(Job(spec, seed, str(out), cfg.backend, run_sha256, split_of(cfg.split, seed, spec.index)))
 
     # on a terminal a bar; in a log a line every few seconds (items take seconds to minutes)
-    bar = _progress.bar(len(items), f"{cfg.name} items", unit="item", initial=summary.skipped,
-                        show=True if progress is None else bool(progress))
+    bar = _progress.bar(
+        len(items),
+        f"{cfg.name} items",
+        unit="item",
+        initial=summary.skipped,
+        show=True if progress is None else bool(progress),
+    )
     try:
         if todo:
             executor.make(todo, store, summary, bar)
     except KeyboardInterrupt:
         bar.close()
-        print(f"\ninterrupted: finished items are kept; rerun the same command to resume "
-              f"({summary.made + summary.skipped} of {len(items)} complete)", file=sys.stderr)
+        print(
+            f"\ninterrupted: finished items are kept; rerun the same command to resume "
+            f"({summary.made + summary.skipped} of {len(items)} complete)",
+            file=sys.stderr,
+        )
         raise
     bar.close()
     summary.seconds = time.perf_counter() - start
@@ -161,10 +177,12 @@ def run(config: str | os.PathLike | Mapping[str, Any] | Config, out: str | os.Pa
     try:
         summary.bytes = write_index(store, items, summary)
     except OSError as exc:  # a full disk, a lost mount: the items already written are kept
-        raise ValueError(f"cannot write the index of `out` {store.name!r} "
-                         f"({getattr(exc, 'filename', None) or 'items.csv, manifest.json'}): "
-                         f"{exc.strerror or exc}; the finished items are kept: make room and "
-                         "rerun the same command to finish") from None
+        raise ValueError(
+            f"cannot write the index of `out` {store.name!r} "
+            f"({getattr(exc, 'filename', None) or 'items.csv, manifest.json'}): "
+            f"{exc.strerror or exc}; the finished items are kept: make room and "
+            "rerun the same command to finish"
+        ) from None
     return summary
 
 
@@ -179,27 +197,33 @@ def main(argv: list[str] | None = None) -> int:
         prog="python -m datasets_gen",
         description="Make a reproducible procedural 4D dataset (meshes, AO, renders, manifest).",
         epilog="shipped configs: " + ", ".join(shipped_configs()) + "\nexamples:\n"
-               "  python -m datasets_gen smoke --out /tmp/smoke\n"
-               "  python -m datasets_gen tori --out data/tori --workers 2 --seed 7\n"
-               "  python -m datasets_gen tori --out data/tori --scheduler local:4\n"
-               "  python -m datasets_gen tori --out data/tori --scheduler tcp://head:8786\n"
-               "  python -m datasets_gen tori --out s3://bucket/tori --scheduler tcp://head:8786\n"
-               "  python -m datasets_gen my.toml --out data/mine   # rerun to resume\n"
-               "  python -m datasets_gen export data/mine --format webdataset --out shards/",
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+        "  python -m datasets_gen smoke --out /tmp/smoke\n"
+        "  python -m datasets_gen tori --out data/tori --workers 2 --seed 7\n"
+        "  python -m datasets_gen tori --out data/tori --scheduler local:4\n"
+        "  python -m datasets_gen tori --out data/tori --scheduler tcp://head:8786\n"
+        "  python -m datasets_gen tori --out s3://bucket/tori --scheduler tcp://head:8786\n"
+        "  python -m datasets_gen my.toml --out data/mine   # rerun to resume\n"
+        "  python -m datasets_gen export data/mine --format webdataset --out shards/",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("config", nargs="?", help="a TOML file or the name of a shipped config")
-    parser.add_argument("--out", help="output folder (created; reruns resume), or an fsspec URL "
-                                      "(s3://bucket/run, file:///shared/run) that the workers "
-                                      "write their items into; required unless --list")
+    parser.add_argument(
+        "--out",
+        help="output folder (created; reruns resume), or an fsspec URL "
+        "(s3://bucket/run, file:///shared/run) that the workers "
+        "write their items into; required unless --list",
+    )
     parser.add_argument("--workers", type=int, default=1, help="processes (default 1)")
-    parser.add_argument("--scheduler", metavar="ADDRESS|local:N",
-                        help="run the items on a dask.distributed scheduler (an address such as "
-                             "tcp://head:8786, or local:N for a LocalCluster of N processes)")
+    parser.add_argument(
+        "--scheduler",
+        metavar="ADDRESS|local:N",
+        help="run the items on a dask.distributed scheduler (an address such as "
+        "tcp://head:8786, or local:N for a LocalCluster of N processes)",
+    )
     parser.add_argument("--seed", type=int, default=None, help="run seed (default: the config's)")
     parser.add_argument("--list", action="store_true", help="show the items' families and exit")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--kinds", action="store_true",
-                        help="list the family kinds and their parameters, and exit")
+    parser.add_argument("--kinds", action="store_true", help="list the family kinds and their parameters, and exit")
     args = parser.parse_args(argv)
     if args.kinds:
         from .families import kinds
@@ -217,15 +241,23 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{cfg.name} ({cfg.source}): {len(cfg.items())} items\n{describe(cfg)}")
             return 0
         if open_store(args.out).process_local:
-            raise ValueError(f"`--out` {args.out!r} is a filesystem inside this process: "
-                             "everything written there is gone when the command exits; give a "
-                             "folder or a URL that outlives it (file://, s3://, ...)")
+            raise ValueError(
+                f"`--out` {args.out!r} is a filesystem inside this process: "
+                "everything written there is gone when the command exits; give a "
+                "folder or a URL that outlives it (file://, s3://, ...)"
+            )
         if args.no_progress:
             from ao4d import _progress
 
             _progress.set_enabled(False)
-        summary = run(cfg, args.out, workers=args.workers, scheduler=args.scheduler, seed=args.seed,
-                      progress=False if args.no_progress else None)
+        summary = run(
+            cfg,
+            args.out,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            seed=args.seed,
+            progress=False if args.no_progress else None,
+        )
     except (FileNotFoundError, FileExistsError, ConfigError, ValueError, TypeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -50,18 +50,28 @@ import numpy as np
 
 from ._checks import check_keys
 
-__all__ = ["SAMPLE_KEYS", "DEFAULT_SAMPLES", "EXACT_SDF_KINDS", "check_samples", "normalization",
-           "sample_box", "surface_samples", "mesh_distance", "mesh_occupancy", "make_samples",
-           "SAMPLE_ARRAYS"]
+__all__ = [
+    "SAMPLE_KEYS",
+    "DEFAULT_SAMPLES",
+    "EXACT_SDF_KINDS",
+    "check_samples",
+    "normalization",
+    "sample_box",
+    "surface_samples",
+    "mesh_distance",
+    "mesh_occupancy",
+    "make_samples",
+    "SAMPLE_ARRAYS",
+]
 
-DEFAULT_SAMPLES: dict[str, Any] = {"uniform": 16384, "near_surface": 16384, "sigmas": [0.01, 0.05],
-                                   "surface": 16384}
+DEFAULT_SAMPLES: dict[str, Any] = {"uniform": 16384, "near_surface": 16384, "sigmas": [0.01, 0.05], "surface": 16384}
 SAMPLE_KEYS = frozenset(DEFAULT_SAMPLES)
 #: the arrays a samples.npz may hold
 SAMPLE_ARRAYS = ("points", "occupancy", "sdf", "surface_points", "surface_normals", "surface_ao")
 #: family kinds whose field is an exact signed distance (a rotation keeps it one)
-EXACT_SDF_KINDS = frozenset({"hypersphere", "spheritorus", "torisphere", "ditorus", "tiger",
-                             "duocylinder", "tesseract"})
+EXACT_SDF_KINDS = frozenset(
+    {"hypersphere", "spheritorus", "torisphere", "ditorus", "tiger", "duocylinder", "tesseract"}
+)
 _MAX_COUNT = 1 << 24
 _PAIRS_PER_BLOCK = 1 << 14  # point-simplex pairs per block of mesh_distance's arithmetic
 _BOX_GROWTH = 0.05  # lifted items: the mesh's bounds grown by this fraction of the width per side
@@ -86,8 +96,7 @@ def check_samples(value: Any) -> dict[str, Any] | bool:
         if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= _MAX_COUNT:
             raise ValueError(f"`samples.{key}` must be an integer in [0, {_MAX_COUNT}], got {n!r}")
     sigmas = out["sigmas"]
-    if not isinstance(sigmas, list) or not all(
-            isinstance(s, (int, float)) and not isinstance(s, bool) for s in sigmas):
+    if not isinstance(sigmas, list) or not all(isinstance(s, (int, float)) and not isinstance(s, bool) for s in sigmas):
         raise ValueError(f"`samples.sigmas` must be a list of numbers, got {sigmas!r}")
     bad = [s for s in sigmas if not (math.isfinite(s) and s > 0)]
     if bad:
@@ -118,8 +127,9 @@ def sample_box(shape: Any) -> tuple[np.ndarray, np.ndarray]:
     return lo - grow, hi + grow
 
 
-def surface_samples(mesh: Any, count: int, rng: np.random.Generator
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def surface_samples(
+    mesh: Any, count: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``count`` points uniform by 3-volume on ``mesh``.
 
     Returns
@@ -169,9 +179,11 @@ def _solve_small(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndar
         c11 = g[0][0] * g[2][2] - g[0][2] * g[2][0]
         c12 = g[0][1] * g[2][0] - g[0][0] * g[2][1]
         c22 = g[0][0] * g[1][1] - g[0][1] * g[1][0]
-        x = [c00 * r[0] + c01 * r[1] + c02 * r[2],
-             c01 * r[0] + c11 * r[1] + c12 * r[2],
-             c02 * r[0] + c12 * r[1] + c22 * r[2]]
+        x = [
+            c00 * r[0] + c01 * r[1] + c02 * r[2],
+            c01 * r[0] + c11 * r[1] + c12 * r[2],
+            c02 * r[0] + c12 * r[1] + c22 * r[2],
+        ]
     trace = sum(g[i][i] for i in range(m))
     ok = np.abs(det) > 1e-18 * trace**m
     safe = np.where(ok, det, 1.0)
@@ -243,8 +255,7 @@ class _Simplices:
     def _distance(self, p: np.ndarray, sim: np.ndarray) -> np.ndarray:
         r0 = p - self.v0[sim]
         E = self.E[sim]
-        P = [np.zeros(len(sim))] + [np.einsum("kd,kd->k", E[:, i], r0)
-                      for i in range(1, 4)]  # r0 . E_i (E_0 = 0)
+        P = [np.zeros(len(sim))] + [np.einsum("kd,kd->k", E[:, i], r0) for i in range(1, 4)]  # r0 . E_i (E_0 = 0)
         diag = self.diag[sim]
         rr = np.einsum("kd,kd->k", r0, r0)
         # |p - v_i|^2 = |r0|^2 - 2 r0.E_i + E_i.E_i
@@ -306,10 +317,11 @@ def mesh_distance(mesh: Any, points: np.ndarray, *, pairs_per_step: int = 1 << 1
     step = 64
     start = 0
     while start < len(order):
-        chunk = order[start:start + step]
+        chunk = order[start : start + step]
         start += len(chunk)
         pairs = cKDTree(points[chunk]).sparse_distance_matrix(
-            tree, float(upper[chunk].max()) + rho, output_type="ndarray")
+            tree, float(upper[chunk].max()) + rho, output_type="ndarray"
+        )
         if not len(pairs):
             continue
         idx, sim = chunk[pairs["i"]], pairs["j"].astype(np.int64)
@@ -345,8 +357,9 @@ def mesh_occupancy(mesh: Any, points: np.ndarray, rng: np.random.Generator, back
     return votes >= 2
 
 
-def _labels(shape: Any, kind: str, points: np.ndarray, rng: np.random.Generator, backend: str,
-            *, sdf: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+def _labels(
+    shape: Any, kind: str, points: np.ndarray, rng: np.random.Generator, backend: str, *, sdf: bool = True
+) -> tuple[np.ndarray, np.ndarray | None]:
     """Occupancy (bool) and signed distance (float32, negative exactly where occupied; ``None``
     when ``sdf`` is false)."""
     if shape.field is not None:
@@ -371,14 +384,25 @@ def labels_provenance(shape: Any, kind: str) -> dict[str, str]:
     """Per label: ``"exact"`` (closed-form signed distance), ``"field"`` (the family field's
     sign), or ``"mesh"`` (computed from the extracted mesh)."""
     implicit = shape.field is not None
-    return {"occupancy": "field" if implicit else "mesh",
-            "sdf": "exact" if implicit and kind in EXACT_SDF_KINDS else "mesh",
-            "surface_points": "mesh", "surface_normals": "mesh", "surface_ao": "mesh"}
+    return {
+        "occupancy": "field" if implicit else "mesh",
+        "sdf": "exact" if implicit and kind in EXACT_SDF_KINDS else "mesh",
+        "surface_points": "mesh",
+        "surface_normals": "mesh",
+        "surface_ao": "mesh",
+    }
 
 
-def make_samples(shape: Any, kind: str, settings: dict[str, Any], rng: np.random.Generator, *,
-                 occlusion: np.ndarray | None = None, ao_at: str = "vertices",
-                 backend: str = "auto") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+def make_samples(
+    shape: Any,
+    kind: str,
+    settings: dict[str, Any],
+    rng: np.random.Generator,
+    *,
+    occlusion: np.ndarray | None = None,
+    ao_at: str = "vertices",
+    backend: str = "auto",
+) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """The arrays of ``samples.npz`` and the record's ``samples`` entry for one item.
 
     Parameters

@@ -63,10 +63,17 @@ def check_sequence(value: Any) -> dict[str, Any] | bool:
     return out
 
 
-def make_sequence(shape: Any, kind: str, settings: dict[str, Any], *,
-                  occlusion: np.ndarray | None = None, ao_at: str = "vertices",
-                  samples: dict[str, Any] | None = None, rng: np.random.Generator | None = None,
-                  backend: str = "auto") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+def make_sequence(
+    shape: Any,
+    kind: str,
+    settings: dict[str, Any],
+    *,
+    occlusion: np.ndarray | None = None,
+    ao_at: str = "vertices",
+    samples: dict[str, Any] | None = None,
+    rng: np.random.Generator | None = None,
+    backend: str = "auto",
+) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """The arrays of ``sequence.npz`` and the record's ``sequence`` entry for one item.
 
     ``samples`` (the item's validated samples setting) and ``rng`` add per-frame samples.
@@ -95,22 +102,31 @@ def make_sequence(shape: Any, kind: str, settings: dict[str, Any], *,
     counts_v = [len(s.vertices) for s in slices]
     counts_f = [len(s.faces) for s in slices]
     arrays: dict[str, np.ndarray] = {
-        "time": time, "value": value, "axis": np.int64(k), "basis": basis,
+        "time": time,
+        "value": value,
+        "axis": np.int64(k),
+        "basis": basis,
         "vertices": np.concatenate([np.asarray(s.vertices, np.float64).reshape(-1, 3) for s in slices]),
         "faces": np.concatenate([np.asarray(s.faces, np.int64).reshape(-1, 3) for s in slices]),
         "vertex_offsets": np.concatenate([[0], np.cumsum(counts_v)]).astype(np.int64),
         "face_offsets": np.concatenate([[0], np.cumsum(counts_f)]).astype(np.int64),
     }
     if vertex_ao:
-        arrays["ao"] = np.concatenate([np.asarray(s.vertex_attributes.get("ao", np.zeros(0)))
-                                       for s in slices]).astype(np.float32)
+        arrays["ao"] = np.concatenate([np.asarray(s.vertex_attributes.get("ao", np.zeros(0))) for s in slices]).astype(
+            np.float32
+        )
     elif occlusion is not None:
         occ = np.asarray(occlusion)
-        arrays["face_ao"] = np.concatenate([occ[np.asarray(s.face_attributes.get("simplex", np.zeros(0, int)),
-                                                           np.int64)] for s in slices]).astype(np.float32)
-    record: dict[str, Any] = {**settings, "extent": [lo, hi], "vertices": int(sum(counts_v)),
-                              "faces": int(sum(counts_f)),
-                              "empty_frames": int(sum(c == 0 for c in counts_f))}
+        arrays["face_ao"] = np.concatenate(
+            [occ[np.asarray(s.face_attributes.get("simplex", np.zeros(0, int)), np.int64)] for s in slices]
+        ).astype(np.float32)
+    record: dict[str, Any] = {
+        **settings,
+        "extent": [lo, hi],
+        "vertices": int(sum(counts_v)),
+        "faces": int(sum(counts_f)),
+        "empty_frames": int(sum(c == 0 for c in counts_f)),
+    }
     if samples and rng is not None:
         per = max(1, samples["uniform"] // frames)
         blo, bhi = sample_box(shape)
@@ -136,11 +152,12 @@ def frames_of(arrays: Any) -> list[Any]:
     for j in range(len(vo) - 1):
         kwargs: dict[str, Any] = {}
         if "ao" in arrays:
-            kwargs["vertex_attributes"] = {"ao": np.asarray(arrays["ao"][vo[j]:vo[j + 1]])}
+            kwargs["vertex_attributes"] = {"ao": np.asarray(arrays["ao"][vo[j] : vo[j + 1]])}
         if "face_ao" in arrays:
-            kwargs["face_attributes"] = {"ao": np.asarray(arrays["face_ao"][fo[j]:fo[j + 1]])}
-        m = trimesh.Trimesh(np.asarray(vertices[vo[j]:vo[j + 1]]), np.asarray(faces[fo[j]:fo[j + 1]]),
-                            process=False, **kwargs)
+            kwargs["face_attributes"] = {"ao": np.asarray(arrays["face_ao"][fo[j] : fo[j + 1]])}
+        m = trimesh.Trimesh(
+            np.asarray(vertices[vo[j] : vo[j + 1]]), np.asarray(faces[fo[j] : fo[j + 1]]), process=False, **kwargs
+        )
         m.metadata["time"] = float(time[j])
         out.append(m)
     return out

@@ -29,8 +29,9 @@ def check_split(value: Any) -> dict[str, float]:
     a fraction that is not a number in [0, 1], or fractions that do not sum to 1 (within 1e-9).
     """
     if not isinstance(value, dict) or not value:
-        raise ValueError(f"`split` must be a table of name = fraction, e.g. "
-                         f"{{ train = 0.8, val = 0.1, test = 0.1 }}, got {value!r}")
+        raise ValueError(
+            f"`split` must be a table of name = fraction, e.g. {{ train = 0.8, val = 0.1, test = 0.1 }}, got {value!r}"
+        )
     out: dict[str, float] = {}
     for name, frac in value.items():
         if not isinstance(name, str) or not name.isidentifier():
@@ -40,8 +41,9 @@ def check_split(value: Any) -> dict[str, float]:
         out[name] = float(frac)
     total = math.fsum(out.values())
     if abs(total - 1.0) > 1e-9:
-        raise ValueError(f"`split` fractions must sum to 1, got {total!r} "
-                         f"({' + '.join(f'{k} = {v:g}' for k, v in out.items())})")
+        raise ValueError(
+            f"`split` fractions must sum to 1, got {total!r} ({' + '.join(f'{k} = {v:g}' for k, v in out.items())})"
+        )
     return out
 
 

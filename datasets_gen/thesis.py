@@ -31,11 +31,10 @@ import numpy as np
 
 import ao4d
 from ao4d.camera import Camera4D
-from ao4d.mesh import SimplexMesh
 from ao4d.cl import BACKENDS
+from ao4d.mesh import SimplexMesh
 
-__all__ = ["raw_scenes", "closed_scenes", "thesis_camera", "render_pair", "render_full", "main",
-           "SCENES"]
+__all__ = ["raw_scenes", "closed_scenes", "thesis_camera", "render_pair", "render_full", "main", "SCENES"]
 
 SCENES = ("two tetrahedra", "tetrahedra structure", "indented cubes")
 # V-shaped walls: w = -SLOPE * |x|, so both walls lean towards the viewer (at -w)
@@ -159,26 +158,26 @@ def closed_scenes(grid: int = 24) -> dict[str, list[SimplexMesh]]:
     half, indent = 0.45, 0.3
     # dent on the -w facet (facing the viewer): rotate the +w dent by pi in the (x, w) plane,
     # then move the cube to the left half
-    cube = fields.translate(fields.rotate(fields.indented_cube(half, indent, axis=3), (0, 3),
-                                          math.pi), [-0.8, 0.0, 0.0, 0.0])
+    cube = fields.translate(
+        fields.rotate(fields.indented_cube(half, indent, axis=3), (0, 3), math.pi), [-0.8, 0.0, 0.0, 0.0]
+    )
     return {
         "two tetrahedra": left_and_mirror(_pentatope(gap_penta), *box_of(gap_penta)),
         "tetrahedra structure": left_and_mirror(_pentatope(touch_penta), *box_of(touch_penta)),
-        "indented cubes": left_and_mirror(cube, [-0.8 - half - 0.15] + [-half - 0.15] * 3,
-                                          [-0.8 + half + 0.15] + [half + 0.15] * 3),
+        "indented cubes": left_and_mirror(
+            cube, [-0.8 - half - 0.15] + [-half - 0.15] * 3, [-0.8 + half + 0.15] + [half + 0.15] * 3
+        ),
     }
 
 
 def thesis_camera() -> Camera4D:
     """Perspective camera in the mirror hyperplane x = 0, looking along +w from above."""
-    return Camera4D([0.0, 0.9, -0.6, -4.5], [0.0, 0.0, 0.0, 0.0], [0, 1, 0, 0], [0, 0, 1, 0],
-                    fov=36.0)
+    return Camera4D([0.0, 0.9, -0.6, -4.5], [0.0, 0.0, 0.0, 0.0], [0, 1, 0, 0], [0, 0, 1, 0], fov=36.0)
 
 
 LIGHT = np.array([0.0, 0.6, -0.3, -1.0])
 # the full model: every object in one colour (the scenes stay mirror-symmetric)
-FULL = dict(ambient=0.45, diffuse=0.3, specular=0.25, shininess=16.0, shadows=True,
-            color=(1.0, 0.72, 0.42))
+FULL = dict(ambient=0.45, diffuse=0.3, specular=0.25, shininess=16.0, shadows=True, color=(1.0, 0.72, 0.42))
 
 
 def render_pair(meshes, size: int, *, samples: int = 64, seed: int = 0, backend: str = "auto"):
@@ -216,8 +215,17 @@ def render_full(meshes, size: int, *, samples: int = 64, seed: int = 0, backend:
 
     if not isinstance(meshes, SimplexMesh):
         meshes = concatenate(meshes)
-    return ao4d.render(meshes, thesis_camera(), (size,) * 3, ao="hits", samples=samples, seed=seed,
-                       light=LIGHT, backend=backend, **FULL)
+    return ao4d.render(
+        meshes,
+        thesis_camera(),
+        (size,) * 3,
+        ao="hits",
+        samples=samples,
+        seed=seed,
+        light=LIGHT,
+        backend=backend,
+        **FULL,
+    )
 
 
 def _middle_slice(result) -> int:
@@ -232,20 +240,32 @@ def side_by_side_png(path: Path, results: dict, size: int, samples: int) -> Path
 
     from ao4d.pictures import figure, over_background, save_figure
 
-    columns = [("raw", "no AO"), ("raw", "AO"), ("raw", "full"),
-               ("closed", "no AO"), ("closed", "AO"), ("closed", "full")]
+    columns = [
+        ("raw", "no AO"),
+        ("raw", "AO"),
+        ("raw", "full"),
+        ("closed", "no AO"),
+        ("closed", "AO"),
+        ("closed", "full"),
+    ]
     index = {"no AO": 0, "AO": 1, "full": 2}
     fig = figure(2.3 * len(columns) + 1.0, 2.3 * len(results) + 0.8)
-    grid = fig.add_gridspec(len(results), len(columns) + 1,
-                            width_ratios=[1] * len(columns) + [0.07], left=0.09, right=0.92,
-                            top=1 - 0.75 / fig.get_figheight(), bottom=0.02, wspace=0.06,
-                            hspace=0.18)
+    grid = fig.add_gridspec(
+        len(results),
+        len(columns) + 1,
+        width_ratios=[1] * len(columns) + [0.07],
+        left=0.09,
+        right=0.92,
+        top=1 - 0.75 / fig.get_figheight(),
+        bottom=0.02,
+        wspace=0.06,
+        hspace=0.18,
+    )
     cmap = matplotlib.colormaps["magma"].with_extremes(bad=(0.33, 0.38, 0.45))
     image = None
     for row, (name, variants) in enumerate(results.items()):
         # one crop per row: the hit voxels of all its panels plus a margin of 2 voxels
-        seen = np.argwhere(np.any([variants[kind][1].hit.any(axis=2) for kind in ("raw", "closed")],
-                                  axis=0))
+        seen = np.argwhere(np.any([variants[kind][1].hit.any(axis=2) for kind in ("raw", "closed")], axis=0))
         lo = np.maximum(seen.min(axis=0) - 2, 0) if seen.size else np.zeros(2, int)
         hi = seen.max(axis=0) + 3 if seen.size else np.array(results[name]["raw"][1].hit.shape[:2])
         side = int((hi - lo).max())  # square panels
@@ -257,12 +277,10 @@ def side_by_side_png(path: Path, results: dict, size: int, samples: int) -> Path
             ax = fig.add_subplot(grid[row, col])
             if shading == "full":  # the voxels' own colours over the background grey-blue
                 colour = over_background(res.rgba[:, :, k])[crop]
-                ax.imshow(np.swapaxes(np.clip(colour, 0, 1), 0, 1), origin="lower",
-                          interpolation="nearest")
+                ax.imshow(np.swapaxes(np.clip(colour, 0, 1), 0, 1), origin="lower", interpolation="nearest")
             else:
                 data = np.ma.masked_array(res.shade[:, :, k], ~res.hit[:, :, k])[crop]
-                image = ax.imshow(data.T, origin="lower", cmap=cmap, vmin=0, vmax=1,
-                                  interpolation="nearest")
+                image = ax.imshow(data.T, origin="lower", cmap=cmap, vmin=0, vmax=1, interpolation="nearest")
             ax.set_xticks([])
             ax.set_yticks([])
             if row == 0:
@@ -271,20 +289,22 @@ def side_by_side_png(path: Path, results: dict, size: int, samples: int) -> Path
                 ax.set_ylabel(name, fontsize=9)
     bar = fig.colorbar(image, cax=fig.add_subplot(grid[:, -1]))
     bar.set_label("shade (grey panels)", fontsize=9)
-    fig.suptitle(f"Thesis scenes redone: {size}^3 images, AO with {samples} rays per voxel "
-                 "(graded, mirror-symmetric); full: + 4D highlights and shadows, colour",
-                 fontsize=10)
+    fig.suptitle(
+        f"Thesis scenes redone: {size}^3 images, AO with {samples} rays per voxel "
+        "(graded, mirror-symmetric); full: + 4D highlights and shadows, colour",
+        fontsize=10,
+    )
     return save_figure(fig, path)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m datasets_gen.thesis", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m datasets_gen.thesis", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--out", required=True, type=Path, help="output folder")
     parser.add_argument("--size", type=int, default=50, help="image voxels per axis (default 50)")
     parser.add_argument("--samples", type=int, default=64, help="AO rays per voxel (default 64)")
-    parser.add_argument("--grid", type=int, default=24,
-                        help="grid points per axis for the closed objects (default 24)")
+    parser.add_argument("--grid", type=int, default=24, help="grid points per axis for the closed objects (default 24)")
     parser.add_argument("--backend", choices=BACKENDS, default="auto")
     args = parser.parse_args(argv)
     if args.size < 2 or args.samples < 1 or args.grid < 4:
@@ -293,8 +313,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def run(out: Path, *, size: int = 50, samples: int = 64, grid: int = 24,
-        backend: str = "auto", stream=None) -> dict:
+def run(out: Path, *, size: int = 50, samples: int = 64, grid: int = 24, backend: str = "auto", stream=None) -> dict:
     """Render every scene (raw and closed: no AO, AO, full model); write .vti files and a PNG.
 
     Returns
@@ -321,9 +340,13 @@ def run(out: Path, *, size: int = 50, samples: int = 64, grid: int = 24,
             full.save(out / f"{stem}_full.vti")
             occ = with_ao.occlusion[with_ao.hit]
             inner = occ[(occ > 0) & (occ < 1)]
-            print(f"{name:<22}{kind:<8} AO in (0,1) at {inner.size / max(occ.size, 1):.0%} of "
-                  f"{occ.size} hit voxels, {np.unique(inner).size} distinct values, "
-                  f"{time.perf_counter() - start:.1f} s", file=stream, flush=True)
+            print(
+                f"{name:<22}{kind:<8} AO in (0,1) at {inner.size / max(occ.size, 1):.0%} of "
+                f"{occ.size} hit voxels, {np.unique(inner).size} distinct values, "
+                f"{time.perf_counter() - start:.1f} s",
+                file=stream,
+                flush=True,
+            )
     png = side_by_side_png(out / "thesis_scenes.png", results, size, samples)
     print(f"wrote {png}", file=stream)
     return results

@@ -81,8 +81,7 @@ class Chromium:
         Seconds any single command may take.
     """
 
-    def __init__(self, *, width: int = 640, height: int = 480, executable: str | None = None,
-                 timeout: float = 60.0):
+    def __init__(self, *, width: int = 640, height: int = 480, executable: str | None = None, timeout: float = 60.0):
         exe = executable or find_chromium()
         if exe is None:
             raise ChromiumError("no Chromium found (install Debian's `chromium` or set AO4D_CHROMIUM)")
@@ -91,13 +90,22 @@ class Chromium:
         self.console: list[tuple[str, str]] = []
         self._profile = tempfile.TemporaryDirectory(prefix="ao4d-chromium-")
         self._stderr = tempfile.TemporaryFile()
-        args = [exe, *FLAGS, f"--user-data-dir={self._profile.name}", "--remote-debugging-pipe",
-                f"--window-size={width},{height}", "about:blank"]
+        args = [
+            exe,
+            *FLAGS,
+            f"--user-data-dir={self._profile.name}",
+            "--remote-debugging-pipe",
+            f"--window-size={width},{height}",
+            "about:blank",
+        ]
         # fd 3 <- our commands (child's stdin), fd 4 -> replies (child's stdout)
         self._proc = subprocess.Popen(
             ["/bin/sh", "-c", 'exec "$0" "$@" 3<&0 4>&1 0</dev/null 1>&2', *args],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr,
-            start_new_session=True)
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=self._stderr,
+            start_new_session=True,
+        )
         self._out = self._proc.stdin.fileno()
         self._in = self._proc.stdout.fileno()
         self._buffer = b""
@@ -109,8 +117,14 @@ class Chromium:
             self._target = target
             for domain in ("Runtime", "Page", "Log"):
                 self.send(f"{domain}.enable", session=True)
-            self.send("Emulation.setDeviceMetricsOverride", session=True, width=width,
-                      height=height, deviceScaleFactor=1, mobile=False)
+            self.send(
+                "Emulation.setDeviceMetricsOverride",
+                session=True,
+                width=width,
+                height=height,
+                deviceScaleFactor=1,
+                mobile=False,
+            )
         except BaseException:
             self.close()
             raise
@@ -155,8 +169,7 @@ class Chromium:
             if entry.get("level") == "error" or _gl_warning(entry.get("text", "")):
                 self.errors.append(f"log: {entry.get('text', '')} {entry.get('url', '')}".strip())
 
-    def send(self, method: str, *, session: bool = False, timeout: float | None = None,
-             **params: Any) -> dict:
+    def send(self, method: str, *, session: bool = False, timeout: float | None = None, **params: Any) -> dict:
         """Send one command and wait for its result (events met meanwhile are handled)."""
         self._next_id += 1
         message: dict[str, Any] = {"id": self._next_id, "method": method, "params": params}
@@ -180,8 +193,14 @@ class Chromium:
     # ------------------------------------------------------------------ page helpers
     def evaluate(self, expression: str, *, timeout: float | None = None) -> Any:
         """Evaluate JavaScript in the page (promises awaited) and return its JSON value."""
-        result = self.send("Runtime.evaluate", session=True, timeout=timeout, expression=expression,
-                           awaitPromise=True, returnByValue=True)
+        result = self.send(
+            "Runtime.evaluate",
+            session=True,
+            timeout=timeout,
+            expression=expression,
+            awaitPromise=True,
+            returnByValue=True,
+        )
         if "exceptionDetails" in result:
             details = result["exceptionDetails"]
             desc = details.get("exception", {}).get("description") or details.get("text")
@@ -240,13 +259,13 @@ class Chromium:
 
 # ---------------------------------------------------------------------- what every browser test does
 
+
 def browser_or_skip(width: int, height: int) -> Iterator[Chromium]:
     """A browser of this window size for a pytest fixture to yield from; skips without Chromium."""
     import pytest
 
     if find_chromium() is None:
-        pytest.skip("Chromium is not installed (Debian: apt-get install chromium); "
-                    "the browser tests need it")
+        pytest.skip("Chromium is not installed (Debian: apt-get install chromium); the browser tests need it")
     with Chromium(width=width, height=height) as chromium:
         yield chromium
 

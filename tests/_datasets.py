@@ -26,8 +26,7 @@ def family(kind: str, count: int, params: dict[str, Any], **settings: Any) -> di
     return {"kind": kind, "count": count, **settings, "params": params}
 
 
-def config(name: str, seed: int, families: list[dict], *, split: dict | None = None,
-           **defaults: Any) -> dict[str, Any]:
+def config(name: str, seed: int, families: list[dict], *, split: dict | None = None, **defaults: Any) -> dict[str, Any]:
     """A configuration on the numpy backend (no OpenCL build in spawned workers)."""
     data: dict[str, Any] = {"name": name, "seed": seed, "backend": "numpy"}
     if split is not None:
@@ -38,13 +37,25 @@ def config(name: str, seed: int, families: list[dict], *, split: dict | None = N
 # A run small enough for tests (a few seconds): implicit, CSG and lifted items, AO, one render.
 # The numpy AO backend spares every spawned worker an OpenCL kernel build; the OpenCL path is
 # covered by the slow test on the shipped smoke config.
-TINY = config("tiny", 3, [
-    family("hypersphere", 2, {"radius": {"uniform": [0.6, 0.9]}}),
-    family("tesseracts", 1, {"n": 2, "half": 0.4, "spread": 0.2}),
-    family("lifted", 2, {"shape": "box", "op": {"choice": ["prism", "spin"]},
-                         "size": {"uniform": [0.3, 0.5]}, "k": 5},
-           rotation="none", renders=[{"name": "view", "shape": [8, 8, 8], "samples": 2}]),
-], grid=10, padding=0.15, rotation="random", ao={"samples": 4})
+TINY = config(
+    "tiny",
+    3,
+    [
+        family("hypersphere", 2, {"radius": {"uniform": [0.6, 0.9]}}),
+        family("tesseracts", 1, {"n": 2, "half": 0.4, "spread": 0.2}),
+        family(
+            "lifted",
+            2,
+            {"shape": "box", "op": {"choice": ["prism", "spin"]}, "size": {"uniform": [0.3, 0.5]}, "k": 5},
+            rotation="none",
+            renders=[{"name": "view", "shape": [8, 8, 8], "samples": 2}],
+        ),
+    ],
+    grid=10,
+    padding=0.15,
+    rotation="random",
+    ao={"samples": 4},
+)
 TINY_ITEMS = 5
 
 

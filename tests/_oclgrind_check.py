@@ -68,8 +68,10 @@ def main() -> int:
         host = bvh.build(mesh.vertices, mesh.simplices)
         # small subtrees and chunks: the level passes and the per-work-item subtrees both run
         tree = device.build(mesh.vertices, mesh.simplices, runtime=runtime, subtree=32, chunk=16)
-        check(f"{d}D device tree holds every kept simplex",
-              sorted(tree.prim.tolist()) == sorted(host.prim.tolist()) and tree.n_skipped == 3)
+        check(
+            f"{d}D device tree holds every kept simplex",
+            sorted(tree.prim.tolist()) == sorted(host.prim.tolist()) and tree.n_skipped == 3,
+        )
         mesh.cache[f"ao4d.bvh/device/leaf={16}"] = tree
         o = rng.uniform(-1.2, 1.2, size=(48, d))
         w = rng.normal(size=(48, d))
@@ -78,20 +80,25 @@ def main() -> int:
             fast = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl")
             slow = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel="brute")
             ref = raycast.cast_rays(mesh, o, w, closest=closest, backend="numpy")
-            check(f"{d}D cast closest={closest}: BVH equals brute force",
-                  np.array_equal(fast.hit, slow.hit) and (not closest or np.array_equal(fast.t, slow.t)))
+            check(
+                f"{d}D cast closest={closest}: BVH equals brute force",
+                np.array_equal(fast.hit, slow.hit) and (not closest or np.array_equal(fast.t, slow.t)),
+            )
             check(f"{d}D cast closest={closest}: near numpy", np.mean(fast.hit == ref.hit) >= 0.95)
         p, n = o[:6], w[:6] / np.linalg.norm(w[:6], axis=1, keepdims=True)
         a = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=8, backend="opencl")
         b = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=8, backend="opencl", accel="brute")
         check(f"{d}D AO: BVH equals brute force", np.array_equal(a, b))
         # both AO kernels (packets of a point's rays, one ray at a time), 37 samples: a cut packet
-        counts = {t: raycast._ao_opencl(mesh, tree, runtime, p, n, 37, 0, 0.0, np.inf, "bvh", raycast._NullBar(),
-                                        traversal=t) for t in raycast.AO_TRAVERSALS}
+        counts = {
+            t: raycast._ao_opencl(mesh, tree, runtime, p, n, 37, 0, 0.0, np.inf, "bvh", raycast._NullBar(), traversal=t)
+            for t in raycast.AO_TRAVERSALS
+        }
         check(f"{d}D AO: packet kernel equals per-ray kernel", np.array_equal(*counts.values()))
         for traversal in raycast.AO_TRAVERSALS:
-            nodes, blocks = raycast.traversal_counts(mesh, p, n, samples=8, offset=0.0, runtime=runtime,
-                                                     traversal=traversal)
+            nodes, blocks = raycast.traversal_counts(
+                mesh, p, n, samples=8, offset=0.0, runtime=runtime, traversal=traversal
+            )
             check(f"{d}D traversal counts ({traversal})", nodes > 0.0 and 0.0 <= blocks)
         dirs = raycast.sample_directions(runtime, n, 8, 0)
         check(f"{d}D sample directions are unit", np.allclose(np.linalg.norm(dirs, axis=2), 1, atol=1e-5))
@@ -102,28 +109,37 @@ def main() -> int:
         for method in ("cubes", "simplices"):
             ref = ao4d.extract(values, 0.1, method=method, chunk=2, backend="numpy")
             got = ao4d.extract(values, 0.1, method=method, chunk=2, backend="opencl")
-            check(f"{d}D extraction ({method}) equals the numpy engine",
-                  np.array_equal(ref.vertices, got.vertices) and np.array_equal(ref.simplices, got.simplices))
+            check(
+                f"{d}D extraction ({method}) equals the numpy engine",
+                np.array_equal(ref.vertices, got.vertices) and np.array_equal(ref.simplices, got.simplices),
+            )
         # the shape library's fields sampled on the device (kernels/fields.cl): numpy's values
         field = ao4d.fields.spheritorus() if d == 4 else ao4d.fields.hypersphere(0.7, [0.1] * d)
         axes = ao4d.fields.grid_axes((5, 4, 6, 3)[:d], (-1.2, 1.1))
-        check(f"{d}D field sampled on the device equals numpy", np.array_equal(
-            fields_device.sample_layers(field, axes, 0, len(axes[-1]), runtime),
-            ao4d.fields.evaluate_layers(field, axes, 0, len(axes[-1]))))
+        check(
+            f"{d}D field sampled on the device equals numpy",
+            np.array_equal(
+                fields_device.sample_layers(field, axes, 0, len(axes[-1]), runtime),
+                ao4d.fields.evaluate_layers(field, axes, 0, len(axes[-1])),
+            ),
+        )
     # screen-space AO and its filter on a tiny image (9 directions: a cut group of eight)
     from ao4d.screen_ao import DepthVolume, denoise, screen_space_occlusion
 
-    pair = ao4d.extract_field(ao4d.fields.union(ao4d.fields.hypersphere(0.5, [-0.5, 0, 0, 0]),
-                                                ao4d.fields.hypersphere(0.5, [0.5, 0, 0, 0])),
-                              (8, 5, 5, 5), ([-1.1, -0.6, -0.6, -0.6], [1.1, 0.6, 0.6, 0.6]))
+    pair = ao4d.extract_field(
+        ao4d.fields.union(ao4d.fields.hypersphere(0.5, [-0.5, 0, 0, 0]), ao4d.fields.hypersphere(0.5, [0.5, 0, 0, 0])),
+        (8, 5, 5, 5),
+        ([-1.1, -0.6, -0.6, -0.6], [1.1, 0.6, 0.6, 0.6]),
+    )
     cam = ao4d.Camera4D([0.2, 0.3, 0, -3], [0, 0, 0, 0], fov=50)
     volume = DepthVolume.trace(pair, cam, (6, 4, 4), backend="numpy")
     hit = volume.hit.reshape(-1)
     origins, directions = (a.reshape(-1, 4) for a in cam.rays((6, 4, 4)))
     pts = origins[hit] + volume.depth.reshape(-1)[hit][:, None] * directions[hit]
     nrm = volume.normals.reshape(-1, 4)[hit]
-    occ = {b: screen_space_occlusion(volume, pts, nrm, samples=9, max_distance=0.8, backend=b)
-           for b in ("opencl", "numpy")}
+    occ = {
+        b: screen_space_occlusion(volume, pts, nrm, samples=9, max_distance=0.8, backend=b) for b in ("opencl", "numpy")
+    }
     check("screen-space AO near numpy", np.mean(occ["opencl"] == occ["numpy"]) >= 0.9)
     image = np.full(hit.size, np.nan)
     image[hit] = occ["numpy"]

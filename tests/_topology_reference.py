@@ -40,7 +40,7 @@ def face_table(simplices: list[list[int]]) -> dict[tuple[int, ...], list[tuple[i
     table: dict[tuple[int, ...], list[tuple[int, int, int]]] = {}
     for si, simplex in enumerate(simplices):
         for i in range(len(simplex)):
-            face = simplex[:i] + simplex[i + 1:]
+            face = simplex[:i] + simplex[i + 1 :]
             sign = (-1) ** i * _parity(face)
             table.setdefault(tuple(sorted(face)), []).append((si, i, sign))
     return table
@@ -71,8 +71,7 @@ def _components(n_simplices: int, table: dict) -> np.ndarray:
         for si, _, _ in users[1:]:
             _union(parent, users[0][0], si)
     labels: dict[int, int] = {}
-    return np.array([labels.setdefault(_find(parent, si), len(labels)) for si in range(n_simplices)],
-                    dtype=np.int64)
+    return np.array([labels.setdefault(_find(parent, si), len(labels)) for si in range(n_simplices)], dtype=np.int64)
 
 
 def reference_boundary_faces(simplices, n_vertices: int) -> np.ndarray:
@@ -84,7 +83,7 @@ def reference_boundary_faces(simplices, n_vertices: int) -> np.ndarray:
     for users in face_table(rows).values():
         if len(users) == 1:
             si, i, _ = users[0]
-            face = rows[si][:i] + rows[si][i + 1:]
+            face = rows[si][:i] + rows[si][i + 1 :]
             if i % 2 and len(face) >= 2:
                 face[0], face[1] = face[1], face[0]
             out.append(face)
@@ -101,7 +100,7 @@ def _singular(rows: list[list[int]], pairs: dict, vertex: int, star: list[int], 
         for i in range(len(simplex)):
             if simplex[i] == vertex:
                 continue  # the face opposite the vertex does not contain it
-            pair = pairs.get(tuple(sorted(simplex[:i] + simplex[i + 1:])))
+            pair = pairs.get(tuple(sorted(simplex[:i] + simplex[i + 1 :])))
             if pair is not None:
                 _union(parent, *pair)
     if len({_find(parent, si) for si in star}) > 1:
@@ -130,16 +129,17 @@ def reference_report(mesh, rtol: float = 1e-12) -> MeshReport:
             stars.setdefault(w, []).append(si)
     boundary = {w for face, users in table.items() if len(users) == 1 for w in face}
     pairs = {face: (users[0][0], users[1][0]) for face, users in table.items() if len(users) == 2}
-    singular = 0 if d == 2 else sum(_singular(rows, pairs, w, star, w in boundary)
-                                    for w, star in stars.items())
+    singular = 0 if d == 2 else sum(_singular(rows, pairs, w, star, w in boundary) for w, star in stars.items())
     labels = _components(len(rows), table)
     measures = mesh.simplex_measures
     return MeshReport(
-        dim=d, n_vertices=n, n_simplices=len(rows), n_faces=len(table),
+        dim=d,
+        n_vertices=n,
+        n_simplices=len(rows),
+        n_faces=len(table),
         n_boundary_faces=sum(1 for users in table.values() if len(users) == 1),
         n_nonmanifold_faces=sum(1 for users in table.values() if len(users) > 2),
-        n_misoriented_faces=sum(1 for users in table.values()
-                                if len(users) == 2 and users[0][2] == users[1][2]),
+        n_misoriented_faces=sum(1 for users in table.values() if len(users) == 2 and users[0][2] == users[1][2]),
         n_singular_vertices=int(singular),
         n_degenerate=int(np.count_nonzero(measures <= rtol * mesh.scale ** (d - 1))),
         n_components=len(set(labels.tolist())),

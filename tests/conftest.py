@@ -49,8 +49,9 @@ def touching_pair():
     import ao4d
 
     bounds = ([-2.2, -1.1, -1.1, -1.1], [2.2, 1.1, 1.1, 1.1])
-    field = ao4d.fields.union(ao4d.fields.hypersphere(1.0, [-1.05, 0, 0, 0]),
-                              ao4d.fields.hypersphere(1.0, [1.05, 0, 0, 0]))
+    field = ao4d.fields.union(
+        ao4d.fields.hypersphere(1.0, [-1.05, 0, 0, 0]), ao4d.fields.hypersphere(1.0, [1.05, 0, 0, 0])
+    )
     return ao4d.extract_field(field, (24, 12, 12, 12), bounds)
 
 

@@ -7,16 +7,12 @@ import math
 
 import numpy as np
 import pytest
+from _scenes import embree_scene, flat_patch, sphere_hull, sphere_over_ground, up_points
 
 import ao4d
-from _scenes import embree_scene, flat_patch, sphere_hull, sphere_over_ground, up_points
 from ao4d import ao, raycast, sampling
 
 DIMS = (2, 3, 4)
-
-
-
-
 
 
 def binomial_tolerance(expected, n_rays, k=4.0):
@@ -170,7 +166,11 @@ def test_error_falls_like_inverse_sqrt_samples(cl_runtime):
     reference = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=16384, seed=99, backend="opencl")
     counts = np.array([16, 64, 256, 1024])
     errors = [
-        np.sqrt(np.mean((ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=int(s), backend="opencl") - reference) ** 2))
+        np.sqrt(
+            np.mean(
+                (ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=int(s), backend="opencl") - reference) ** 2
+            )
+        )
         for s in counts
     ]
     slope = np.polyfit(np.log(counts), np.log(errors), 1)[0]
@@ -253,7 +253,8 @@ def test_a_trimesh_or_a_pair_gives_the_ao_of_the_same_simplex_mesh():
     np.testing.assert_array_equal(ao4d.ambient_occlusion((tm.vertices, tm.faces), **kw), ref)
     np.testing.assert_array_equal(
         ao4d.ambient_occlusion([tm.vertices.tolist(), tm.faces.tolist()], at="simplices", **kw),
-        ao4d.ambient_occlusion(mesh, at="simplices", **kw))
+        ao4d.ambient_occlusion(mesh, at="simplices", **kw),
+    )
 
 
 def test_default_samples_are_renders_and_the_command_lines():
@@ -267,8 +268,10 @@ def test_default_samples_are_renders_and_the_command_lines():
     rng = np.random.default_rng(1750)
     mesh = sphere_over_ground(rng, 3)
     p, n = up_points(rng, 3, 4, 0.5)
-    np.testing.assert_array_equal(ao4d.ambient_occlusion(mesh, points=p, normals=n, backend="numpy"),
-                                  ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=64, backend="numpy"))
+    np.testing.assert_array_equal(
+        ao4d.ambient_occlusion(mesh, points=p, normals=n, backend="numpy"),
+        ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=64, backend="numpy"),
+    )
 
 
 def test_bad_inputs():
@@ -330,7 +333,18 @@ def test_cli_stores_ao_and_reports_rate(tmp_path, capsys):
     assert "M rays/s" in text and "device: numpy" in text
     stored = ao4d.SimplexMesh.load(out).point_data["ao"]
     np.testing.assert_array_equal(stored, ao4d.ambient_occlusion(mesh, samples=16, backend="numpy"))
-    argv = ["ao", str(tmp_path / "scene.npz"), "--at", "simplices", "--samples", "4", "--out", str(out), "--backend", "numpy"]
+    argv = [
+        "ao",
+        str(tmp_path / "scene.npz"),
+        "--at",
+        "simplices",
+        "--samples",
+        "4",
+        "--out",
+        str(out),
+        "--backend",
+        "numpy",
+    ]
     assert cli.main(argv) == 0
     assert ao4d.SimplexMesh.load(out).cell_data["ao"].shape == (mesh.n_simplices,)
 
@@ -495,8 +509,18 @@ def test_cli_ao_counts_nan_values_instead_of_printing_their_range(tmp_path, caps
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0]], dtype=float)
     mesh = ao4d.SimplexMesh(v, [[0, 1, 2], [0, 1, 3]])  # (0, 1, 3) is degenerate (collinear)
     mesh.save(tmp_path / "m.npz")
-    argv = ["ao", str(tmp_path / "m.npz"), "--at", "simplices", "--samples", "4",
-            "--out", str(tmp_path / "o.npz"), "--backend", "numpy"]
+    argv = [
+        "ao",
+        str(tmp_path / "m.npz"),
+        "--at",
+        "simplices",
+        "--samples",
+        "4",
+        "--out",
+        str(tmp_path / "o.npz"),
+        "--backend",
+        "numpy",
+    ]
     assert cli.main(argv) == 0
     text = capsys.readouterr().out
     assert "1 of 2 values are NaN (no normal: zero-measure simplices)" in text
@@ -511,8 +535,12 @@ def test_cli_ao_keeps_the_input_files_field_data(tmp_path):
     mesh = sphere_over_ground(rng, 3)
     arrays = mesh_files.MeshArrays(mesh.vertices, mesh.simplices, {}, {})
     mesh_files.write(tmp_path / "in.npz", arrays, field_data={"w_scale": np.float64(0.5)})
-    assert cli.main(["ao", str(tmp_path / "in.npz"), "--samples", "2", "--out",
-                     str(tmp_path / "out.npz"), "--backend", "numpy"]) == 0
+    assert (
+        cli.main(
+            ["ao", str(tmp_path / "in.npz"), "--samples", "2", "--out", str(tmp_path / "out.npz"), "--backend", "numpy"]
+        )
+        == 0
+    )
     assert float(mesh_files.read_field_data(tmp_path / "out.npz")["w_scale"]) == 0.5
 
 
@@ -546,11 +574,11 @@ def test_ao_does_not_depend_on_the_scenes_scale(d, backend):
     def all_paths(scale, at_simplices):
         mesh = ao4d.SimplexMesh(base.vertices * scale, base.simplices)
         kw = dict(samples=samples, backend=backend)
-        return (ao4d.ambient_occlusion(mesh, **kw),
-                ao4d.ambient_occlusion(mesh, points=points * scale, normals=normals, **kw),
-                ao4d.ambient_occlusion(mesh, points=points * scale, normals=normals,
-                                       max_distance=0.5 * scale, **kw),
-                ) + ((ao4d.ambient_occlusion(mesh, at="simplices", **kw),) if at_simplices else ())
+        return (
+            ao4d.ambient_occlusion(mesh, **kw),
+            ao4d.ambient_occlusion(mesh, points=points * scale, normals=normals, **kw),
+            ao4d.ambient_occlusion(mesh, points=points * scale, normals=normals, max_distance=0.5 * scale, **kw),
+        ) + ((ao4d.ambient_occlusion(mesh, at="simplices", **kw),) if at_simplices else ())
 
     reference = all_paths(1.0, True)
     np.testing.assert_array_equal(reference[0][hole], 1.0)

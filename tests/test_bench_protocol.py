@@ -20,10 +20,19 @@ L3 cache:                                32 MiB (1 instance)
 """
 
 
-@pytest.mark.parametrize("text, size", [
-    ("105 MiB (1 instance)", 105 << 20), ("1 MiB (2 instances)", 1 << 20), ("2048K", 2048 << 10),
-    ("48K\n", 48 << 10), ("512 KiB", 512 << 10), ("1.5 MiB", 3 << 19), ("8 GB", 8 << 30), ("none", None),
-])
+@pytest.mark.parametrize(
+    "text, size",
+    [
+        ("105 MiB (1 instance)", 105 << 20),
+        ("1 MiB (2 instances)", 1 << 20),
+        ("2048K", 2048 << 10),
+        ("48K\n", 48 << 10),
+        ("512 KiB", 512 << 10),
+        ("1.5 MiB", 3 << 19),
+        ("8 GB", 8 << 30),
+        ("none", None),
+    ],
+)
 def test_cache_sizes_parse_as_lscpu_and_sysfs_write_them(text, size):
     assert protocol.parse_size(text) == size
 
@@ -35,10 +44,16 @@ def test_lscpu_lines_become_a_dict():
     assert protocol.simd_width(info["Flags"].split()) == 256
 
 
-@pytest.mark.parametrize("flags, bits", [
-    (["sse2", "avx", "avx2", "avx512f"], 512), (["sse2", "avx2"], 256), (["sse", "sse2"], 128),
-    (["asimd"], 128), ([], 0),
-])
+@pytest.mark.parametrize(
+    "flags, bits",
+    [
+        (["sse2", "avx", "avx2", "avx512f"], 512),
+        (["sse2", "avx2"], 256),
+        (["sse", "sse2"], 128),
+        (["asimd"], 128),
+        ([], 0),
+    ],
+)
 def test_simd_width_is_the_widest_register(flags, bits):
     assert protocol.simd_width(flags) == bits
 

@@ -62,8 +62,9 @@ def test_dask_array_equals_in_memory_threaded(dim, method):
     assert ref.n_simplices > 50
     _assert_closed_outward(ref)
     for chunks in chunkings:
-        got = ao4d.extract(da.from_array(values, chunks=chunks), 0.05, spacing=spacing,
-                           origin=origin, method=method, progress=False)
+        got = ao4d.extract(
+            da.from_array(values, chunks=chunks), 0.05, spacing=spacing, origin=origin, method=method, progress=False
+        )
         _assert_identical(ref, got)
 
 
@@ -74,8 +75,7 @@ def test_dask_array_reproduces_the_slab_order(chunk):
     values = _noise(np.random.default_rng(7), (10, 9, 8, 11))
     for method in ("cubes", "simplices"):
         ref = ao4d.extract(values, 0.0, method=method, chunk=chunk)
-        got = ao4d.extract(da.from_array(values, chunks=(3, 4, 5, 2)), 0.0, method=method,
-                           chunk=chunk)
+        got = ao4d.extract(da.from_array(values, chunks=(3, 4, 5, 2)), 0.0, method=method, chunk=chunk)
         _assert_identical(ref, got)
 
 
@@ -223,8 +223,10 @@ def cluster_client():
     """One small in-process cluster for the module: 2 workers, 1 thread each."""
     from distributed import Client, LocalCluster
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
-                      dashboard_address=":0") as cluster, Client(cluster) as client:
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster,
+        Client(cluster) as client,
+    ):
         yield client
 
 
@@ -237,8 +239,11 @@ def test_dask_array_equals_in_memory_on_local_cluster(cluster_client, dim, metho
     ref = ao4d.extract(values, -0.05, method=method)
     with distributed.get_task_stream(cluster_client) as stream:
         got = ao4d.extract(da.from_array(values, chunks=chunkings[0]), -0.05, method=method)
-    ran = {t["worker"] for t in stream.data if str(t["key"]).startswith("('ao4d-block-")
-           or str(t["key"]).startswith("ao4d-block-")}
+    ran = {
+        t["worker"]
+        for t in stream.data
+        if str(t["key"]).startswith("('ao4d-block-") or str(t["key"]).startswith("ao4d-block-")
+    }
     assert ran and ran <= set(cluster_client.scheduler_info()["workers"])  # on the workers
     _assert_identical(ref, got)
     _assert_closed_outward(got)
@@ -271,8 +276,10 @@ def test_process_workers_pickle_the_tasks(tmp_path):
     ref = ao4d.extract(values, 0.0)
     field = fields.hypersphere(0.9)
     ref_field = ao4d.extract_field(field, 12, (-1.2, 1.2))
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=":0") as cluster, Client(cluster):
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster,
+        Client(cluster),
+    ):
         from ao4d.readers import read_grid
 
         grid = read_grid(tmp_path / "v.npy", chunks=(4, 5, 9, 3))  # file-backed, by name
@@ -285,8 +292,7 @@ def test_process_workers_pickle_the_tasks(tmp_path):
     before = os.environ.get("MALLOC_TRIM_THRESHOLD_")  # dask's nanny put it here
     with worker_environment():
         assert "MALLOC_TRIM_THRESHOLD_" not in os.environ
-        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
-                               dashboard_address=":0")
+        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0")
     assert os.environ.get("MALLOC_TRIM_THRESHOLD_") == before  # restored
     with cluster, Client(cluster) as client:  # no warning with the recommended environment
         assert list(client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_")).values()) == [None]

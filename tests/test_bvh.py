@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _scenes import random_soup
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 import ao4d
-from _scenes import random_soup
 from ao4d import bvh, raycast
 from ao4d.geometry import cross
 
@@ -93,7 +93,9 @@ def test_ray_hits_the_point_it_aims_at(d, seed, distance):
     outside[0] -= 0.05 + weights[0]
     outside[1:] += (0.05 + weights[0]) / (d - 1)
     miss_target = outside @ corners[0]
-    assert not bvh.intersect(tree.inverse, tree.origin, (miss_target - distance * w)[None], w[None], np.array([np.inf]))[0][0]
+    assert not bvh.intersect(
+        tree.inverse, tree.origin, (miss_target - distance * w)[None], w[None], np.array([np.inf])
+    )[0][0]
 
 
 def test_bvh_is_cached_on_the_mesh_and_rebuilt_after_edits():

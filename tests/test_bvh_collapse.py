@@ -6,10 +6,10 @@ import functools
 
 import numpy as np
 import pytest
+from _scenes import random_soup
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from _scenes import random_soup
 from ao4d import bvh
 from ao4d.bvh.collapse import COST_BLOCK, COST_NODE, collapse
 
@@ -99,8 +99,12 @@ def leaves_under(left, right, k):
 
 
 @settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), n_leaves=st.integers(2, 11), width=st.sampled_from([2, 3, 4, 8]),
-       leafy=st.booleans())
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n_leaves=st.integers(2, 11),
+    width=st.sampled_from([2, 3, 4, 8]),
+    leafy=st.booleans(),
+)
 def test_collapse_is_optimal_and_covers_every_leaf_once(seed, n_leaves, width, leafy):
     rng = np.random.default_rng(seed)
     left, right, area, levels, n_blocks = random_tree(rng, n_leaves)

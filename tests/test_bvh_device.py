@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _scenes import random_rays, random_soup, soup_scene, sphere_over_ground
 
 import ao4d
-from _scenes import random_rays, random_soup, soup_scene, sphere_over_ground
 from ao4d import bvh, raycast
 from ao4d.bvh import cache, device
 
@@ -322,8 +322,7 @@ def sliver_mesh(first: bool) -> ao4d.SimplexMesh:
 
 @pytest.mark.parametrize("double", [True, False])  # False: a device without cl_khr_fp64, forced
 @pytest.mark.parametrize("first", [True, False])
-def test_sliver_at_the_degeneracy_threshold_traces_alike_on_both_backends(double, first, cl_runtime,
-                                                                           monkeypatch):
+def test_sliver_at_the_degeneracy_threshold_traces_alike_on_both_backends(double, first, cl_runtime, monkeypatch):
     if double and not has_double(cl_runtime):
         pytest.skip("this OpenCL device has no cl_khr_fp64")
     if not double:
@@ -348,8 +347,14 @@ def test_both_builders_keep_the_same_simplices_without_doubles(d, cl_runtime, mo
     v = scene.vertices.copy()
     flat = rng.integers(0, len(scene.simplices), 60)  # squash 60 simplices to slivers of every thinness
     s = scene.simplices[flat]
-    v = np.concatenate([v, v[s[:, 0]] + (v[s[:, 1]] - v[s[:, 0]]) * 0.5
-                        + 10.0 ** rng.uniform(-16, -8, (60, 1)) * rng.normal(size=(60, d))])
+    v = np.concatenate(
+        [
+            v,
+            v[s[:, 0]]
+            + (v[s[:, 1]] - v[s[:, 0]]) * 0.5
+            + 10.0 ** rng.uniform(-16, -8, (60, 1)) * rng.normal(size=(60, d)),
+        ]
+    )
     simplices = scene.simplices.copy()
     simplices[flat, -1] = len(scene.vertices) + np.arange(60)
     mesh = ao4d.SimplexMesh(v, simplices)

@@ -54,8 +54,7 @@ def test_basis_properties(eye, target, up, over):
 @pytest.mark.parametrize("projection", ["perspective", "orthographic"])
 @pytest.mark.parametrize("shape", [(5, 4, 3), (1, 6, 2), (8, 8, 8)])
 def test_rays_pass_through_voxel_centres(projection, shape):
-    cam = Camera4D([1, 2, -3, 4], [0.5, 0, 0.2, -0.3], [0, 1, 0.3, 0], [0.2, 0, 1, 0],
-                   projection=projection, fov=50)
+    cam = Camera4D([1, 2, -3, 4], [0.5, 0, 0.2, -0.3], [0, 1, 0.3, 0], [0.2, 0, 1, 0], projection=projection, fov=50)
     origins, directions = cam.rays(shape)
     centres = cam.voxel_centers(shape)
     assert origins.shape == directions.shape == centres.shape == shape + (4,)
@@ -66,13 +65,13 @@ def test_rays_pass_through_voxel_centres(projection, shape):
     np.testing.assert_allclose((centres - cam.target) @ cam.view, 0.0, atol=1e-9)
     geo = cam.geometry(shape)
     if shape[0] > 1:
-        np.testing.assert_allclose(centres[1] - centres[0],
-                                   np.broadcast_to(geo.spacing * cam.basis[0], centres[0].shape), atol=1e-9)
+        np.testing.assert_allclose(
+            centres[1] - centres[0], np.broadcast_to(geo.spacing * cam.basis[0], centres[0].shape), atol=1e-9
+        )
     np.testing.assert_allclose(centres.reshape(-1, 4).mean(0), cam.target, atol=1e-9)
     assert geo.spacing * max(shape) == pytest.approx(2 * cam.half_width)
     # each voxel appears where its centre is: project() inverts voxel_centers()
-    u = np.stack(np.meshgrid(*[o + geo.spacing * np.arange(n) for o, n in zip(geo.origin, shape)],
-                             indexing="ij"), -1)
+    u = np.stack(np.meshgrid(*[o + geo.spacing * np.arange(n) for o, n in zip(geo.origin, shape)], indexing="ij"), -1)
     np.testing.assert_allclose(cam.project(centres), u, atol=1e-9)
 
 
@@ -88,8 +87,7 @@ def test_perspective_rays_start_at_eye_and_span_fov():
 
 
 def test_orthographic_rays_are_parallel():
-    cam = Camera4D([1, 1, 1, 1], [0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0],
-                   projection="orthographic", half_width=2.0)
+    cam = Camera4D([1, 1, 1, 1], [0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], projection="orthographic", half_width=2.0)
     origins, directions = cam.rays((3, 5, 7))
     np.testing.assert_allclose(directions, np.broadcast_to(cam.view, directions.shape), atol=EPS)
     # origins spread over the eye's hyperplane, not a single point
@@ -132,8 +130,12 @@ def test_bad_camera(kwargs, match):
 
 @pytest.mark.parametrize(
     ("shape", "error", "match"),
-    [((4, 4), ValueError, "3 entries"), ((4, 0, 4), ValueError, "shape"),
-     ((4, 4.5, 4), TypeError, "shape"), (7, TypeError, "shape")],
+    [
+        ((4, 4), ValueError, "3 entries"),
+        ((4, 0, 4), ValueError, "shape"),
+        ((4, 4.5, 4), TypeError, "shape"),
+        (7, TypeError, "shape"),
+    ],
 )
 def test_bad_shape(shape, error, match):
     cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0])
@@ -176,11 +178,13 @@ def test_framing_sees_the_whole_box(projection):
 
 @pytest.mark.parametrize(
     ("kwargs", "match"),
-    [(dict(bounds=[[0, 0, 0, 0], [-1, 1, 1, 1]]), "lo <= hi"),
-     (dict(bounds=[0, 1]), "`bounds` must"),
-     (dict(margin=0.5), "`margin` must be >= 1"),
-     (dict(view=[0, 0, 0, 0]), "`view` must be a non-zero"),
-     (dict(fov=200), "`fov` must be in")],
+    [
+        (dict(bounds=[[0, 0, 0, 0], [-1, 1, 1, 1]]), "lo <= hi"),
+        (dict(bounds=[0, 1]), "`bounds` must"),
+        (dict(margin=0.5), "`margin` must be >= 1"),
+        (dict(view=[0, 0, 0, 0]), "`view` must be a non-zero"),
+        (dict(fov=200), "`fov` must be in"),
+    ],
 )
 def test_framing_errors(kwargs, match):
     args = dict(bounds=[[-1] * 4, [1] * 4])

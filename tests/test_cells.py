@@ -147,8 +147,9 @@ def test_slab_memory_check_refuses_absurd_grids_before_work():
         cells.layers_per_slab(0, _geometry((10, 10)), "cubes")
 
 
-@pytest.mark.parametrize("dtype", [np.float16, np.float32, np.float64, np.int8, np.uint8,
-                                   np.int16, np.uint16, np.int32, np.int64])
+@pytest.mark.parametrize(
+    "dtype", [np.float16, np.float32, np.float64, np.int8, np.uint8, np.int16, np.uint16, np.int32, np.int64]
+)
 @pytest.mark.parametrize("inside", ["below", "above"])
 def test_threshold_equals_the_widened_comparison(dtype, inside):
     """`v op thr` in the data's dtype equals float64(v) op level, for levels on, between and
@@ -158,14 +159,15 @@ def test_threshold_equals_the_widened_comparison(dtype, inside):
     if dt.kind == "f":
         finite = np.finfo(dt)
         base = rng.standard_normal(200).astype(dt)
-        levels = [float(x) for x in base[:20]] + [float(np.nextafter(x, dt.type(np.inf))) * 0.5
-                                                  + float(x) * 0.5 for x in base[:20]]
+        levels = [float(x) for x in base[:20]] + [
+            float(np.nextafter(x, dt.type(np.inf))) * 0.5 + float(x) * 0.5 for x in base[:20]
+        ]
         levels += [1.0001, 1.00000001, 0.1, -0.0, float(finite.max) * 1.5, -float(finite.max) * 1.5]
-        values = np.concatenate([base, np.array([np.inf, -np.inf, finite.max, finite.min, 0.0, -0.0,
-                                                 1.0], dtype=dt)])
+        values = np.concatenate([base, np.array([np.inf, -np.inf, finite.max, finite.min, 0.0, -0.0, 1.0], dtype=dt)])
         with np.errstate(over="ignore"):
-            values = np.concatenate([values, np.nextafter(values, dt.type(np.inf)),
-                                     np.nextafter(values, dt.type(-np.inf))])
+            values = np.concatenate(
+                [values, np.nextafter(values, dt.type(np.inf)), np.nextafter(values, dt.type(-np.inf))]
+            )
     else:
         info = np.iinfo(dt)
         values = np.unique(np.clip(rng.integers(-300, 300, 400), info.min, info.max)).astype(dt)
@@ -181,8 +183,9 @@ def test_threshold_equals_the_widened_comparison(dtype, inside):
 
 
 @pytest.mark.parametrize("d", DIMS)
-@pytest.mark.parametrize("dtype,level", [(np.float16, 1.0001), (np.float32, 1.00000001),
-                                         (np.float16, 0.99999), (np.int16, 0.5)])
+@pytest.mark.parametrize(
+    "dtype,level", [(np.float16, 1.0001), (np.float32, 1.00000001), (np.float16, 0.99999), (np.int16, 0.5)]
+)
 def test_narrow_dtypes_are_compared_with_the_level_as_given(d, dtype, level):
     """float16 data at level 1.0001 with values exactly 1.0: the values are below the level, as
     in float64 (comparing in float16 rounds the level to 1.0 and puts them above)."""
@@ -220,14 +223,22 @@ def test_the_slab_loop_covers_the_grid_with_shared_layers(layers):
         return values[a:b]
 
     bar = _Bar()
-    job = cells.Job(read, _geometry(values.shape), 0.0, cells.cell_table(3, "cubes"), "below",
-                    layers, check_values=True, progress=bar)
+    job = cells.Job(
+        read,
+        _geometry(values.shape),
+        0.0,
+        cells.cell_table(3, "cubes"),
+        "below",
+        layers,
+        check_values=True,
+        progress=bar,
+    )
     got = [(z0, z1, slab) for z0, z1, slab in job.slabs()]
     ranges = [(z0, z1) for z0, z1, _ in got]
     want = [(z, min(z + layers, 7)) for z in range(0, 7, layers)]
     assert ranges == want and reads == [(a, b + 1) for a, b in want] and bar.done == 7
     for z0, z1, slab in got:
-        np.testing.assert_array_equal(slab, values[z0:z1 + 1])
+        np.testing.assert_array_equal(slab, values[z0 : z1 + 1])
     assert [z for z, _, _ in job.slabs(3, report=False)] == [0, 3, 6] and bar.done == 7
     values[5, 1, 1] = np.nan
     with pytest.raises(ValueError, match="values"):
@@ -238,8 +249,9 @@ def test_frame_gives_each_engine_axis_its_index_origin_and_spacing():
     """What cells.interpolate adds and scales and the device kernel receives: per engine axis
     (engine axis e holds user axis perm[e]) the slab's first grid index, with a block's offset,
     the origin and the spacing."""
-    geom = cells.Geometry((4, 5, 6), (2, 0, 1), np.array([0.5, -1.0, 2.0]), np.array([0.1, 0.2, 0.3]),
-                          np.array([10, 20, 30]))
+    geom = cells.Geometry(
+        (4, 5, 6), (2, 0, 1), np.array([0.5, -1.0, 2.0]), np.array([0.1, 0.2, 0.3]), np.array([10, 20, 30])
+    )
     index, origin, spacing = geom.frame(3)
     assert index == [3 + 30, 10, 20] and origin == [2.0, 0.5, -1.0] and spacing == [0.3, 0.1, 0.2]
     assert _geometry((4, 5)).frame(2)[0] == [2, 0]
@@ -247,8 +259,12 @@ def test_frame_gives_each_engine_axis_its_index_origin_and_spacing():
 
 def test_join_concatenates_parts_in_their_index_type_or_widened():
     d = 3
-    parts = [cells.SlabMesh(np.full((k, d), float(k)), np.full((k + 1, d), k, dtype=np.int32),
-                            np.zeros(0), np.zeros(0), np.zeros(0)) for k in (1, 2)]
+    parts = [
+        cells.SlabMesh(
+            np.full((k, d), float(k)), np.full((k + 1, d), k, dtype=np.int32), np.zeros(0), np.zeros(0), np.zeros(0)
+        )
+        for k in (1, 2)
+    ]
     v, s = cells.join(parts, d)
     assert v.shape == (3, d) and s.dtype == np.int32 and s.shape == (5, d)
     v, s = cells.join(parts, d, widen=True)

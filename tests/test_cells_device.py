@@ -20,12 +20,12 @@ METHODS = ("cubes", "simplices")
 SHAPES = {2: (9, 7), 3: (7, 6, 8), 4: (6, 5, 7, 4)}
 
 
-def _engines(values, level, method, inside="below", layers=None, runtime=None, reread=False,
-             origin=0.0, spacing=1.0):
+def _engines(values, level, method, inside="below", layers=None, runtime=None, reread=False, origin=0.0, spacing=1.0):
     """(numpy engine result, device engine result) for a C-order array."""
     d = values.ndim
-    geom = cells.Geometry(values.shape, tuple(range(d)), np.full(d, origin, dtype=float),
-                           np.full(d, spacing, dtype=float))
+    geom = cells.Geometry(
+        values.shape, tuple(range(d)), np.full(d, origin, dtype=float), np.full(d, spacing, dtype=float)
+    )
     table = cells.cell_table(d, method)
     layers = layers or cells.layers_per_slab(None, geom, method)
 
@@ -113,8 +113,10 @@ def test_extract_backends_agree(cl_runtime, d, method):
         ref = ao4d.extract(values, 0.2, method=method, backend="numpy", **kwargs)
         _assert_same_mesh(ref, ao4d.extract(values, 0.2, method=method, backend="opencl", **kwargs))
     fortran = np.asfortranarray(values)  # slabs along the last user axis
-    _assert_same_mesh(ao4d.extract(fortran, 0.2, method=method, backend="numpy", chunk=2),
-                      ao4d.extract(fortran, 0.2, method=method, backend="opencl", chunk=2))
+    _assert_same_mesh(
+        ao4d.extract(fortran, 0.2, method=method, backend="numpy", chunk=2),
+        ao4d.extract(fortran, 0.2, method=method, backend="opencl", chunk=2),
+    )
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -126,14 +128,13 @@ def test_fields_and_dask_blocks_agree(cl_runtime, method):
 
     field = fields.hypersphere(1.0, dim=3)
     ref = ao4d.extract_field(field, 12, (-1.3, 1.3), method=method, chunk=3, backend="numpy")
-    _assert_same_mesh(ref, ao4d.extract_field(field, 12, (-1.3, 1.3), method=method, chunk=3,
-                                              backend="opencl"))
-    _assert_same_mesh(ref, ao4d.extract_field(field, 12, (-1.3, 1.3), method=method, chunk=3,
-                                              blocks=7, backend="opencl"))
+    _assert_same_mesh(ref, ao4d.extract_field(field, 12, (-1.3, 1.3), method=method, chunk=3, backend="opencl"))
+    _assert_same_mesh(
+        ref, ao4d.extract_field(field, 12, (-1.3, 1.3), method=method, chunk=3, blocks=7, backend="opencl")
+    )
     values = ao4d.sample(fields.hypersphere(1.0), 9, (-1.3, 1.3))
     ref = ao4d.extract(values, method=method, backend="numpy")
-    _assert_same_mesh(ref, ao4d.extract(da.from_array(values, chunks=4), method=method,
-                                        backend="opencl"))
+    _assert_same_mesh(ref, ao4d.extract(da.from_array(values, chunks=4), method=method, backend="opencl"))
 
 
 def test_a_large_grid_in_several_slabs(cl_runtime):
@@ -142,8 +143,9 @@ def test_a_large_grid_in_several_slabs(cl_runtime):
 
     values = ao4d.sample(fields.hypersphere(1.0), 30, (-1.2, 1.2))
     for method in METHODS:
-        _assert_same_mesh(ao4d.extract(values, method=method, backend="numpy", chunk=7),
-                          ao4d.extract(values, method=method, chunk=7))
+        _assert_same_mesh(
+            ao4d.extract(values, method=method, backend="numpy", chunk=7), ao4d.extract(values, method=method, chunk=7)
+        )
 
 
 def test_the_numpy_backend_never_touches_the_device(monkeypatch):
@@ -172,7 +174,7 @@ def _every_case_grid(d, rng, n_bits=None):
     bits = [n_bits // d + (k < n_bits % d) for k in range(d)]  # the cases' bits over d axes
     side = tuple(1 << b for b in bits)
     values = np.empty(tuple(2 * n for n in side))
-    cases = np.arange(1 << n_bits) if n_bits == 1 << d else rng.permutation(1 << (1 << d))[:1 << n_bits]
+    cases = np.arange(1 << n_bits) if n_bits == 1 << d else rng.permutation(1 << (1 << d))[: 1 << n_bits]
     cases = cases.reshape(side)
     mag = rng.uniform(0.2, 1.0, values.shape)
     for v in range(1 << d):
@@ -210,8 +212,9 @@ def test_every_4d_table_case_gives_the_numpy_engines_arrays(cl_runtime, method):
     _assert_same(ref, got)
 
 
-@pytest.mark.parametrize("dtype", [np.float16, np.float32, np.float64, np.int8, np.uint8,
-                                   np.int16, np.uint16, np.int32, np.uint32, np.int64])
+@pytest.mark.parametrize(
+    "dtype", [np.float16, np.float32, np.float64, np.int8, np.uint8, np.int16, np.uint16, np.int32, np.uint32, np.int64]
+)
 def test_every_dtype_is_compared_and_interpolated_as_the_numpy_engine_does(cl_runtime, dtype):
     """Values in their own dtype on the device (no widening on the host): the same arrays,
     levels on, between and beyond the values (float16 at 1.0001 with values exactly 1)."""
@@ -243,13 +246,15 @@ def test_device_slabs_of_every_size_keep_the_numpy_engines_order(cl_runtime, mon
             for reread in (False, True):
                 _assert_same(*_engines(values, 0.3, method, "below", period, cl_runtime, reread))
             geom = cells.Geometry(shape, tuple(range(d)), np.zeros(d), np.ones(d))
-            job = cells.Job(lambda a, b: values[a:b], geom, 0.3, cells.cell_table(d, method),
-                            "below", period, check_values=False)
+            job = cells.Job(
+                lambda a, b: values[a:b], geom, 0.3, cells.cell_table(d, method), "below", period, check_values=False
+            )
             parts = list(cells_device.march_slabs(job, runtime=cl_runtime))
             ref = list(cells.march_slabs(job))
             for name in ("keys", "cells", "counts"):  # what block-wise welding reads
-                np.testing.assert_array_equal(np.concatenate([getattr(p, name) for p in parts]),
-                                              np.concatenate([getattr(p, name) for p in ref]))
+                np.testing.assert_array_equal(
+                    np.concatenate([getattr(p, name) for p in parts]), np.concatenate([getattr(p, name) for p in ref])
+                )
 
 
 def test_small_device_slabs_with_closed_fields_and_dask(cl_runtime, monkeypatch):
@@ -264,25 +269,26 @@ def test_small_device_slabs_with_closed_fields_and_dask(cl_runtime, monkeypatch)
     for method in METHODS:
         ref = ao4d.extract(values, method=method, backend="numpy", closed=True)
         ref_blocks = ao4d.extract(da.from_array(values, chunks=6), method=method, backend="numpy")
-        ref_field = ao4d.extract_field(fields.hypersphere(1.0), 11, (-1.3, 1.3), method=method,
-                                       backend="numpy")
+        ref_field = ao4d.extract_field(fields.hypersphere(1.0), 11, (-1.3, 1.3), method=method, backend="numpy")
         for points in (11**3, 3 * 11**3):  # device slabs of 1 and of 3 numpy slabs
             monkeypatch.setattr(cells_device, "_SLAB_POINTS", points)
-            _assert_same_mesh(ref, ao4d.extract(values, method=method, backend="opencl",
-                                                closed=True))
-            _assert_same_mesh(ref_blocks, ao4d.extract(da.from_array(values, chunks=6),
-                                                       method=method, backend="opencl"))
-            _assert_same_mesh(ref_field, ao4d.extract_field(
-                fields.hypersphere(1.0), 11, (-1.3, 1.3), method=method, backend="opencl"))
+            _assert_same_mesh(ref, ao4d.extract(values, method=method, backend="opencl", closed=True))
+            _assert_same_mesh(
+                ref_blocks, ao4d.extract(da.from_array(values, chunks=6), method=method, backend="opencl")
+            )
+            _assert_same_mesh(
+                ref_field, ao4d.extract_field(fields.hypersphere(1.0), 11, (-1.3, 1.3), method=method, backend="opencl")
+            )
         # chunk= fixes the device's slabs: the user bounds memory with it
-        _assert_same_mesh(ao4d.extract(values, method=method, backend="numpy", chunk=2),
-                          ao4d.extract(values, method=method, backend="opencl", chunk=2))
+        _assert_same_mesh(
+            ao4d.extract(values, method=method, backend="numpy", chunk=2),
+            ao4d.extract(values, method=method, backend="opencl", chunk=2),
+        )
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32, np.float16])
 @pytest.mark.parametrize("method", METHODS)
-def test_the_float32_path_gives_the_same_simplices_and_close_vertices(cl_runtime, monkeypatch,
-                                                                      dtype, method):
+def test_the_float32_path_gives_the_same_simplices_and_close_vertices(cl_runtime, monkeypatch, dtype, method):
     """Where the device has no cl_khr_fp64 (forced here): exact comparisons (the same
     simplices, in order) and vertices within the bound stated in ao4d.cells_device, far from
     the origin too (the bound grows with |origin|)."""
@@ -292,8 +298,7 @@ def test_the_float32_path_gives_the_same_simplices_and_close_vertices(cl_runtime
     values = ao4d.sample(fields.hypersphere(1.0), 14, (-1.3, 1.3)).astype(dtype)
     level = 0.0123
     for origin, spacing in ((-1.3, 0.2), (1000.0, 0.2)):
-        ref, got = _engines(values, level, method, "below", 2, cl_runtime, origin=origin,
-                            spacing=spacing)
+        ref, got = _engines(values, level, method, "below", 2, cl_runtime, origin=origin, spacing=spacing)
         np.testing.assert_array_equal(got[1], ref[1])
         assert got[0].shape == ref[0].shape and len(ref[0]) > 0
         # the stated bound, per vertex: index part and t part

@@ -17,12 +17,15 @@ def test_unknown_keys_are_named_with_the_allowed_ones():
         check_keys({"d": 1, "a": 2, "c": 3}, {"b", "a"}, "`t`")
 
 
-@pytest.mark.parametrize("read, where", [
-    (lambda: check_samples({"uniform": 1, "colour": 2}), "`samples`"),
-    (lambda: check_sequence({"frames": 2, "colour": 2}), "`sequence`"),
-    (lambda: load_config({"family": [{"kind": "hypersphere", "ao": {"colour": 2}}]}), "ao"),
-    (lambda: load_config({"defaults": {"colour": 2}, "family": [{"kind": "hypersphere"}]}), r"\[defaults\]"),
-])
+@pytest.mark.parametrize(
+    "read, where",
+    [
+        (lambda: check_samples({"uniform": 1, "colour": 2}), "`samples`"),
+        (lambda: check_sequence({"frames": 2, "colour": 2}), "`sequence`"),
+        (lambda: load_config({"family": [{"kind": "hypersphere", "ao": {"colour": 2}}]}), "ao"),
+        (lambda: load_config({"defaults": {"colour": 2}, "family": [{"kind": "hypersphere"}]}), r"\[defaults\]"),
+    ],
+)
 def test_every_table_names_its_unknown_keys(read, where):
     with pytest.raises(ValueError, match=rf"{where}: unknown key\(s\) 'colour'; allowed: "):
         read()

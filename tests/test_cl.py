@@ -26,13 +26,21 @@ def _run(code: str, **env: str) -> subprocess.CompletedProcess:
             full.pop(key)
     return subprocess.run(
         [sys.executable, "-c", textwrap.dedent(code)],
-        check=False, capture_output=True, text=True, env=full, timeout=120,
+        check=False,
+        capture_output=True,
+        text=True,
+        env=full,
+        timeout=120,
     )
 
 
 def _info(**env: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "ao4d", "info"], check=False, capture_output=True, text=True, timeout=120,
+        [sys.executable, "-m", "ao4d", "info"],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
         env=dict(os.environ, **env),
     )
 
@@ -43,8 +51,16 @@ def _working() -> list[cl.DeviceReport]:
 
 def _rep(platform_name, device, kind="CPU", types=None, usable=True, reason="ok"):
     return cl.DeviceReport(
-        platform=platform_name, device=device, kind=kind, version="OpenCL 1.2", compute_units=2,
-        global_mem_mib=1024, usable=usable, reason=reason, types=types or kind, driver="1",
+        platform=platform_name,
+        device=device,
+        kind=kind,
+        version="OpenCL 1.2",
+        compute_units=2,
+        global_mem_mib=1024,
+        usable=usable,
+        reason=reason,
+        types=types or kind,
+        driver="1",
     )
 
 
@@ -64,9 +80,7 @@ def test_import_ao4d_does_not_import_pyopencl():
     assert out.stdout.strip() == "False"
 
 
-@pytest.mark.skipif(
-    not LINUX_X86, reason="the Intel CPU runtime from PyPI is a dependency only on x86_64 Linux"
-)
+@pytest.mark.skipif(not LINUX_X86, reason="the Intel CPU runtime from PyPI is a dependency only on x86_64 Linux")
 def test_a_device_works_on_this_machine():
     # this project's machines have no GPU; the Intel CPU runtime must be found and usable
     assert _working(), cl.device_reports()
@@ -175,9 +189,10 @@ def test_intel_cpu_runtime_is_preferred_over_pocl():
     assert sel.chosen is INTEL
     notes = {r.platform: why for r, why in sel.notes}
     assert notes["Intel(R) OpenCL"].startswith("chosen:") and "2-3x faster" in notes["Intel(R) OpenCL"]
-    assert notes["Portable Computing Language"].startswith("works, not chosen") and "Intel" in notes[
-        "Portable Computing Language"
-    ]
+    assert (
+        notes["Portable Computing Language"].startswith("works, not chosen")
+        and "Intel" in notes["Portable Computing Language"]
+    )
     assert cl.select_device([POCL, INTEL], "cpu").chosen is INTEL
     assert cl.select_device([POCL, INTEL], "name:portable").chosen is POCL
 
@@ -331,8 +346,7 @@ def foreign_tbb(tmp_path_factory):
         [gcc, "-shared", "-fPIC", "-Wl,-soname,libtbb.so.12", "-o", d / "libtbb.so.12", d / "t.c"], check=True
     )
     subprocess.run(
-        [gcc, "-shared", "-fPIC", "-o", d / "libo3dlike.so", d / "o.c",
-         f"-L{d}", "-l:libtbb.so.12", f"-Wl,-rpath,{d}"],
+        [gcc, "-shared", "-fPIC", "-o", d / "libo3dlike.so", d / "o.c", f"-L{d}", "-l:libtbb.so.12", f"-Wl,-rpath,{d}"],
         check=True,
     )
     return d
@@ -377,12 +391,16 @@ def test_foreign_tbb_loaded_first_is_explained(foreign_tbb):
 
 
 def test_ao4d_imported_first_makes_both_work(foreign_tbb):
-    code = "import ao4d\n" + _LOAD_O3DLIKE.format(lib=str(foreign_tbb / "libo3dlike.so")) + textwrap.dedent(
-        """
+    code = (
+        "import ao4d\n"
+        + _LOAD_O3DLIKE.format(lib=str(foreign_tbb / "libo3dlike.so"))
+        + textwrap.dedent(
+            """
         from ao4d import cl
         print(cl.describe(cl.get_runtime(warn=False)))
         print(o3d.o3d_like_tbb().decode())
         """
+        )
     )
     out = _run(code)
     assert out.returncode == 0, out.stderr
@@ -498,8 +516,14 @@ def test_identical_devices_are_told_apart_by_their_place(monkeypatch):
     second = cl.DeviceReport(**{**first.__dict__, "position": 1})
     assert first != second
     reports = [INTEL, first, second]
-    for value, chosen in (("gpu", first), ("gpu:0", first), ("gpu:1", second), ("NVIDIA:1", second),
-                          ("h200:0", first), ("cpu:0", INTEL)):
+    for value, chosen in (
+        ("gpu", first),
+        ("gpu:0", first),
+        ("gpu:1", second),
+        ("NVIDIA:1", second),
+        ("h200:0", first),
+        ("cpu:0", INTEL),
+    ):
         monkeypatch.setenv("AO4D_DEVICE", value)
         request, _ = cl.device_request()
         sel = cl.select_device(reports, request, source=f"AO4D_DEVICE={value!r}")

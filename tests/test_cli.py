@@ -57,8 +57,26 @@ def _argv(name, ball, out):
         "lut": ["lut", "stats", "--dim", "3"],
         "extract": ["extract", "--shape", "hypersphere", "--grid", "8", "--out", str(out / "e.npz")],
         "ao": ["ao", str(ball), "--out", str(out / "a.npz"), "--samples", "4", "--backend", "numpy"],
-        "render": ["render", str(ball), "--out", str(out / "r.vti"), "--size", "8", "--ao", "hits",
-                   "--samples", "4", "--light", "0", "0", "0", "-1", "--shadows", "--backend", "numpy"],
+        "render": [
+            "render",
+            str(ball),
+            "--out",
+            str(out / "r.vti"),
+            "--size",
+            "8",
+            "--ao",
+            "hits",
+            "--samples",
+            "4",
+            "--light",
+            "0",
+            "0",
+            "0",
+            "-1",
+            "--shadows",
+            "--backend",
+            "numpy",
+        ],
         "slice": ["slice", str(ball), "--w", "0", "--out", str(out / "s.ply")],
         "view": ["view", str(ball), "--out", str(out / "v.html")],
     }[name]
@@ -89,8 +107,9 @@ def eager_progress(monkeypatch):
 
 
 @pytest.mark.parametrize("name", cli.COMMANDS)
-def test_every_command_is_silent_with_no_progress_and_logs_plain_lines(name, ball_file, tmp_path,
-                                                                      capsys, eager_progress):
+def test_every_command_is_silent_with_no_progress_and_logs_plain_lines(
+    name, ball_file, tmp_path, capsys, eager_progress
+):
     # before: render (and the demo's render) wrote tqdm bars ("primary rays", "shadow rays")
     # with carriage returns through --no-progress, because rendering called tqdm directly
     argv = _argv(name, ball_file, tmp_path / "quiet")
@@ -110,5 +129,4 @@ def test_view_port_out_of_range_is_an_argument_error(port, tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_:
         cli.main(["view", str(tmp_path / "s.vti"), "--serve", "--port", port])
     assert exit_.value.code == 2
-    assert f"argument --port: must be an integer in 0..65535 (0: any free one), got '{port}'" in \
-        capsys.readouterr().err
+    assert f"argument --port: must be an integer in 0..65535 (0: any free one), got '{port}'" in capsys.readouterr().err

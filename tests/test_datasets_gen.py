@@ -56,29 +56,37 @@ def test_every_shipped_family_builds_a_closed_mesh(name):
     for fam in load_config(name).families:
         settings = {**fam.settings, "grid": 12}
         rng = np.random.default_rng(0)
-        shape = build_shape(fam.kind, sample_params(fam.params, rng), settings, rng,
-                            random_rotation(rng) if settings["rotation"] == "random" else None)
+        shape = build_shape(
+            fam.kind,
+            sample_params(fam.params, rng),
+            settings,
+            rng,
+            random_rotation(rng) if settings["rotation"] == "random" else None,
+        )
         assert shape.mesh.check().ok, fam.name
         if fam.kind == "lifted":  # exact for lifted solids (see tests/test_lift.py)
             assert shape.mesh.volume == pytest.approx(shape.volume_expected, rel=1e-9)
 
 
-@pytest.mark.parametrize("text, match", [
-    ("seed = 0\n", "needs at least one"),
-    ("colour = 1\n[[family]]\nkind = 'hypersphere'\n", "unknown key.*'colour'"),
-    ("[[family]]\nkind = 'klein_bottle'\n", "`kind` must be one of"),
-    ("[[family]]\nkind = 'hypersphere'\ncount = 0\n", "`count` must be an integer >= 1"),
-    ("[[family]]\nkind = 'hypersphere'\nparams = { R = 1.0 }\n", "unknown key.*'R'.*allowed: center, radius"),
-    ("[[family]]\nkind = 'hypersphere'\nparams = { radius = { uniform = [2, 1] } }\n", "a <= b"),
-    ("[[family]]\nkind = 'hypersphere'\nparams = { radius = { gamma = [2, 1] } }\n", "a distribution is one key"),
-    ("[[family]]\nkind = 'hypersphere'\nparams = { radius = { loguniform = [0, 1] } }\n", "0 < a <= b"),
-    ("[[family]]\nkind = 'hypersphere'\ngrid = 2\n", "`grid` must be an integer in"),
-    ("[[family]]\nkind = 'hypersphere'\nmethod = 'tets'\n", "`method` must be"),
-    ("[[family]]\nkind = 'hypersphere'\nao = { samples = 0 }\n", "`ao.samples` must be"),
-    ("[[family]]\nkind = 'hypersphere'\nrenders = [{ shape = [8, 8, 8] }]\n", "identifier `name`"),
-    ("seed = -1\n[[family]]\nkind = 'hypersphere'\n", "`seed` must be an integer >= 0"),
-    ("[[family]\n", "not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("seed = 0\n", "needs at least one"),
+        ("colour = 1\n[[family]]\nkind = 'hypersphere'\n", "unknown key.*'colour'"),
+        ("[[family]]\nkind = 'klein_bottle'\n", "`kind` must be one of"),
+        ("[[family]]\nkind = 'hypersphere'\ncount = 0\n", "`count` must be an integer >= 1"),
+        ("[[family]]\nkind = 'hypersphere'\nparams = { R = 1.0 }\n", "unknown key.*'R'.*allowed: center, radius"),
+        ("[[family]]\nkind = 'hypersphere'\nparams = { radius = { uniform = [2, 1] } }\n", "a <= b"),
+        ("[[family]]\nkind = 'hypersphere'\nparams = { radius = { gamma = [2, 1] } }\n", "a distribution is one key"),
+        ("[[family]]\nkind = 'hypersphere'\nparams = { radius = { loguniform = [0, 1] } }\n", "0 < a <= b"),
+        ("[[family]]\nkind = 'hypersphere'\ngrid = 2\n", "`grid` must be an integer in"),
+        ("[[family]]\nkind = 'hypersphere'\nmethod = 'tets'\n", "`method` must be"),
+        ("[[family]]\nkind = 'hypersphere'\nao = { samples = 0 }\n", "`ao.samples` must be"),
+        ("[[family]]\nkind = 'hypersphere'\nrenders = [{ shape = [8, 8, 8] }]\n", "identifier `name`"),
+        ("seed = -1\n[[family]]\nkind = 'hypersphere'\n", "`seed` must be an integer >= 0"),
+        ("[[family]\n", "not valid TOML"),
+    ],
+)
 def test_bad_configs_are_refused_naming_the_key(tmp_path, text, match):
     with pytest.raises(ConfigError, match=match):
         load_config(_write(tmp_path, text))
@@ -100,8 +108,12 @@ def test_a_mapping_with_a_value_toml_cannot_hold_is_refused():
         load_config({"family": [{"kind": "hypersphere", "params": None}]})
     with pytest.raises(ConfigError, match="unknown key"):
         load_config({"colour": "red", "family": [{"kind": "hypersphere"}]})
-    assert load_config({"family": [{"kind": "hypersphere", "ao": {"max_distance": math.inf}}]}) \
-        .families[0].settings["ao"]["max_distance"] == math.inf
+    assert (
+        load_config({"family": [{"kind": "hypersphere", "ao": {"max_distance": math.inf}}]})
+        .families[0]
+        .settings["ao"]["max_distance"]
+        == math.inf
+    )
 
 
 def test_unknown_config_name():
@@ -110,9 +122,15 @@ def test_unknown_config_name():
 
 
 def test_sample_params_draws_each_distribution_in_range():
-    specs = {"u": {"uniform": [1.0, 2.0]}, "l": {"loguniform": [0.01, 100.0]},
-             "i": {"integers": [3, 4]}, "c": {"choice": ["a", "b"]}, "n": {"normal": [5.0, 0.0]},
-             "k": 7, "s": "box"}
+    specs = {
+        "u": {"uniform": [1.0, 2.0]},
+        "l": {"loguniform": [0.01, 100.0]},
+        "i": {"integers": [3, 4]},
+        "c": {"choice": ["a", "b"]},
+        "n": {"normal": [5.0, 0.0]},
+        "k": 7,
+        "s": "box",
+    }
     rng = np.random.default_rng(11)
     draws = [sample_params(specs, rng) for _ in range(200)]
     assert all(1.0 <= d["u"] < 2.0 and 0.01 <= d["l"] <= 100.0 for d in draws)
@@ -202,9 +220,12 @@ def test_killed_process_resumes(tiny_reference, tiny_config, tmp_path):
     """SIGKILL a real run once its first item is complete, then rerun to completion."""
     out = tmp_path / "run"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "datasets_gen", str(tiny_config), "--out", str(out),
-                             "--no-progress"], env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "datasets_gen", str(tiny_config), "--out", str(out), "--no-progress"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     first = out / "items" / "00000" / "record.json"
     deadline = time.monotonic() + 120
     while not first.exists() and proc.poll() is None and time.monotonic() < deadline:

@@ -18,6 +18,7 @@ from datasets_gen.runner import main
 
 fsspec = pytest.importorskip("fsspec", reason="fsspec is a dependency of ao4d (dask)")
 
+
 def _memory_url() -> str:
     return f"memory://ao4d-test-{uuid.uuid4().hex[:8]}/run"
 
@@ -29,8 +30,11 @@ def _tree(store, rel: str = "") -> dict[str, bytes]:
         path = f"{rel}/{name}" if rel else name
         out[path] = store.read_bytes(path)
     fs = getattr(store, "fs", None)
-    subdirs = ([e["name"].rpartition("/")[2] for e in fs.ls(store._path(rel), detail=True) if e["type"] == "directory"]
-               if fs is not None else [p.name for p in store._path(rel).iterdir() if p.is_dir()])
+    subdirs = (
+        [e["name"].rpartition("/")[2] for e in fs.ls(store._path(rel), detail=True) if e["type"] == "directory"]
+        if fs is not None
+        else [p.name for p in store._path(rel).iterdir() if p.is_dir()]
+    )
     for sub in subdirs:
         out.update(_tree(store, f"{rel}/{sub}" if rel else sub))
     return out
@@ -186,8 +190,11 @@ def test_full_disk_while_writing_the_index_of_a_file_url(tiny_config, tmp_path, 
 
     monkeypatch.setattr(LocalFileSystem, "pipe_file", pipe_file)
     out = tmp_path / "run"
-    with pytest.raises(ValueError, match=r"cannot write the index of `out` .*manifest.json.*"
-                                         r"No space left on device.*finished items are kept"):
+    with pytest.raises(
+        ValueError,
+        match=r"cannot write the index of `out` .*manifest.json.*"
+        r"No space left on device.*finished items are kept",
+    ):
         run(tiny_config, f"file://{out}", progress=False)
     assert _hidden(out) == []  # no temporary file left behind
     assert len(list((out / "items").glob("*/record.json"))) == 5
@@ -207,10 +214,12 @@ def test_full_disk_while_writing_the_index_of_a_folder(tiny_config, tmp_path, mo
     @contextlib.contextmanager
     def atomic_open(path, mode="wb"):
         with real(path, mode) as fh:
+
             class Half:
                 def write(self, data):
                     fail(fh.name, data)
                     return fh.write(data)
+
             yield Half()
 
     monkeypatch.setattr(store_mod, "atomic_open", atomic_open)
@@ -233,8 +242,12 @@ def test_impossible_device_is_refused_before_any_work(tiny_config, tmp_path, mon
     assert not out.exists()
 
 
-_STORES = {"folder": lambda tmp: LocalStore(tmp / "s"), "file-url": lambda tmp: open_store(f"file://{tmp / 's'}"),
-           "memory": lambda tmp: open_store(_memory_url()), "scratch": lambda tmp: MemoryStore()}
+_STORES = {
+    "folder": lambda tmp: LocalStore(tmp / "s"),
+    "file-url": lambda tmp: open_store(f"file://{tmp / 's'}"),
+    "memory": lambda tmp: open_store(_memory_url()),
+    "scratch": lambda tmp: MemoryStore(),
+}
 
 
 @pytest.mark.parametrize("kind", sorted(_STORES))

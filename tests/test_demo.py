@@ -9,9 +9,20 @@ from ao4d import cli
 from ao4d import volumes as io
 from ao4d.mesh import SimplexMesh
 
-EXPECTED = ["scene.npz", "image.mhd", "image.raw", "image.vti", "image_slices.png",
-            "image_volume.png", "image_color_slices.png", "image_color_volume.png",
-            "slice_w0.ply", "slice_w0.glb", "slice_w0.png", "view.html"]
+EXPECTED = [
+    "scene.npz",
+    "image.mhd",
+    "image.raw",
+    "image.vti",
+    "image_slices.png",
+    "image_volume.png",
+    "image_color_slices.png",
+    "image_color_volume.png",
+    "slice_w0.ply",
+    "slice_w0.glb",
+    "slice_w0.png",
+    "view.html",
+]
 
 
 @pytest.fixture(scope="module")
@@ -36,8 +47,13 @@ def test_demo_writes_every_file(demo_dir):
     assert 0 < (vol.data > 0).mean() < 1
     ids = io.read_vti(demo_dir / "image.vti", array="object_id").data
     assert set(np.unique(ids)) <= {-1, 0, 1, 2, 3} and len(np.unique(ids)) >= 3
-    for png in ("image_slices.png", "image_volume.png", "image_color_slices.png",
-                "image_color_volume.png", "slice_w0.png"):
+    for png in (
+        "image_slices.png",
+        "image_volume.png",
+        "image_color_slices.png",
+        "image_color_volume.png",
+        "slice_w0.png",
+    ):
         assert _not_blank(demo_dir / png), png
 
 
@@ -51,8 +67,9 @@ def test_demo_scene_has_graded_ao_and_object_ids(demo_dir):
 
 
 def test_demo_prints_summary(tmp_path, capsys):
-    from ao4d.commands.demo import run_demo
     import io as stdio
+
+    from ao4d.commands.demo import run_demo
 
     stream = stdio.StringIO()
     report = run_demo(tmp_path / "d", quality="tiny", progress=False, stream=stream)
@@ -66,8 +83,12 @@ def test_demo_prints_summary(tmp_path, capsys):
 
 def test_render_and_slice_commands(demo_dir, tmp_path, capsys):
     out = tmp_path / "r.vti"
-    assert cli.main(["render", str(demo_dir / "scene.npz"), "--out", str(out), "--size", "12",
-                     "10", "8", "--ao", "vertices"]) == 0
+    assert (
+        cli.main(
+            ["render", str(demo_dir / "scene.npz"), "--out", str(out), "--size", "12", "10", "8", "--ao", "vertices"]
+        )
+        == 0
+    )
     vol = io.read_vti(out)
     assert vol.data.shape == (12, 10, 8) and (vol.data > 0).any()
     ply = tmp_path / "s.ply"
@@ -110,8 +131,9 @@ def test_help_shows_examples(command, capsys):
 @pytest.mark.slow
 def test_demo_default_quality(tmp_path):
     # the README's command at its real settings (about 30 s on 2 cores)
-    from ao4d.commands.demo import run_demo
     import io as stdio
+
+    from ao4d.commands.demo import run_demo
 
     report = run_demo(tmp_path, quality="default", progress=False, stream=stdio.StringIO())
     assert report.image_shape == (80, 80, 80)

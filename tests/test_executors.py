@@ -55,8 +55,7 @@ def cluster():
     from ao4d.blockwise import worker_environment
 
     with worker_environment():
-        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                               dashboard_address=":0")
+        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0")
     with cluster:
         yield cluster
 
@@ -130,8 +129,9 @@ def test_scheduler_address_and_resume(config, reference, cluster, tmp_path, caps
 
 def _executing(client) -> dict[str, list[str]]:
     """Worker address -> keys of the item tasks it is running right now."""
-    return client.run(lambda dask_worker: [str(ts.key) for ts in dask_worker.state.executing
-                                           if "datasets_gen-item" in str(ts.key)])
+    return client.run(
+        lambda dask_worker: [str(ts.key) for ts in dask_worker.state.executing if "datasets_gen-item" in str(ts.key)]
+    )
 
 
 def test_worker_killed_mid_item_loses_nothing(config, reference, cluster, tmp_path):
@@ -139,8 +139,11 @@ def test_worker_killed_mid_item_loses_nothing(config, reference, cluster, tmp_pa
 
     out = tmp_path / "run"
     result: dict = {}
-    thread = threading.Thread(target=lambda: result.setdefault(
-        "summary", run(config, out, scheduler=cluster.scheduler_address, progress=False)))
+    thread = threading.Thread(
+        target=lambda: result.setdefault(
+            "summary", run(config, out, scheduler=cluster.scheduler_address, progress=False)
+        )
+    )
     with Client(cluster) as client:
         pids = client.run(os.getpid)
         thread.start()
@@ -157,7 +160,8 @@ def test_worker_killed_mid_item_loses_nothing(config, reference, cluster, tmp_pa
         thread.join(timeout=300)
         assert not thread.is_alive()
         story = client.run_on_scheduler(
-            lambda dask_scheduler, key=key: [t[2] for t in dask_scheduler.story(key) if len(t) > 2])
+            lambda dask_scheduler, key=key: [t[2] for t in dask_scheduler.story(key) if len(t) > 2]
+        )
     summary = result["summary"]
     assert (summary.made, summary.failed) == (5, {}), summary
     # the killed worker's item was started again elsewhere, and nothing differs
@@ -174,9 +178,22 @@ def test_worker_killed_mid_item_loses_nothing(config, reference, cluster, tmp_pa
 def test_killed_client_resumes(config, reference, cluster, tmp_path):
     out = tmp_path / "run"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "datasets_gen", str(config), "--out", str(out),
-                             "--scheduler", cluster.scheduler_address, "--no-progress"], env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "datasets_gen",
+            str(config),
+            "--out",
+            str(out),
+            "--scheduler",
+            cluster.scheduler_address,
+            "--no-progress",
+        ],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     records = out / "items"
     deadline = time.monotonic() + 120
     while proc.poll() is None and time.monotonic() < deadline and not list(records.glob("*/record.json")):
@@ -200,8 +217,9 @@ def test_scheduler_errors(config, tmp_path, capsys):
     import dask
 
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
-        assert main([str(config), "--out", str(tmp_path / "d"), "--scheduler",
-                     "tcp://127.0.0.1:9", "--no-progress"]) == 2
+        assert (
+            main([str(config), "--out", str(tmp_path / "d"), "--scheduler", "tcp://127.0.0.1:9", "--no-progress"]) == 2
+        )
     assert "cannot reach the dask scheduler" in capsys.readouterr().err
 
 
@@ -240,16 +258,18 @@ def _http_reply(conn, stop):
         stop.wait(30)
 
 
-@pytest.mark.parametrize("handler, match", [
-    (_silent, r"accepted the connection but sent nothing in 1 s"),
-    (_http_reply, r"answers like an HTTP server, not a dask scheduler"),
-])
+@pytest.mark.parametrize(
+    "handler, match",
+    [
+        (_silent, r"accepted the connection but sent nothing in 1 s"),
+        (_http_reply, r"answers like an HTTP server, not a dask scheduler"),
+    ],
+)
 def test_a_scheduler_address_that_is_not_a_scheduler_fails_fast(config, tmp_path, handler, match):
     port, stop = _serve(handler)
     try:
         with pytest.raises(ValueError, match=match):
-            run(config, tmp_path / "o", executor=Dask(f"tcp://127.0.0.1:{port}", probe_seconds=1.0),
-                progress=False)
+            run(config, tmp_path / "o", executor=Dask(f"tcp://127.0.0.1:{port}", probe_seconds=1.0), progress=False)
     finally:
         stop.set()
     assert not (tmp_path / "o").exists()  # refused before the output folder is made
@@ -261,8 +281,19 @@ def test_an_http_server_is_not_taken_for_a_scheduler(config, tmp_path, capsys):
     server = ThreadingHTTPServer(("127.0.0.1", 0), BaseHTTPRequestHandler)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
-        assert main([str(config), "--out", str(tmp_path / "o"), "--scheduler",
-                     f"127.0.0.1:{server.server_address[1]}", "--no-progress"]) == 2
+        assert (
+            main(
+                [
+                    str(config),
+                    "--out",
+                    str(tmp_path / "o"),
+                    "--scheduler",
+                    f"127.0.0.1:{server.server_address[1]}",
+                    "--no-progress",
+                ]
+            )
+            == 2
+        )
     finally:
         server.shutdown()
         server.server_close()

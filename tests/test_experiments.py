@@ -8,8 +8,14 @@ from pathlib import Path
 
 import pytest
 
-from datasets_gen.experiments import NAMES, ao_convergence, ao_throughput, extract_throughput
-from datasets_gen.experiments import extraction_error, ssao_vs_raytraced
+from datasets_gen.experiments import (
+    NAMES,
+    ao_convergence,
+    ao_throughput,
+    extract_throughput,
+    extraction_error,
+    ssao_vs_raytraced,
+)
 
 pytestmark = pytest.mark.filterwarnings(
     # matplotlib's Agg canvas may warn about missing glyphs for some system fonts; harmless
@@ -42,13 +48,15 @@ def test_extraction_error(tmp_path):
     assert all(r["closed"] == "True" for r in rows)
     for shape in extraction_error.SHAPES:
         for method in ("cubes", "simplices"):
-            errors = [abs(float(r["volume_rel_error"])) for r in rows
-                      if r["shape"] == shape and r["method"] == method]
+            errors = [abs(float(r["volume_rel_error"])) for r in rows if r["shape"] == shape and r["method"] == method]
             assert errors == sorted(errors, reverse=True), (shape, method)  # refining helps
     # n^-2 convergence: on the hypersphere from n = 8 to 11 the error ratio is near (10/7)^2 = 2.04
     # (spacing ratio (n-1)); allow the higher-order terms of so coarse grids +-25 %
-    sphere = {int(r["n"]): abs(float(r["volume_rel_error"])) for r in rows
-              if r["shape"] == "hypersphere(r=1)" and r["method"] == "cubes"}
+    sphere = {
+        int(r["n"]): abs(float(r["volume_rel_error"]))
+        for r in rows
+        if r["shape"] == "hypersphere(r=1)" and r["method"] == "cubes"
+    }
     assert sphere[8] / sphere[11] == pytest.approx((10 / 7) ** 2, rel=0.25)
 
 

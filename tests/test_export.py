@@ -17,10 +17,16 @@ from datasets_gen import load
 from datasets_gen.export import export, item_arrays, parse_size
 
 CONFIG = config(
-    "export", 4, [family("hypersphere", 4, BALL),
-                  family("spheritorus", 1, {"R": 0.7, "r": 0.3}, ao=False, sequence={"frames": 2})],
-    split={"train": 0.5, "test": 0.5}, grid=7, padding=0.15, rotation="random", ao={"samples": 4},
-    samples={"uniform": 200, "near_surface": 50, "sigmas": [0.02], "surface": 100})
+    "export",
+    4,
+    [family("hypersphere", 4, BALL), family("spheritorus", 1, {"R": 0.7, "r": 0.3}, ao=False, sequence={"frames": 2})],
+    split={"train": 0.5, "test": 0.5},
+    grid=7,
+    padding=0.15,
+    rotation="random",
+    ao={"samples": 4},
+    samples={"uniform": 200, "near_surface": 50, "sigmas": [0.02], "surface": 100},
+)
 
 
 @pytest.fixture(scope="module")
@@ -158,11 +164,29 @@ def test_an_interrupted_export_leaves_whole_shards_and_resumes(tmp_path, dataset
 
 def test_command_line(tmp_path, dataset):
     out = tmp_path / "cli"
-    done = subprocess.run([sys.executable, "-m", "datasets_gen", "export", str(dataset), "--format",
-                           "parquet", "--out", str(out), "--no-progress"],
-                          capture_output=True, text=True, timeout=120)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "datasets_gen",
+            "export",
+            str(dataset),
+            "--format",
+            "parquet",
+            "--out",
+            str(out),
+            "--no-progress",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert done.returncode == 0, done.stderr
     assert "5 items in 1 parquet shards" in done.stdout
-    again = subprocess.run([sys.executable, "-m", "datasets_gen", "export", str(dataset), "--format",
-                            "parquet", "--out", str(out)], capture_output=True, text=True, timeout=120)
+    again = subprocess.run(
+        [sys.executable, "-m", "datasets_gen", "export", str(dataset), "--format", "parquet", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert again.returncode == 2 and "not empty" in again.stderr

@@ -46,8 +46,7 @@ def _item(config, index: int, *, grid: int | None = None):
     params_ss, rotation_ss, _ = item_seed(config.seed, index).spawn(3)
     rng = np.random.default_rng(params_ss)
     params = sample_params(spec.family.params, rng)
-    rotation = (random_rotation(np.random.default_rng(rotation_ss))
-                if settings_["rotation"] == "random" else None)
+    rotation = random_rotation(np.random.default_rng(rotation_ss)) if settings_["rotation"] == "random" else None
     return build_shape(spec.family.kind, params, settings_, rng, rotation)
 
 
@@ -69,8 +68,7 @@ def _facet_points(bounds, axis: int, value: float, lo_f, hi_f, n: int) -> np.nda
     return pts
 
 
-def _facet_minimum(f, bounds, axis: int, value: float, *, n: int = 17, rounds: int = 8,
-                   keep: int = 64) -> float:
+def _facet_minimum(f, bounds, axis: int, value: float, *, n: int = 17, rounds: int = 8, keep: int = 64) -> float:
     """Minimum of a 1-Lipschitz ``f`` over a facet, by branch and bound on lattices.
 
     A lattice point p with spacing ``step`` cannot have a value below ``f(p) - step sqrt(3) / 2``
@@ -88,10 +86,12 @@ def _facet_minimum(f, bounds, axis: int, value: float, *, n: int = 17, rounds: i
     for _ in range(rounds):
         order = np.argsort(vals)[:keep]
         order = order[vals[order] <= best + step * math.sqrt(3) / 2]
-        pts = np.concatenate([
-            _facet_points(bounds, axis, value, np.maximum(c - step / 2, flo),
-                          np.minimum(c + step / 2, fhi), 5)
-            for c in pts[order][:, free]])
+        pts = np.concatenate(
+            [
+                _facet_points(bounds, axis, value, np.maximum(c - step / 2, flo), np.minimum(c + step / 2, fhi), 5)
+                for c in pts[order][:, free]
+            ]
+        )
         vals = f(pts)
         best = min(best, float(vals.min()))
         step /= 4
@@ -144,9 +144,13 @@ def test_support_of_an_unknown_kind_is_none():
 
 
 @settings(max_examples=12, deadline=None)
-@given(kind=st.sampled_from(sorted(_PARAMS)),
-       a=st.floats(0, 0.999), b=st.floats(0, 0.999), c=st.floats(0, 0.999),
-       seed=st.integers(0, 2**32 - 1))
+@given(
+    kind=st.sampled_from(sorted(_PARAMS)),
+    a=st.floats(0, 0.999),
+    b=st.floats(0, 0.999),
+    c=st.floats(0, 0.999),
+    seed=st.integers(0, 2**32 - 1),
+)
 def test_rotated_extent_is_exact(kind, a, b, c, seed):
     """For a random rotation, every side of a fitted grid is exactly its margin away from the
     rotated solid: the minimum of the signed distance over each facet is that gap."""
@@ -168,9 +172,12 @@ def test_rotated_extent_is_exact(kind, a, b, c, seed):
 
 
 @settings(max_examples=50, deadline=None)
-@given(lo=st.lists(st.floats(-3, 3), min_size=4, max_size=4),
-       width=st.lists(st.floats(0.05, 4), min_size=4, max_size=4),
-       n=st.integers(4, 80), padding=st.floats(0, 0.5))
+@given(
+    lo=st.lists(st.floats(-3, 3), min_size=4, max_size=4),
+    width=st.lists(st.floats(0.05, 4), min_size=4, max_size=4),
+    n=st.integers(4, 80),
+    padding=st.floats(0, 0.5),
+)
 def test_fitted_grid_has_cubic_cells_and_the_margin(lo, width, n, padding):
     lo, width = np.array(lo), np.array(width)
     extent = np.stack([lo, lo + width])
@@ -193,11 +200,14 @@ def test_fitted_grid_has_cubic_cells_and_the_margin(lo, width, n, padding):
     np.testing.assert_allclose(grid["extent"], extent)
 
 
-@pytest.mark.parametrize("extent, n, match", [
-    ([[0, 0, 0, 0], [1, 1, 1, 1]], 3, "`grid` must exceed"),
-    ([[0, 0, 0, 0], [1, 1, 0, 1]], 10, "not flat"),
-    ([[0, 0, 0, 0], [1, np.inf, 1, 1]], 10, "finite"),
-])
+@pytest.mark.parametrize(
+    "extent, n, match",
+    [
+        ([[0, 0, 0, 0], [1, 1, 1, 1]], 3, "`grid` must exceed"),
+        ([[0, 0, 0, 0], [1, 1, 0, 1]], 10, "not flat"),
+        ([[0, 0, 0, 0], [1, np.inf, 1, 1]], 10, "finite"),
+    ],
+)
 def test_fitted_grid_rejects(extent, n, match):
     with pytest.raises(ValueError, match=match):
         fitted_grid(extent, n)
@@ -214,9 +224,12 @@ def test_config_bounds_give_a_cube_grid():
 # --------------------------------------------------------------------------- the shipped configs
 
 # every implicit family of the shipped configs, at a small grid: the fitted box holds the zero set
-_IMPLICIT = [(name, index) for name in ("tori", "blobs", "thesis", "smoke")
-             for index, spec in enumerate(load_config(name).items())
-             if spec.family.kind != "lifted" and spec.number == 0]
+_IMPLICIT = [
+    (name, index)
+    for name in ("tori", "blobs", "thesis", "smoke")
+    for index, spec in enumerate(load_config(name).items())
+    if spec.family.kind != "lifted" and spec.number == 0
+]
 
 
 @pytest.mark.parametrize("name, index", _IMPLICIT)
@@ -226,8 +239,7 @@ def test_fitted_box_contains_the_zero_set(name, index):
     margin from the true extent (tori and thesis shapes are exact distances)."""
     shape = _item(load_config(name), index, grid=12)
     grid, f = shape.grid, shape.field
-    exact = load_config(name).items()[index].family.kind in (*TORI, "hypersphere", "tesseract",
-                                                             "indented_cube")
+    exact = load_config(name).items()[index].family.kind in (*TORI, "hypersphere", "tesseract", "indented_cube")
     for axis, side, value in _facets(grid["bounds"]):
         lo, hi = (np.asarray(b) for b in grid["bounds"])
         free = [k for k in range(4) if k != axis]
@@ -235,8 +247,7 @@ def test_fitted_box_contains_the_zero_set(name, index):
         assert values.min() > 0, (axis, side)
     if exact:
         h = grid["spacing"][0]
-        np.testing.assert_allclose(_side_gaps(f, grid), _expected_gaps(grid), rtol=0,
-                                   atol=0.01 * h)
+        np.testing.assert_allclose(_side_gaps(f, grid), _expected_gaps(grid), rtol=0, atol=0.01 * h)
         assert np.all(_expected_gaps(grid) >= MARGIN_CELLS * h * (1 - 1e-9))
     assert shape.mesh.check().ok
 
@@ -280,5 +291,4 @@ def test_tori_config_sizes():
     """The families the volume tests cover are the five tori kinds, 8 items each."""
     config = load_config("tori")
     assert [(f.kind, f.count) for f in config.families] == [(k, 8) for k in TORI]
-    assert all(f.settings["rotation"] == "random" and f.settings["bounds"] is None
-               for f in config.families)
+    assert all(f.settings["rotation"] == "random" and f.settings["bounds"] is None for f in config.families)

@@ -94,8 +94,11 @@ def test_ao_command_refuses_a_bad_out_before_tracing(mesh_file, tmp_path, capsys
     traced = []
     monkeypatch.setattr("ao4d.ao.count_occluded", lambda *a, **k: traced.append(1))
     ro = _read_only_folder()
-    for out, problem in [(ro / "ball_ao.npz", "cannot write in '/sys'"), (tmp_path, "is a folder"),
-                         (tmp_path / "ball_ao.png", "must end in .npz or .vtu or .txt")]:
+    for out, problem in [
+        (ro / "ball_ao.npz", "cannot write in '/sys'"),
+        (tmp_path, "is a folder"),
+        (tmp_path / "ball_ao.png", "must end in .npz or .vtu or .txt"),
+    ]:
         code, text = _cli(capsys, "ao", mesh_file, "--out", out, "--samples", "2", "--backend", "numpy")
         assert code == 2 and problem in text and "Traceback" not in text
     assert not traced  # refused before any ray
@@ -134,8 +137,7 @@ def test_cli_turns_a_write_fault_into_one_line(mesh_file, tmp_path, capsys, monk
         raise PermissionError(13, "Permission denied", str(tmp_path / "out.npz"))
 
     monkeypatch.setattr("ao4d.mesh_files.write", refuse)
-    code, text = _cli(capsys, "ao", mesh_file, "--out", tmp_path / "out.npz", "--samples", "2",
-                      "--backend", "numpy")
+    code, text = _cli(capsys, "ao", mesh_file, "--out", tmp_path / "out.npz", "--samples", "2", "--backend", "numpy")
     assert code == 2 and "Permission denied" in text and "Traceback" not in text
 
 
@@ -227,7 +229,9 @@ def test_no_nan_ao_where_simplices_have_zero_measure(d):
     values[(np.abs(values) < 0.25) & (rng.random(values.shape) < 0.5)] = 0.0
     values = values[(slice(None),) * d + (5,) * (4 - d)]
     mesh = ao4d.extract(values, 0.0)
-    flat = (np.linalg.norm(mesh.vertex_normals, axis=1) == 0) & (np.bincount(mesh.simplices.ravel(), minlength=mesh.n_vertices) > 0)
+    flat = (np.linalg.norm(mesh.vertex_normals, axis=1) == 0) & (
+        np.bincount(mesh.simplices.ravel(), minlength=mesh.n_vertices) > 0
+    )
     assert flat.any()  # the case the test is about
     ao = ao4d.ambient_occlusion(mesh, samples=16, backend="numpy")
     assert not np.isnan(ao).any()
@@ -255,8 +259,19 @@ def test_no_progress_silences_everything(mesh_file, tmp_path, capsys, monkeypatc
     from ao4d import _progress
 
     monkeypatch.setattr(_progress, "LOG_INTERVAL", 0.0)
-    code = cli.main(["ao", str(mesh_file), "--out", str(tmp_path / "x.npz"), "--samples", "4",
-                     "--backend", "numpy", "--no-progress"])
+    code = cli.main(
+        [
+            "ao",
+            str(mesh_file),
+            "--out",
+            str(tmp_path / "x.npz"),
+            "--samples",
+            "4",
+            "--backend",
+            "numpy",
+            "--no-progress",
+        ]
+    )
     assert code == 0 and capsys.readouterr().err == ""
     _progress.set_enabled(True)
 
@@ -267,8 +282,21 @@ def test_render_png_failure_leaves_no_vti_behind(mesh_file, tmp_path, capsys, mo
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr("ao4d.pictures.save_montage", fail)
-    code, text = _cli(capsys, "render", mesh_file, "--out", tmp_path / "img.vti", "--size", "8",
-                      "--ao", "none", "--backend", "numpy", "--png", tmp_path / "img.png")
+    code, text = _cli(
+        capsys,
+        "render",
+        mesh_file,
+        "--out",
+        tmp_path / "img.vti",
+        "--size",
+        "8",
+        "--ao",
+        "none",
+        "--backend",
+        "numpy",
+        "--png",
+        tmp_path / "img.png",
+    )
     assert code == 2 and "No space left" in text and "Traceback" not in text
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ball.npz"]
 
@@ -276,9 +304,11 @@ def test_render_png_failure_leaves_no_vti_behind(mesh_file, tmp_path, capsys, mo
 def test_render_refuses_bad_outputs_before_rendering(mesh_file, tmp_path, capsys, monkeypatch):
     rendered = []
     monkeypatch.setattr("ao4d.rendering.render", lambda *a, **k: rendered.append(1))
-    for extra, problem in [(["--out", tmp_path / "img.nii"], "`--out` must end in .vti or .mhd"),
-                           (["--out", tmp_path / "img.vti", "--png", tmp_path / "img.jpg"], "`--png` must end in .png"),
-                           (["--out", tmp_path], "is a folder")]:
+    for extra, problem in [
+        (["--out", tmp_path / "img.nii"], "`--out` must end in .vti or .mhd"),
+        (["--out", tmp_path / "img.vti", "--png", tmp_path / "img.jpg"], "`--png` must end in .png"),
+        (["--out", tmp_path], "is a folder"),
+    ]:
         code, text = _cli(capsys, "render", mesh_file, "--size", "8", *extra)
         assert code == 2 and problem in text, text
     assert not rendered
@@ -296,23 +326,34 @@ def test_extract_command_estimates_and_refuses_huge_grids(tmp_path, capsys, monk
 def test_extract_command_empty_result_is_an_error_with_the_reason(tmp_path, capsys):
     # before: exit 0 and an empty mesh file
     np.save(tmp_path / "ramp.npy", np.linspace(0.0, 1.0, 4**4).reshape((4,) * 4))
-    code, text = _cli(capsys, "extract", "--input", tmp_path / "ramp.npy", "--level", "3",
-                      "--out", tmp_path / "x.npz")
+    code, text = _cli(capsys, "extract", "--input", tmp_path / "ramp.npy", "--level", "3", "--out", tmp_path / "x.npz")
     assert code == 2 and "outside the data range [0, 1]" in text
     assert not (tmp_path / "x.npz").exists()
 
 
 def test_extract_command_checks_both_outputs_first(tmp_path, capsys):
-    code, text = _cli(capsys, "extract", "--shape", "hypersphere", "--grid", "10", "--out",
-                      tmp_path / "x.npz", "--vtu", tmp_path / "x.vtk")
+    code, text = _cli(
+        capsys,
+        "extract",
+        "--shape",
+        "hypersphere",
+        "--grid",
+        "10",
+        "--out",
+        tmp_path / "x.npz",
+        "--vtu",
+        tmp_path / "x.vtk",
+    )
     assert code == 2 and "`--vtu` must end in .vtu" in text and not (tmp_path / "x.npz").exists()
 
 
 def test_slice_command_checks_outputs_before_loading(tmp_path, capsys, monkeypatch):
     loaded = []
     monkeypatch.setattr("ao4d.mesh.SimplexMesh.load", classmethod(lambda cls, p: loaded.append(p)))
-    for extra, problem in [(["--out", tmp_path / "s.obj"], "`--out` must end in .ply or .glb"),
-                           (["--out", tmp_path / "s.ply", "--png", tmp_path / "s.gif"], "`--png` must end in .png")]:
+    for extra, problem in [
+        (["--out", tmp_path / "s.obj"], "`--out` must end in .ply or .glb"),
+        (["--out", tmp_path / "s.ply", "--png", tmp_path / "s.gif"], "`--png` must end in .png"),
+    ]:
         code, text = _cli(capsys, "slice", tmp_path / "any.npz", "--w", "0", *extra)
         assert code == 2 and problem in text, text
     assert not loaded
@@ -328,8 +369,7 @@ def tiny_config_file(tmp_path) -> Path:
     return write_config(tmp_path, TINY, "tiny.toml")
 
 
-def test_datasets_gen_out_that_is_a_file_or_read_only_is_a_clear_error(tiny_config_file, tmp_path,
-                                                                       capsys, monkeypatch):
+def test_datasets_gen_out_that_is_a_file_or_read_only_is_a_clear_error(tiny_config_file, tmp_path, capsys, monkeypatch):
     from datasets_gen import runner
 
     (tmp_path / "taken").write_text("not a folder")
@@ -344,8 +384,7 @@ def test_datasets_gen_out_that_is_a_file_or_read_only_is_a_clear_error(tiny_conf
         raise OSError(errno.EROFS, "Read-only file system", str(self))
 
     monkeypatch.setattr(Path, "mkdir", read_only)
-    assert runner.main([str(tiny_config_file), "--out", str(tmp_path / "ro" / "run"),
-                        "--no-progress"]) == 2
+    assert runner.main([str(tiny_config_file), "--out", str(tmp_path / "ro" / "run"), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "cannot create the output folder `out`" in err and "Read-only file system" in err
     assert "Traceback" not in err

@@ -44,29 +44,52 @@ CASES_4D = {
     "indented_cube": fields.indented_cube(1.0, 0.6),
     "metaballs": fields.preset("metaballs"),
     "ground in a ball": fields.intersection(fields.ground(0.2), fields.hypersphere(1.2)),
-    "union of three": fields.union(fields.duocylinder(0.8, 0.6),
-                                   fields.hypersphere(0.5, [1, 0, 0, 0]), fields.spheritorus()),
+    "union of three": fields.union(
+        fields.duocylinder(0.8, 0.6), fields.hypersphere(0.5, [1, 0, 0, 0]), fields.spheritorus()
+    ),
     "difference": fields.difference(fields.torisphere(), fields.tesseract(0.5, 0.1)),
-    "smooth union": fields.smooth_union(fields.hypersphere(0.6, [0.3, 0, 0, 0]),
-                                        fields.ditorus(), 0.3),
+    "smooth union": fields.smooth_union(fields.hypersphere(0.6, [0.3, 0, 0, 0]), fields.ditorus(), 0.3),
     "rotate translate scale": fields.rotate(
-        fields.translate(fields.scale(fields.tiger(), 1.3), [0.1, 0.2, -0.1, 0.05]), (1, 3), 0.7),
-    "rotations in every plane": fields.rotate(fields.rotate(fields.rotate(fields.rotate(
-        fields.rotate(fields.rotate(fields.tesseract(0.8, 0.1), (0, 1), 0.3), (0, 2), -0.4),
-        (0, 3), 0.5), (1, 2), 0.6), (1, 3), -0.7), (2, 3), 0.8),
+        fields.translate(fields.scale(fields.tiger(), 1.3), [0.1, 0.2, -0.1, 0.05]), (1, 3), 0.7
+    ),
+    "rotations in every plane": fields.rotate(
+        fields.rotate(
+            fields.rotate(
+                fields.rotate(
+                    fields.rotate(fields.rotate(fields.tesseract(0.8, 0.1), (0, 1), 0.3), (0, 2), -0.4), (0, 3), 0.5
+                ),
+                (1, 2),
+                0.6,
+            ),
+            (1, 3),
+            -0.7,
+        ),
+        (2, 3),
+        0.8,
+    ),
     "nested": fields.intersection(
-        fields.smooth_union(fields.scale(fields.spheritorus(), 0.8), fields.metaballs(
-            [[0.5, 0, 0, 0], [-0.5, 0.2, 0, 0]], [0.4, 0.3], sharpness=3.0), 0.2),
-        fields.difference(fields.hypersphere(1.4), fields.translate(fields.ditorus(), [0, 0, 0.3, 0]))),
+        fields.smooth_union(
+            fields.scale(fields.spheritorus(), 0.8),
+            fields.metaballs([[0.5, 0, 0, 0], [-0.5, 0.2, 0, 0]], [0.4, 0.3], sharpness=3.0),
+            0.2,
+        ),
+        fields.difference(fields.hypersphere(1.4), fields.translate(fields.ditorus(), [0, 0, 0.3, 0])),
+    ),
 }
 CASES_LOW = {
-    2: [fields.hypersphere(0.8, [0.1, 0.2]), fields.tesseract(0.7, 0.2, dim=2),
+    2: [
+        fields.hypersphere(0.8, [0.1, 0.2]),
+        fields.tesseract(0.7, 0.2, dim=2),
         fields.union(fields.ground(0.1, 0, dim=2), fields.hypersphere(0.3, [0.5, 0.5])),
         fields.metaballs([[0.2, 0.1], [-0.3, 0]], 0.4),
-        fields.rotate(fields.translate(fields.tesseract(0.5, dim=2), [0.1, 0]), (0, 1), 0.4)],
-    3: [fields.hypersphere(0.8, [0.1, 0.2, -0.1]), fields.tesseract(0.7, 0.2, dim=3),
+        fields.rotate(fields.translate(fields.tesseract(0.5, dim=2), [0.1, 0]), (0, 1), 0.4),
+    ],
+    3: [
+        fields.hypersphere(0.8, [0.1, 0.2, -0.1]),
+        fields.tesseract(0.7, 0.2, dim=3),
         fields.scale(fields.metaballs([[0.2, 0.1, 0], [-0.3, 0, 0.2]], 0.4), 1.2),
-        fields.difference(fields.tesseract(0.8, dim=3), fields.ground(0.3, 2, dim=3))],
+        fields.difference(fields.tesseract(0.8, dim=3), fields.ground(0.3, 2, dim=3)),
+    ],
 }
 
 
@@ -104,12 +127,19 @@ def test_extreme_coordinates_take_hypots_scaled_branches_bit_for_bit(cl_runtime)
     for huge and tiny arguments, infinities, zeros of both signs."""
     _fp64(cl_runtime)
     _exact()
-    coords = np.array([-1e300, -3e200, -1e160, -2.0, -2.5e-300, -1e-200, -0.0, 0.0, 1e-310,
-                       1e-300, 3e-170, 1e-9, 0.7, 1e154, 5e250])
+    coords = np.array(
+        [-1e300, -3e200, -1e160, -2.0, -2.5e-300, -1e-200, -0.0, 0.0, 1e-310, 1e-300, 3e-170, 1e-9, 0.7, 1e154, 5e250]
+    )
     axes = [coords, coords[::2], coords[1::2], coords[3:11]]
     tiny = (fields.duocylinder(1e-300, 2e-300), fields.tiger(1e-300, 2e-300, 5e-301))
-    for field in (fields.spheritorus(1.0, 0.4), fields.ditorus(), fields.tiger(),
-                  fields.duocylinder(), fields.scale(fields.tiger(), 1e70), *tiny):
+    for field in (
+        fields.spheritorus(1.0, 0.4),
+        fields.ditorus(),
+        fields.tiger(),
+        fields.duocylinder(),
+        fields.scale(fields.tiger(), 1e70),
+        *tiny,
+    ):
         with np.errstate(all="ignore"):
             host = fields.evaluate_layers(field, axes, 0, len(axes[-1]))
         dev = fields_device.sample_layers(field, axes, 0, len(axes[-1]), cl_runtime)
@@ -155,8 +185,12 @@ def test_fields_without_a_device_program_stay_on_the_host():
         return np.linalg.norm(p, axis=-1) - 1.0
 
     wrapped = fields.Field(plain, dim=4, name="plain")
-    for field in (plain, wrapped, fields.union(fields.hypersphere(1.0), plain),
-                  fields.rotate(fields.translate(plain, [0, 0, 0, 1]), (0, 1), 0.2)):
+    for field in (
+        plain,
+        wrapped,
+        fields.union(fields.hypersphere(1.0), plain),
+        fields.rotate(fields.translate(plain, [0, 0, 0, 1]), (0, 1), 0.2),
+    ):
         assert fields_device.device_source(field, 4) is None
     # dimension mismatches: the host raises its own error
     assert fields_device.device_source(fields.spheritorus(), 3) is None
@@ -206,8 +240,7 @@ def test_extract_field_meshes_are_the_host_sampled_ones(cl_runtime, monkeypatch,
     calls = _spy_host(monkeypatch)
     dev = ao4d.extract_field(field, shape, bounds, 0.01, method=method, chunk=chunk, progress=False)
     assert calls == []  # nothing sampled on the host
-    host = _host_sampled(monkeypatch, field, shape, bounds, 0.01, method=method, chunk=chunk,
-                         progress=False)
+    host = _host_sampled(monkeypatch, field, shape, bounds, 0.01, method=method, chunk=chunk, progress=False)
     assert calls and dev.n_simplices > 0
     np.testing.assert_array_equal(dev.vertices, host.vertices)
     np.testing.assert_array_equal(dev.simplices, host.simplices)
@@ -230,8 +263,7 @@ def test_the_numpy_engine_gets_device_sampled_host_arrays(cl_runtime, monkeypatc
     _fp64(cl_runtime)
     _exact()
     field = fields.preset("tiger")
-    ref = ao4d.extract_field(field, 12, (-1.3, 1.3), method="simplices", backend="numpy",
-                             progress=False)
+    ref = ao4d.extract_field(field, 12, (-1.3, 1.3), method="simplices", backend="numpy", progress=False)
     calls = _spy_host(monkeypatch)
     monkeypatch.setattr(cells_device, "fits", lambda *a: False)
     got = ao4d.extract_field(field, 12, (-1.3, 1.3), method="simplices", progress=False)

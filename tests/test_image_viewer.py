@@ -18,14 +18,14 @@ import zlib
 
 import numpy as np
 import pytest
+from _chromium import browser_or_skip, capture, open_page
 
 import ao4d
 from ao4d import cli
 from ao4d import image_viewer as iv
-from _chromium import browser_or_skip, capture, open_page
-
 
 # --------------------------------------------------------------------------- images
+
 
 @pytest.fixture(scope="module")
 def sphere_image():
@@ -33,8 +33,7 @@ def sphere_image():
     mesh = ao4d.extract_field(ao4d.fields.hypersphere(1.0), (14,) * 4, (-1.3, 1.3), progress=False)
     mesh.point_data["ao"] = np.clip(0.5 + 0.45 * mesh.vertices[:, 0], 0.0, 1.0)
     cam = ao4d.Camera4D([0, 0, 0, -4], [0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], fov=40)
-    return ao4d.render(mesh, cam, (28, 28, 28), ao="vertices", light=[0, 1, 0, -1],
-                       backend="numpy", progress=False)
+    return ao4d.render(mesh, cam, (28, 28, 28), ao="vertices", light=[0, 1, 0, -1], backend="numpy", progress=False)
 
 
 def _box(value=0.8, n=(10, 12, 16)):
@@ -44,6 +43,7 @@ def _box(value=0.8, n=(10, 12, 16)):
 
 
 # --------------------------------------------------------------------------- numpy side
+
 
 def test_encode_quantises_and_marks_the_hits(sphere_image):
     data = iv.encode(sphere_image)
@@ -144,7 +144,7 @@ def test_page_holds_the_image(sphere_image, tmp_path):
     assert info["shape"] == [28, 28, 28] and info["hits"] == int(sphere_image.hit.sum())
     tag = f'id="{info["scalars"]["id"]}">'
     start = text.index(tag) + len(tag)
-    raw = zlib.decompress(base64.b64decode(text[start:text.index("</script>", start)]))
+    raw = zlib.decompress(base64.b64decode(text[start : text.index("</script>", start)]))
     # x runs fastest in the 3D texture
     scalars = np.frombuffer(raw, np.uint8).reshape(28, 28, 28, 4).transpose(2, 1, 0, 3)
     assert np.array_equal(scalars, iv.encode(sphere_image).scalars)
@@ -182,8 +182,11 @@ def test_mhd_offers_only_the_shade_it_holds(sphere_image, tmp_path, capsys):
     page = iv.view_image(mhd, tmp_path / "m.html")
     assert iv.page_info(page.read_text())["arrays"] == ["shade"]
     for array in ("occlusion", "depth"):
-        with pytest.raises(ValueError, match=rf"`state\['array'\]` '{array}' is not in the image 's', "
-                                             r"which holds 'shade'"):
+        with pytest.raises(
+            ValueError,
+            match=rf"`state\['array'\]` '{array}' is not in the image 's', "
+            r"which holds 'shade'",
+        ):
             iv.view_image(mhd, tmp_path / "m.html", state={"array": array})
         assert cli.main(["view", str(mhd), "--out", str(tmp_path / "o.html"), "--array", array]) == 2
         err = capsys.readouterr().err
@@ -233,8 +236,13 @@ def test_foreign_image_is_shown_over_its_own_range(tmp_path, capsys, lo, hi):
 
 def test_unreadable_or_truncated_vti_is_named_so(sphere_image, tmp_path, capsys):
     whole = sphere_image.save(tmp_path / "s.vti").read_bytes()
-    for name, data in [("half.vti", whole[: len(whole) // 2]), ("cut.vti", whole[:-40]),
-                       ("head.vti", whole[:300]), ("empty.vti", b""), ("text.vti", b"not VTK " * 9)]:
+    for name, data in [
+        ("half.vti", whole[: len(whole) // 2]),
+        ("cut.vti", whole[:-40]),
+        ("head.vti", whole[:300]),
+        ("empty.vti", b""),
+        ("text.vti", b"not VTK " * 9),
+    ]:
         path = tmp_path / name
         path.write_bytes(data)
         with pytest.raises(ValueError, match=rf"`image` '.*{name}' is unreadable or truncated"):
@@ -272,12 +280,16 @@ def sphere_page(sphere_image, tmp_path_factory):
     return iv.view_image(sphere_image, tmp_path_factory.mktemp("img") / "sphere.html").as_uri()
 
 
-@pytest.mark.parametrize("state", [
-    {"array": "rgba", "az": 30, "el": 20},
-    {"array": "shade", "cmap": "viridis", "lo": 0.1, "hi": 0.9, "opacity": 0.3, "az": -60, "el": 35},
-    {"array": "occlusion", "cmap": "magma", "z1": 0.55, "x0": 0.2, "az": 120, "el": -10, "zoom": 1.6},
-    {"array": "depth", "cmap": "gray", "lo": 0.0, "hi": 0.3, "opacity": 0.35, "az": 0, "el": 0},
-], ids=["rgba-surface", "shade-ramp", "occlusion-clipped", "depth-glass"])
+@pytest.mark.parametrize(
+    "state",
+    [
+        {"array": "rgba", "az": 30, "el": 20},
+        {"array": "shade", "cmap": "viridis", "lo": 0.1, "hi": 0.9, "opacity": 0.3, "az": -60, "el": 35},
+        {"array": "occlusion", "cmap": "magma", "z1": 0.55, "x0": 0.2, "az": 120, "el": -10, "zoom": 1.6},
+        {"array": "depth", "cmap": "gray", "lo": 0.0, "hi": 0.3, "opacity": 0.35, "az": 0, "el": 0},
+    ],
+    ids=["rgba-surface", "shade-ramp", "occlusion-clipped", "depth-glass"],
+)
 def test_browser_hypersphere_image_equals_the_numpy_ray_march(browser, sphere_image, sphere_page, state):
     stats = open_page(browser, sphere_page, iv._state_fragment(state))
     assert stats["renderer"] and "swiftshader" in stats["renderer"].lower()
@@ -300,8 +312,16 @@ def test_browser_empty_image_draws_nothing_and_says_so(browser, tmp_path):
 def test_browser_url_state_round_trip(browser, sphere_page):
     open_page(browser, sphere_page, "#array=shade&az=40&el=-15&zoom=1.25&lo=0.2&hi=0.7&opacity=0.5&y1=0.6")
     s = browser.evaluate("window.ao4d.state()")
-    assert (s["array"], s["az"], s["el"], s["zoom"], s["lo"], s["hi"], s["opacity"], s["y1"]) == \
-        ("shade", 40, -15, 1.25, 0.2, 0.7, 0.5, 0.6)
+    assert (s["array"], s["az"], s["el"], s["zoom"], s["lo"], s["hi"], s["opacity"], s["y1"]) == (
+        "shade",
+        40,
+        -15,
+        1.25,
+        0.2,
+        0.7,
+        0.5,
+        0.6,
+    )
     s = browser.evaluate("window.ao4d.setState({az: 270, el: 120, cmap: 'inferno', z0: 0.25})")
     py = iv.full_state({k: v for k, v in s.items()})
     assert (s["az"], s["el"], s["cmap"], s["z0"]) == (py["az"], py["el"], "inferno", 0.25) == (-90, 90, "inferno", 0.25)
@@ -321,12 +341,22 @@ def test_browser_drag_the_ramp_orbit_and_presets(browser, sphere_page):
     open_page(browser, sphere_page, "#array=shade&lo=0&hi=0&opacity=1&az=30&el=20&zoom=1")
 
     def mouse(kind, px, py, buttons=0, **extra):
-        browser.send("Input.dispatchMouseEvent", session=True, type=kind, x=px, y=py,
-                     button="left" if kind != "mouseWheel" else "none", buttons=buttons,
-                     clickCount=1 if kind != "mouseMoved" else 0, **extra)
+        browser.send(
+            "Input.dispatchMouseEvent",
+            session=True,
+            type=kind,
+            x=px,
+            y=py,
+            button="left" if kind != "mouseWheel" else "none",
+            buttons=buttons,
+            clickCount=1 if kind != "mouseMoved" else 0,
+            **extra,
+        )
 
-    box = browser.evaluate("(() => { const r = document.getElementById('tf').getBoundingClientRect();"
-                           " return [r.left, r.top, r.width, r.height]; })()")
+    box = browser.evaluate(
+        "(() => { const r = document.getElementById('tf').getBoundingClientRect();"
+        " return [r.left, r.top, r.width, r.height]; })()"
+    )
     left, top, w, h = box
     # the right handle sits at (hi, opacity) = (0, 1): grab near it... the left one is nearer at
     # the bottom, so drag from the top left: hi and opacity follow the pointer

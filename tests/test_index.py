@@ -100,9 +100,12 @@ def test_damaged_run_json_is_named(tiny_config, tmp_path):
 def test_two_configs_of_one_name_into_one_folder(tiny_config, tiny_reference, tmp_path):
     other = tmp_path / "tiny.toml"  # the same name, another text
     other.write_text(tiny_config.read_text().replace("count = 2", "count = 1", 1), encoding="utf-8")
-    with pytest.raises(FileExistsError, match=r"holds a run of config 'tiny' with seed 3 \(.*tiny.toml, "
-                                              r"text sha256 \w{12}\), not of config 'tiny' .*the "
-                                              r"configs' texts differ"):
+    with pytest.raises(
+        FileExistsError,
+        match=r"holds a run of config 'tiny' with seed 3 \(.*tiny.toml, "
+        r"text sha256 \w{12}\), not of config 'tiny' .*the "
+        r"configs' texts differ",
+    ):
         run(other, tiny_reference, progress=False)
 
 
@@ -155,7 +158,6 @@ def test_made_items_missing_from_the_store_are_not_counted(tiny_config, monkeypa
     assert (summary.made, list(summary.failed)) == (4, [1])
     assert "record.json is not in `out`" in summary.failed[1]
     assert not json.loads(open_store(url).read_bytes("manifest.json"))["complete"]
-
 
 
 def test_stage_table_groups_renders_and_shares_the_total():

@@ -123,10 +123,8 @@ def test_lifted_family_from_a_mesh_file(tmp_path):
     import trimesh
 
     trimesh.creation.icosphere(1, radius=3.0).export(tmp_path / "ball.stl")
-    params = {"shape": "file", "path": str(tmp_path / "ball.stl"), "op": "cone", "size": 0.5,
-              "height": 2.0}
-    summary = run({"family": [{"kind": "lifted", "ao": False, "params": params}]}, tmp_path / "out",
-                  progress=False)
+    params = {"shape": "file", "path": str(tmp_path / "ball.stl"), "op": "cone", "size": 0.5, "height": 2.0}
+    summary = run({"family": [{"kind": "lifted", "ao": False, "params": params}]}, tmp_path / "out", progress=False)
     assert summary.made == 1, summary
     record = json.loads((tmp_path / "out" / "items" / "00000" / "record.json").read_text())
     assert record["derived"]["file_sha256"] == sha256_file(tmp_path / "ball.stl")

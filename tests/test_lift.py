@@ -197,8 +197,7 @@ def test_spin_of_half_ball_is_a_4_ball():
     k = 24
     mesh = lift.spin(half, k)
     assert mesh.check().ok
-    assert mesh.volume == pytest.approx(_polygon_factor(k) * 2 * math.pi * _first_moment_x(half),
-                                        rel=EXACT)
+    assert mesh.volume == pytest.approx(_polygon_factor(k) * 2 * math.pi * _first_moment_x(half), rel=EXACT)
     # and that approaches the unit 4-ball, pi^2/2, up to the coarse profile and the 24-gon
     assert mesh.volume == pytest.approx(math.pi**2 / 2, rel=0.05)
 
@@ -219,8 +218,7 @@ def test_spin_of_rotated_tetrahedron(k, offset, radius, seed):
     assume(hull.volume > 1e-3 * radius**3)  # nearly flat draws are refused as flat solids
     mesh = lift.spin(hull, k)
     assert mesh.check().ok
-    assert mesh.volume == pytest.approx(_polygon_factor(k) * 2 * math.pi * _first_moment_x(hull),
-                                        rel=1e-9)
+    assert mesh.volume == pytest.approx(_polygon_factor(k) * 2 * math.pi * _first_moment_x(hull), rel=1e-9)
 
 
 # --------------------------------------------------------------------------- errors
@@ -248,15 +246,18 @@ def test_inside_out_and_badly_wound_inputs_are_refused():
         lift.prism(np.zeros((4, 3)))
 
 
-@pytest.mark.parametrize("func, kwargs, match", [
-    (lift.prism, {"height": 0.0}, "`height` must be > 0"),
-    (lift.prism, {"height": float("nan")}, "`height` must be finite"),
-    (lift.cone, {"height": -1.0}, "`height` must be > 0"),
-    (lift.cone, {"apex": (0.0, 1.0)}, "`apex` must have shape"),
-    (lift.prism, {"base": "low"}, "`base` must be a real number"),
-    (lift.tetrahedralize, {"method": "delaunay"}, "`method` must be one of"),
-    (lift.tetrahedralize, {"method": "tetwild", "edge_length": 0.0}, "`edge_length` must be in"),
-])
+@pytest.mark.parametrize(
+    "func, kwargs, match",
+    [
+        (lift.prism, {"height": 0.0}, "`height` must be > 0"),
+        (lift.prism, {"height": float("nan")}, "`height` must be finite"),
+        (lift.cone, {"height": -1.0}, "`height` must be > 0"),
+        (lift.cone, {"apex": (0.0, 1.0)}, "`apex` must have shape"),
+        (lift.prism, {"base": "low"}, "`base` must be a real number"),
+        (lift.tetrahedralize, {"method": "delaunay"}, "`method` must be one of"),
+        (lift.tetrahedralize, {"method": "tetwild", "edge_length": 0.0}, "`edge_length` must be in"),
+    ],
+)
 def test_bad_options_are_refused(func, kwargs, match):
     with pytest.raises((ValueError, TypeError), match=match):
         func(_box(), **kwargs)
@@ -341,7 +342,7 @@ def test_boundary_is_the_faces_of_one_tet_outward():
     uses: dict[tuple, int] = {}
     for tet in solid.tets.tolist():
         for k in range(4):
-            key = tuple(sorted(tet[:k] + tet[k + 1:]))
+            key = tuple(sorted(tet[:k] + tet[k + 1 :]))
             uses[key] = uses.get(key, 0) + 1
     once = {face for face, n in uses.items() if n == 1}
     assert len(once) == 48 and sorted(tuple(sorted(f)) for f in solid.boundary.tolist()) == sorted(once)

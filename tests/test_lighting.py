@@ -10,8 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ao4d
-from ao4d.lighting import (Light, as_lights, blinn_phong, check_depth_cue, depth_cue,
-                           half_vectors, lambert)
+from ao4d.lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, half_vectors, lambert
 
 angles = st.floats(-1.5, 1.5, allow_nan=False, allow_subnormal=False)
 
@@ -136,8 +135,7 @@ def test_depth_cue_closed_form():
 
 
 @settings(max_examples=40, deadline=None)
-@given(near=st.floats(0, 5), span=st.floats(0.01, 5), strength=st.floats(0, 1),
-       seed=st.integers(0, 2**32 - 1))
+@given(near=st.floats(0, 5), span=st.floats(0.01, 5), strength=st.floats(0, 1), seed=st.integers(0, 2**32 - 1))
 def test_depth_cue_is_monotone(near, span, strength, seed):
     t = np.sort(np.random.default_rng(seed).uniform(0, 12, 50))
     f = depth_cue(t, near, near + span, strength)

@@ -14,10 +14,17 @@ import datasets_gen
 from datasets_gen import DatasetError, load
 
 CONFIG = config(
-    "loader", 1, [family("hypersphere", 3, BALL), family("lifted", 1, BOX_PRISM, rotation="none")],
-    split={"train": 0.5, "val": 0.25, "test": 0.25}, grid=8, padding=0.15, rotation="random",
-    ao={"samples": 4}, sequence={"frames": 3},
-    samples={"uniform": 300, "near_surface": 100, "sigmas": [0.02], "surface": 200})
+    "loader",
+    1,
+    [family("hypersphere", 3, BALL), family("lifted", 1, BOX_PRISM, rotation="none")],
+    split={"train": 0.5, "val": 0.25, "test": 0.25},
+    grid=8,
+    padding=0.15,
+    rotation="random",
+    ao={"samples": 4},
+    sequence={"frames": 3},
+    samples={"uniform": 300, "near_surface": 100, "sigmas": [0.02], "surface": 200},
+)
 
 
 @pytest.fixture(scope="module")
@@ -142,4 +149,3 @@ def test_dataset_labels_against_analytic_volumes(dataset):
         assert abs(frac - p) <= 5 * np.sqrt(p * (1 - p) / n), rec["index"]
         np.testing.assert_array_equal(item["sdf"] < 0, item["occupancy"])
         assert set(rec["samples"]["labels"]) >= {"occupancy", "sdf", "surface_points"}
-

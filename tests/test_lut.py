@@ -59,9 +59,9 @@ def normals(p: np.ndarray) -> np.ndarray:
     m, d, _ = p.shape
     out = np.empty((m, d))
     for k in range(d):
-        rows = np.concatenate(
-            [p[:, 1:] - p[:, :1], np.broadcast_to(np.eye(d)[k], (m, 1, d))], axis=1
-        ).astype(np.float64)
+        rows = np.concatenate([p[:, 1:] - p[:, :1], np.broadcast_to(np.eye(d)[k], (m, 1, d))], axis=1).astype(
+            np.float64
+        )
         out[:, k] = np.linalg.det(rows)
     return np.rint(out).astype(np.int64)
 
@@ -243,7 +243,11 @@ def test_verify_catches_consistent_but_wrong_table(tmp_path):
     """A file whose manifest was updated to match still fails the rebuild comparison."""
     good = lut.load(2, "cube")
     wrong = lut.Table(
-        dim=2, kind="cube", vertices=good.vertices, edges=good.edges, offsets=good.offsets,
+        dim=2,
+        kind="cube",
+        vertices=good.vertices,
+        edges=good.edges,
+        offsets=good.offsets,
         simplices=good.simplices[:, ::-1].copy(),  # every segment reversed
     )
     lut.write_tables(tmp_path, dims=[2], kinds=["cube"])
@@ -450,10 +454,7 @@ def test_simplex_patches_conform_across_facets():
             sel = in_facet[labels].all(axis=1)
             for c in range(t.n_entries):
                 faces = labels[sel & (entries == c)]
-                cut = sorted(
-                    tuple(sorted((local[t.edges[e, 0]], local[t.edges[e, 1]]) for e in f))
-                    for f in faces
-                )
+                cut = sorted(tuple(sorted((local[t.edges[e, 0]], local[t.edges[e, 1]]) for e in f)) for f in faces)
                 pattern = tuple(signs_all[c, keep])
                 assert cuts.setdefault(pattern, cut) == cut, (dim, i, c)
         assert len(cuts) == 2**dim
@@ -496,8 +497,7 @@ def test_patch_volume_matches_qhull(table):
 
 
 def _volume(points: np.ndarray) -> float:
-    from scipy.spatial import ConvexHull
-    from scipy.spatial import QhullError
+    from scipy.spatial import ConvexHull, QhullError
 
     try:
         return ConvexHull(points).volume
@@ -521,7 +521,9 @@ def _volume(points: np.ndarray) -> float:
 def test_stats_classes(dim, kind, classes, with_complement, group):
     s = lut.stats(lut.load(dim, kind))
     assert (s.classes, s.classes_with_complement, s.group_order) == (
-        classes, with_complement, group,
+        classes,
+        with_complement,
+        group,
     )
     assert s.entries == 2 ** (2**dim if kind == "cube" else dim + 1)
     assert s.simplices == len(lut.load(dim, kind).simplices)
@@ -580,9 +582,7 @@ def test_kuhn_cells_tile_the_cube(dim, x):
     inside = []
     for j in range(len(t.cells)):
         chain = cube.vertices[t.cells[j]].astype(np.float64)  # (d+1, d)
-        bary = np.linalg.solve(
-            np.vstack([chain.T, np.ones(dim + 1)]), np.append(x, 1.0)
-        )
+        bary = np.linalg.solve(np.vstack([chain.T, np.ones(dim + 1)]), np.append(x, 1.0))
         inside.append(bool((bary >= -1e-12).all()))  # solve is accurate to ~1e-15 here
     assert any(inside)
     if dim == 1 or np.diff(np.sort(x)).min() > 1e-9:  # clearly distinct coordinates
@@ -602,9 +602,7 @@ def march_signs(positive: np.ndarray, t: lut.Table) -> np.ndarray:
     """
     d = positive.ndim
     shape = np.array(positive.shape)
-    origins = np.stack(
-        np.meshgrid(*[np.arange(s - 1) for s in shape], indexing="ij"), -1
-    ).reshape(-1, d)
+    origins = np.stack(np.meshgrid(*[np.arange(s - 1) for s in shape], indexing="ij"), -1).reshape(-1, d)
     cube_corners = lut.load(d, "cube").vertices.astype(np.int64)
     if t.kind == "cube":
         cells, parity = np.arange(2**d)[None], np.ones(1, dtype=np.int64)
@@ -652,8 +650,7 @@ def signed_volume(keys: np.ndarray, shape: tuple, dim: int) -> float:
 
 
 @settings(max_examples=25, deadline=None)
-@given(data=st.data(), dim=st.sampled_from(lut.DIMS), kind=st.sampled_from(lut.KINDS),
-       pad=st.booleans())
+@given(data=st.data(), dim=st.sampled_from(lut.DIMS), kind=st.sampled_from(lut.KINDS), pad=st.booleans())
 def test_random_sign_grids_give_closed_oriented_meshes(data, dim, kind, pad):
     """Any sign grid padded with one sign gives a closed mesh (all faces shared by exactly two
     simplices with opposite orientation). With negative padding the normals point into the
@@ -712,9 +709,7 @@ def test_enclosed_volume_is_cell_volume_minus_positive_hulls(dim, kind):
     assert closed_report(keys) == ({2}, True)
     volume = signed_volume(keys, positive.shape, dim)
     cell_volume = 1.0 if kind == "cube" else 1.0 / math.factorial(dim)
-    expected = sum(
-        cell_volume - hull_volume(dim, kind, int(c)) for c in cell_cases(positive, t)
-    )
+    expected = sum(cell_volume - hull_volume(dim, kind, int(c)) for c in cell_cases(positive, t))
     assert volume == pytest.approx(expected, rel=1e-9)
     # and it approximates the ball (4/3 pi r^3, pi^2 r^4 / 2): measured -4 %/+2 % in 3D and
     # -12 %/+0.1 % in 4D (cubes/simplices) with vertices at edge midpoints, spacing 1, r = 2.6;
@@ -726,9 +721,7 @@ def test_enclosed_volume_is_cell_volume_minus_positive_hulls(dim, kind):
 def cell_cases(positive: np.ndarray, t: lut.Table) -> np.ndarray:
     """Case index of every cell (cube, or every Kuhn cell of every cube) of a sign grid."""
     d = positive.ndim
-    origins = np.stack(
-        np.meshgrid(*[np.arange(s - 1) for s in positive.shape], indexing="ij"), -1
-    ).reshape(-1, d)
+    origins = np.stack(np.meshgrid(*[np.arange(s - 1) for s in positive.shape], indexing="ij"), -1).reshape(-1, d)
     cube_corners = lut.load(d, "cube").vertices.astype(np.int64)
     cells = np.arange(2**d)[None] if t.kind == "cube" else t.cells
     cases = []
@@ -761,9 +754,7 @@ def test_cli_stats_with_build_time(capsys):
 def test_cli_build_and_verify(tmp_path, capsys):
     out = tmp_path / "tables"
     assert cli_main(["lut", "build", "--dim", "2", "--dim", "3", "--out", str(out)]) == 0
-    assert (out / "simplex_3d.npz").read_bytes() == (
-        lut._lut_folder() / "simplex_3d.npz"
-    ).read_bytes()
+    assert (out / "simplex_3d.npz").read_bytes() == (lut._lut_folder() / "simplex_3d.npz").read_bytes()
     assert cli_main(["lut", "verify", "--dir", str(out), "--dim", "3"]) == 0
     captured = capsys.readouterr()
     assert "cube_3d.npz: sha256 ok, rebuild identical" in captured.out

@@ -394,7 +394,9 @@ def test_level_outside_the_data_gives_an_empty_mesh():
     v = _noise(np.random.default_rng(0), (5, 5, 5, 5))
     for level in (-5.0, 5.0):
         # issue 12: this passed silently; now the warning gives the data's range
-        with pytest.warns(march.EmptyMeshWarning, match=r"`level` [-0-9.]+ is outside the data range \[-?[0-9.]+, [0-9.]+\]"):
+        with pytest.warns(
+            march.EmptyMeshWarning, match=r"`level` [-0-9.]+ is outside the data range \[-?[0-9.]+, [0-9.]+\]"
+        ):
             mesh = ao4d.extract(v, level)
         assert mesh.n_simplices == 0 and mesh.n_vertices == 0 and mesh.dim == 4
 
@@ -512,8 +514,23 @@ def test_cli_extract_npy_input(tmp_path, capsys):
     v = _noise(np.random.default_rng(40), (8, 7, 9))
     np.save(tmp_path / "v.npy", -v)
     out = tmp_path / "m.npz"
-    args = ["extract", "--input", str(tmp_path / "v.npy"), "--level", "-0.1", "--inside", "above",
-            "--spacing", "0.5", "1", "2", "--method", "simplices", "--out", str(out)]
+    args = [
+        "extract",
+        "--input",
+        str(tmp_path / "v.npy"),
+        "--level",
+        "-0.1",
+        "--inside",
+        "above",
+        "--spacing",
+        "0.5",
+        "1",
+        "2",
+        "--method",
+        "simplices",
+        "--out",
+        str(out),
+    ]
     assert main(args) == 0
     assert "=> OK" in capsys.readouterr().out
     ref = ao4d.extract(v, 0.1, spacing=(0.5, 1, 2), method="simplices")
@@ -539,12 +556,13 @@ def test_slab_extraction_of_a_160_grid_stays_under_1_5_gb():
     import sys
 
     # the child's own VmHWM: getrusage's maxrss carries the parent's peak over fork + exec
-    code = ("import ao4d\n"
-            "m = ao4d.extract_field(ao4d.fields.hypersphere(0.3), 160, (-1.2, 1.2), progress=False)\n"
-            "assert m.check().ok\n"
-            "print([l for l in open('/proc/self/status') if l.startswith('VmHWM')][0].split()[1])\n")
-    run = subprocess.run([sys.executable, "-c", code], check=True, timeout=900, capture_output=True,
-                         text=True)
+    code = (
+        "import ao4d\n"
+        "m = ao4d.extract_field(ao4d.fields.hypersphere(0.3), 160, (-1.2, 1.2), progress=False)\n"
+        "assert m.check().ok\n"
+        "print([l for l in open('/proc/self/status') if l.startswith('VmHWM')][0].split()[1])\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], check=True, timeout=900, capture_output=True, text=True)
     peak_gb = int(run.stdout.split()[-1]) * 1024 / 1e9  # kB
     assert peak_gb < 1.5, f"peak RSS {peak_gb:.2f} GB"
 
@@ -595,8 +613,7 @@ def test_closed_pieces_of_a_ball_add_up_to_the_ball(d):
     total = 0.0
     for upper in itertools.product((False, True), repeat=d):
         box = tuple(slice(n - 1, None) if u else slice(0, n) for u in upper)
-        piece = ao4d.extract(r[box], 0.8, spacing=x[1] - x[0], closed=True,
-                             origin=[0.0 if u else -1.0 for u in upper])
+        piece = ao4d.extract(r[box], 0.8, spacing=x[1] - x[0], closed=True, origin=[0.0 if u else -1.0 for u in upper])
         assert piece.check().ok
         total += piece.volume
     assert total == pytest.approx(whole.volume, rel=1e-12)
@@ -620,18 +637,29 @@ def test_closed_gives_the_same_mesh_on_every_path(tmp_path):
     np.save(tmp_path / "v.npy", v)
     np.save(tmp_path / "f.npy", np.asfortranarray(v))
     others = [
-        ao4d.extract(np.load(tmp_path / "v.npy", mmap_mode="r"), 0.0, closed=True,
-                     spacing=(0.5, 1, 1, 2), origin=(1, 0, 0, 3)),
-        ao4d.extract(da.from_array(v, chunks=(4, 3, 7, 2)), 0.0, closed=True,
-                     spacing=(0.5, 1, 1, 2), origin=(1, 0, 0, 3)),
+        ao4d.extract(
+            np.load(tmp_path / "v.npy", mmap_mode="r"), 0.0, closed=True, spacing=(0.5, 1, 1, 2), origin=(1, 0, 0, 3)
+        ),
+        ao4d.extract(
+            da.from_array(v, chunks=(4, 3, 7, 2)), 0.0, closed=True, spacing=(0.5, 1, 1, 2), origin=(1, 0, 0, 3)
+        ),
     ]
     for mesh in others:
         np.testing.assert_array_equal(mesh.vertices, ref.vertices)
         np.testing.assert_array_equal(mesh.simplices, ref.simplices)
-    for mesh in (ao4d.extract(np.load(tmp_path / "f.npy", mmap_mode="r"), 0.0, closed=True,
-                              spacing=(0.5, 1, 1, 2), origin=(1, 0, 0, 3)),
-                 ao4d.extract(np.load(tmp_path / "v.npy", mmap_mode="r"), 0.0, closed=True,
-                              chunk=2, spacing=(0.5, 1, 1, 2), origin=(1, 0, 0, 3))):
+    for mesh in (
+        ao4d.extract(
+            np.load(tmp_path / "f.npy", mmap_mode="r"), 0.0, closed=True, spacing=(0.5, 1, 1, 2), origin=(1, 0, 0, 3)
+        ),
+        ao4d.extract(
+            np.load(tmp_path / "v.npy", mmap_mode="r"),
+            0.0,
+            closed=True,
+            chunk=2,
+            spacing=(0.5, 1, 1, 2),
+            origin=(1, 0, 0, 3),
+        ),
+    ):
         # other slabs: the same simplices in another order (compared by their corners' exact
         # coordinates: the caps have coincident vertices, so vertex matching is ambiguous)
         np.testing.assert_array_equal(_corner_rows(mesh), _corner_rows(ref))
@@ -713,8 +741,26 @@ def test_cli_extract_affine_flag_places_by_the_files_affine(tmp_path, capsys):
 
     v = F.sample(F.hypersphere(0.8, dim=3), (9, 10, 11), (-1, 1))
     np.save(tmp_path / "v.npy", v)
-    assert main(["extract", "--input", str(tmp_path / "v.npy"), "--affine", "--spacing", "0.5", "2", "1",
-                 "--level", "0", "--no-progress", "--out", str(tmp_path / "m.npz")]) == 0
+    assert (
+        main(
+            [
+                "extract",
+                "--input",
+                str(tmp_path / "v.npy"),
+                "--affine",
+                "--spacing",
+                "0.5",
+                "2",
+                "1",
+                "--level",
+                "0",
+                "--no-progress",
+                "--out",
+                str(tmp_path / "m.npz"),
+            ]
+        )
+        == 0
+    )
     ref = ao4d.extract(v, 0.0, spacing=(0.5, 2, 1))
     got = ao4d.SimplexMesh.load(tmp_path / "m.npz")
     np.testing.assert_allclose(got.vertices, ref.vertices, rtol=0, atol=1e-12)
@@ -751,17 +797,30 @@ def test_cli_extract_closed_and_refused_options(tmp_path, capsys):
     info = read_field_data(out)
     assert bool(info["closed"]) and str(info["source"]) == str(tmp_path / "v.npy")
     np.testing.assert_array_equal(info["spacing"], 1.0)
-    for extra in (["--spacing", "0.1"], ["--dim", "3"], ["--origin", "1"], ["--w-scale", "2"],
-                  ["--affine"]):
-        assert main(["extract", "--shape", "hypersphere", "--grid", "8", *extra,
-                     "--out", str(tmp_path / "s.npz")]) == 2
+    for extra in (["--spacing", "0.1"], ["--dim", "3"], ["--origin", "1"], ["--w-scale", "2"], ["--affine"]):
+        assert main(["extract", "--shape", "hypersphere", "--grid", "8", *extra, "--out", str(tmp_path / "s.npz")]) == 2
         assert "to --input only, not to --shape" in capsys.readouterr().err
-    assert main(["extract", "--input", str(tmp_path / "v.npy"), "--grid", "20",
-                 "--out", str(tmp_path / "s.npz")]) == 2
+    assert main(["extract", "--input", str(tmp_path / "v.npy"), "--grid", "20", "--out", str(tmp_path / "s.npz")]) == 2
     assert "--grid applies to --shape only" in capsys.readouterr().err
     assert not (tmp_path / "s.npz").exists()
-    assert main(["extract", "--shape", "hypersphere", "--grid", "10", "--bounds", "0", "1.5",
-                 "--closed", "--out", str(tmp_path / "s.npz")]) == 0
+    assert (
+        main(
+            [
+                "extract",
+                "--shape",
+                "hypersphere",
+                "--grid",
+                "10",
+                "--bounds",
+                "0",
+                "1.5",
+                "--closed",
+                "--out",
+                str(tmp_path / "s.npz"),
+            ]
+        )
+        == 0
+    )
     quarter = ao4d.SimplexMesh.load(tmp_path / "s.npz")
     assert quarter.check().ok and quarter.bounds[0].tolist() == [0.0] * 4
 
@@ -822,8 +881,9 @@ def test_empty_results_say_why_for_constant_and_two_valued_grids():
     with pytest.warns(march.EmptyMeshWarning, match=r"the grid is constant \(every value is 1\)"):
         ao4d.extract(np.ones((3, 3, 3, 3)), 1.0)
     binary = (np.random.default_rng(3700).random((4, 4, 4, 4)) > 0.5).astype(np.uint8)
-    with pytest.warns(march.EmptyMeshWarning,
-                      match=r"`level` 0 equals the data's minimum: the solid is f < level.*e\.g\. 0\.5"):
+    with pytest.warns(
+        march.EmptyMeshWarning, match=r"`level` 0 equals the data's minimum: the solid is f < level.*e\.g\. 0\.5"
+    ):
         ao4d.extract(binary, 0.0)
     with pytest.warns(march.EmptyMeshWarning, match=r"`level` 1 equals the data's maximum: the solid is f > level"):
         ao4d.extract(binary, 1.0, inside="above")

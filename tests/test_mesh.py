@@ -13,12 +13,12 @@ import pickle
 
 import numpy as np
 import pytest
+from _shapes import ball_polytope, orient_outward, simplex_boundary, tesseract_boundary
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from scipy.spatial import ConvexHull
 
-from _shapes import ball_polytope, orient_outward, simplex_boundary, tesseract_boundary
 from ao4d.mesh import SimplexMesh, concatenate
 
 DIMS = (2, 3, 4)
@@ -262,8 +262,12 @@ def test_as_mesh_takes_a_mesh_a_trimesh_a_pair_and_a_plain_object():
 @pytest.mark.parametrize(
     ("value", "error", "match"),
     [
-        (np.zeros((3, 3)), TypeError, r"`solid` must be a SimplexMesh, a trimesh.Trimesh, a \(vertices, simplices\) "
-                                      r"pair.*got ndarray"),
+        (
+            np.zeros((3, 3)),
+            TypeError,
+            r"`solid` must be a SimplexMesh, a trimesh.Trimesh, a \(vertices, simplices\) "
+            r"pair.*got ndarray",
+        ),
         ("mesh.npz", TypeError, "`solid` must be a SimplexMesh.*got str"),
         (([[0, 0], [1, 0]], [[0, 5]]), ValueError, r"`solid` holds no valid mesh: `simplices` holds 1 vertex index"),
         (([[0, 0], [1, 0]], [[0.5, 1]]), TypeError, "`solid` holds no valid mesh: `simplices` must hold integer"),
@@ -328,9 +332,7 @@ def _orthogonal(entries: np.ndarray) -> np.ndarray:
 
 def _matrix_strategy(d):
     elements = st.floats(-1, 1, allow_nan=False).filter(lambda x: abs(x) > 1e-3)
-    return hnp.arrays(np.float64, (d, d), elements=elements).filter(
-        lambda m: abs(np.linalg.det(m)) > 1e-2
-    )
+    return hnp.arrays(np.float64, (d, d), elements=elements).filter(lambda m: abs(np.linalg.det(m)) > 1e-2)
 
 
 @pytest.mark.parametrize("d", DIMS)
@@ -511,8 +513,6 @@ def test_empty_mesh():
 # --------------------------------------------------------------------------------------------
 
 
-
-
 def test_adopt_takes_fresh_engine_arrays_without_copies():
     vertices = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
     simplices = np.array([[0, 2], [2, 1], [1, 0]], dtype=np.int64)
@@ -521,6 +521,7 @@ def test_adopt_takes_fresh_engine_arrays_without_copies():
     assert not vertices.flags.writeable and not simplices.flags.writeable
     assert float(mesh.volume) == 0.5 and mesh.check().ok
     # anything else (another dtype) goes through the checking constructor
-    other = SimplexMesh._adopt(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
-                               np.array([[0, 2], [2, 1], [1, 0]], dtype=np.int32))
+    other = SimplexMesh._adopt(
+        np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.array([[0, 2], [2, 1], [1, 0]], dtype=np.int32)
+    )
     assert other.simplices.dtype == np.int64 and other.check().ok

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-
 from _shapes import ball_polytope, graded_icosphere, simplex_boundary
+
 from ao4d import mesh_files, pictures
 from ao4d.mesh import SimplexMesh
 
@@ -168,8 +168,12 @@ def test_slice_ply_has_no_64_bit_properties(ball4, tmp_path):
 
 def test_npz_field_data_round_trips_and_old_readers_ignore_it(tmp_path):
     mesh = _decorated(4)
-    info = {"spacing": np.array([2.0, 2.0, 2.2, 2.0]), "units": np.array(["mm", "mm", "mm", "ms"]),
-            "w_scale": np.float64(0.001), "source": np.asarray("scan.nii")}
+    info = {
+        "spacing": np.array([2.0, 2.0, 2.2, 2.0]),
+        "units": np.array(["mm", "mm", "mm", "ms"]),
+        "w_scale": np.float64(0.001),
+        "source": np.asarray("scan.nii"),
+    }
     arrays = mesh_files.MeshArrays(mesh.vertices, mesh.simplices, mesh.point_data, mesh.cell_data)
     a, b = tmp_path / "a.npz", tmp_path / "b.npz"
     mesh_files.write(a, arrays, field_data=info)
@@ -192,7 +196,6 @@ def test_npz_whose_format_is_not_a_number_is_named(tmp_path):
 
     mesh = _decorated(3)
     for bad in (np.array("one"), np.array([1, 2])):
-        write_npz(tmp_path / "f.npz", {"format": bad, "vertices": mesh.vertices,
-                                        "simplices": mesh.simplices})
+        write_npz(tmp_path / "f.npz", {"format": bad, "vertices": mesh.vertices, "simplices": mesh.simplices})
         with pytest.raises(ValueError, match="its `format` entry is not a version number"):
             SimplexMesh.load(tmp_path / "f.npz")

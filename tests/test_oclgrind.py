@@ -24,8 +24,13 @@ import pytest
 pytestmark = pytest.mark.slow
 
 _LIBRARY = "liboclgrind-rt-icd.so"
-_FOLDERS = ("/usr/lib/oclgrind", "/usr/lib/x86_64-linux-gnu/oclgrind", "/usr/local/lib/oclgrind",
-            "/usr/lib64/oclgrind", "/usr/local/lib")
+_FOLDERS = (
+    "/usr/lib/oclgrind",
+    "/usr/lib/x86_64-linux-gnu/oclgrind",
+    "/usr/local/lib/oclgrind",
+    "/usr/lib64/oclgrind",
+    "/usr/local/lib",
+)
 # API notices that are not ao4d's: device queries of properties newer than OpenCL 1.2 (pyopencl
 # asks for them) and pyopencl's probe of a program attribute as a kernel name
 _HARMLESS = (
@@ -68,8 +73,9 @@ def test_every_kernel_runs_clean_under_oclgrind(tmp_path):
         OCLGRIND_LOG=str(log),
     )
     script = Path(__file__).with_name("_oclgrind_check.py")
-    run = subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True,
-                         timeout=1800, cwd=tmp_path, check=False)
+    run = subprocess.run(
+        [sys.executable, str(script)], env=env, capture_output=True, text=True, timeout=1800, cwd=tmp_path, check=False
+    )
     assert run.returncode == 0, run.stdout + run.stderr
     assert "device: Oclgrind" in run.stdout
     assert "BAD" not in run.stdout

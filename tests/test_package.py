@@ -27,8 +27,23 @@ PUBLIC = [m for m in MODULES if not any(part.startswith("_") for part in m.split
 # names a reader would take for something else: the standard library, and libraries ao4d's users
 # know (meshio, io, render engines...)
 _WELL_KNOWN = set(sys.stdlib_module_names) | {
-    "meshio", "trimesh", "pyvista", "vtk", "numpy", "scipy", "dask", "distributed", "zarr",
-    "h5py", "nibabel", "open3d", "embree", "skimage", "matplotlib", "tqdm", "pyopencl",
+    "meshio",
+    "trimesh",
+    "pyvista",
+    "vtk",
+    "numpy",
+    "scipy",
+    "dask",
+    "distributed",
+    "zarr",
+    "h5py",
+    "nibabel",
+    "open3d",
+    "embree",
+    "skimage",
+    "matplotlib",
+    "tqdm",
+    "pyopencl",
 }
 
 
@@ -68,7 +83,7 @@ def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
         stack.append(node)
         for nxt in sorted(graph[node]):
             if state.get(nxt) == 1:
-                return stack[stack.index(nxt):] + [nxt]
+                return stack[stack.index(nxt) :] + [nxt]
             if nxt not in state and (found := visit(nxt)):
                 return found
         stack.pop()
@@ -190,8 +205,9 @@ def test_version_is_written_once_and_shown_by_the_command_line():
     project = _pyproject()
     assert "version" not in project["project"] and "version" in project["project"]["dynamic"]
     assert project["tool"]["hatch"]["version"]["path"] == "ao4d/__init__.py"
-    out = subprocess.run([sys.executable, "-m", "ao4d", "--version"], capture_output=True, text=True,
-                         check=True, timeout=120, cwd=ROOT).stdout
+    out = subprocess.run(
+        [sys.executable, "-m", "ao4d", "--version"], capture_output=True, text=True, check=True, timeout=120, cwd=ROOT
+    ).stdout
     assert out.strip() == f"ao4d {ao4d.__version__}"
 
 
@@ -225,7 +241,10 @@ def test_citation_cff_has_the_required_keys_and_references():
     titles = {ref["title"]: ref for ref in cff["references"]}
     paper = titles["Isosurfacing in higher dimensions"]
     assert paper["year"] == 2000 and [a["family-names"] for a in paper["authors"]] == [
-        "Bhaniramka", "Wenger", "Crawfis"]
+        "Bhaniramka",
+        "Wenger",
+        "Crawfis",
+    ]
     thesis = titles["Ambient Occlusion in 4D"]
     assert thesis["type"] == "thesis" and thesis["year"] == 2021
     assert "Heidelberg" in thesis["institution"]["name"]

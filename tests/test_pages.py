@@ -34,8 +34,7 @@ def sphere():
 @pytest.fixture(scope="module")
 def image(sphere):
     cam = ao4d.Camera4D([0, 0, 0, -4], [0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], fov=40)
-    return ao4d.render(sphere, cam, (24, 24, 24), ao="vertices", light=[0, 1, 0, -1],
-                       backend="numpy", progress=False)
+    return ao4d.render(sphere, cam, (24, 24, 24), ao="vertices", light=[0, 1, 0, -1], backend="numpy", progress=False)
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +48,7 @@ def demo_dir(tmp_path_factory):
 
 def _srcdoc(markup):
     start = markup.index('srcdoc="') + len('srcdoc="')
-    return html.unescape(markup[start:markup.index('"', start)])
+    return html.unescape(markup[start : markup.index('"', start)])
 
 
 def test_view_dispatches_meshes_and_images(sphere, image, tmp_path):
@@ -120,8 +119,14 @@ def test_demo_view_html_holds_both_views(demo_dir):
 
 # --------------------------------------------------------------------------- one shared script
 
-_SLOTS = ("<!--AO4D_HEAD-->", "<!--AO4D_PANEL-->", "<!--AO4D_BODY-->", "<!--AO4D_COMMON-->",
-          "<!--AO4D_DATA-->", "__AO4D_SCENE__")
+_SLOTS = (
+    "<!--AO4D_HEAD-->",
+    "<!--AO4D_PANEL-->",
+    "<!--AO4D_BODY-->",
+    "<!--AO4D_COMMON-->",
+    "<!--AO4D_DATA-->",
+    "__AO4D_SCENE__",
+)
 
 
 def _own_script(text):
@@ -136,8 +141,18 @@ def _shared_definitions():
     script = _page.common_script()
     names = set(re.findall(r"^  (?:async )?function (\w+)\(|^  const (\w+) = \(", script, re.M))
     names = {a or b for a, b in names}
-    assert {"fragmentPairs", "loadBlob", "compile", "orbitCamera", "bindOrbit", "bindKeys", "page",
-            "readCanvas", "savePNG", "cross"} <= names
+    assert {
+        "fragmentPairs",
+        "loadBlob",
+        "compile",
+        "orbitCamera",
+        "bindOrbit",
+        "bindKeys",
+        "page",
+        "readCanvas",
+        "savePNG",
+        "cross",
+    } <= names
     return names
 
 
@@ -173,13 +188,15 @@ def test_page_sources_share_no_run_of_six_lines():
     """The pages' sources and the shared frame and script: each idea written once (the
     ``duplicates`` tool's bar, exact lines here)."""
     folder = Path(ao4d.__file__).parent
-    sources = {name: (folder / name).read_text().splitlines()
-               for name in ("viewer_page.html", "image_page.html", "page_frame.html", "page_common.js")}
+    sources = {
+        name: (folder / name).read_text().splitlines()
+        for name in ("viewer_page.html", "image_page.html", "page_frame.html", "page_common.js")
+    }
     sources["pages._OUTER"] = pages._OUTER.splitlines()
     runs = {}
     for name, lines in sources.items():
         for i in range(len(lines) - 5):
-            window = tuple(line.strip() for line in lines[i:i + 6])
+            window = tuple(line.strip() for line in lines[i : i + 6])
             if sum(bool(line) for line in window) >= 4:
                 runs.setdefault(window, set()).add(name)
     shared = [(sorted(names), window) for window, names in runs.items() if len(names) > 1]
@@ -187,6 +204,7 @@ def test_page_sources_share_no_run_of_six_lines():
 
 
 # --------------------------------------------------------------------------- notebooks
+
 
 def _notebook(tmp_path):
     nbformat = pytest.importorskip("nbformat", reason="notebook tests need nbformat (the test extra)")
@@ -203,8 +221,7 @@ def _notebook(tmp_path):
     nb = nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(c) for c in cells])
     from nbclient import NotebookClient
 
-    NotebookClient(nb, timeout=300, kernel_name="python3",
-                   resources={"metadata": {"path": str(tmp_path)}}).execute()
+    NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
     return nb
 
 
@@ -221,15 +238,18 @@ def test_notebook_shows_the_image_and_the_meshes_inline(tmp_path):
     assert 'content="ao4d view (image)"' in shown[0] and 'content="ao4d view"' in shown[1]
     assert iv.page_info(shown[0])["shape"] == [24, 24, 24]
     # what an HTML export of the notebook holds: the outputs' HTML in one document
-    body = "\n".join(o["data"]["text/html"] for out in outputs[1:] for o in out
-                     if o.get("output_type") == "execute_result")
+    body = "\n".join(
+        o["data"]["text/html"] for out in outputs[1:] for o in out if o.get("output_type") == "execute_result"
+    )
     (tmp_path / "export.html").write_text(f"<!DOCTYPE html><html><body>{body}</body></html>")
     if find_chromium() is None:
         pytest.skip("Chromium is not installed: the exported notebook was not loaded")
     with Chromium(width=900, height=1300) as browser:
         browser.goto((tmp_path / "export.html").as_uri())
-        ready = ("Array.from(document.querySelectorAll('iframe')).every((f) => f.contentWindow.ao4d"
-                 " && (f.contentWindow.ao4d.ready || f.contentWindow.ao4d.error))")
+        ready = (
+            "Array.from(document.querySelectorAll('iframe')).every((f) => f.contentWindow.ao4d"
+            " && (f.contentWindow.ao4d.ready || f.contentWindow.ao4d.error))"
+        )
         browser.wait_for(ready, timeout=60)
         for k in range(2):
             api = f"document.querySelectorAll('iframe')[{k}].contentWindow.ao4d"
@@ -240,6 +260,7 @@ def test_notebook_shows_the_image_and_the_meshes_inline(tmp_path):
 
 
 # --------------------------------------------------------------------------- the result page
+
 
 @pytest.fixture(scope="module")
 def browser():

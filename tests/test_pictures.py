@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from _shapes import graded_icosphere
+
 from ao4d import pictures
 
 pv = pytest.importorskip("pyvista")
@@ -33,8 +33,11 @@ def test_bad_inputs(tmp_path, call, error, match):
 def _spy_backends(monkeypatch) -> list[str]:
     """Record which volume-rendering backend draws each picture."""
     used: list[str] = []
-    for name, attr in (("pyvista", "_volume_png_pyvista"), ("numpy", "_volume_png_numpy"),
-                       ("voxels", "_voxel_picture")):
+    for name, attr in (
+        ("pyvista", "_volume_png_pyvista"),
+        ("numpy", "_volume_png_numpy"),
+        ("voxels", "_voxel_picture"),
+    ):
         real = getattr(pictures, attr)
 
         def spy(*args, _real=real, _name=name, **kwargs):
@@ -90,8 +93,9 @@ def _ball_volume(n=24):
 
 def test_montage_png(tmp_path):
     data, bg = _ball_volume()
-    path = pictures.save_montage(tmp_path / "m.png", data, background=bg, title="ball", label="shade",
-                           n_slices=6, spacing=0.1)
+    path = pictures.save_montage(
+        tmp_path / "m.png", data, background=bg, title="ball", label="shade", n_slices=6, spacing=0.1
+    )
     _assert_not_blank(path)
 
 
@@ -99,8 +103,9 @@ def test_montage_png(tmp_path):
 def test_volume_png(tmp_path, backend, monkeypatch):
     data, bg = _ball_volume()
     used = _spy_backends(monkeypatch)
-    path = pictures.save_volume_png(tmp_path / "v.png", data, background=bg, title="ball", label="shade",
-                                    backend=backend, size=(320, 280))
+    path = pictures.save_volume_png(
+        tmp_path / "v.png", data, background=bg, title="ball", label="shade", backend=backend, size=(320, 280)
+    )
     assert path == tmp_path / "v.png"
     assert used == ["voxels" if backend == "auto" else backend]
     _assert_not_blank(tmp_path / "v.png")
@@ -113,8 +118,9 @@ def test_ao_colors_dark_means_occluded():
 
 
 def test_slice_png(tmp_path):
-    path = pictures.save_slice_png(tmp_path / "s.png", graded_icosphere(), occlusion="ao", title="slice",
-                             size=(320, 280))
+    path = pictures.save_slice_png(
+        tmp_path / "s.png", graded_icosphere(), occlusion="ao", title="slice", size=(320, 280)
+    )
     _assert_not_blank(path)
 
 
@@ -206,12 +212,9 @@ def test_triangle_view_equals_brute_force_ray_casting():
     np.testing.assert_allclose(at @ up, base[hit] @ up, atol=1e-9)
 
 
-
-
 def test_montage_tiles_put_each_slice_in_its_panel():
-    from matplotlib.colors import Normalize
-
     import matplotlib
+    from matplotlib.colors import Normalize
 
     panels = [np.full((3, 5), float(v)) for v in range(7)]
     cmap = matplotlib.colormaps["gray"]
@@ -220,5 +223,5 @@ def test_montage_tiles_put_each_slice_in_its_panel():
     for n in range(7):
         r, c = divmod(n, 3)
         y0, x0 = 3 + r * 6, c * 6
-        np.testing.assert_allclose(tiles[y0:y0 + 3, x0:x0 + 5], np.broadcast_to(np.array(cmap(n / 6)), (3, 5, 4)))
+        np.testing.assert_allclose(tiles[y0 : y0 + 3, x0 : x0 + 5], np.broadcast_to(np.array(cmap(n / 6)), (3, 5, 4)))
     assert tiles[:3, :, 3].max() == 0 and tiles[3:6, 5, 3].max() == 0  # transparent gaps

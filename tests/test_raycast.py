@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _scenes import embree_scene, flat_patch, random_rays, random_soup, soup_scene, sphere_over_ground, up_points
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 import ao4d
-from _scenes import embree_scene, flat_patch, random_rays, random_soup, soup_scene, sphere_over_ground, up_points
 from ao4d import bvh, cl, raycast
 
 DIMS = (2, 3, 4)
@@ -212,7 +212,6 @@ def test_kernel_macros_are_all_used():
     assert not unused, f"macros defined but never used in kernels/: {unused}"
 
 
-
 # -- kernel defects of issue 11 (found under Oclgrind and PoCL) --------------------------------
 
 
@@ -313,10 +312,8 @@ def test_far_and_scaled_scene_traces_as_at_the_origin(hypersphere14, shift, scal
     samples = 16
     idx = rng.choice(len(base.vertices), 300 if backend == "opencl" else 40, replace=False)
     normals = base.vertex_normals[idx]
-    a_ref = ao4d.ambient_occlusion(base, points=base.vertices[idx], normals=normals, samples=samples,
-                                   backend=backend)
-    a_got = ao4d.ambient_occlusion(moved, points=moved.vertices[idx], normals=normals, samples=samples,
-                                   backend=backend)
+    a_ref = ao4d.ambient_occlusion(base, points=base.vertices[idx], normals=normals, samples=samples, backend=backend)
+    a_got = ao4d.ambient_occlusion(moved, points=moved.vertices[idx], normals=normals, samples=samples, backend=backend)
     assert a_ref.max() == 0.0  # convex: nothing occludes
     assert np.abs(a_got - a_ref).max() <= 1 / samples
 
@@ -383,12 +380,23 @@ def _surface_points(mesh, runtime, every: int = 1):
     return mesh.vertices[keep], normals[keep], tree, ao4d.ao.ORIGIN_OFFSET * tree.diagonal
 
 
-def _ao_counts(mesh, runtime, points, normals, samples, offset, max_distance, *, traversal="packet",
-               accel="bvh"):
+def _ao_counts(mesh, runtime, points, normals, samples, offset, max_distance, *, traversal="packet", accel="bvh"):
     # _ao_opencl takes points in the tree's frame; offset and reach below are tree lengths
     tree = raycast.get_bvh(mesh, runtime=runtime)
-    return raycast._ao_opencl(mesh, tree, runtime, tree.frame.points(points), normals, samples, 7, offset,
-                              max_distance, accel, raycast._NullBar(), traversal=traversal)
+    return raycast._ao_opencl(
+        mesh,
+        tree,
+        runtime,
+        tree.frame.points(points),
+        normals,
+        samples,
+        7,
+        offset,
+        max_distance,
+        accel,
+        raycast._NullBar(),
+        traversal=traversal,
+    )
 
 
 def _surface_scene(rng, d, shift):
@@ -405,8 +413,7 @@ def _surface_scene(rng, d, shift):
 @pytest.mark.parametrize("d", DIMS)
 @pytest.mark.parametrize("lanes", [16, 4])
 @pytest.mark.parametrize("shift", [0.0, 1000.0])  # far from the coordinate origin: float32 slabs
-def test_packet_traversal_gives_the_per_ray_and_brute_force_counts(d, lanes, shift, cl_runtime,
-                                                                   monkeypatch):
+def test_packet_traversal_gives_the_per_ray_and_brute_force_counts(d, lanes, shift, cl_runtime, monkeypatch):
     # the packet kernel tests, per ray, exactly the boxes and blocks of the per-ray kernel with
     # the same arithmetic: bit-identical counts, also for packets cut short (40 and 70 samples
     # are not multiples of raycast.AO_PACKET) and with a finite reach
@@ -503,8 +510,9 @@ def test_ao_uses_the_packet_kernel_on_cpus(cl_runtime, monkeypatch):
     cpu = bool(cl_runtime.device.type & pcl.device_type.CPU)
     assert used == ["" if cpu else "_rays"]  # ao_bvh (packets) on CPUs, ao_bvh_rays elsewhere
     with pytest.raises(ValueError, match="`traversal` must be one of"):
-        raycast.traversal_counts(mesh, mesh.vertices[:3], np.eye(3)[[0, 1, 2]], samples=4, offset=0.0,
-                                 runtime=cl_runtime, traversal="wide")
+        raycast.traversal_counts(
+            mesh, mesh.vertices[:3], np.eye(3)[[0, 1, 2]], samples=4, offset=0.0, runtime=cl_runtime, traversal="wide"
+        )
 
 
 def test_any_hit_traversal_stops_at_its_first_hit(cl_runtime):
@@ -518,8 +526,9 @@ def test_any_hit_traversal_stops_at_its_first_hit(cl_runtime):
     mesh = ao4d.SimplexMesh(vertices, simplices)
     rng = np.random.default_rng(1900)
     p, n = up_points(rng, d, 200, 1.0)
-    nodes, blocks = raycast.traversal_counts(mesh, p, n, samples=16, offset=0.0, runtime=cl_runtime,
-                                             max_distance=100.0, traversal="rays")
+    nodes, blocks = raycast.traversal_counts(
+        mesh, p, n, samples=16, offset=0.0, runtime=cl_runtime, max_distance=100.0, traversal="rays"
+    )
     occ = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=16, backend="opencl")
     assert occ.min() > 0.9  # nearly every ray hits the lowest patch
     assert blocks < 2.5, blocks  # a traversal that continues tests at least one block per patch
@@ -575,8 +584,9 @@ def test_cast_rays_over_many_launches_equals_brute_force(d, shift, cl_runtime, m
     for closest in (False, True):
         for max_distance in (np.inf, 0.7):
             fast = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", max_distance=max_distance)
-            slow = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel="brute",
-                                     max_distance=max_distance)
+            slow = raycast.cast_rays(
+                mesh, o, w, closest=closest, backend="opencl", accel="brute", max_distance=max_distance
+            )
             np.testing.assert_array_equal(fast.hit, slow.hit)
             if closest:
                 np.testing.assert_array_equal(fast.t, slow.t)
@@ -600,12 +610,17 @@ def _dense_4d_surfaces():
     three interlocked torispheres around a ball, and a cluster of six metaballs."""
     f = ao4d.fields
     torus = f.torisphere(0.9, 0.28)
-    tori = f.union(f.hypersphere(0.6), torus,
-                   f.rotate(f.rotate(torus, (0, 2), np.pi / 2), (1, 3), np.pi / 2),
-                   f.rotate(f.rotate(torus, (1, 2), np.pi / 2), (0, 3), np.pi / 4))
+    tori = f.union(
+        f.hypersphere(0.6),
+        torus,
+        f.rotate(f.rotate(torus, (0, 2), np.pi / 2), (1, 3), np.pi / 2),
+        f.rotate(f.rotate(torus, (1, 2), np.pi / 2), (0, 3), np.pi / 4),
+    )
     balls = f.metaballs(np.random.default_rng(3).uniform(-0.5, 0.5, size=(6, 4)), 0.35, sharpness=8.0)
-    return {"tori": ao4d.extract_field(tori, (11,) * 4, (-1.3, 1.3)),
-            "metaballs": ao4d.extract_field(balls, (11,) * 4, (-1.0, 1.0))}
+    return {
+        "tori": ao4d.extract_field(tori, (11,) * 4, (-1.3, 1.3)),
+        "metaballs": ao4d.extract_field(balls, (11,) * 4, (-1.0, 1.0)),
+    }
 
 
 @pytest.mark.parametrize("lanes", [16, 4])  # the CPU and GPU leaf layouts

@@ -30,8 +30,9 @@ def _values(vol):
     return np.asarray(vol.values.compute() if vol.lazy else vol.values)
 
 
-def _write_mhd(path, values, *, spacing, offset, element="MET_FLOAT", dtype="<f4", local=False,
-               compressed=False, extra=""):
+def _write_mhd(
+    path, values, *, spacing, offset, element="MET_FLOAT", dtype="<f4", local=False, compressed=False, extra=""
+):
     """A MetaImage written by hand from the format description (x fastest)."""
     payload = np.asarray(values, dtype=dtype).ravel(order="F").tobytes()
     if compressed:
@@ -39,12 +40,14 @@ def _write_mhd(path, values, *, spacing, offset, element="MET_FLOAT", dtype="<f4
 
         payload = zlib.compress(payload)
     d = values.ndim
-    header = (f"ObjectType = Image\nNDims = {d}\nBinaryData = True\n"
-              f"BinaryDataByteOrderMSB = {'True' if dtype.startswith('>') else 'False'}\n"
-              f"CompressedData = {compressed}\n"
-              f"ElementSpacing = {' '.join(map(str, spacing))}\n"
-              f"Offset = {' '.join(map(str, offset))}\n{extra}"
-              f"DimSize = {' '.join(map(str, values.shape))}\nElementType = {element}\n")
+    header = (
+        f"ObjectType = Image\nNDims = {d}\nBinaryData = True\n"
+        f"BinaryDataByteOrderMSB = {'True' if dtype.startswith('>') else 'False'}\n"
+        f"CompressedData = {compressed}\n"
+        f"ElementSpacing = {' '.join(map(str, spacing))}\n"
+        f"Offset = {' '.join(map(str, offset))}\n{extra}"
+        f"DimSize = {' '.join(map(str, values.shape))}\nElementType = {element}\n"
+    )
     if local:
         path.write_bytes((header + "ElementDataFile = LOCAL\n").encode() + payload)
     else:
@@ -182,8 +185,7 @@ def test_nifti_bad_files(tmp_path, grid4):
 
 def test_zarr_lazy_with_attributes(tmp_path, grid4):
     store = tmp_path / "v.zarr"
-    arr = zarr.open_array(str(store), mode="w", shape=grid4.shape, chunks=(2, 3, 7, 2),
-                          dtype=grid4.dtype)
+    arr = zarr.open_array(str(store), mode="w", shape=grid4.shape, chunks=(2, 3, 7, 2), dtype=grid4.dtype)
     arr[...] = grid4
     arr.attrs["spacing"] = [0.25, 0.5, 1.0, 2.0]
     arr.attrs["origin"] = [1.0, 2.0, 3.0, 4.0]
@@ -240,10 +242,19 @@ def test_hdf5_lazy_with_attributes(tmp_path, grid4):
 @pytest.mark.parametrize("layout", ["raw", "local", "compressed", "big-endian int16"])
 def test_metaimage_4d(tmp_path, grid4, layout):
     values = grid4 if layout != "big-endian int16" else (grid4 * 1000).astype(np.int16)
-    kwargs = {"raw": {}, "local": {"local": True}, "compressed": {"compressed": True},
-              "big-endian int16": {"element": "MET_SHORT", "dtype": ">i2"}}[layout]
-    path = _write_mhd(tmp_path / ("v.mha" if layout == "local" else "v.mhd"), values,
-                      spacing=(0.5, 1.5, 2.0, 0.25), offset=(-1.0, 0.0, 1.0, 10.0), **kwargs)
+    kwargs = {
+        "raw": {},
+        "local": {"local": True},
+        "compressed": {"compressed": True},
+        "big-endian int16": {"element": "MET_SHORT", "dtype": ">i2"},
+    }[layout]
+    path = _write_mhd(
+        tmp_path / ("v.mha" if layout == "local" else "v.mhd"),
+        values,
+        spacing=(0.5, 1.5, 2.0, 0.25),
+        offset=(-1.0, 0.0, 1.0, 10.0),
+        **kwargs,
+    )
     vol = read_grid(path)
     np.testing.assert_array_equal(_values(vol), values)
     assert vol.spacing.tolist() == [0.5, 1.5, 2.0, 0.25]
@@ -282,15 +293,21 @@ def test_metaimage_bad_files(tmp_path, grid4):
     (tmp_path / "bad.mhd").write_text("hello world\n")
     with pytest.raises(ValueError, match=r"bad\.mhd.*not a MetaImage"):
         read_grid(tmp_path / "bad.mhd")
-    (tmp_path / "type.mhd").write_text("NDims = 4\nDimSize = 2 2 2 2\nElementType = MET_BLOB\n"
-                                       "ElementDataFile = x.raw\n")
+    (tmp_path / "type.mhd").write_text(
+        "NDims = 4\nDimSize = 2 2 2 2\nElementType = MET_BLOB\nElementDataFile = x.raw\n"
+    )
     with pytest.raises(ValueError, match=r"type\.mhd.*ElementType 'MET_BLOB'"):
         read_grid(tmp_path / "type.mhd")
     three = _write_mhd(tmp_path / "three.mhd", grid4[..., 0], spacing=(1, 1, 1), offset=(0, 0, 0))
     with pytest.raises(ValueError, match=r"three\.mhd.*3D grid.*4D grid is needed"):
         read_grid(three, ndim=4)
-    rot = _write_mhd(tmp_path / "rot.mhd", grid4[..., 0], spacing=(1, 1, 1), offset=(0, 0, 0),
-                     extra="TransformMatrix = 0 1 0 -1 0 0 0 0 1\n")
+    rot = _write_mhd(
+        tmp_path / "rot.mhd",
+        grid4[..., 0],
+        spacing=(1, 1, 1),
+        offset=(0, 0, 0),
+        extra="TransformMatrix = 0 1 0 -1 0 0 0 0 1\n",
+    )
     with pytest.warns(ObliqueAffineWarning, match="TransformMatrix"):
         read_grid(rot)
 
@@ -385,8 +402,7 @@ def test_extract_from_files_equals_extract_from_array(tmp_path):
     values = ao4d.sample(fields.spheritorus(0.8, 0.35), 12, (-1.3, 1.3))
     spacing, origin = (0.25, 0.5, 0.25, 0.5), (-1.0, 0.0, 1.0, 2.0)
     ref = ao4d.extract(values, 0.0, spacing=spacing, origin=origin)
-    _write_mhd(tmp_path / "v.mhd", values, spacing=spacing, offset=origin, element="MET_DOUBLE",
-               dtype="<f8")
+    _write_mhd(tmp_path / "v.mhd", values, spacing=spacing, offset=origin, element="MET_DOUBLE", dtype="<f8")
     with h5py.File(tmp_path / "v.h5", "w") as fh:
         fh.create_dataset("d", data=values, chunks=(5, 5, 5, 5)).attrs["spacing"] = spacing
         fh["d"].attrs["origin"] = origin
@@ -411,9 +427,8 @@ def _oriented_simplex_set(mesh):
 
 
 def test_cli_extract_input_formats(tmp_path, capsys):
-    from ao4d.cli import main
-
     from ao4d import fields
+    from ao4d.cli import main
 
     values = ao4d.sample(fields.hypersphere(0.9), 10, (-1.2, 1.2)).astype(np.float32)
     with h5py.File(tmp_path / "v.h5", "w") as fh:
@@ -425,29 +440,24 @@ def test_cli_extract_input_formats(tmp_path, capsys):
     ref = ao4d.extract(values, 0.0, spacing=0.5)
     np.testing.assert_array_equal(ao4d.SimplexMesh.load(out).vertices, ref.vertices)
     # --spacing overrides the file
-    assert main(["extract", "--input", f"{tmp_path / 'v.h5'}:/a/b", "--spacing", "2",
-                 "--out", str(out)]) == 0
-    np.testing.assert_array_equal(ao4d.SimplexMesh.load(out).vertices,
-                                  ao4d.extract(values, 0.0, spacing=2.0).vertices)
+    assert main(["extract", "--input", f"{tmp_path / 'v.h5'}:/a/b", "--spacing", "2", "--out", str(out)]) == 0
+    np.testing.assert_array_equal(ao4d.SimplexMesh.load(out).vertices, ao4d.extract(values, 0.0, spacing=2.0).vertices)
     # a glob of frames
     for k in range(values.shape[3]):
         np.save(tmp_path / f"t{k}.npy", values[..., k])
     assert main(["extract", "--input", str(tmp_path / "t*.npy"), "--out", str(out)]) == 0
-    np.testing.assert_array_equal(ao4d.SimplexMesh.load(out).vertices,
-                                  ao4d.extract(values, 0.0).vertices)
+    np.testing.assert_array_equal(ao4d.SimplexMesh.load(out).vertices, ao4d.extract(values, 0.0).vertices)
     capsys.readouterr()
     assert main(["extract", "--input", f"{tmp_path / 'v.h5'}:/a/c", "--out", str(out)]) == 2
     assert "no dataset '/a/c'" in capsys.readouterr().err
-    assert main(["extract", "--input", str(tmp_path / "t0.npy"), "--dim", "4",
-                 "--out", str(tmp_path / "x.npz")]) == 2
+    assert main(["extract", "--input", str(tmp_path / "t0.npy"), "--dim", "4", "--out", str(tmp_path / "x.npz")]) == 2
     assert "4D grid is needed" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------- units, affine
 
 
-def _nifti_4d(path, values, *, zooms=(2.0, 2.0, 2.2, 2000.0), units=("mm", "msec"), affine=None,
-              toffset=0.0):
+def _nifti_4d(path, values, *, zooms=(2.0, 2.0, 2.2, 2000.0), units=("mm", "msec"), affine=None, toffset=0.0):
     img = nib.Nifti1Image(values, np.diag([*zooms[:3], 1.0]) if affine is None else affine)
     img.header.set_zooms(zooms)
     img.header.set_xyzt_units(*units)
@@ -491,8 +501,7 @@ def test_cli_records_and_prints_the_w_scale(tmp_path, capsys):
     r = np.sqrt(sum(g * g for g in np.meshgrid(x, x, x, x, indexing="ij")))
     path = _nifti_4d(tmp_path / "t.nii", (r * 100).astype(np.int16))
     out = tmp_path / "m.npz"
-    assert main(["extract", "--input", str(path), "--level", "70", "--w-scale", "0.001",
-                 "--out", str(out)]) == 0
+    assert main(["extract", "--input", str(path), "--level", "70", "--w-scale", "0.001", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "w scale: 0.001 length units per ms" in text and "=> OK" in text
     info = read_field_data(out)
@@ -500,8 +509,25 @@ def test_cli_records_and_prints_the_w_scale(tmp_path, capsys):
     assert info["spacing"].tolist() == pytest.approx([2.0, 2.0, 2.2, 2.0])
     mesh = ao4d.SimplexMesh.load(out)
     assert mesh.bounds[1][3] - mesh.bounds[0][3] < 6 * 2.0 + 1e-9  # w spans at most 6 frames of 2
-    assert main(["extract", "--input", str(path), "--level", "70", "--spacing", "file", "file",
-                 "file", "0.25", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "extract",
+                "--input",
+                str(path),
+                "--level",
+                "70",
+                "--spacing",
+                "file",
+                "file",
+                "file",
+                "0.25",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert read_field_data(out)["spacing"].tolist() == pytest.approx([2.0, 2.0, 2.2, 0.25])
 
 
@@ -527,11 +553,11 @@ def test_nifti_affine_true_places_vertices_in_scanner_coordinates(tmp_path, flip
     report = mesh.check()
     assert report.ok, report  # closed and outward even when det < 0
     assert mesh.volume == pytest.approx(abs(np.linalg.det(vol.affine[:3, :3])) * index.volume, rel=1e-9)
-    np.testing.assert_allclose(mesh.vertices, index.vertices @ vol.affine[:3, :3].T + vol.affine[:3, 3],
-                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        mesh.vertices, index.vertices @ vol.affine[:3, :3].T + vol.affine[:3, 3], rtol=0, atol=1e-9
+    )
     # a vertex sits where nibabel's own affine puts its voxel coordinates
-    np.testing.assert_allclose(mesh.vertices[:5], nib.affines.apply_affine(vol.affine, index.vertices[:5]),
-                               atol=1e-9)
+    np.testing.assert_allclose(mesh.vertices[:5], nib.affines.apply_affine(vol.affine, index.vertices[:5]), atol=1e-9)
 
 
 def test_other_formats_give_a_diagonal_affine_with_affine_true(tmp_path, grid4):
@@ -582,8 +608,7 @@ def test_a_glob_of_compressed_mhd_frames_is_not_decompressed_to_scan_headers(tmp
     from ao4d import readers
 
     for k in range(grid4.shape[3]):
-        _write_mhd(tmp_path / f"f{k}.mhd", grid4[..., k], spacing=(1, 1, 1), offset=(0, 0, 0),
-                   compressed=True)
+        _write_mhd(tmp_path / f"f{k}.mhd", grid4[..., k], spacing=(1, 1, 1), offset=(0, 0, 0), compressed=True)
     calls = []
     real = zlib.decompress
     monkeypatch.setattr(readers.zlib, "decompress", lambda *a: calls.append(1) or real(*a))
@@ -609,7 +634,8 @@ def test_mhd_bad_headers_name_the_problem(tmp_path, grid4):
         read_grid(tmp_path / "folder.mhd")
     shutil.copy(tmp_path / "g.raw", tmp_path / "données_é.raw")
     (tmp_path / "utf8.mhd").write_bytes(
-        text.replace("ElementDataFile = g.raw", "ElementDataFile = données_é.raw").encode("utf-8"))
+        text.replace("ElementDataFile = g.raw", "ElementDataFile = données_é.raw").encode("utf-8")
+    )
     np.testing.assert_array_equal(np.asarray(read_grid(tmp_path / "utf8.mhd").values), frame)
 
 
@@ -629,8 +655,7 @@ def test_affine_true_with_a_given_spacing_keeps_the_oblique_rotation(tmp_path, g
     q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
     affine = np.eye(4)
     affine[:3, :3], affine[:3, 3] = q @ np.diag([2.0, 1.5, 1.0]), [-90.0, 120.0, 30.0]
-    path = _nifti_4d(tmp_path / "o.nii", grid4, zooms=(2.0, 1.5, 1.0, 3.0), units=("mm", "unknown"),
-                     affine=affine)
+    path = _nifti_4d(tmp_path / "o.nii", grid4, zooms=(2.0, 1.5, 1.0, 3.0), units=("mm", "unknown"), affine=affine)
     whole = read_grid(path, keep_affine=True)
     np.testing.assert_allclose(whole.affine[:3, :3], affine[:3, :3], atol=1e-6)
     w_only = read_grid(path, keep_affine=True, spacing=(None, None, None, 0.5))
@@ -639,13 +664,15 @@ def test_affine_true_with_a_given_spacing_keeps_the_oblique_rotation(tmp_path, g
     assert any("vertices placed by the file's affine" in n for n in w_only.notes)
     assert any("axes w take the given spacing" in n for n in w_only.notes)
     every = read_grid(path, keep_affine=True, spacing=0.25, origin=(1, 2, 3, 4))
-    np.testing.assert_allclose(every.affine[:4, :4], whole.affine[:4, :4]
-                               / np.linalg.norm(whole.affine[:4, :4], axis=0) * 0.25, atol=1e-12)
+    np.testing.assert_allclose(
+        every.affine[:4, :4], whole.affine[:4, :4] / np.linalg.norm(whole.affine[:4, :4], axis=0) * 0.25, atol=1e-12
+    )
     np.testing.assert_array_equal(every.affine[:4, 4], [1, 2, 3, 4])
     mesh = ao4d.extract(np.asarray(w_only.values), 0.0, affine=w_only.affine)
     index = ao4d.extract(np.asarray(w_only.values), 0.0)
-    np.testing.assert_allclose(mesh.vertices, index.vertices @ w_only.affine[:4, :4].T + w_only.affine[:4, 4],
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        mesh.vertices, index.vertices @ w_only.affine[:4, :4].T + w_only.affine[:4, 4], atol=1e-9
+    )
 
 
 @pytest.mark.parametrize("spacing", [(1, 1, 1, "x"), (None, None, None, "x"), (1, "y", 1, 1)])

@@ -45,8 +45,13 @@ SILHOUETTE_BAND = 0.126**2 / 2 + 1e-6
 
 @pytest.mark.parametrize("projection", ["orthographic", "perspective"])
 def test_sphere_hit_mask_and_depth(sphere, projection):
-    cam = Camera4D([0.1, -0.2, 0.05, -4], [0.1, -0.2, 0.05, 0], projection=projection,
-                   half_width=1.4 if projection == "orthographic" else None, fov=45)
+    cam = Camera4D(
+        [0.1, -0.2, 0.05, -4],
+        [0.1, -0.2, 0.05, 0],
+        projection=projection,
+        half_width=1.4 if projection == "orthographic" else None,
+        fov=45,
+    )
     shape = (24, 22, 20)
     img = render(sphere, cam, shape, ao="none")
     t_true, _ = _analytic_sphere(cam, shape)
@@ -81,8 +86,7 @@ def test_lambert_term_matches_sphere_normal(sphere, normals):
     cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=1.3)
     light = np.array([0.3, 0.5, -0.2, -1.0])
     shape = (20, 20, 20)
-    img = render(sphere, cam, shape, ao="none", ambient=0.25, light=light, diffuse=0.75,
-                 shading=normals)
+    img = render(sphere, cam, shape, ao="none", ambient=0.25, light=light, diffuse=0.75, shading=normals)
     t_true, points = _analytic_sphere(cam, shape)
     lam = np.clip(points @ (light / np.linalg.norm(light)) / R, 0, None)
     expected = 0.25 + 0.75 * lam
@@ -121,10 +125,8 @@ def test_flat_tetrahedron_appears_unmirrored():
 
 def _left_and_right(n: int):
     """Two hyperspheres of radius 0.8 at x = -1 and x = 1, each on an n^4 grid."""
-    left = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [-1, 0, 0, 0]), (n,) * 4,
-                              ([-2, -1, -1, -1], [0, 1, 1, 1]))
-    right = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [1, 0, 0, 0]), (n,) * 4,
-                               ([0, -1, -1, -1], [2, 1, 1, 1]))
+    left = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [-1, 0, 0, 0]), (n,) * 4, ([-2, -1, -1, -1], [0, 1, 1, 1]))
+    right = ao4d.extract_field(ao4d.fields.hypersphere(0.8, [1, 0, 0, 0]), (n,) * 4, ([0, -1, -1, -1], [2, 1, 1, 1]))
     return left, right
 
 
@@ -209,8 +211,7 @@ def test_save_round_trip(sphere, tmp_path):
 def test_backends_agree(backend, request):
     if backend == "opencl":
         request.getfixturevalue("cl_runtime")
-    tet = _tet_mesh([[-0.8, -0.6, -0.5, 0.1], [0.9, -0.5, -0.4, -0.1], [-0.5, 0.8, -0.3, 0.2],
-                     [-0.4, -0.4, 0.9, 0.0]])
+    tet = _tet_mesh([[-0.8, -0.6, -0.5, 0.1], [0.9, -0.5, -0.4, -0.1], [-0.5, 0.8, -0.3, 0.2], [-0.4, -0.4, 0.9, 0.0]])
     cam = Camera4D([0.2, 0, 0, -3], [0, 0, 0, 0], fov=50)
     img = render(tet, cam, (10, 10, 10), ao="none", backend=backend)
     ref = render(tet, cam, (10, 10, 10), ao="none", backend="numpy")
@@ -234,13 +235,11 @@ def test_backends_agree(backend, request):
         (dict(shape=(4, 4)), ValueError, "3 entries"),
         (dict(meshes=[]), ValueError, "at least one"),
         (dict(meshes=["x"]), TypeError, r"`meshes\[0\]` must be a SimplexMesh"),
-        (dict(meshes=SimplexMesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])), ValueError,
-         "must be 4D meshes"),
+        (dict(meshes=SimplexMesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])), ValueError, "must be 4D meshes"),
     ],
 )
 def test_bad_render_input(kwargs, error, match):
-    args = dict(meshes=_tet_mesh(np.eye(4)), camera=Camera4D([0, 0, 0, -3], [0, 0, 0, 0]),
-                shape=(4, 4, 4))
+    args = dict(meshes=_tet_mesh(np.eye(4)), camera=Camera4D([0, 0, 0, -3], [0, 0, 0, 0]), shape=(4, 4, 4))
     args.update(kwargs)
     with pytest.raises(error, match=match):
         render(args.pop("meshes"), args.pop("camera"), args.pop("shape"), **args)
@@ -291,9 +290,12 @@ def test_silhouette_normals_are_not_flipped(sphere):
 
 
 @settings(max_examples=15, deadline=None)
-@given(corners=st.lists(st.lists(st.floats(-0.9, 0.9, allow_subnormal=False), min_size=3,
-                                 max_size=3), min_size=4, max_size=4).map(np.array),
-       w=st.floats(-0.5, 0.5, allow_subnormal=False))
+@given(
+    corners=st.lists(
+        st.lists(st.floats(-0.9, 0.9, allow_subnormal=False), min_size=3, max_size=3), min_size=4, max_size=4
+    ).map(np.array),
+    w=st.floats(-0.5, 0.5, allow_subnormal=False),
+)
 def test_random_flat_tetrahedron_is_seen_where_it_is(corners, w):
     # any tetrahedron in a hyperplane w = const, seen along +w orthographically, covers exactly
     # the voxels whose centres lie inside it (up to voxels on its boundary), at depth eye - w
@@ -329,8 +331,9 @@ SPEC_LIGHT = np.array([0.4, 0.6, -0.3, -1.0])
 
 def _specular_image(sphere, shininess, shape=(32, 32, 32)):
     cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=1.1)
-    img = render(sphere, cam, shape, ao="none", ambient=0.0, diffuse=0.0, light=SPEC_LIGHT,
-                 specular=1.0, shininess=shininess)
+    img = render(
+        sphere, cam, shape, ao="none", ambient=0.0, diffuse=0.0, light=SPEC_LIGHT, specular=1.0, shininess=shininess
+    )
     return cam, img
 
 
@@ -384,16 +387,16 @@ BALL_R, BALL_C = 0.6, np.array([0.2, 0.9, -0.1, 0.15])
 @pytest.fixture(scope="module")
 def ball_over_ground():
     pad = 0.15
-    ball = ao4d.extract_field(ao4d.fields.hypersphere(BALL_R, BALL_C), (20,) * 4,
-                              (BALL_C - BALL_R - pad, BALL_C + BALL_R + pad))
+    ball = ao4d.extract_field(
+        ao4d.fields.hypersphere(BALL_R, BALL_C), (20,) * 4, (BALL_C - BALL_R - pad, BALL_C + BALL_R + pad)
+    )
     return [_ground(), ball]
 
 
 def _ground_camera(view):
     d = np.asarray(view, float) / np.linalg.norm(view)
     target = BALL_C * np.array([1, 0, 1, 1])  # below the ball, on the ground
-    return Camera4D(target - 4 * d, target, [0, 0, 0, 1], [0, 0, 1, 0], projection="orthographic",
-                    half_width=1.3)
+    return Camera4D(target - 4 * d, target, [0, 0, 0, 1], [0, 0, 1, 0], projection="orthographic", half_width=1.3)
 
 
 def _ground_points(cam, shape):
@@ -417,8 +420,9 @@ def test_shadow_of_a_ball_on_the_ground(ball_over_ground, light, view):
     # closest approach in front of q (and before the light)
     shape = (40, 40, 40)
     cam = _ground_camera(view)
-    img = render(ball_over_ground, cam, shape, ao="none", ambient=0.3, diffuse=0.7, light=light,
-                 shadows=True, shading="flat")
+    img = render(
+        ball_over_ground, cam, shape, ao="none", ambient=0.3, diffuse=0.7, light=light, shadows=True, shading="flat"
+    )
     q = _ground_points(cam, shape)
     to_light, reach = light.towards(q.reshape(-1, 4))
     to_light = np.broadcast_to(to_light, (q[..., 0].size, 4)).reshape(shape + (4,))
@@ -451,8 +455,18 @@ def test_transparent_ball_lets_light_through(ball_over_ground):
     light = Light(direction=[0.5, 1, 0.3, -0.4])
     shape = (40, 40, 40)
     cam = _ground_camera([0, -1, 0, 0])
-    img = render(ball_over_ground, cam, shape, ao="none", ambient=0.3, diffuse=0.7, light=light,
-                 shadows=True, shading="flat", opacity=[1.0, alpha])
+    img = render(
+        ball_over_ground,
+        cam,
+        shape,
+        ao="none",
+        ambient=0.3,
+        diffuse=0.7,
+        light=light,
+        shadows=True,
+        shading="flat",
+        opacity=[1.0, alpha],
+    )
     q = _ground_points(cam, shape)
     rel = BALL_C - q
     s = rel @ light.direction
@@ -460,8 +474,7 @@ def test_transparent_ball_lets_light_through(ball_over_ground):
     shadow = (dist < BALL_R) & (s > 0)
     clear = (img.object_id == 0) & (np.abs(dist - BALL_R) > 0.03)
     lam = light.direction[1]
-    np.testing.assert_allclose(img.shade[clear & shadow], 0.3 + 0.7 * lam * (1 - alpha) ** 2,
-                               atol=1e-6)
+    np.testing.assert_allclose(img.shade[clear & shadow], 0.3 + 0.7 * lam * (1 - alpha) ** 2, atol=1e-6)
     np.testing.assert_allclose(img.shade[clear & ~shadow], 0.3 + 0.7 * lam, atol=1e-6)
 
 
@@ -470,9 +483,17 @@ def test_backends_agree_on_shadows_highlights_and_layers(ball_over_ground, cl_ru
     # the same image from both ray casters: directional and point light, specular, shadows
     # through a transparent ball, two layers; rays grazing an edge may differ
     cam = _ground_camera([0.3, -1, 0.1, 0.4])
-    kw = dict(ao="none", ambient=0.3, diffuse=0.5, specular=0.3, shininess=12.0, shadows=True,
-              light=[Light(direction=[0.5, 1, 0.3, -0.4]), Light(position=[0.8, 2.6, 0.3, -0.4])],
-              opacity=[1.0, 0.5], color=[(0.2, 0.9, 0.3), (0.9, 0.2, 0.1)])
+    kw = dict(
+        ao="none",
+        ambient=0.3,
+        diffuse=0.5,
+        specular=0.3,
+        shininess=12.0,
+        shadows=True,
+        light=[Light(direction=[0.5, 1, 0.3, -0.4]), Light(position=[0.8, 2.6, 0.3, -0.4])],
+        opacity=[1.0, 0.5],
+        color=[(0.2, 0.9, 0.3), (0.9, 0.2, 0.1)],
+    )
     a = render(ball_over_ground, cam, (14, 14, 14), backend="numpy", **kw)
     b = render(ball_over_ground, cam, (14, 14, 14), backend="opencl", **kw)
     assert a.info["backend"] == "numpy" and b.info["backend"] == "opencl"
@@ -499,19 +520,16 @@ def test_depth_cue_is_monotone_in_depth():
     mesh = _flat_tet(BIG_TET, 0.0, slope=0.8)
     cam = Camera4D([0, 0, 0, -3.5], [0, 0, 0, 0], projection="orthographic", half_width=1.0)
     shape = (24, 8, 8)
-    img = render(mesh, cam, shape, ao="none", ambient=0.9, depth_cue=(near, far, strength),
-                 color=(1.0, 0.5, 0.25))
+    img = render(mesh, cam, shape, ao="none", ambient=0.9, depth_cue=(near, far, strength), color=(1.0, 0.5, 0.25))
     t = img.depth[img.hit].astype(float)
     assert t.min() < near and t.max() > far  # the image spans the whole ramp
     expected = 0.9 * (1 - strength * np.clip((t - near) / (far - near), 0, 1))
     np.testing.assert_allclose(img.shade[img.hit], expected, rtol=1e-5)
     order = np.argsort(t, kind="stable")
     assert (np.diff(img.shade[img.hit][order]) <= 1e-6).all()  # never brighter farther away
-    np.testing.assert_allclose(img.rgba[img.hit][:, :3], expected[:, None] * [1.0, 0.5, 0.25],
-                               rtol=1e-5)
+    np.testing.assert_allclose(img.rgba[img.hit][:, :3], expected[:, None] * [1.0, 0.5, 0.25], rtol=1e-5)
     plain = render(mesh, cam, shape, ao="none", ambient=0.9)
-    np.testing.assert_array_equal(plain.shade[img.hit & (img.depth < near)],
-                                  img.shade[img.hit & (img.depth < near)])
+    np.testing.assert_array_equal(plain.shade[img.hit & (img.depth < near)], img.shade[img.hit & (img.depth < near)])
 
 
 RED, BLUE = (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)
@@ -533,16 +551,13 @@ def test_compositing_order_of_two_transparent_objects(red_in_front):
     colour = (a1 * np.array(c1) + (1 - a1) * a2 * np.array(c2)) / alpha
     both = img.hit
     assert both.sum() > 200
-    np.testing.assert_allclose(img.rgba[both], np.broadcast_to([*colour, alpha], (both.sum(), 4)),
-                               atol=1e-6)
+    np.testing.assert_allclose(img.rgba[both], np.broadcast_to([*colour, alpha], (both.sum(), 4)), atol=1e-6)
     np.testing.assert_array_equal(img.object_id[both], 0 if red_in_front else 1)
     np.testing.assert_array_equal(img.rgba[~both], 0.0)
     assert img.info["layer_rays"] == both.sum() * 2  # a second hit, then a miss
     # one layer only: the front object alone
-    front = render([red, blue], cam, shape, ao="none", color=[RED, BLUE],
-                   opacity=[a_red, a_blue], layers=1)
-    np.testing.assert_allclose(front.rgba[both], np.broadcast_to([*c1, a1], (both.sum(), 4)),
-                               atol=1e-6)
+    front = render([red, blue], cam, shape, ao="none", color=[RED, BLUE], opacity=[a_red, a_blue], layers=1)
+    np.testing.assert_allclose(front.rgba[both], np.broadcast_to([*c1, a1], (both.sum(), 4)), atol=1e-6)
 
 
 def test_opaque_front_object_hides_the_back_one():
@@ -564,8 +579,7 @@ def _old_render_shade(mesh, cam, shape, *, ambient, diffuse, light, normals, occ
     tri = mesh.simplices[hits.simplex[hit]]
     raw_n = np.asarray(mesh.simplex_normals)[hits.simplex[hit]]
     side = np.where(np.einsum("hd,hd->h", raw_n, w[hit]) > 0, -1.0, 1.0)
-    occ = np.zeros(hit.sum()) if occlusion is None else np.einsum(
-        "hk,hk->h", hits.barycentric[hit], occlusion[tri])
+    occ = np.zeros(hit.sum()) if occlusion is None else np.einsum("hk,hk->h", hits.barycentric[hit], occlusion[tri])
     shade = ambient * (1.0 - np.clip(occ, 0.0, 1.0))
     l = np.asarray(light, float) / np.linalg.norm(light)
     if normals == "smooth":
@@ -587,15 +601,14 @@ def test_without_new_terms_the_images_are_the_previous_ones_exactly(touching_pai
     cam = Camera4D([0.3, 0.8, -0.2, -4], [0, 0, 0, 0], fov=50)
     shape = (20, 12, 12)
     light = [0.3, 0.5, -0.2, -1.0]
-    expected = _old_render_shade(mesh, cam, shape, ambient=0.7, diffuse=0.3, light=light,
-                                 normals=normals, occlusion=mesh.point_data["ao"])
+    expected = _old_render_shade(
+        mesh, cam, shape, ambient=0.7, diffuse=0.3, light=light, normals=normals, occlusion=mesh.point_data["ao"]
+    )
     for extra in ({}, {"shadows": False, "specular": 0.0}):
-        img = render(mesh, cam, shape, ao="vertices", ambient=0.7, diffuse=0.3, light=light,
-                     shading=normals, **extra)
+        img = render(mesh, cam, shape, ao="vertices", ambient=0.7, diffuse=0.3, light=light, shading=normals, **extra)
         np.testing.assert_array_equal(img.shade, expected)  # bit for bit
         # white objects under a white light: the colour is the grey shade (clipped), opaque
-        np.testing.assert_array_equal(img.rgba[..., :3],
-                                      np.repeat(np.clip(expected, 0, 1)[..., None], 3, -1))
+        np.testing.assert_array_equal(img.rgba[..., :3], np.repeat(np.clip(expected, 0, 1)[..., None], 3, -1))
         np.testing.assert_array_equal(img.rgba[..., 3], img.hit.astype(np.float32))
         assert img.info["shadow_rays"] == 0 and img.info["layer_rays"] == 0
     assert (expected > 0.75).any() and (expected < 0.5).any()  # light and AO both matter
@@ -617,8 +630,7 @@ def test_two_coloured_lights_add_up(sphere):
     np.testing.assert_allclose(img.rgba[hit][:, 0], only_red.shade[hit], atol=1e-6)
     np.testing.assert_allclose(img.rgba[hit][:, 2], only_blue.shade[hit], atol=1e-6)
     np.testing.assert_allclose(img.rgba[hit][:, 1], 0.2, atol=1e-6)
-    np.testing.assert_allclose(img.shade[hit], only_red.shade[hit] + only_blue.shade[hit] - 0.2,
-                               atol=1e-6)
+    np.testing.assert_allclose(img.shade[hit], only_red.shade[hit] + only_blue.shade[hit] - 0.2, atol=1e-6)
 
 
 def test_specular_per_object_and_white_highlights():
@@ -627,9 +639,18 @@ def test_specular_per_object_and_white_highlights():
     a = _flat_tet(BIG_TET, 0.0)
     b = _flat_tet(np.array(BIG_TET) + [0, 0, 0], 0.5)
     cam = Camera4D([0, 0, 0, -3], [0, 0, 0, 0], projection="orthographic", half_width=1.0)
-    img = render([a, b], cam, (8, 8, 8), ao="none", ambient=0.0, diffuse=0.0,
-                 light=[0, 0, 0, -1], specular=[0.5, 0.9], shininess=[10.0, 3.0],
-                 color=[(0.2, 0.4, 1.0), (1, 1, 1)])
+    img = render(
+        [a, b],
+        cam,
+        (8, 8, 8),
+        ao="none",
+        ambient=0.0,
+        diffuse=0.0,
+        light=[0, 0, 0, -1],
+        specular=[0.5, 0.9],
+        shininess=[10.0, 3.0],
+        color=[(0.2, 0.4, 1.0), (1, 1, 1)],
+    )
     np.testing.assert_allclose(img.shade[img.hit], 0.5, atol=1e-9)
     np.testing.assert_allclose(img.rgba[img.hit][:, :3], 0.5, atol=1e-6)  # white highlight
 
@@ -641,8 +662,7 @@ def test_rgba_is_saved_as_direct_colours(sphere, tmp_path):
     from vtk.util.numpy_support import vtk_to_numpy
 
     cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=1.3)
-    img = render(sphere, cam, (10, 9, 8), ao="none", light=[0, 1, 0, -1], ambient=0.5,
-                 color=(0.9, 0.3, 0.1))
+    img = render(sphere, cam, (10, 9, 8), ao="none", light=[0, 1, 0, -1], ambient=0.5, color=(0.9, 0.3, 0.1))
     assert img.rgba.dtype == np.float32 and img.rgba.shape == (10, 9, 8, 4)
     assert img.rgba.min() >= 0 and img.rgba.max() <= 1
     path = img.save(tmp_path / "c.vti")
@@ -683,8 +703,7 @@ def test_result_repr_is_short(sphere):
         (dict(layers=0), ValueError, "`layers` must be >= 1"),
         (dict(layers=17), ValueError, "`layers` must be <= 16"),
         (dict(depth_cue=(2, 1, 0.5)), ValueError, "near < far"),
-        (dict(light=[Light(direction=[0, 1, 0, 0]), [0, 0, 0, 0]]), ValueError,
-         r"`light\[1\]` must be a non-zero"),
+        (dict(light=[Light(direction=[0, 1, 0, 0]), [0, 0, 0, 0]]), ValueError, r"`light\[1\]` must be a non-zero"),
     ],
 )
 def test_bad_illumination_input(kwargs, error, match):
@@ -739,13 +758,69 @@ def test_render_command_with_lights_colours_and_opacity(ball_over_ground, tmp_pa
     ground.save(tmp_path / "ground.npz")
     ball.save(tmp_path / "ball.npz")
     out = tmp_path / "lit.vti"
-    argv = ["render", str(tmp_path / "ground.npz"), str(tmp_path / "ball.npz"), "--out", str(out),
-            "--size", "16", "--ao", "none", "--eye", "0.2", "4", "-0.1", "0.15", "--target",
-            "0.2", "0", "-0.1", "0.15", "--up", "0", "0", "0", "1", "--projection", "orthographic",
-            "--light", "0", "1", "0", "0", "--light", "point", "0", "5", "0", "0", "0", "0", "1",
-            "0.5", "--specular", "0.2", "--shininess", "10", "--shadows", "--color", "ball", "1",
-            "0", "0", "--color", "0", "0", "1", "0", "--opacity", "ball", "1", "--png",
-            str(tmp_path / "lit.png")]
+    argv = [
+        "render",
+        str(tmp_path / "ground.npz"),
+        str(tmp_path / "ball.npz"),
+        "--out",
+        str(out),
+        "--size",
+        "16",
+        "--ao",
+        "none",
+        "--eye",
+        "0.2",
+        "4",
+        "-0.1",
+        "0.15",
+        "--target",
+        "0.2",
+        "0",
+        "-0.1",
+        "0.15",
+        "--up",
+        "0",
+        "0",
+        "0",
+        "1",
+        "--projection",
+        "orthographic",
+        "--light",
+        "0",
+        "1",
+        "0",
+        "0",
+        "--light",
+        "point",
+        "0",
+        "5",
+        "0",
+        "0",
+        "0",
+        "0",
+        "1",
+        "0.5",
+        "--specular",
+        "0.2",
+        "--shininess",
+        "10",
+        "--shadows",
+        "--color",
+        "ball",
+        "1",
+        "0",
+        "0",
+        "--color",
+        "0",
+        "0",
+        "1",
+        "0",
+        "--opacity",
+        "ball",
+        "1",
+        "--png",
+        str(tmp_path / "lit.png"),
+    ]
     assert cli.main(argv) == 0
     printed = capsys.readouterr().out
     assert "RenderResult(16x16x16 voxels" in printed
@@ -794,8 +869,10 @@ def _small_scene():
 
 def test_stored_ao_with_nan_or_outside_0_1_is_refused_before_the_work():
     mesh, cam = _small_scene()
-    for bad, match in [(np.nan, r"`point_data\['ao'\]` is NaN at 1 vertices"),
-                       (1.5, r"`point_data\['ao'\]` must be occlusion in \[0, 1\]")]:
+    for bad, match in [
+        (np.nan, r"`point_data\['ao'\]` is NaN at 1 vertices"),
+        (1.5, r"`point_data\['ao'\]` must be occlusion in \[0, 1\]"),
+    ]:
         values = np.zeros(mesh.n_vertices)
         values[3] = bad  # before: NaN shade, or 1.5 clamped silently
         mesh.point_data["ao"] = values
@@ -807,11 +884,9 @@ def test_weights_that_can_exceed_one_warn():
     mesh, cam = _small_scene()
     # before: ambient + diffuse > 1 gave shade above 1 although the docs say [0, 1]
     with pytest.warns(ao4d.rendering.ShadeRangeWarning, match=r"= 1.5 > 1: shade can exceed 1"):
-        img = render(mesh, cam, (8, 8, 8), ao="none", ambient=1.0, diffuse=0.5, light=[0, 0, 0, -1],
-                     backend="numpy")
+        img = render(mesh, cam, (8, 8, 8), ao="none", ambient=1.0, diffuse=0.5, light=[0, 0, 0, -1], backend="numpy")
     assert img.shade.max() > 1.0  # the warning was right
-    img = render(mesh, cam, (8, 8, 8), ao="none", ambient=0.6, diffuse=0.4, light=[0, 0, 0, -1],
-                 backend="numpy")
+    img = render(mesh, cam, (8, 8, 8), ao="none", ambient=0.6, diffuse=0.4, light=[0, 0, 0, -1], backend="numpy")
     assert img.shade.max() <= 1.0 + 1e-6
 
 
@@ -844,15 +919,38 @@ def test_default_weights_with_a_light_stay_in_0_1_and_match_the_cli(tmp_path):
     assert 0.95 < img.shade.max() <= 1.0 + 1e-6  # facing the light: 0.7 + 0.3 cos(angle)
     # the command line's defaults are the function's: the same .mhd, to the bit
     mesh.save(tmp_path / "ball.npz")
-    assert cli.main(["render", str(tmp_path / "ball.npz"), "--out", str(tmp_path / "a.mhd"),
-                     "--size", "8", "--ao", "none", "--light", "0", "0", "0", "-1",
-                     "--projection", "orthographic", "--backend", "numpy", "--no-progress"]) == 0
+    assert (
+        cli.main(
+            [
+                "render",
+                str(tmp_path / "ball.npz"),
+                "--out",
+                str(tmp_path / "a.mhd"),
+                "--size",
+                "8",
+                "--ao",
+                "none",
+                "--light",
+                "0",
+                "0",
+                "0",
+                "-1",
+                "--projection",
+                "orthographic",
+                "--backend",
+                "numpy",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     ao4d._progress.set_enabled(True)
     from ao4d.volumes import read_mhd
 
     seen = read_mhd(tmp_path / "a.mhd").data
-    framed = Camera4D.framing(mesh.bounds, up=[0, 1, 0, 0], over=[0, 0, 1, 0], fov=40.0,
-                              projection="orthographic")  # as the command frames the scene
+    framed = Camera4D.framing(
+        mesh.bounds, up=[0, 1, 0, 0], over=[0, 0, 1, 0], fov=40.0, projection="orthographic"
+    )  # as the command frames the scene
     again = render(mesh, framed, (8, 8, 8), ao="none", light=[0, 0, 0, -1], backend="numpy")
     assert again.hit.any()
     np.testing.assert_array_equal(seen, again.shade)
@@ -862,8 +960,7 @@ def test_default_weights_with_a_light_stay_in_0_1_and_match_the_cli(tmp_path):
 def test_booleans_are_not_numbers(option):
     mesh, cam = _small_scene()
     with pytest.raises(TypeError, match=f"`{option}` must be a number"):  # before: True was 1
-        render(mesh, cam, (4, 4, 4), ao="none", light=[0, 0, 0, -1], backend="numpy",
-               **{option: True})
+        render(mesh, cam, (4, 4, 4), ao="none", light=[0, 0, 0, -1], backend="numpy", **{option: True})
 
 
 def test_ray_budget_is_checked_before_any_ray_and_can_be_lifted(monkeypatch):
@@ -871,8 +968,7 @@ def test_ray_budget_is_checked_before_any_ray_and_can_be_lifted(monkeypatch):
 
     mesh, cam = _small_scene()
     cast = []
-    monkeypatch.setattr(ao4d.rendering, "trace",
-                        lambda *a, **k: cast.append(1) or raycast.trace(*a, **k))
+    monkeypatch.setattr(ao4d.rendering, "trace", lambda *a, **k: cast.append(1) or raycast.trace(*a, **k))
     with pytest.raises(ValueError, match=r"pass max_rays=math.inf \(CLI: --force\)"):
         render(mesh, cam, (16, 16, 16), ao="hits", samples=200000, backend="numpy")
     assert not cast  # before: the primary rays ran first, and render had no max_rays
@@ -892,8 +988,7 @@ def test_screen_ao_and_its_filter_are_budgeted_before_any_ray(backend, request, 
         request.getfixturevalue("cl_runtime")
     mesh, cam = _small_scene()
     cast = []
-    monkeypatch.setattr(ao4d.rendering, "trace",
-                        lambda *a, **k: cast.append(1) or raycast.trace(*a, **k))
+    monkeypatch.setattr(ao4d.rendering, "trace", lambda *a, **k: cast.append(1) or raycast.trace(*a, **k))
     with pytest.raises(ValueError, match=r"`samples`=10000000 \(.* depth look-ups.*about \d+ (h|days) on the"):
         render(mesh, cam, (32, 32, 32), ao="screen", samples=10_000_000, backend=backend)
     if backend == "numpy":
@@ -910,8 +1005,18 @@ def test_render_command_force_lifts_the_ray_budget(tmp_path, capsys, monkeypatch
     mesh, _ = _small_scene()
     mesh.save(tmp_path / "ball.npz")
     monkeypatch.setitem(raycast.MAX_RAYS, "numpy", 100)
-    argv = ["render", str(tmp_path / "ball.npz"), "--out", str(tmp_path / "a.vti"), "--size", "6",
-            "--ao", "none", "--backend", "numpy"]
+    argv = [
+        "render",
+        str(tmp_path / "ball.npz"),
+        "--out",
+        str(tmp_path / "a.vti"),
+        "--size",
+        "6",
+        "--ao",
+        "none",
+        "--backend",
+        "numpy",
+    ]
     assert cli.main(argv) == 2
     assert "--force" in capsys.readouterr().err and not (tmp_path / "a.vti").exists()
     assert cli.main(argv + ["--force"]) == 0 and (tmp_path / "a.vti").exists()
@@ -923,8 +1028,9 @@ def test_a_3d_mesh_is_named_as_the_problem(tmp_path, capsys):
     values = np.linalg.norm(np.indices((10,) * 3) - 4.5, axis=0) - 3.0
     mesh3 = ao4d.extract(values)
     mesh3.save(tmp_path / "m3.npz")
-    code = cli.main(["render", str(tmp_path / "m3.npz"), "--out", str(tmp_path / "a.vti"),
-                     "--size", "4", "--backend", "numpy"])
+    code = cli.main(
+        ["render", str(tmp_path / "m3.npz"), "--out", str(tmp_path / "a.vti"), "--size", "4", "--backend", "numpy"]
+    )
     err = capsys.readouterr().err
     assert code == 2 and "`meshes`: m3.npz is a 3D mesh" in err and "bounds" not in err
 
@@ -937,8 +1043,18 @@ def test_render_command_refuses_a_non_ascii_mhd_before_rendering(tmp_path, capsy
     (tmp_path / "keep_é.raw").write_bytes(b"old")
     rendered = []
     monkeypatch.setattr("ao4d.rendering.render", lambda *a, **k: rendered.append(1))
-    code = cli.main(["render", str(tmp_path / "ball.npz"), "--out", str(tmp_path / "keep_é.mhd"),
-                     "--size", "4", "--backend", "numpy"])
+    code = cli.main(
+        [
+            "render",
+            str(tmp_path / "ball.npz"),
+            "--out",
+            str(tmp_path / "keep_é.mhd"),
+            "--size",
+            "4",
+            "--backend",
+            "numpy",
+        ]
+    )
     assert code == 2 and "ASCII" in capsys.readouterr().err and not rendered
     assert (tmp_path / "keep_é.raw").read_bytes() == b"old"
     assert not (tmp_path / "keep_é.mhd").exists()
@@ -975,18 +1091,22 @@ def test_ao_given_as_an_array_is_shaded_as_stored_ao_without_ao_rays():
 def test_ao_given_per_mesh_of_a_list_is_joined_in_list_order():
     left, right = _left_and_right(12)
     cam = Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=2.0)
-    img = render([left, right], cam, (16, 8, 8),
-                 ao=[np.zeros(left.n_vertices), np.full(right.n_vertices, 0.5)], backend="numpy")
+    img = render(
+        [left, right], cam, (16, 8, 8), ao=[np.zeros(left.n_vertices), np.full(right.n_vertices, 0.5)], backend="numpy"
+    )
     assert np.all(img.occlusion[img.object_id == 0] == 0)
     assert np.allclose(img.occlusion[img.object_id == 1], 0.5)
     assert np.allclose(img.shade[img.object_id == 1], 0.5)
 
 
-@pytest.mark.parametrize("ao, match", [
-    (np.zeros(5), r"`ao` must hold one value per vertex"),
-    (np.full(1, np.nan), r"`ao` is NaN"),
-    ("everywhere", r"`ao`"),
-])
+@pytest.mark.parametrize(
+    "ao, match",
+    [
+        (np.zeros(5), r"`ao` must hold one value per vertex"),
+        (np.full(1, np.nan), r"`ao` is NaN"),
+        ("everywhere", r"`ao`"),
+    ],
+)
 def test_bad_ao_values_are_refused_naming_ao(ao, match):
     mesh, cam = _small_scene()
     if np.ndim(ao) == 1 and len(ao) == 1:  # a NaN at a used vertex
@@ -1024,8 +1144,11 @@ def test_one_trace_per_ray_batch_on_one_tracer(monkeypatch):
 
     mesh, cam = _small_scene()
     calls = []
-    monkeypatch.setattr(ao4d.rendering, "trace",
-                        lambda tracer, o, w, **k: calls.append((tracer, len(o))) or raycast.trace(tracer, o, w, **k))
+    monkeypatch.setattr(
+        ao4d.rendering,
+        "trace",
+        lambda tracer, o, w, **k: calls.append((tracer, len(o))) or raycast.trace(tracer, o, w, **k),
+    )
     monkeypatch.setattr(raycast, "cast_rays", lambda *a, **k: pytest.fail("public cast_rays re-entered"))
     img = render(mesh, cam, (48, 48, 32), ao="none", light=(0, 1, 0, -1), shadows=True, backend="numpy")
     chunk = ao4d.rendering._CHUNK

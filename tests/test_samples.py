@@ -20,8 +20,16 @@ from datasets_gen.samples import (
     normalization,
 )
 
-SETTINGS = {"grid": 12, "method": "cubes", "padding": 0.15, "bounds": None, "rotation": "random",
-            "tetrahedra": "star", "ao": False, "renders": []}
+SETTINGS = {
+    "grid": 12,
+    "method": "cubes",
+    "padding": 0.15,
+    "bounds": None,
+    "rotation": "random",
+    "tetrahedra": "star",
+    "ao": False,
+    "renders": [],
+}
 
 
 def _shape(kind, params, rotate=True, **settings):
@@ -30,8 +38,7 @@ def _shape(kind, params, rotate=True, **settings):
 
 
 def _samples(shape, kind, seed=0, **counts):
-    cfg = check_samples({"uniform": 20000, "near_surface": 2000, "sigmas": [0.01, 0.05],
-                         "surface": 4000, **counts})
+    cfg = check_samples({"uniform": 20000, "near_surface": 2000, "sigmas": [0.01, 0.05], "surface": 4000, **counts})
     return make_samples(shape, kind, cfg, np.random.default_rng(seed), backend="numpy")
 
 
@@ -84,8 +91,7 @@ def test_mesh_labels_of_a_lifted_box_match_the_4d_box():
 
 
 def test_sdf_sign_and_occupancy_never_disagree():
-    for kind, params in (("hypersphere", {"radius": 0.7}),
-                         ("metaballs", {"n": 2, "spread": 0.3, "radius": 0.4})):
+    for kind, params in (("hypersphere", {"radius": 0.7}), ("metaballs", {"n": 2, "spread": 0.3, "radius": 0.4})):
         shape = _shape(kind, params)
         arrays, _ = _samples(shape, kind, uniform=1500, near_surface=300, surface=10)
         np.testing.assert_array_equal(arrays["sdf"] < 0, arrays["occupancy"])
@@ -114,8 +120,13 @@ def test_mesh_distance_is_the_brute_force_minimum():
 
 def test_point_to_tetrahedron_distance_cases():
     tet = np.array([[0, 0, 0, 0], [1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]], float)[None]
-    cases = {(0.2, 0.2, 0.2, 0.0): 0.0, (0.2, 0.2, 0.2, 0.5): 0.5, (-1, 0, 0, 0): 1.0,
-             (2, 0, 0, 0): 1.0, (1, 1, 1, 0): math.sqrt(3) - 1 / math.sqrt(3)}
+    cases = {
+        (0.2, 0.2, 0.2, 0.0): 0.0,
+        (0.2, 0.2, 0.2, 0.5): 0.5,
+        (-1, 0, 0, 0): 1.0,
+        (2, 0, 0, 0): 1.0,
+        (1, 1, 1, 0): math.sqrt(3) - 1 / math.sqrt(3),
+    }
     for p, want in cases.items():
         assert _simplex_distance(np.array([p], float), tet)[0] == pytest.approx(want, abs=1e-12)
 
@@ -154,16 +165,19 @@ def test_normalization_maps_the_mesh_into_the_unit_ball():
     assert np.linalg.norm(v, axis=1).max() == pytest.approx(1.0)
 
 
-@pytest.mark.parametrize("samples, message", [
-    ("{ uniform = 10, bogus = 1 }", "unknown key.*'bogus'"),
-    ("{ uniform = -1 }", r"samples.uniform.*\[0,"),
-    ("{ surface = 1.5 }", "samples.surface"),
-    ("{ sigmas = [0.01, 0] }", r"samples.sigmas.*> 0"),
-    ("{ sigmas = [-0.1] }", r"samples.sigmas.*> 0"),
-    ("{ near_surface = 10, sigmas = [] }", "needs at least one sigma"),
-    ("{ uniform = 0, near_surface = 0, surface = 0 }", "no points"),
-    ("7", "must be a table"),
-])
+@pytest.mark.parametrize(
+    "samples, message",
+    [
+        ("{ uniform = 10, bogus = 1 }", "unknown key.*'bogus'"),
+        ("{ uniform = -1 }", r"samples.uniform.*\[0,"),
+        ("{ surface = 1.5 }", "samples.surface"),
+        ("{ sigmas = [0.01, 0] }", r"samples.sigmas.*> 0"),
+        ("{ sigmas = [-0.1] }", r"samples.sigmas.*> 0"),
+        ("{ near_surface = 10, sigmas = [] }", "needs at least one sigma"),
+        ("{ uniform = 0, near_surface = 0, surface = 0 }", "no points"),
+        ("7", "must be a table"),
+    ],
+)
 def test_bad_samples_settings_are_clear_config_errors(samples, message):
     import tomllib
 

@@ -126,8 +126,10 @@ def test_deterministic_per_seed_and_chunkable():
     assert not np.allclose(a, sampling.cosine_hemisphere(normals, 64, seed=10))
     # chunks with index_offset reproduce one call
     b = np.concatenate(
-        [sampling.cosine_hemisphere(normals[:7], 64, seed=9),
-         sampling.cosine_hemisphere(normals[7:], 64, seed=9, index_offset=7)]
+        [
+            sampling.cosine_hemisphere(normals[:7], 64, seed=9),
+            sampling.cosine_hemisphere(normals[7:], 64, seed=9, index_offset=7),
+        ]
     )
     np.testing.assert_array_equal(a, b)
 
@@ -189,10 +191,17 @@ def test_sobol_tables_are_kept_across_processes(tmp_path, monkeypatch):
         kept = list((tmp_path / "ao4d" / "sobol").glob("sobol-40-3-5-*.npy"))
         assert len(kept) == 1 and np.array_equal(np.load(kept[0]), fresh)
         # another process reads the file and never imports scipy.stats (0.6-1.2 s)
-        code = ("import sys; from ao4d import sampling; t = sampling.sobol_table(40, 3, seed=5); "
-                "print(int(t.sum()), 'scipy.stats' in sys.modules)")
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                             env={**os.environ, "XDG_CACHE_HOME": str(tmp_path)}).stdout.split()
+        code = (
+            "import sys; from ao4d import sampling; t = sampling.sobol_table(40, 3, seed=5); "
+            "print(int(t.sum()), 'scipy.stats' in sys.modules)"
+        )
+        out = subprocess.run(
+            [sys.executable, "-c", code],
+            capture_output=True,
+            text=True,
+            check=True,
+            env={**os.environ, "XDG_CACHE_HOME": str(tmp_path)},
+        ).stdout.split()
         assert out == [str(int(fresh.sum())), "False"]
         # a damaged or foreign file is computed again and replaced
         for damage in (b"not a table", None):

@@ -7,9 +7,9 @@ import math
 
 import numpy as np
 import pytest
+from _scenes import flat_patch
 
 import ao4d
-from _scenes import flat_patch
 from ao4d.camera import Camera4D
 from ao4d.mesh import SimplexMesh, concatenate
 from ao4d.rendering import render
@@ -40,8 +40,9 @@ def _oblique_camera(projection="orthographic"):
     """Looking towards +x_0 (at the wall's face) and BETA down onto the floor."""
     view = np.array([math.cos(BETA), 0.0, 0.0, -math.sin(BETA)])
     target = np.array([0.55, 0.0, 0.0, 0.35])
-    return Camera4D(target - 6.0 * view, target, up=[0, 0, 0, 1], over=[0, 0, 1, 0], fov=30,
-                    projection=projection, half_width=1.5)
+    return Camera4D(
+        target - 6.0 * view, target, up=[0, 0, 0, 1], over=[0, 0, 1, 0], fov=30, projection=projection, half_width=1.5
+    )
 
 
 def _volume(scene, cam, shape, backend="numpy"):
@@ -62,8 +63,7 @@ def test_open_hyperplane_facing_the_camera_gets_zero(projection, backend):
     # point's own view ray lies behind it, whatever voxel it falls in: exactly 0, no acne
     floor = _floor(lo=(-4.0, -4.0, -4.0), hi=(4.0, 4.0, 4.0))
     cam = _oblique_camera(projection)
-    img = render(floor, cam, (16, 16, 16), ao="screen", samples=16, max_distance=0.8,
-                 backend=backend)
+    img = render(floor, cam, (16, 16, 16), ao="screen", samples=16, max_distance=0.8, backend=backend)
     assert img.hit.sum() > 1000
     assert (img.occlusion[img.hit] == 0).all()
     assert img.info["ao_rays"] == 0 and img.info["screen_lookups"] == img.hit.sum() * 16 * 4
@@ -102,8 +102,7 @@ def test_foot_of_a_visible_perpendicular_wall_matches_the_closed_form(backend):
     assert -missed - 4 * sigma <= screen.mean() - exact.mean() <= 4 * sigma
     # the same directions as the ray-traced AO: the difference has no Monte Carlo noise left
     # beyond the misses (and the ray offset of 1e-4 diagonals, negligible here)
-    traced = ao4d.ambient_occlusion(scene, points=p, normals=n, samples=samples,
-                                    max_distance=REACH, backend=backend)
+    traced = ao4d.ambient_occlusion(scene, points=p, normals=n, samples=samples, max_distance=REACH, backend=backend)
     diff = screen - traced
     assert -missed - 0.005 <= diff.mean() <= 0.005
     assert (np.abs(diff) <= 3 / samples).mean() >= 0.95
@@ -115,15 +114,15 @@ def test_occluders_outside_the_image_are_not_seen():
     scene = _wall_scene()
     view = np.array([math.cos(BETA), 0.0, 0.0, -math.sin(BETA)])
     target = np.array([-1.0, 0.0, 0.0, 0.0])
-    cam = Camera4D(target - 6.0 * view, target, up=[0, 0, 0, 1], over=[0, 0, 1, 0],
-                   projection="orthographic", half_width=0.6)
+    cam = Camera4D(
+        target - 6.0 * view, target, up=[0, 0, 0, 1], over=[0, 0, 1, 0], projection="orthographic", half_width=0.6
+    )
     volume, points, hit = _volume(scene, cam, (12, 12, 12))
     assert hit.sum() > 1000 and np.abs(points[hit, 3]).max() < 1e-5  # only floor
     p = np.array([[WALL_X - 0.3, 0.0, 0.0, 0.0]])
     n = np.array([[0.0, 0, 0, 1]])
     assert screen_space_occlusion(volume, p, n, samples=64, max_distance=REACH, backend="numpy")[0] == 0
-    traced = ao4d.ambient_occlusion(scene, points=p, normals=n, samples=64, max_distance=REACH,
-                                    backend="numpy")[0]
+    traced = ao4d.ambient_occlusion(scene, points=p, normals=n, samples=64, max_distance=REACH, backend="numpy")[0]
     assert traced == pytest.approx(wall_occlusion(0.3, REACH), abs=4 * 0.5 / 8)
 
 
@@ -141,8 +140,10 @@ def test_backends_agree(touching_pair, projection, cl_runtime):
     # the same integers, the same steps; float32 against float64 may flip a march point lying
     # within rounding of a voxel boundary or of the bias: allow 1 % of the voxels to differ
     cam = PAIR_CAMERAS[projection]
-    images = {b: render(touching_pair, cam, (24, 12, 12), ao="screen", samples=32, max_distance=1.0,
-                        seed=5, backend=b) for b in ("numpy", "opencl")}
+    images = {
+        b: render(touching_pair, cam, (24, 12, 12), ao="screen", samples=32, max_distance=1.0, seed=5, backend=b)
+        for b in ("numpy", "opencl")
+    }
     ref, dev = (images[b].occlusion[images[b].hit] for b in ("numpy", "opencl"))
     np.testing.assert_array_equal(images["numpy"].hit, images["opencl"].hit)
     assert (ref != dev).mean() <= 0.01
@@ -152,8 +153,10 @@ def test_backends_agree(touching_pair, projection, cl_runtime):
 
 def test_deterministic_for_a_seed(touching_pair):
     cam = PAIR_CAMERAS["orthographic"]
-    one, two, other = (render(touching_pair, cam, (12, 6, 6), ao="screen", samples=16,
-                              max_distance=1.0, seed=s, backend="numpy") for s in (3, 3, 4))
+    one, two, other = (
+        render(touching_pair, cam, (12, 6, 6), ao="screen", samples=16, max_distance=1.0, seed=s, backend="numpy")
+        for s in (3, 3, 4)
+    )
     np.testing.assert_array_equal(one.occlusion, two.occlusion)
     assert not np.array_equal(one.occlusion[one.hit], other.occlusion[other.hit])
 
@@ -168,10 +171,8 @@ def test_close_to_ray_traced_ao_on_a_small_scene(touching_pair, projection, back
     # depth test occludes every open point: MAE above 0.5)
     cam = PAIR_CAMERAS[projection]
     shape = (24, 12, 12)
-    screen = render(touching_pair, cam, shape, ao="screen", samples=64, max_distance=1.0,
-                    seed=2, backend=backend)
-    traced = render(touching_pair, cam, shape, ao="hits", samples=64, max_distance=1.0, seed=2,
-                    backend=backend)
+    screen = render(touching_pair, cam, shape, ao="screen", samples=64, max_distance=1.0, seed=2, backend=backend)
+    traced = render(touching_pair, cam, shape, ao="hits", samples=64, max_distance=1.0, seed=2, backend=backend)
     a, b = screen.occlusion[screen.hit], traced.occlusion[traced.hit]
     assert np.abs(a - b).mean() < 0.03
     assert np.corrcoef(a, b)[0, 1] > 0.6
@@ -180,12 +181,10 @@ def test_close_to_ray_traced_ao_on_a_small_scene(touching_pair, projection, back
 def test_render_uses_the_images_own_depth_volume(touching_pair):
     cam = PAIR_CAMERAS["perspective"]
     shape = (12, 6, 6)
-    img = render(touching_pair, cam, shape, ao="screen", samples=16, max_distance=0.7, seed=1,
-                 backend="numpy")
+    img = render(touching_pair, cam, shape, ao="screen", samples=16, max_distance=0.7, seed=1, backend="numpy")
     volume, points, hit = _volume(touching_pair, cam, shape)
     normals = volume.normals.reshape(-1, 4)[hit]
-    direct = screen_space_occlusion(volume, points[hit], normals, samples=16, max_distance=0.7,
-                                    seed=1, backend="numpy")
+    direct = screen_space_occlusion(volume, points[hit], normals, samples=16, max_distance=0.7, seed=1, backend="numpy")
     np.testing.assert_array_equal(img.occlusion.reshape(-1)[hit], direct)
     np.testing.assert_allclose(img.shade[img.hit], 1 - img.occlusion[img.hit], atol=1e-6)
 
@@ -196,9 +195,30 @@ def test_cli_render_with_screen_ao(touching_pair, tmp_path, capsys):
     path = tmp_path / "pair.npz"
     touching_pair.save(path)
     out = tmp_path / "img.vti"
-    assert cli.main(["render", "--no-progress", str(path), "--out", str(out), "--size", "8",
-                     "--ao", "screen", "--samples", "8", "--max-distance", "1", "--denoise", "1",
-                     "--backend", "numpy"]) == 0
+    assert (
+        cli.main(
+            [
+                "render",
+                "--no-progress",
+                str(path),
+                "--out",
+                str(out),
+                "--size",
+                "8",
+                "--ao",
+                "screen",
+                "--samples",
+                "8",
+                "--max-distance",
+                "1",
+                "--denoise",
+                "1",
+                "--backend",
+                "numpy",
+            ]
+        )
+        == 0
+    )
     back = ao4d.volumes.read_vti(out, array="occlusion").data
     assert np.nanmax(back) > 0 and np.nanmin(back) >= 0
 
@@ -249,8 +269,7 @@ def test_denoised_few_directions_stay_close_to_ray_traced(touching_pair):
     shape = (24, 12, 12)
     traced = render(touching_pair, cam, shape, ao="hits", samples=64, max_distance=1.0, seed=4)
     raw = render(touching_pair, cam, shape, ao="screen", samples=8, max_distance=1.0, seed=4)
-    smooth = render(touching_pair, cam, shape, ao="screen", samples=8, max_distance=1.0, seed=4,
-                    denoise=1)
+    smooth = render(touching_pair, cam, shape, ao="screen", samples=8, max_distance=1.0, seed=4, denoise=1)
     ref = traced.occlusion[traced.hit]
     mae_raw = np.abs(raw.occlusion[raw.hit] - ref).mean()
     mae_smooth = np.abs(smooth.occlusion[smooth.hit] - ref).mean()
@@ -269,8 +288,10 @@ def test_any_reach_agrees_on_both_backends_and_long_ones_clamp_to_the_image(proj
     extent = volume.default_reach()
     runs = {}
     for reach in (1e-6, 1e-3, 0.3, 2.0, extent, 1e4, 1e300, math.inf):
-        a, b = (screen_space_occlusion(volume, points, normals, samples=16, max_distance=reach,
-                                       backend=backend) for backend in ("numpy", "opencl"))
+        a, b = (
+            screen_space_occlusion(volume, points, normals, samples=16, max_distance=reach, backend=backend)
+            for backend in ("numpy", "opencl")
+        )
         # float32 against float64 at the voxel and depth thresholds: a few directions of a few points
         assert np.abs(a - b).max() <= 2 / 16 and np.mean(a != b) <= 0.01, reach
         runs[reach] = a

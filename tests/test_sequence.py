@@ -11,8 +11,16 @@ from datasets_gen.families import build_shape
 from datasets_gen.samples import check_samples
 from datasets_gen.sequence import check_sequence, frames_of, make_sequence
 
-SETTINGS = {"grid": 14, "method": "cubes", "padding": 0.15, "bounds": None, "rotation": "none",
-            "tetrahedra": "star", "ao": False, "renders": []}
+SETTINGS = {
+    "grid": 14,
+    "method": "cubes",
+    "padding": 0.15,
+    "bounds": None,
+    "rotation": "none",
+    "tetrahedra": "star",
+    "ao": False,
+    "renders": [],
+}
 
 
 def _ball(radius=0.8):
@@ -41,8 +49,9 @@ def test_frame_ao_and_frame_samples():
     shape = _ball()
     occ = shape.mesh.vertices[:, 0].copy()
     samples = check_samples({"uniform": 700, "near_surface": 0, "sigmas": [], "surface": 0})
-    arrays, record = make_sequence(shape, "hypersphere", check_sequence(True), occlusion=occ,
-                                   samples=samples, rng=np.random.default_rng(0))
+    arrays, record = make_sequence(
+        shape, "hypersphere", check_sequence(True), occlusion=occ, samples=samples, rng=np.random.default_rng(0)
+    )
     assert record["frames"] == 17 and record["frame_samples"] == 700 // 17
     frames = frames_of(arrays)
     for f in frames:  # x is linear: interpolated exactly onto the slice's vertices (basis: x, y, z)
@@ -53,10 +62,15 @@ def test_frame_ao_and_frame_samples():
     np.testing.assert_array_equal(arrays["frame_occupancy"].reshape(17, per), inside)
 
 
-@pytest.mark.parametrize("value, message", [
-    ({"frames": 0}, "frames"), ({"axis": "t"}, "axis"), ({"frames": 3, "speed": 1}, "unknown"),
-    ("w", "table"),
-])
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        ({"frames": 0}, "frames"),
+        ({"axis": "t"}, "axis"),
+        ({"frames": 3, "speed": 1}, "unknown"),
+        ("w", "table"),
+    ],
+)
 def test_bad_sequence_settings(value, message):
     with pytest.raises(ValueError, match=message):
         check_sequence(value)

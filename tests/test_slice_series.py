@@ -61,16 +61,14 @@ def test_series_vtp_files_open_in_vtk_xml_reader(scene, tmp_path):
     poly = reader.GetOutput()
     tri = mesh.slice([0, 0, 0, 0.2], [0, 0, 0, 1])
     assert poly.GetNumberOfPoints() == len(tri.vertices)
-    np.testing.assert_allclose(vtk_to_numpy(poly.GetPointData().GetArray("ao")),
-                               tri.vertex_attributes["ao"], atol=1e-7)
+    np.testing.assert_allclose(vtk_to_numpy(poly.GetPointData().GetArray("ao")), tri.vertex_attributes["ao"], atol=1e-7)
 
 
 def test_series_past_the_mesh_keeps_every_step(scene, tmp_path):
     path, mesh = scene
     out = tmp_path / "wide"
     hi = mesh.bounds[1][3]
-    assert main(["slice", str(path), "--w-range", "0", str(hi + 0.5), "--count", "4",
-                 "--out", str(out)]) == 0
+    assert main(["slice", str(path), "--w-range", "0", str(hi + 0.5), "--count", "4", "--out", str(out)]) == 0
     reader = pv.get_reader(str(out / "series.pvd"))
     assert len(reader.time_values) == 4
     reader.set_active_time_point(3)  # w beyond the mesh: an empty step, still a valid file
@@ -138,8 +136,8 @@ def test_a_rerun_with_fewer_slices_leaves_no_old_slice_files(scene, tmp_path):
 
 def test_a_w_range_of_one_point_is_refused_for_several_slices(scene, tmp_path, capsys):
     path, _ = scene
-    assert main(["slice", str(path), "--w-range", "0.2", "0.2", "--count", "3",
-                 "--out", str(tmp_path / "s")]) == 2
+    assert main(["slice", str(path), "--w-range", "0.2", "0.2", "--count", "3", "--out", str(tmp_path / "s")]) == 2
     assert "is one point: 3 slices would all be the same" in capsys.readouterr().err
-    assert main(["slice", str(path), "--w-range", "0.2", "0.2", "--count", "1",
-                 "--out", str(tmp_path / "s")]) == 0  # one slice of one point is fine
+    assert (
+        main(["slice", str(path), "--w-range", "0.2", "0.2", "--count", "1", "--out", str(tmp_path / "s")]) == 0
+    )  # one slice of one point is fine

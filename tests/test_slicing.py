@@ -10,12 +10,12 @@ import math
 
 import numpy as np
 import pytest
+from _shapes import ball_polytope, simplex_boundary, tesseract_boundary
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from scipy.spatial import ConvexHull
 
-from _shapes import ball_polytope, simplex_boundary, tesseract_boundary
 from ao4d.slicing import hyperplane_basis
 
 DIMS = (2, 3, 4)

@@ -37,13 +37,16 @@ def test_a_zero_fraction_gets_no_items():
     assert "val" not in {split_of(split, 0, i) for i in range(200)}
 
 
-@pytest.mark.parametrize("value, message", [
-    ({"train": 0.8, "val": 0.1}, "sum to 1"),
-    ({"train": 1.2, "val": -0.2}, r"\[0, 1\]"),
-    ({"train": "a"}, r"split.train"),
-    ({}, "table"),
-    ({"tr ain": 1.0}, "identifiers"),
-])
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        ({"train": 0.8, "val": 0.1}, "sum to 1"),
+        ({"train": 1.2, "val": -0.2}, r"\[0, 1\]"),
+        ({"train": "a"}, r"split.train"),
+        ({}, "table"),
+        ({"tr ain": 1.0}, "identifiers"),
+    ],
+)
 def test_bad_split_tables(value, message):
     with pytest.raises(ValueError, match=message):
         check_split(value)
@@ -56,17 +59,23 @@ def test_bad_split_in_a_config_is_a_config_error(tmp_path):
         load_config(path)
 
 
-CONFIG = config("splits", 2, [family("hypersphere", 7, BALL), family("lifted", 1, BOX_PRISM)],
-                split={"train": 0.5, "val": 0.25, "test": 0.25}, grid=6, padding=0.2, ao=False,
-                samples={"uniform": 60, "near_surface": 20, "sigmas": [0.05], "surface": 20},
-                sequence={"frames": 2})
+CONFIG = config(
+    "splits",
+    2,
+    [family("hypersphere", 7, BALL), family("lifted", 1, BOX_PRISM)],
+    split={"train": 0.5, "val": 0.25, "test": 0.25},
+    grid=6,
+    padding=0.2,
+    ao=False,
+    samples={"uniform": 60, "near_surface": 20, "sigmas": [0.05], "surface": 20},
+    sequence={"frames": 2},
+)
 
 
 def _splits(folder):
     with open(folder / "items.csv") as fh:
         rows = list(csv.DictReader(fh))
-    records = [json.loads((folder / "items" / f"{int(r['index']):05d}" / "record.json").read_text())
-               for r in rows]
+    records = [json.loads((folder / "items" / f"{int(r['index']):05d}" / "record.json").read_text()) for r in rows]
     assert [r["split"] for r in rows] == [rec["split"] for rec in records]
     return [r["split"] for r in rows]
 

@@ -21,10 +21,12 @@ def raw():
 def test_raw_scenes_are_mirror_symmetric(raw):
     for name, mesh in raw.items():
         mirrored = mesh.vertices * np.array([-1, 1, 1, 1])
+
         # the set of tetrahedra equals its mirror image (compare sorted corner coordinates)
         def canon(v):
             tets = np.sort(np.round(v[mesh.simplices], 9).reshape(len(mesh.simplices), -1), axis=1)
             return tets[np.lexsort(tets.T)]
+
         np.testing.assert_allclose(canon(mesh.vertices), canon(mirrored), atol=1e-12, err_msg=name)
 
 

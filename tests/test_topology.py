@@ -10,8 +10,8 @@ import math
 
 import numpy as np
 import pytest
-
 from _shapes import ball_polytope, simplex_boundary, translated
+
 from ao4d.mesh import MeshReport, SimplexMesh, concatenate
 
 DIMS = (2, 3, 4)
@@ -121,20 +121,24 @@ def test_vertex_with_torus_link_is_singular():
     k = 6
     a, b = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
     vid = lambda i, j: (i % k) * k + (j % k)  # noqa: E731
-    triangles = np.concatenate([
-        np.stack([vid(a, b), vid(a + 1, b), vid(a + 1, b + 1)], axis=-1).reshape(-1, 3),
-        np.stack([vid(a, b), vid(a + 1, b + 1), vid(a, b + 1)], axis=-1).reshape(-1, 3),
-    ])
+    triangles = np.concatenate(
+        [
+            np.stack([vid(a, b), vid(a + 1, b), vid(a + 1, b + 1)], axis=-1).reshape(-1, 3),
+            np.stack([vid(a, b), vid(a + 1, b + 1), vid(a, b + 1)], axis=-1).reshape(-1, 3),
+        ]
+    )
     angle = 2 * np.pi * np.arange(k) / k
     u, v = np.meshgrid(angle, angle, indexing="ij")
     torus = np.stack([np.cos(u), np.sin(u), np.cos(v), np.sin(v)], axis=-1).reshape(-1, 4) / math.sqrt(2)
     top, bottom = k * k, k * k + 1
     vertices = np.vstack([torus, [[0.1, 0.2, 0.3, 0.9], [-0.2, 0.1, -0.3, -0.8]]])
     # apex first; the bottom cone reversed so the shared torus triangles get opposite orientations
-    tets = np.concatenate([
-        np.column_stack([np.full(len(triangles), top), triangles]),
-        np.column_stack([np.full(len(triangles), bottom), triangles[:, [0, 2, 1]]]),
-    ])
+    tets = np.concatenate(
+        [
+            np.column_stack([np.full(len(triangles), top), triangles]),
+            np.column_stack([np.full(len(triangles), bottom), triangles[:, [0, 2, 1]]]),
+        ]
+    )
     report = SimplexMesh(vertices, tets).check()
     assert report.closed and report.oriented and report.n_nonmanifold_faces == 0
     assert report.n_singular_vertices == 2 and not report.manifold
@@ -211,15 +215,15 @@ def _assert_same_as_reference(mesh: SimplexMesh) -> None:
     got = np.sort(np.sort(mesh.boundary_faces(), axis=1), axis=0)
     want = np.sort(np.sort(reference_boundary_faces(mesh.simplices, mesh.n_vertices), axis=1), axis=0)
     assert np.array_equal(got, want)
+
     # orientation of each boundary face: the same oriented face up to an even permutation
     def canonical(faces: np.ndarray) -> list[tuple]:
         if mesh.dim < 4:  # a point or a directed edge: the listing is the orientation
             return sorted(map(tuple, faces.tolist()))
         # a triangle up to rotation (an even permutation): smallest vertex first
-        return sorted(tuple(f[f.index(min(f)):] + f[:f.index(min(f))]) for f in faces.tolist())
+        return sorted(tuple(f[f.index(min(f)) :] + f[: f.index(min(f))]) for f in faces.tolist())
 
-    assert canonical(mesh.boundary_faces()) == canonical(
-        reference_boundary_faces(mesh.simplices, mesh.n_vertices))
+    assert canonical(mesh.boundary_faces()) == canonical(reference_boundary_faces(mesh.simplices, mesh.n_vertices))
 
 
 @pytest.mark.parametrize("d", DIMS, ids=lambda d: f"{d}D")
@@ -281,7 +285,7 @@ def test_face_multiplicity_counts_the_simplices_of_each_face(d):
         mesh = _defective(d, defect, rng)
         rows = mesh.simplices.tolist()
         table = face_table(rows)
-        want = [[len(table[tuple(sorted(r[:k] + r[k + 1:]))]) for k in range(d)] for r in rows]
+        want = [[len(table[tuple(sorted(r[:k] + r[k + 1 :]))]) for k in range(d)] for r in rows]
         got = topology.face_structure(mesh.simplices, mesh.n_vertices).multiplicity
         assert got.tolist() == want
 
@@ -303,8 +307,7 @@ def test_face_grouping_paths_agree(monkeypatch, d, path):
             monkeypatch.setattr(topology, "_WORD_BITS", key_bits if path == "mixed-keys" else key_bits - 1)
             fresh = SimplexMesh(mesh.vertices, mesh.simplices)
             assert fresh.check() == expected
-            assert np.array_equal(fresh.components(),
-                                  reference_components(mesh.simplices, mesh.n_vertices))
+            assert np.array_equal(fresh.components(), reference_components(mesh.simplices, mesh.n_vertices))
 
 
 # --------------------------------------------------------------------------------------------

@@ -13,9 +13,14 @@ from ao4d._validate import as_real, as_vector, check_bool, check_int, check_posi
 
 @pytest.mark.parametrize(
     ("value", "error", "message"),
-    [(np.nan, ValueError, "`x` must be finite"), (np.inf, ValueError, "`x` must be finite"),
-     ("one", TypeError, "`x` must be a real number"), (None, TypeError, "`x` must be a real number"),
-     (True, TypeError, "`x` must be a real number"), ([1.0], TypeError, "`x` must be a real number")],
+    [
+        (np.nan, ValueError, "`x` must be finite"),
+        (np.inf, ValueError, "`x` must be finite"),
+        ("one", TypeError, "`x` must be a real number"),
+        (None, TypeError, "`x` must be a real number"),
+        (True, TypeError, "`x` must be a real number"),
+        ([1.0], TypeError, "`x` must be a real number"),
+    ],
 )
 def test_as_real_names_the_parameter(value, error, message):
     with pytest.raises(error, match=message):

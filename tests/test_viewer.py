@@ -32,6 +32,7 @@ HALF = math.radians(viewer.HALF_FOV_DEG)
 
 # --------------------------------------------------------------------------- meshes
 
+
 def _ball(radius=1.0, center=(0.0, 0.0, 0.0, 0.0), n=16, dim=4):
     c = np.asarray(center, dtype=float)
     lo, hi = c - 1.3 * radius, c + 1.3 * radius
@@ -59,8 +60,9 @@ def demo_like():
     scene_def = default_scene()
     meshes = extract_scene(scene_def, cell=0.2, progress=False)
     joined = ao4d.mesh.concatenate(meshes)
-    joined.point_data["ao"] = ao4d.ambient_occlusion(joined, samples=16, seed=0, progress=False,
-                                                     max_distance=scene_def.max_distance)
+    joined.point_data["ao"] = ao4d.ambient_occlusion(
+        joined, samples=16, seed=0, progress=False, max_distance=scene_def.max_distance
+    )
     return viewer.split_objects(joined), [o.name for o in scene_def.objects]
 
 
@@ -76,6 +78,7 @@ def _canonical(corners):
 
 
 # --------------------------------------------------------------------------- geometry in numpy
+
 
 def test_rotation_order_and_planes():
     e = np.eye(4)
@@ -95,8 +98,7 @@ def test_rotation_order_and_planes():
 
 def test_full_state_wraps_clamps_and_names_errors():
     frame = viewer.Frame(np.array([0.0, 0.0, 0.0, 0.25]), 1.0)
-    s = viewer.full_state({"xy": 270, "az": -180, "el": 120, "light": True, "hide": [2, 0, 2]},
-                          frame=frame)
+    s = viewer.full_state({"xy": 270, "az": -180, "el": 120, "light": True, "hide": [2, 0, 2]}, frame=frame)
     assert (s["xy"], s["az"], s["el"], s["light"], s["hide"]) == (-90.0, 180.0, 90.0, 1, (0, 2))
     assert s["w"] == 0.25  # the scene's centre in w
     with pytest.raises(ValueError, match="unknown key.*'tilt'"):
@@ -118,8 +120,9 @@ def test_camera_frames_the_ball_whatever_w_and_angles():
     w, h = 400, 300
     base = viewer.camera({"az": 40, "el": -25}, w, h, frame=frame)
     # the target is the image centre; the camera is outside the ball
-    assert np.allclose(viewer.project([frame.center[:3]], {"az": 40, "el": -25}, w, h, frame=frame)[0, :2],
-                       [w / 2, h / 2])
+    assert np.allclose(
+        viewer.project([frame.center[:3]], {"az": 40, "el": -25}, w, h, frame=frame)[0, :2], [w / 2, h / 2]
+    )
     assert base.distance > frame.radius and base.near > 0
     # the ball's silhouette: radius scale * tan(asin(r / D)) = 1 / 1.1 of the half short side
     rho = base.scale * math.tan(math.asin(frame.radius / base.distance))
@@ -133,8 +136,7 @@ def test_camera_frames_the_ball_whatever_w_and_angles():
     p2 = viewer.project(pts, {"az": 40, "el": -25, "zoom": 2.0}, w, h, frame=frame)
     assert np.allclose(p2[:, :2] - [w / 2, h / 2], 2 * (p0[:, :2] - [w / 2, h / 2]))
     # right is +x and up is +y at az = el = 0
-    q = viewer.project([[1.0, 0, 0], [0, 1.0, 0]], {"az": 0, "el": 0}, w, h,
-                       frame=viewer.Frame(np.zeros(4), 1.0))
+    q = viewer.project([[1.0, 0, 0], [0, 1.0, 0]], {"az": 0, "el": 0}, w, h, frame=viewer.Frame(np.zeros(4), 1.0))
     assert q[0, 0] > w / 2 and np.isclose(q[0, 1], h / 2) and q[1, 1] < h / 2
 
 
@@ -175,8 +177,9 @@ def test_cut_table_orientation_and_ao_match_slice(sphere):
     assert (np.einsum("ij,ij->i", n, corners.mean(axis=1)) > 0).all()
     page = np.c_[corners.reshape(-1, 3), ao.reshape(-1, 1)]
     cpu = np.c_[tri.vertices[tri.faces].reshape(-1, 3), tri.vertex_attributes["ao"][tri.faces].reshape(-1, 1)]
-    assert np.allclose(page[np.lexsort(np.round(page, 9).T[::-1])],
-                       cpu[np.lexsort(np.round(cpu, 9).T[::-1])], atol=1e-8)
+    assert np.allclose(
+        page[np.lexsort(np.round(page, 9).T[::-1])], cpu[np.lexsort(np.round(cpu, 9).T[::-1])], atol=1e-8
+    )
 
 
 @settings(max_examples=25, deadline=None)
@@ -250,14 +253,17 @@ def test_split_objects_round_trip(demo_like):
 
 # --------------------------------------------------------------------------- the HTML file
 
+
 def _scene_of(path):
     text = path.read_text(encoding="utf-8")
-    scene = json.loads(re.search(r'<script type="application/json" id="ao4d-scene">(.*?)</script>',
-                                 text, re.DOTALL).group(1))
+    scene = json.loads(
+        re.search(r'<script type="application/json" id="ao4d-scene">(.*?)</script>', text, re.DOTALL).group(1)
+    )
 
     def blob(meta):
-        b64 = re.search(f'<script type="application/octet-stream" id="{meta["id"]}">(.*?)</script>',
-                        text, re.DOTALL).group(1)
+        b64 = re.search(
+            f'<script type="application/octet-stream" id="{meta["id"]}">(.*?)</script>', text, re.DOTALL
+        ).group(1)
         data = base64.b64decode(b64)
         if meta["encoding"] == "deflate":
             data = zlib.decompress(data)
@@ -316,8 +322,9 @@ def _shader_cut_float32(scene, blob, state):
 def test_page_far_from_the_origin_looks_like_the_page_at_it(tmp_path, sphere, shift):
     # before: the page got absolute float32 vertices (0.06 apart at 1e6) and a float32
     # translation, so a scene far from the origin cut into noise
-    moved = ao4d.SimplexMesh(np.asarray(sphere.vertices) + shift, sphere.simplices,
-                             point_data={"ao": sphere.point_data["ao"]})
+    moved = ao4d.SimplexMesh(
+        np.asarray(sphere.vertices) + shift, sphere.simplices, point_data={"ao": sphere.point_data["ao"]}
+    )
     state = {"w": 0.3, "xw": 30.0, "yz": 20.0}
     here = viewer.view(sphere, tmp_path / "here.html", state=state)
     there = viewer.view(moved, tmp_path / "there.html", state={**state, "w": 0.3 + shift})
@@ -334,8 +341,9 @@ def test_page_far_from_the_origin_looks_like_the_page_at_it(tmp_path, sphere, sh
     err = np.abs(point_b[both] - shift - point_a[both]).max()
     assert err < 1e-5, err  # float32 at the scene's size (radius 1), not at its distance
     # the culling mirror, on the page's own chunk balls
-    active = viewer._active_chunks(blob_b(scene_b["objects"][0]["chunks"]), {**state, "w": 0.3 + shift},
-                                   frame=viewer.scene_frame(moved))
+    active = viewer._active_chunks(
+        blob_b(scene_b["objects"][0]["chunks"]), {**state, "w": 0.3 + shift}, frame=viewer.scene_frame(moved)
+    )
     chunk_of_cut = np.flatnonzero(cut_b) // viewer.CHUNK
     assert active[chunk_of_cut].all() and active.mean() < 0.9
 
@@ -426,8 +434,9 @@ def test_serve_gives_page_and_buffers(small_sphere):
         meta = scene["objects"][0]["vertices"]
         data = urllib.request.urlopen(server.url + meta["url"], timeout=10).read()
         centred = viewer._centred(small_sphere.vertices, viewer.scene_frame(small_sphere))
-        assert np.array_equal(np.frombuffer(zlib.decompress(data), "<f4").reshape(meta["shape"]),
-                              centred.astype(np.float32))
+        assert np.array_equal(
+            np.frombuffer(zlib.decompress(data), "<f4").reshape(meta["shape"]), centred.astype(np.float32)
+        )
         with pytest.raises(urllib.error.HTTPError, match="404"):
             urllib.request.urlopen(server.url + "etc/passwd", timeout=10)
     with pytest.raises(ValueError, match="host"):
@@ -440,8 +449,9 @@ def test_page_text_and_serve_take_the_options_of_view(small_sphere, tmp_path):
     # one list of options (view's signature): the same page by view and page_text, and an option
     # view does not take (or serve: max_bytes) refused naming the function
     options = {"names": ["ball"], "state": {"w": 0.2, "xw": 30}, "title": "t", "cull": "none"}
-    assert viewer.view(small_sphere, tmp_path / "a.html", **options).read_text() == \
-        viewer.page_text(small_sphere, **options)
+    assert viewer.view(small_sphere, tmp_path / "a.html", **options).read_text() == viewer.page_text(
+        small_sphere, **options
+    )
     with pytest.raises(TypeError, match=r"page_text\(\) got unknown option\(s\) 'colour'; it takes .*colors"):
         viewer.page_text(small_sphere, colour="red")
     with pytest.raises(TypeError, match=r"serve\(\) got unknown option\(s\) 'max_bytes'"):
@@ -489,11 +499,11 @@ def _rasterize(triangles, values, owners, state, width, height, frame):
         q = np.stack([l0 / z[0], l1 / z[1], l2 / z[2]])
         d = 1.0 / q.sum(axis=0)
         v = (q[0] * values[k, 0] + q[1] * values[k, 1] + q[2] * values[k, 2]) * d
-        win = depth[j0:j1 + 1, i0:i1 + 1]
+        win = depth[j0 : j1 + 1, i0 : i1 + 1]
         take = inside & (d < win)
         win[take] = d[take]
-        value[j0:j1 + 1, i0:i1 + 1][take] = v[take]
-        owner[j0:j1 + 1, i0:i1 + 1][take] = owners[k]
+        value[j0 : j1 + 1, i0 : i1 + 1][take] = v[take]
+        owner[j0 : j1 + 1, i0 : i1 + 1][take] = owners[k]
     return owner, value
 
 
@@ -509,8 +519,7 @@ def _cpu_picture(meshes, state, width, height, frame):
         owners.append(np.full(len(tri.faces), i))
     if not tris:
         return np.full((height, width), -1), np.full((height, width), np.nan)
-    return _rasterize(np.concatenate(tris), np.concatenate(vals), np.concatenate(owners),
-                      state, width, height, frame)
+    return _rasterize(np.concatenate(tris), np.concatenate(vals), np.concatenate(owners), state, width, height, frame)
 
 
 def _openness(rgb, ramp):
@@ -573,8 +582,12 @@ def test_browser_off_centre_hypersphere_turned_90_in_xw(browser, tmp_path):
     mesh = _ball(0.45, (0.5, 0, 0, 0), n=14)
     frame = viewer.scene_frame(mesh, center=np.zeros(4))
     url = viewer.view(mesh, tmp_path / "off.html", center=np.zeros(4)).as_uri()
-    for fragment, rho in [("#w=0.5&xw=90", 0.45), ("#w=0.3&xw=90", math.sqrt(0.45**2 - 0.2**2)),
-                          ("#w=0.5&xw=-90", None), ("#w=0.5&xw=0", None)]:
+    for fragment, rho in [
+        ("#w=0.5&xw=90", 0.45),
+        ("#w=0.3&xw=90", math.sqrt(0.45**2 - 0.2**2)),
+        ("#w=0.5&xw=-90", None),
+        ("#w=0.5&xw=0", None),
+    ]:
         stats = open_page(browser, url, fragment + "&az=30&el=20")
         img = capture(browser)
         covered = img[..., 3] > 127
@@ -590,8 +603,7 @@ def test_browser_off_centre_hypersphere_turned_90_in_xw(browser, tmp_path):
     assert browser.errors == []
 
 
-STATE = {"w": 0.15, "xy": 12, "xz": -25, "xw": 37, "yz": 8, "yw": -19, "zw": 44,
-         "az": -50, "el": 30, "zoom": 1.4}
+STATE = {"w": 0.15, "xy": 12, "xz": -25, "xw": 37, "yz": 8, "yw": -19, "zw": 44, "az": -50, "el": 30, "zoom": 1.4}
 
 
 def _fragment(state):
@@ -632,7 +644,7 @@ def test_browser_colours_are_the_cpu_slice_ao(browser, demo_like, tmp_path):
     pad = np.pad(owner, 1, constant_values=-2)
     same = np.ones_like(owner, dtype=bool)
     for dj, di in [(0, 1), (2, 1), (1, 0), (1, 2)]:
-        same &= pad[dj:dj + h, di:di + w_px] == owner
+        same &= pad[dj : dj + h, di : di + w_px] == owner
     interior = same & (owner >= 0) & (img[..., 3] == 255)
     errors, graded = [], []
     for i in range(len(meshes)):
@@ -667,8 +679,7 @@ def test_browser_lambert_term_is_the_slice_triangles_normal(browser, sphere, sph
     frame = viewer.scene_frame(sphere)
     tri = viewer.slice_for_state(sphere, state)
     corners = tri.vertices[tri.faces]
-    owner, _ = _rasterize(corners, np.ones(corners.shape[:2]), np.arange(len(corners)), state,
-                          w_px, h, frame)
+    owner, _ = _rasterize(corners, np.ones(corners.shape[:2]), np.arange(len(corners)), state, w_px, h, frame)
     cam = viewer.camera(state, w_px, h, frame=frame)
     n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -716,9 +727,18 @@ def test_browser_mouse_keys_wheel_and_play(browser, sphere_page):
     x, y = 276 + 200, 200  # on the canvas, right of the panel
 
     def mouse(kind, px, py, buttons=0, modifiers=0, **extra):
-        browser.send("Input.dispatchMouseEvent", session=True, type=kind, x=px, y=py,
-                     button="left" if kind != "mouseWheel" else "none", buttons=buttons,
-                     modifiers=modifiers, clickCount=1 if kind != "mouseMoved" else 0, **extra)
+        browser.send(
+            "Input.dispatchMouseEvent",
+            session=True,
+            type=kind,
+            x=px,
+            y=py,
+            button="left" if kind != "mouseWheel" else "none",
+            buttons=buttons,
+            modifiers=modifiers,
+            clickCount=1 if kind != "mouseMoved" else 0,
+            **extra,
+        )
 
     mouse("mousePressed", x, y, buttons=1)
     mouse("mouseMoved", x + 50, y + 25, buttons=1)
@@ -737,7 +757,9 @@ def test_browser_mouse_keys_wheel_and_play(browser, sphere_page):
         browser.send("Input.dispatchKeyEvent", session=True, type="keyDown", key=key)
         browser.send("Input.dispatchKeyEvent", session=True, type="keyUp", key=key)
     s = browser.evaluate("window.ao4d.state()")
-    assert s["az"] == pytest.approx(5) and s["w"] == pytest.approx(0.02 * browser.evaluate("window.ao4d.scene().radius"))
+    assert s["az"] == pytest.approx(5) and s["w"] == pytest.approx(
+        0.02 * browser.evaluate("window.ao4d.scene().radius")
+    )
     # play sweeps w and measures frames per second
     browser.evaluate("document.getElementById('play').click()")
     w0 = browser.evaluate("window.ao4d.state().w")
@@ -754,8 +776,12 @@ def test_browser_png_button_and_hidden_objects(browser, demo_like, tmp_path):
     url = viewer.view(meshes, tmp_path / "demo.html", names=names).as_uri()
     stats = open_page(browser, url, "#w=0&hide=1,3")
     assert stats["per_object"][1] == 0 and stats["per_object"][3] == 0 and stats["per_object"][0] > 0
-    assert browser.evaluate("[0,1,2,3].map(i => document.getElementById('vis-' + i).checked)") == \
-        [True, False, True, False]
+    assert browser.evaluate("[0,1,2,3].map(i => document.getElementById('vis-' + i).checked)") == [
+        True,
+        False,
+        True,
+        False,
+    ]
     browser.send("Browser.setDownloadBehavior", behavior="allow", downloadPath=str(tmp_path))
     browser.evaluate("document.getElementById('shot').click()")
     png = tmp_path / "ao4d-view.png"
@@ -767,7 +793,7 @@ def test_browser_png_button_and_hidden_objects(browser, demo_like, tmp_path):
     picture = matplotlib.image.imread(png)
     assert list(picture.shape[1::-1]) == stats["canvas"]
     # opaque, background colour in the corner, the scene in the middle
-    assert np.allclose(picture[0, 0, :3] * 255, [0x3d, 0x43, 0x4f], atol=1)
+    assert np.allclose(picture[0, 0, :3] * 255, [0x3D, 0x43, 0x4F], atol=1)
     assert picture[..., :3].std() > 0.05
     assert browser.errors == []
 
@@ -814,8 +840,9 @@ def test_browser_served_page_equals_file_page(browser, small_sphere, tmp_path):
 def test_browser_scene_far_from_the_origin_looks_like_the_one_at_it(browser, sphere, tmp_path):
     # before: absolute float32 vertices and translation: at 1e6 the cut was noise
     shift = 1e6
-    moved = ao4d.SimplexMesh(np.asarray(sphere.vertices) + shift, sphere.simplices,
-                             point_data={"ao": sphere.point_data["ao"]})
+    moved = ao4d.SimplexMesh(
+        np.asarray(sphere.vertices) + shift, sphere.simplices, point_data={"ao": sphere.point_data["ao"]}
+    )
     state = {"xw": 30, "yz": 20, "az": 30, "el": 20, "zoom": 1}
     here = viewer.view(sphere, tmp_path / "here.html").as_uri()
     there = viewer.view(moved, tmp_path / "there.html").as_uri()
@@ -830,8 +857,7 @@ def test_browser_scene_far_from_the_origin_looks_like_the_one_at_it(browser, sph
     assert browser.errors == []
 
 
-@pytest.mark.parametrize("fragment", ["#w=%", "#zoom=%E0%A4%A", "#light=banana", "#zoom=abc&xw=",
-                                      "#hide=x"])
+@pytest.mark.parametrize("fragment", ["#w=%", "#zoom=%E0%A4%A", "#light=banana", "#zoom=abc&xw=", "#hide=x"])
 def test_browser_bad_fragment_values_are_ignored_with_a_warning(browser, sphere_page, fragment):
     # before: "URI malformed" left a blank page, and light=banana turned the light off
     browser.console.clear()
@@ -847,8 +873,12 @@ def test_browser_bad_fragment_values_are_ignored_with_a_warning(browser, sphere_
 def test_browser_url_holds_the_whole_view(browser, small_sphere, tmp_path):
     # before: hide was left out when empty and light when 1, and a reload merged the fragment
     # into the page's initial state: the objects the user showed came back hidden, unlit
-    path = viewer.view([small_sphere, small_sphere], tmp_path / "two.html",
-                       offsets=[[0, 0, 0, 0], [3, 0, 0, 0]], state={"hide": [1], "light": 0})
+    path = viewer.view(
+        [small_sphere, small_sphere],
+        tmp_path / "two.html",
+        offsets=[[0, 0, 0, 0], [3, 0, 0, 0]],
+        state={"hide": [1], "light": 0},
+    )
     open_page(browser, path.as_uri())
     assert browser.evaluate("window.ao4d.state()")["hide"] == [1]
     browser.evaluate("window.ao4d.setState({hide: [], light: 1, az: 40})")

@@ -66,8 +66,7 @@ def test_vti_round_trip_and_vtk_reader(tmp_path):
     rng = np.random.default_rng(3)
     shade = rng.random((6, 4, 5)).astype(np.float32)
     ids = rng.integers(-1, 3, size=(6, 4, 5)).astype(np.int32)
-    path = io.write_vti(tmp_path / "v.vti", {"shade": shade, "object_id": ids},
-                        spacing=0.1, origin=(1, 2, 3))
+    path = io.write_vti(tmp_path / "v.vti", {"shade": shade, "object_id": ids}, spacing=0.1, origin=(1, 2, 3))
     vol = io.read_vti(path)
     assert vol.name == "shade"
     np.testing.assert_array_equal(vol.data, shade)
@@ -132,8 +131,11 @@ def test_truncated_vti_is_named_unreadable(tmp_path):
     whole = io.write_vti(tmp_path / "a.vti", {"a": _ramp(), "b": _ramp()}).read_bytes()
     for cut in (len(whole) // 2, len(whole) - 60, 200, 0):  # (the last 27 bytes close the XML)
         (tmp_path / "t.vti").write_bytes(whole[:cut])
-        with pytest.raises(ValueError, match=r"`path` '.*t.vti' is unreadable or truncated as VTK "
-                                             r"ImageData \(.vti\)"):
+        with pytest.raises(
+            ValueError,
+            match=r"`path` '.*t.vti' is unreadable or truncated as VTK "
+            r"ImageData \(.vti\)",
+        ):
             io.read_vti(tmp_path / "t.vti")
 
 

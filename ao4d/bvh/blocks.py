@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from .collapse import collapse
 from . import layout
-from .layout import LANES, LEAF_BLOCKS, MAX_LEAF_BLOCKS, WIDTH, BVH, WideBVH, box_area
+from .collapse import collapse
+from .layout import BVH, LANES, LEAF_BLOCKS, MAX_LEAF_BLOCKS, WIDTH, WideBVH, box_area
 
 __all__ = ["wide", "widen", "widen_topology", "block_ranges", "device_wide_tree", "release_source"]
 
@@ -191,8 +191,15 @@ def device_wide_tree(tree: BVH, runtime, lanes: int) -> dict[str, Any] | None:
     ro = cl_.mem_flags.READ_ONLY | cl_.mem_flags.COPY_HOST_PTR
     blocks = cl_.Buffer(ctx, cl_.mem_flags.READ_WRITE, 4 * n_blocks * (d + 1) * d * lanes)
     source["kernels"]["fill_blocks"](
-        queue, (n_blocks * lanes,), None, source["vertices"], source["simplices"], source["order"],
-        cl_.Buffer(ctx, ro, hostbuf=block_range), np.int32(lanes), blocks,
+        queue,
+        (n_blocks * lanes,),
+        None,
+        source["vertices"],
+        source["simplices"],
+        source["order"],
+        cl_.Buffer(ctx, ro, hostbuf=block_range),
+        np.int32(lanes),
+        blocks,
     )
     queue.flush()  # the device fills the blocks while the host collapses the tree
     boxes, children, _, _, _ = widen_topology(tree, lanes)

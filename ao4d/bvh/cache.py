@@ -16,10 +16,8 @@ import numpy as np
 
 from .. import cl
 from .._validate import check_choice, check_positive_int
-from . import device, host
-from . import blocks
+from . import blocks, device, host, layout
 from .blocks import device_wide_tree
-from . import layout
 from .layout import BVH, LANES, MAX_LEAF_BLOCKS, Frame
 
 __all__ = ["get_bvh", "device_tree", "block_lanes", "BUILDERS"]
@@ -49,8 +47,7 @@ def _build_tree(builder: str, vertices, simplices, leaf_size: int, runtime) -> B
             runtime = cl.get_runtime(warn=False)
             if runtime is None:
                 raise cl.NoOpenCLDeviceError("builder='device' needs an OpenCL device; none works (see `ao4d info`)")
-        tree = device.build(local, simplices, leaf_size=leaf_size, runtime=runtime,
-                               lanes=block_lanes(runtime))
+        tree = device.build(local, simplices, leaf_size=leaf_size, runtime=runtime, lanes=block_lanes(runtime))
     else:
         tree = host.build(local, simplices, leaf_size=leaf_size)
     tree.frame = frame
@@ -95,9 +92,11 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
         mesh = as_mesh(mesh)
     if runtime is not None and leaf_size > MAX_LEAF_BLOCKS * block_lanes(runtime):
         lanes = block_lanes(runtime)
-        raise ValueError(f"`leaf_size` must be at most {MAX_LEAF_BLOCKS * lanes} on this device "
-                         f"(leaf blocks of {lanes} simplices, at most {MAX_LEAF_BLOCKS} per leaf), "
-                         f"got {leaf_size}")
+        raise ValueError(
+            f"`leaf_size` must be at most {MAX_LEAF_BLOCKS * lanes} on this device "
+            f"(leaf blocks of {lanes} simplices, at most {MAX_LEAF_BLOCKS} per leaf), "
+            f"got {leaf_size}"
+        )
     keys = {b: f"ao4d.bvh/{b}/leaf={leaf_size}" for b in ("device", "host")}
     cache = getattr(mesh, "cache", None)
     stamp = None

@@ -67,8 +67,15 @@ class Collapse:
         return out
 
 
-def collapse(left: np.ndarray, right: np.ndarray, area: np.ndarray, levels: list[np.ndarray],
-             n_blocks: np.ndarray, may_be_leaf: np.ndarray, width: int) -> Collapse:
+def collapse(
+    left: np.ndarray,
+    right: np.ndarray,
+    area: np.ndarray,
+    levels: list[np.ndarray],
+    n_blocks: np.ndarray,
+    may_be_leaf: np.ndarray,
+    width: int,
+) -> Collapse:
     """Choose the wide tree of least expected cost.
 
     Parameters

@@ -107,8 +107,10 @@ class DeviceBVH(BVH):
         return np.ascontiguousarray(inverse), pts[0].T.copy()
 
     def __repr__(self) -> str:
-        return (f"DeviceBVH(dim={self.dim}, n_prims={self.n_prims}, n_nodes={self.n_nodes}, "
-                f"depth={self.depth}, n_skipped={self.n_skipped})")
+        return (
+            f"DeviceBVH(dim={self.dim}, n_prims={self.n_prims}, n_nodes={self.n_nodes}, "
+            f"depth={self.depth}, n_skipped={self.n_skipped})"
+        )
 
 
 def _frames_unfiltered(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
@@ -219,10 +221,15 @@ def build(
     subtree, chunk, runtime = _check_build_options(subtree, chunk, runtime, leaf_size)
     d, n = vertices.shape[1], len(simplices)
     # records (two buffers), node arrays (at most 2 n nodes), the mesh and the leaf blocks
-    cl.check_device_memory(runtime, fallback="the host builder", task="the BVH build", nbytes={
-        "the BVH build's node bounds": 32 * n,
-        "the BVH build": n * (2 * 52 + 2 * 40 + 6 + 4 * (d + 1) * d + 8 * d * d) + vertices.nbytes,
-    })
+    cl.check_device_memory(
+        runtime,
+        fallback="the host builder",
+        task="the BVH build",
+        nbytes={
+            "the BVH build's node bounds": 32 * n,
+            "the BVH build": n * (2 * 52 + 2 * 40 + 6 + 4 * (d + 1) * d + 8 * d * d) + vertices.nbytes,
+        },
+    )
     job = _Job(runtime, vertices, simplices)
     scan = _scan(job)
     nodes = _Nodes(job, scan.n_prims)
@@ -234,11 +241,25 @@ def build(
     meta, lo, hi, depth = _breadth_first(meta, lo, hi)
     lo[:, d:] = 0.0
     hi[:, d:] = 0.0
-    tree = DeviceBVH(vertices=vertices, simplices=simplices, dim=d, lo=lo, hi=hi, meta=meta,
-                     prim=order.astype(np.int64), n_skipped=n - scan.n_prims, depth=depth,
-                     diagonal=scan.diagonal)
-    tree.device_source = {"context": job.ctx, "vertices": job.vertices, "simplices": job.simplices,
-                          "order": nodes.order, "kernels": job.k}
+    tree = DeviceBVH(
+        vertices=vertices,
+        simplices=simplices,
+        dim=d,
+        lo=lo,
+        hi=hi,
+        meta=meta,
+        prim=order.astype(np.int64),
+        n_skipped=n - scan.n_prims,
+        depth=depth,
+        diagonal=scan.diagonal,
+    )
+    tree.device_source = {
+        "context": job.ctx,
+        "vertices": job.vertices,
+        "simplices": job.simplices,
+        "order": nodes.order,
+        "kernels": job.k,
+    }
     if lanes is not None:
         device_wide_tree(tree, runtime, lanes)  # the form the device traverses
         release_source(tree)
@@ -317,8 +338,9 @@ def _scan(job: _Job) -> _Scan:
     host = (kept, part_lo, part_hi, part_abs)
     bufs = [job.scratch(a.nbytes, job.mf.WRITE_ONLY) for a in host]
     keep = job.scratch(n) if job.keep is None else job.input(job.keep)
-    job.k["scan_simplices"](job.queue, (n_chunks,), None, job.vertices, job.simplices, np.int32(n),
-                            np.int32(_SCAN_CHUNK), keep, *bufs)
+    job.k["scan_simplices"](
+        job.queue, (n_chunks,), None, job.vertices, job.simplices, np.int32(n), np.int32(_SCAN_CHUNK), keep, *bufs
+    )
     job.read(*zip(host, bufs))
     n_prims = int(kept.sum())
     if n_prims == 0:
@@ -350,16 +372,26 @@ def _records(job: _Job, scan: _Scan, nodes: _Nodes) -> tuple[np.ndarray, np.ndar
     part_c = np.empty((scan.n_chunks, 2, 4), dtype=np.float32)
     buf_pc = job.scratch(part_c.nbytes, job.mf.WRITE_ONLY)
     job.k["make_records"](
-        job.queue, (scan.n_chunks,), None, job.vertices, job.simplices, np.int32(job.n),
-        np.int32(_SCAN_CHUNK), scan.keep, job.input(scan.offsets), job.real(2 * BARY_EPS),
-        job.real(_BOX_MARGIN * scan.extent), nodes.rec[0], nodes.ids[0], buf_pc,
+        job.queue,
+        (scan.n_chunks,),
+        None,
+        job.vertices,
+        job.simplices,
+        np.int32(job.n),
+        np.int32(_SCAN_CHUNK),
+        scan.keep,
+        job.input(scan.offsets),
+        job.real(2 * BARY_EPS),
+        job.real(_BOX_MARGIN * scan.extent),
+        nodes.rec[0],
+        nodes.ids[0],
+        buf_pc,
     )
     job.read((part_c, buf_pc))
     return part_c[scan.used, 0].min(0), part_c[scan.used, 1].max(0)
 
 
-def _split_large_nodes(job: _Job, nodes: _Nodes, n_prims: int, c_lo, c_hi, subtree_size: int,
-                       chunk_size: int):
+def _split_large_nodes(job: _Job, nodes: _Nodes, n_prims: int, c_lo, c_hi, subtree_size: int, chunk_size: int):
     """3. nodes larger than ``subtree_size``, one level at a time (the host keeps only node
     bookkeeping). Returns the split nodes as (ids with first child ids, boxes) per level and the
     subtree tasks: (id, start, count, level + 256 parity) rows and their centroid bounds."""
@@ -393,8 +425,7 @@ def _split_large_nodes(job: _Job, nodes: _Nodes, n_prims: int, c_lo, c_hi, subtr
     return big, tasks
 
 
-def _split_level(job: _Job, nodes: _Nodes, level_nodes: np.ndarray, level_c: np.ndarray, level: int,
-                 chunk_size: int):
+def _split_level(job: _Job, nodes: _Nodes, level_nodes: np.ndarray, level_c: np.ndarray, level: int, chunk_size: int):
     """One level of large nodes: per chunk of a node's records partial bins, per node the
     reduction and the SAH choice, per chunk a stable partition into the other record buffer.
     Returns per node the left child's record count, the children's boxes (m, 8) and their
@@ -428,10 +459,12 @@ def _split_level(job: _Job, nodes: _Nodes, level_nodes: np.ndarray, level_c: np.
     src, dst = level % 2, (level + 1) % 2
     rec, ids = nodes.rec, nodes.ids
     k["bin_chunks"](job.queue, (n_ch,), None, rec[src], b_chunk, b_node_i, b_node_f, nodes.bin_of, b_pn, b_pb)
-    k["split_nodes"](job.queue, (m,), None, b_node_i, b_node_c, b_first, b_chunk, b_pn, b_pb,
-                     np.int32(level), b_ri, b_rf, b_off)
-    k["scatter_chunks"](job.queue, (n_ch,), None, rec[src], ids[src], rec[dst], ids[dst], b_chunk,
-                        b_ri, nodes.bin_of, b_off)
+    k["split_nodes"](
+        job.queue, (m,), None, b_node_i, b_node_c, b_first, b_chunk, b_pn, b_pb, np.int32(level), b_ri, b_rf, b_off
+    )
+    k["scatter_chunks"](
+        job.queue, (n_ch,), None, rec[src], ids[src], rec[dst], ids[dst], b_chunk, b_ri, nodes.bin_of, b_off
+    )
     job.read((res_i, b_ri), (res_f, b_rf))
     return res_i[:, 1].astype(np.int64), res_f[:, :2].reshape(m, 8), res_f[:, 2:].reshape(2 * m, 2, 4)
 
@@ -448,9 +481,22 @@ def _build_subtrees(job: _Job, nodes: _Nodes, tasks, big, leaf_size: int, n_prim
     counter = np.array([next_id, 0], dtype=np.int32)
     b_counter = job.cl.Buffer(job.ctx, job.mf.READ_WRITE | job.mf.COPY_HOST_PTR, hostbuf=counter)
     job.k["build_subtrees"](
-        job.queue, (len(t_all),), None, nodes.rec[0], nodes.ids[0], nodes.rec[1], nodes.ids[1],
-        nodes.bin_of, job.input(t_all), job.input(c_all.reshape(-1, 4)), np.int32(leaf_size),
-        b_counter, nodes.meta, nodes.lo, nodes.hi, nodes.order,
+        job.queue,
+        (len(t_all),),
+        None,
+        nodes.rec[0],
+        nodes.ids[0],
+        nodes.rec[1],
+        nodes.ids[1],
+        nodes.bin_of,
+        job.input(t_all),
+        job.input(c_all.reshape(-1, 4)),
+        np.int32(leaf_size),
+        b_counter,
+        nodes.meta,
+        nodes.lo,
+        nodes.hi,
+        nodes.order,
     )
     job.read((counter, b_counter))
     n_nodes = int(counter[0])

@@ -167,8 +167,16 @@ def _split_levels(centroids: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, lea
             bar.update(1)
     sl = slice(0, work.n_nodes)
     d = work.d
-    return (work.order, work.data[:d].T, work.data[2 * d :].T, work.start[sl], work.count[sl],
-            work.left[sl], work.right[sl], work.levels)
+    return (
+        work.order,
+        work.data[:d].T,
+        work.data[2 * d :].T,
+        work.start[sl],
+        work.count[sl],
+        work.left[sl],
+        work.right[sl],
+        work.levels,
+    )
 
 
 class _Level:
@@ -342,8 +350,7 @@ def check_mesh_arrays(vertices: Any, simplices: Any, leaf_size: Any) -> tuple[np
         raise TypeError(f"`simplices` must hold integers, got dtype {simplices.dtype}")
     if simplices.min() < 0 or simplices.max() >= len(vertices):
         raise ValueError(
-            f"`simplices` indices must be in [0, {len(vertices)}), "
-            f"got range [{simplices.min()}, {simplices.max()}]"
+            f"`simplices` indices must be in [0, {len(vertices)}), got range [{simplices.min()}, {simplices.max()}]"
         )
     return vertices, simplices, check_positive_int(leaf_size, "leaf_size")
 
@@ -397,9 +404,7 @@ def build(vertices: Any, simplices: Any, *, leaf_size: int = 16, progress: bool 
     levels_estimate = math.ceil(1.6 * math.log2(max(idx.size / leaf_size, 1))) + 2
     bar = _progress.bar(levels_estimate, "BVH levels", unit="level", show=show)
     with bar:
-        order, s_lo, s_hi, start, count, left, right, levels = _split_levels(
-            centroids, p_lo, p_hi, leaf_size, bar
-        )
+        order, s_lo, s_hi, start, count, left, right, levels = _split_levels(centroids, p_lo, p_hi, leaf_size, bar)
     lo, hi = _node_bounds(s_lo, s_hi, start, count, left, right, levels)
     meta = np.where((left >= 0)[:, None], np.stack([left, right], 1), np.stack([-(start + 1), count], 1))
     return BVH(

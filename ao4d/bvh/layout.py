@@ -23,8 +23,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["BVH", "Frame", "WideBVH", "intersect", "barycentric", "box_area", "sah_cost", "BARY_EPS",
-           "WIDTH", "LANES", "STACK_SIZE", "LEAF_BLOCKS", "MAX_LEAF_BLOCKS"]
+__all__ = [
+    "BVH",
+    "Frame",
+    "WideBVH",
+    "intersect",
+    "barycentric",
+    "box_area",
+    "sah_cost",
+    "BARY_EPS",
+    "WIDTH",
+    "LANES",
+    "STACK_SIZE",
+    "LEAF_BLOCKS",
+    "MAX_LEAF_BLOCKS",
+]
 
 # Barycentric tolerance: a ray through a face shared by two simplices counts for at least one of
 # them despite rounding (float32 dot products of O(1) barycentrics err by ~1e-7).
@@ -214,8 +227,9 @@ def sah_cost(tree: BVH, *, traversal: float = 1.0, intersection: float = 1.0) ->
     return (inner + leaves) / float(area[0]) if area[0] > 0 else math.nan
 
 
-def intersect(inverse: np.ndarray, origin: np.ndarray, ray_o: np.ndarray, ray_w: np.ndarray,
-              t_max: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def intersect(
+    inverse: np.ndarray, origin: np.ndarray, ray_o: np.ndarray, ray_w: np.ndarray, t_max: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Ray-simplex tests for matched pairs (float64; the formula of ``kernels/geometry.h``).
 
     Parameters

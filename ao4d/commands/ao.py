@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+
 from ..cl import BACKENDS
 
 HELP = "compute ambient occlusion of a mesh (.npz) and store it as point_data['ao']"
@@ -18,24 +19,31 @@ occlusion is in [0, 1], 1 = fully occluded; shade with 1 - ao.
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("mesh", metavar="MESH.npz", help="input mesh (ao4d .npz)")
-    parser.add_argument("--out", required=True, metavar="OUT.npz",
-                        help="output mesh with the AO data (.npz; .vtu for ParaView; .txt drops the data)")
-    parser.add_argument("--samples", type=int, default=64, help="rays per point (64)")
     parser.add_argument(
-        "--max-distance", type=float, default=math.inf, help="only hits this close occlude (inf)"
+        "--out",
+        required=True,
+        metavar="OUT.npz",
+        help="output mesh with the AO data (.npz; .vtu for ParaView; .txt drops the data)",
     )
+    parser.add_argument("--samples", type=int, default=64, help="rays per point (64)")
+    parser.add_argument("--max-distance", type=float, default=math.inf, help="only hits this close occlude (inf)")
     parser.add_argument(
-        "--at", choices=("vertices", "simplices"), default="vertices",
+        "--at",
+        choices=("vertices", "simplices"),
+        default="vertices",
         help="per vertex (point_data) or per simplex centroid (cell_data) (vertices)",
     )
     parser.add_argument("--seed", type=int, default=0, help="direction seed (0)")
     parser.add_argument(
-        "--backend", choices=BACKENDS, default="auto",
+        "--backend",
+        choices=BACKENDS,
+        default="auto",
         help="OpenCL when a device works, else numpy (auto)",
     )
     parser.add_argument("--name", default="ao", help="data array name (ao)")
-    parser.add_argument("--force", action="store_true",
-                        help="trace even when the estimate is above the half-hour limit")
+    parser.add_argument(
+        "--force", action="store_true", help="trace even when the estimate is above the half-hour limit"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -56,10 +64,14 @@ def run(args: argparse.Namespace) -> int:
     backend = cl.backend_name(runtime)
     points = mesh.n_vertices if args.at == "vertices" else mesh.n_simplices
     rays = points * args.samples
-    print(f"{mesh.dim}D mesh: {mesh.n_vertices:,} vertices, {mesh.n_simplices:,} simplices; "
-          f"device: {cl.describe(runtime)}")
-    print(f"AO: {rays:,} rays, {duration(rays / RAYS_PER_SECOND[backend])} at ~{RAYS_PER_SECOND[backend]:.2g} "
-          "rays/s (BVH build not included)")
+    print(
+        f"{mesh.dim}D mesh: {mesh.n_vertices:,} vertices, {mesh.n_simplices:,} simplices; "
+        f"device: {cl.describe(runtime)}"
+    )
+    print(
+        f"AO: {rays:,} rays, {duration(rays / RAYS_PER_SECOND[backend])} at ~{RAYS_PER_SECOND[backend]:.2g} "
+        "rays/s (BVH build not included)"
+    )
     start = time.perf_counter()
     ao = ambient_occlusion(
         mesh,
@@ -76,17 +88,22 @@ def run(args: argparse.Namespace) -> int:
     target = mesh.point_data if args.at == "vertices" else mesh.cell_data
     target[args.name] = ao
     # the input's field data (how the mesh was made: grid spacing, w scale) stays with it
-    write(out, MeshArrays(mesh.vertices, mesh.simplices, dict(mesh.point_data), dict(mesh.cell_data)),
-          field_data=read_field_data(args.mesh))
+    write(
+        out,
+        MeshArrays(mesh.vertices, mesh.simplices, dict(mesh.point_data), dict(mesh.cell_data)),
+        field_data=read_field_data(args.mesh),
+    )
     print(
         f"AO at {ao.size} {args.at} x {args.samples} samples: {elapsed:.2f} s, BVH build included "
         f"({traced / max(elapsed, 1e-9) / 1e6:.2f} M rays/s); {_summary(ao, args.at)} -> {out}"
     )
     n_open = len(mesh.boundary_faces())
     if n_open:
-        print(f"note: the mesh is open ({n_open:,} boundary faces): rays leak out through them, so "
-              "AO near them is too low (a mesh extracted from data that touch the grid's edge: "
-              "extract it again with --closed)")
+        print(
+            f"note: the mesh is open ({n_open:,} boundary faces): rays leak out through them, so "
+            "AO near them is too low (a mesh extracted from data that touch the grid's edge: "
+            "extract it again with --closed)"
+        )
     return 0
 
 
@@ -98,8 +115,10 @@ def _summary(ao, at: str) -> str:
     if finite.all():
         return f"mean {ao.mean():.3f}, range [{ao.min():.3f}, {ao.max():.3f}]"
     what = "unused vertices" if at == "vertices" else "zero-measure simplices"
-    head = (f"{int((~finite).sum()):,} of {ao.size:,} values are NaN (no normal: {what})")
+    head = f"{int((~finite).sum()):,} of {ao.size:,} values are NaN (no normal: {what})"
     if not finite.any():
         return head
-    return (f"{head}; the other values: mean {ao[finite].mean():.3f}, range "
-            f"[{ao[finite].min():.3f}, {ao[finite].max():.3f}]")
+    return (
+        f"{head}; the other values: mean {ao[finite].mean():.3f}, range "
+        f"[{ao[finite].min():.3f}, {ao[finite].max():.3f}]"
+    )

@@ -13,6 +13,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
+
 from ..cl import BACKENDS
 
 HELP = "run the whole pipeline on a built-in 4D scene and write volumes, meshes and pictures"
@@ -55,8 +56,10 @@ class DemoReport:
         total_s = sum(o[2] for o in self.objects)
         lines.append(f"{'total':<22}{total_v:>10,}{total_s:>12,}")
         lines.append("")
-        lines.append(f"AO: {self.ao_rays:,} rays in {self.ao_seconds:.1f} s = "
-                     f"{self.rays_per_second / 1e6:.2f} M rays/s on {self.device}")
+        lines.append(
+            f"AO: {self.ao_rays:,} rays in {self.ao_seconds:.1f} s = "
+            f"{self.rays_per_second / 1e6:.2f} M rays/s on {self.device}"
+        )
         lines.append("stages: " + ", ".join(f"{k} {v:.2f} s" for k, v in self.stage_seconds.items()))
         if self.file_seconds:
             lines.append("files stage: " + ", ".join(f"{k} {v:.2f} s" for k, v in self.file_seconds.items()))
@@ -114,8 +117,8 @@ def run_demo(
     from .._atomic import all_or_nothing, check_output_folder
     from .._validate import check_choice
     from ..ao import ambient_occlusion
-    from ..raycast import get_bvh
     from ..mesh import concatenate
+    from ..raycast import get_bvh
     from ..rendering import render
     from ..scenes import QUALITY, default_scene, extract_scene
 
@@ -133,8 +136,10 @@ def run_demo(
 
     scene_def = default_scene()
     n = settings["image"]
-    say(f"ao4d demo: {len(scene_def.objects)} objects, grid cell {settings['cell']}, "
-        f"{settings['samples']} AO samples, {n}^3 image -> {out}/")
+    say(
+        f"ao4d demo: {len(scene_def.objects)} objects, grid cell {settings['cell']}, "
+        f"{settings['samples']} AO samples, {n}^3 image -> {out}/"
+    )
 
     t = time.perf_counter()
     meshes = extract_scene(scene_def, cell=settings["cell"], progress=progress)
@@ -148,13 +153,20 @@ def run_demo(
     get_bvh(scene, runtime=cl.resolve_backend(backend, warn=False))
     stages["BVH"] = time.perf_counter() - t
     t = time.perf_counter()
-    ambient_occlusion(scene, points=scene.vertices[:1], normals=[[0.0, 1.0, 0.0, 0.0]],
-                      samples=1, backend=backend, progress=False)
+    ambient_occlusion(
+        scene, points=scene.vertices[:1], normals=[[0.0, 1.0, 0.0, 0.0]], samples=1, backend=backend, progress=False
+    )
     stages["kernels"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    occlusion = ambient_occlusion(scene, samples=settings["samples"], seed=0, backend=backend,
-                                  max_distance=scene_def.max_distance, progress=progress)
+    occlusion = ambient_occlusion(
+        scene,
+        samples=settings["samples"],
+        seed=0,
+        backend=backend,
+        max_distance=scene_def.max_distance,
+        progress=progress,
+    )
     ao_seconds = time.perf_counter() - t
     stages["AO"] = ao_seconds
     scene.point_data["ao"] = occlusion
@@ -164,18 +176,28 @@ def run_demo(
     t = time.perf_counter()
     # the full model: AO, Lambert, 4D Blinn-Phong highlights, 4D shadows, object colours
     # (weights sum to 1, so shade stays in [0, 1])
-    image = render(scene, scene_def.camera, (n, n, n), ao="vertices", light=scene_def.light,
-                   ambient=_AMBIENT, diffuse=_DIFFUSE, specular=scene_def.speculars,
-                   shininess=scene_def.shininess, shadows=True, color=scene_def.colors,
-                   backend=backend, progress=progress)
+    image = render(
+        scene,
+        scene_def.camera,
+        (n, n, n),
+        ao="vertices",
+        light=scene_def.light,
+        ambient=_AMBIENT,
+        diffuse=_DIFFUSE,
+        specular=scene_def.speculars,
+        shininess=scene_def.shininess,
+        shadows=True,
+        color=scene_def.colors,
+        backend=backend,
+        progress=progress,
+    )
     stages["render"] = time.perf_counter() - t
     say(f"rendered {n}^3 voxels in {stages['render']:.1f} s")
 
     t = time.perf_counter()
     file_seconds: dict[str, float] = {}
     with all_or_nothing(folder=out):  # a failing picture takes the files of this run with it
-        files = _write_files(out, scene, image, settings, file_seconds,
-                             names=[o.name for o in scene_def.objects])
+        files = _write_files(out, scene, image, settings, file_seconds, names=[o.name for o in scene_def.objects])
     stages["files"] = time.perf_counter() - t
 
     report = DemoReport(
@@ -193,8 +215,7 @@ def run_demo(
     return report
 
 
-def _write_files(out: Path, scene, image, settings, seconds: dict[str, float], *,
-                 names: list[str]) -> list[Path]:
+def _write_files(out: Path, scene, image, settings, seconds: dict[str, float], *, names: list[str]) -> list[Path]:
     """Every file of the demo; returns their paths in the order written and adds the seconds
     of each step to ``seconds`` (imports included: they are part of what the step costs)."""
     geo = image.geometry
@@ -214,54 +235,96 @@ def _write_files(out: Path, scene, image, settings, seconds: dict[str, float], *
     done("scene.npz", out / "scene.npz")
     done("image.mhd", image.save(out / "image.mhd"), out / "image.raw")
     done("image.vti", image.save(out / "image.vti"))
-    from ..pictures import (save_montage, save_rgba_montage, save_rgba_volume_png, save_slice_png,
-                            save_volume_png)
+    from ..pictures import save_montage, save_rgba_montage, save_rgba_volume_png, save_slice_png, save_volume_png
 
-    done("montage", save_montage(
-        out / "image_slices.png", image.shade, background=~image.hit, cmap="magma",
-        title=f"ao4d demo: z-slices of the 3D image, shade = {model} ({params})",
-        label="shade", spacing=geo.spacing, origin=geo.origin))
-    done("volume picture", save_volume_png(
-        out / "image_volume.png", image.shade, background=~image.hit, cmap="magma",
-        title=f"ao4d demo: 3D image of a 4D scene ({params})",
-        label="shade", spacing=geo.spacing, origin=geo.origin))
-    done("colour montage", save_rgba_montage(
-        out / "image_color_slices.png", image.rgba,
-        title=f"ao4d demo: z-slices of the colour 3D image: 4D AO, highlights and shadows ({params})",
-        n_slices=8, spacing=geo.spacing, origin=geo.origin))
-    done("colour volume picture", save_rgba_volume_png(
-        out / "image_color_volume.png", image.rgba,
-        title=f"ao4d demo: colour 3D image of a 4D scene ({params})",
-        spacing=geo.spacing, origin=geo.origin))
+    done(
+        "montage",
+        save_montage(
+            out / "image_slices.png",
+            image.shade,
+            background=~image.hit,
+            cmap="magma",
+            title=f"ao4d demo: z-slices of the 3D image, shade = {model} ({params})",
+            label="shade",
+            spacing=geo.spacing,
+            origin=geo.origin,
+        ),
+    )
+    done(
+        "volume picture",
+        save_volume_png(
+            out / "image_volume.png",
+            image.shade,
+            background=~image.hit,
+            cmap="magma",
+            title=f"ao4d demo: 3D image of a 4D scene ({params})",
+            label="shade",
+            spacing=geo.spacing,
+            origin=geo.origin,
+        ),
+    )
+    done(
+        "colour montage",
+        save_rgba_montage(
+            out / "image_color_slices.png",
+            image.rgba,
+            title=f"ao4d demo: z-slices of the colour 3D image: 4D AO, highlights and shadows ({params})",
+            n_slices=8,
+            spacing=geo.spacing,
+            origin=geo.origin,
+        ),
+    )
+    done(
+        "colour volume picture",
+        save_rgba_volume_png(
+            out / "image_color_volume.png",
+            image.rgba,
+            title=f"ao4d demo: colour 3D image of a 4D scene ({params})",
+            spacing=geo.spacing,
+            origin=geo.origin,
+        ),
+    )
     from ..mesh_files import save_slice_mesh
 
     tri = scene.slice([0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0], attributes=["ao"])
     done("slice")
     for suffix in (".ply", ".glb"):
         done("slice meshes", save_slice_mesh(out / f"slice_w0{suffix}", tri, occlusion="ao"))
-    done("slice picture", save_slice_png(
-        out / "slice_w0.png", tri, occlusion="ao",
-        title=f"ao4d demo: slice w = 0 coloured by 4D AO ({samples} samples)"))
+    done(
+        "slice picture",
+        save_slice_png(
+            out / "slice_w0.png",
+            tri,
+            occlusion="ao",
+            title=f"ao4d demo: slice w = 0 coloured by 4D AO ({samples} samples)",
+        ),
+    )
     from ..pages import result_page  # the same scene in the browser: slices and projection
     from ..viewer import split_objects
 
-    done("view.html", result_page(split_objects(scene), image, out / "view.html",
-                                  title="ao4d demo", names=names))
+    done("view.html", result_page(split_objects(scene), image, out / "view.html", title="ao4d demo", names=names))
     return files
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="ao4d-demo", metavar="DIR",
-                        help="output folder (default: ./ao4d-demo)")
-    parser.add_argument("--quality", choices=("default", "high"), default="default",
-                        help="default: under a minute on 2 cores; high: finer grids, 128^3 image, "
-                             "128 AO samples")
-    parser.add_argument("--backend", choices=BACKENDS, default="auto",
-                        help="OpenCL device (auto) or the numpy fallback")
+    parser.add_argument("--out", default="ao4d-demo", metavar="DIR", help="output folder (default: ./ao4d-demo)")
+    parser.add_argument(
+        "--quality",
+        choices=("default", "high"),
+        default="default",
+        help="default: under a minute on 2 cores; high: finer grids, 128^3 image, 128 AO samples",
+    )
+    parser.add_argument(
+        "--backend", choices=BACKENDS, default="auto", help="OpenCL device (auto) or the numpy fallback"
+    )
     parser.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)  # for tests
 
 
 def run(args: argparse.Namespace) -> int:
-    run_demo(args.out, quality="tiny" if args.tiny else args.quality, backend=args.backend,
-             progress=None if args.tiny else True)
+    run_demo(
+        args.out,
+        quality="tiny" if args.tiny else args.quality,
+        backend=args.backend,
+        progress=None if args.tiny else True,
+    )
     return 0

@@ -27,41 +27,59 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--shape", choices=sorted(PRESETS), help="a named 4D shape")
-    src.add_argument("--input", metavar="FILE",
-                     help="a 2D/3D/4D data file or a glob of 3D frames (see inputs below)")
+    src.add_argument("--input", metavar="FILE", help="a 2D/3D/4D data file or a glob of 3D frames (see inputs below)")
     parser.add_argument("--out", required=True, metavar="MESH.npz", help="output mesh (.npz)")
     parser.add_argument("--vtu", metavar="MESH.vtu", help="also write a VTK unstructured grid")
     parser.add_argument("--grid", type=int, default=48, help="points per axis for --shape (48)")
     parser.add_argument(
-        "--bounds", type=float, nargs=2, metavar=("LO", "HI"),
+        "--bounds",
+        type=float,
+        nargs=2,
+        metavar=("LO", "HI"),
         help="grid box for --shape (default: the shape's extent plus 10%%)",
     )
     parser.add_argument("--level", type=float, default=0.0, help="iso-value (0)")
     parser.add_argument("--method", choices=METHODS, default="cubes", help="cell split (cubes)")
     parser.add_argument(
-        "--inside", choices=("below", "above"), default="below",
+        "--inside",
+        choices=("below", "above"),
+        default="below",
         help="solid is f < level (below, signed distances) or f > level (above, CT data)",
     )
-    parser.add_argument("--spacing", type=_step, nargs="+", metavar="STEP",
-                        help="grid step(s) for --input, one or one per axis; 'file' keeps the "
-                        "file's step on that axis (default: from the file, else 1)")
-    parser.add_argument("--origin", type=float, nargs="+",
-                        help="grid origin for --input (default: from the file, else 0)")
-    parser.add_argument("--w-scale", type=float, metavar="LENGTH_PER_TIME",
-                        help="length units per time unit for the time axis of a 4D NIfTI (e.g. "
-                        "0.001 mm per ms); by default one frame is one mean x/y/z step")
-    parser.add_argument("--affine", action="store_true",
-                        help="place the vertices by the file's affine (NIfTI scanner coordinates, "
-                        "oblique axes included)")
-    parser.add_argument("--closed", action="store_true",
-                        help="close the mesh where the solid touches the grid's edge (the grid "
-                        "padded by one outside cell)")
-    parser.add_argument("--dim", type=int, choices=(2, 3, 4),
-                        help="refuse --input files of another dimension")
+    parser.add_argument(
+        "--spacing",
+        type=_step,
+        nargs="+",
+        metavar="STEP",
+        help="grid step(s) for --input, one or one per axis; 'file' keeps the "
+        "file's step on that axis (default: from the file, else 1)",
+    )
+    parser.add_argument(
+        "--origin", type=float, nargs="+", help="grid origin for --input (default: from the file, else 0)"
+    )
+    parser.add_argument(
+        "--w-scale",
+        type=float,
+        metavar="LENGTH_PER_TIME",
+        help="length units per time unit for the time axis of a 4D NIfTI (e.g. "
+        "0.001 mm per ms); by default one frame is one mean x/y/z step",
+    )
+    parser.add_argument(
+        "--affine",
+        action="store_true",
+        help="place the vertices by the file's affine (NIfTI scanner coordinates, oblique axes included)",
+    )
+    parser.add_argument(
+        "--closed",
+        action="store_true",
+        help="close the mesh where the solid touches the grid's edge (the grid padded by one outside cell)",
+    )
+    parser.add_argument("--dim", type=int, choices=(2, 3, 4), help="refuse --input files of another dimension")
     parser.add_argument("--chunk", type=int, help="cell layers per slab (default: ~100 MB slabs)")
     parser.add_argument("--no-check", action="store_true", help="skip the closedness check")
-    parser.add_argument("--force", action="store_true",
-                        help="extract even when the estimate is above the ten-minute limit")
+    parser.add_argument(
+        "--force", action="store_true", help="extract even when the estimate is above the ten-minute limit"
+    )
 
 
 def _step(text: str) -> float | None:
@@ -97,8 +115,10 @@ def _estimate(n_cells: float, force: bool) -> None:
     if n_cells >= 1e8:
         print(f"{n_cells:.3g} cells: {duration(seconds)} at ~{CELLS_PER_SECOND:.0e} cells/s", flush=True)
     if n_cells > MAX_CELLS and not force:
-        raise ValueError(f"{n_cells:.3g} cells would take {duration(seconds)}, above the limit of "
-                         f"{MAX_CELLS:.3g} cells; use a smaller --grid or pass --force")
+        raise ValueError(
+            f"{n_cells:.3g} cells would take {duration(seconds)}, above the limit of "
+            f"{MAX_CELLS:.3g} cells; use a smaller --grid or pass --force"
+        )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -133,32 +153,55 @@ def run(args: argparse.Namespace) -> int:
         if args.closed:  # the padding works on values: sample the field, then extract
             from ..fields import sample
 
-            mesh = extract(sample(field, args.grid, bounds), args.level, method=args.method,
-                           inside=args.inside, chunk=args.chunk, closed=True,
-                           spacing=(bounds[1] - bounds[0]) / (args.grid - 1), origin=bounds[0])
+            mesh = extract(
+                sample(field, args.grid, bounds),
+                args.level,
+                method=args.method,
+                inside=args.inside,
+                chunk=args.chunk,
+                closed=True,
+                spacing=(bounds[1] - bounds[0]) / (args.grid - 1),
+                origin=bounds[0],
+            )
         else:
-            mesh = extract_field(field, args.grid, bounds, args.level, method=args.method,
-                                 inside=args.inside, chunk=args.chunk)
+            mesh = extract_field(
+                field, args.grid, bounds, args.level, method=args.method, inside=args.inside, chunk=args.chunk
+            )
         what = f"{field.name} on a {args.grid}^{field.dim} grid"
         info = {"source": f"--shape {args.shape}"}
     else:
         from ..readers import read_grid
 
-        grid = read_grid(args.input, spacing=_one_or_many(args.spacing),
-                         origin=_one_or_many(args.origin), ndim=args.dim, w_scale=args.w_scale,
-                         keep_affine=args.affine)
-        print(f"read {grid.source}: shape {grid.shape}, {grid.values.dtype}"
-              f"{' (lazy, block by block)' if grid.lazy else ''}; spacing "
-              f"{np.round(grid.spacing, 6).tolist()}, origin {np.round(grid.origin, 6).tolist()}"
-              + (f" ({'; '.join(grid.notes)})" if grid.notes else ""))
+        grid = read_grid(
+            args.input,
+            spacing=_one_or_many(args.spacing),
+            origin=_one_or_many(args.origin),
+            ndim=args.dim,
+            w_scale=args.w_scale,
+            keep_affine=args.affine,
+        )
+        print(
+            f"read {grid.source}: shape {grid.shape}, {grid.values.dtype}"
+            f"{' (lazy, block by block)' if grid.lazy else ''}; spacing "
+            f"{np.round(grid.spacing, 6).tolist()}, origin {np.round(grid.origin, 6).tolist()}"
+            + (f" ({'; '.join(grid.notes)})" if grid.notes else "")
+        )
         _estimate(float(math.prod(n - 1 for n in grid.shape)), args.force)
         if grid.w_scale is not None:
-            print(f"w scale: {grid.w_scale:.6g} length units per {grid.units[3]} "
-                  f"(w step {grid.spacing[3]:.6g}; recorded in the mesh file)")
-        place = ({"affine": grid.affine} if grid.affine is not None
-                 else {"spacing": grid.spacing, "origin": grid.origin})
-        mesh = extract(grid.values, args.level, method=args.method, inside=args.inside,
-                       chunk=args.chunk, closed=args.closed, **place)
+            print(
+                f"w scale: {grid.w_scale:.6g} length units per {grid.units[3]} "
+                f"(w step {grid.spacing[3]:.6g}; recorded in the mesh file)"
+            )
+        place = {"affine": grid.affine} if grid.affine is not None else {"spacing": grid.spacing, "origin": grid.origin}
+        mesh = extract(
+            grid.values,
+            args.level,
+            method=args.method,
+            inside=args.inside,
+            chunk=args.chunk,
+            closed=args.closed,
+            **place,
+        )
         what = f"{args.input} {grid.shape} at level {args.level:g}"
         info = _grid_info(grid)
     caught.__exit__(None, None, None)
@@ -176,8 +219,11 @@ def run(args: argparse.Namespace) -> int:
     info["level"] = float(args.level)
     info["closed"] = bool(args.closed)
     with all_or_nothing(outputs):
-        write(args.out, MeshArrays(mesh.vertices, mesh.simplices, dict(mesh.point_data),
-                                   dict(mesh.cell_data)), field_data=info)
+        write(
+            args.out,
+            MeshArrays(mesh.vertices, mesh.simplices, dict(mesh.point_data), dict(mesh.cell_data)),
+            field_data=info,
+        )
         if args.vtu:
             mesh.to_vtu(args.vtu)
     print("wrote " + ", ".join(map(str, outputs)))
@@ -186,15 +232,21 @@ def run(args: argparse.Namespace) -> int:
 
 def _check_options(args: argparse.Namespace) -> None:
     """Refuse options that the chosen source would ignore."""
-    defaults = {"grid": 48, "bounds": None, "spacing": None, "origin": None, "w_scale": None,
-                "affine": False, "dim": None}
+    defaults = {
+        "grid": 48,
+        "bounds": None,
+        "spacing": None,
+        "origin": None,
+        "w_scale": None,
+        "affine": False,
+        "dim": None,
+    }
     unused = _INPUT_ONLY if args.shape is not None else _SHAPE_ONLY
     given = [name for name in unused if getattr(args, name) != defaults[name]]
     if given:
         flags = ", ".join("--" + name.replace("_", "-") for name in given)
         source, other = ("--shape", "--input") if args.shape is not None else ("--input", "--shape")
-        raise ValueError(f"{flags} {'applies' if len(given) == 1 else 'apply'} to {other} only, "
-                         f"not to {source}")
+        raise ValueError(f"{flags} {'applies' if len(given) == 1 else 'apply'} to {other} only, not to {source}")
     if args.w_scale is not None and not args.w_scale > 0:
         raise ValueError(f"`--w-scale` must be > 0, got {args.w_scale}")
 
@@ -203,8 +255,12 @@ def _grid_info(grid) -> dict:
     """What the mesh file records about the grid: where it came from and how it was scaled."""
     import numpy as np
 
-    info = {"source": grid.source, "spacing": np.asarray(grid.spacing),
-            "origin": np.asarray(grid.origin), "notes": np.array(list(grid.notes) or [""])}
+    info = {
+        "source": grid.source,
+        "spacing": np.asarray(grid.spacing),
+        "origin": np.asarray(grid.origin),
+        "notes": np.array(list(grid.notes) or [""]),
+    }
     if grid.units:
         info["units"] = np.array(list(grid.units))
     if grid.w_scale is not None:

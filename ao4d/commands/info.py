@@ -32,8 +32,7 @@ def run(args: argparse.Namespace) -> int:
     except ImportError:  # pragma: no cover - a hard dependency
         pyopencl_version = "missing"
     print(
-        f"ao4d {__version__}  python {platform.python_version()}  numpy {np.__version__}  "
-        f"pyopencl {pyopencl_version}"
+        f"ao4d {__version__}  python {platform.python_version()}  numpy {np.__version__}  pyopencl {pyopencl_version}"
     )
     folder = cl.register_bundled_runtimes()
     if folder:

@@ -23,33 +23,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     def common(sub: argparse.ArgumentParser) -> None:
         sub.add_argument(
-            "--dim", type=int, action="append", choices=DIMS, metavar="D",
+            "--dim",
+            type=int,
+            action="append",
+            choices=DIMS,
+            metavar="D",
             help="dimension 2, 3 or 4 (repeatable; default: all)",
         )
         sub.add_argument(
-            "--kind", action="append", choices=KINDS,
+            "--kind",
+            action="append",
+            choices=KINDS,
             help="cell type (repeatable; default: both)",
         )
 
-    build = actions.add_parser(
-        "build", help="generate tables and manifest.json (default folder: the shipped lut/)"
-    )
+    build = actions.add_parser("build", help="generate tables and manifest.json (default folder: the shipped lut/)")
     common(build)
     build.add_argument("--out", metavar="DIR", help="output folder (default: the shipped lut/)")
 
-    verify = actions.add_parser(
-        "verify", help="check checksums, rebuild and compare; exit code 1 on any mismatch"
-    )
+    verify = actions.add_parser("verify", help="check checksums, rebuild and compare; exit code 1 on any mismatch")
     common(verify)
     verify.add_argument("--dir", metavar="DIR", help="table folder (default: the shipped lut/)")
-    verify.add_argument(
-        "--no-rebuild", action="store_true", help="only check checksums (skip the rebuild)"
-    )
+    verify.add_argument("--no-rebuild", action="store_true", help="only check checksums (skip the rebuild)")
 
     stats = actions.add_parser("stats", help="print entries, classes and simplex counts")
     common(stats)
     stats.add_argument(
-        "--repeat", type=int, default=1, metavar="N",
+        "--repeat",
+        type=int,
+        default=1,
+        metavar="N",
         help="time the build N times and report the median (default: 1)",
     )
 
@@ -92,8 +95,7 @@ def _stats(lut, dims, kinds, *, repeat: int, folder=None) -> int:
         raise ValueError(f"`--repeat` must be >= 0, got {repeat}")
     header = (
         f"{'dim':>3} {'kind':<7} {'entries':>7} {'group':>5} {'classes':>7} {'+compl':>6} "
-        f"{'simplices':>9} {'max':>4} {'mean':>7}"
-        + ("  build (s)" if repeat else "")
+        f"{'simplices':>9} {'max':>4} {'mean':>7}" + ("  build (s)" if repeat else "")
     )
     print(header)
     for dim in dims:

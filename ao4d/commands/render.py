@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
+
 from ..cl import BACKENDS
 
 HELP = "render 4D meshes (.npz) into a 3D image volume (.mhd or .vti) with a 4D camera"
@@ -18,60 +19,92 @@ EXAMPLES = """  ao4d render scene.npz --out image.mhd
   ao4d render scene.npz --out two.vti --light point 0 3 0 -1 1 0.9 0.8 --light 1 1 0 0 0.3 0.4 1 0.5
 """
 
-LIGHT_HELP = ("a light (repeatable): X Y Z W is the direction towards a white directional light; "
-              "'point X Y Z W' a point light at that position; optional R G B colour (0..1) and "
-              "intensity I after the four numbers")
+LIGHT_HELP = (
+    "a light (repeatable): X Y Z W is the direction towards a white directional light; "
+    "'point X Y Z W' a point light at that position; optional R G B colour (0..1) and "
+    "intensity I after the four numbers"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("meshes", nargs="+", type=Path, metavar="MESH.npz",
-                        help="4D meshes saved by ao4d (several: object ids follow their order)")
+    parser.add_argument(
+        "meshes",
+        nargs="+",
+        type=Path,
+        metavar="MESH.npz",
+        help="4D meshes saved by ao4d (several: object ids follow their order)",
+    )
     parser.add_argument("--out", required=True, type=Path, help="output volume, .mhd or .vti")
-    parser.add_argument("--size", type=int, nargs="+", default=[64], metavar="N",
-                        help="voxels per axis: one number or three (nx ny nz); default 64")
+    parser.add_argument(
+        "--size",
+        type=int,
+        nargs="+",
+        default=[64],
+        metavar="N",
+        help="voxels per axis: one number or three (nx ny nz); default 64",
+    )
     parser.add_argument("--eye", type=float, nargs=4, metavar="X", help="eye position")
     parser.add_argument("--target", type=float, nargs=4, metavar="X", help="point looked at")
     parser.add_argument("--up", type=float, nargs=4, default=[0, 1, 0, 0], metavar="X")
     parser.add_argument("--over", type=float, nargs=4, default=[0, 0, 1, 0], metavar="X")
     parser.add_argument("--fov", type=float, default=40.0, help="viewing angle in degrees")
-    parser.add_argument("--projection", choices=("perspective", "orthographic"),
-                        default="perspective")
-    parser.add_argument("--ao", choices=("vertices", "hits", "screen", "none"), default="vertices",
-                        help="AO per vertex (stored 'ao' or computed), ray traced at each hit, "
-                             "screen-space from the image's depth volume, or none")
-    parser.add_argument("--samples", type=int, default=64,
-                        help="AO rays (screen: directions) per point")
-    parser.add_argument("--max-distance", type=float, default=math.inf,
-                        help="AO reach: only hits this close occlude (default inf)")
-    parser.add_argument("--denoise", type=int, default=0, metavar="R",
-                        help="with --ao screen: depth-aware box filter of radius R voxels "
-                             "(default 0: none)")
+    parser.add_argument("--projection", choices=("perspective", "orthographic"), default="perspective")
+    parser.add_argument(
+        "--ao",
+        choices=("vertices", "hits", "screen", "none"),
+        default="vertices",
+        help="AO per vertex (stored 'ao' or computed), ray traced at each hit, "
+        "screen-space from the image's depth volume, or none",
+    )
+    parser.add_argument("--samples", type=int, default=64, help="AO rays (screen: directions) per point")
+    parser.add_argument(
+        "--max-distance", type=float, default=math.inf, help="AO reach: only hits this close occlude (default inf)"
+    )
+    parser.add_argument(
+        "--denoise",
+        type=int,
+        default=0,
+        metavar="R",
+        help="with --ao screen: depth-aware box filter of radius R voxels (default 0: none)",
+    )
     parser.add_argument("--light", action="append", nargs="+", metavar="ARG", help=LIGHT_HELP)
-    parser.add_argument("--ambient", type=float,
-                        help="weight of 1 - AO (default 1 without a light, else 0.7)")
+    parser.add_argument("--ambient", type=float, help="weight of 1 - AO (default 1 without a light, else 0.7)")
     parser.add_argument("--diffuse", type=float, help="Lambert weight (default 0.3)")
-    parser.add_argument("--specular", type=float, default=0.0,
-                        help="4D Blinn-Phong weight (default 0: no highlights)")
-    parser.add_argument("--shininess", type=float, default=32.0,
-                        help="Blinn-Phong exponent (default 32)")
-    parser.add_argument("--shadows", action="store_true",
-                        help="cast 4D shadow rays towards every light")
-    parser.add_argument("--depth-cue", type=float, nargs=3, metavar=("NEAR", "FAR", "STRENGTH"),
-                        help="fade to black with 4D distance along the view ray")
-    parser.add_argument("--color", action="append", nargs=4, metavar=("OBJ", "R", "G", "B"),
-                        help="RGB (0..1) of object OBJ: its index (0 = first mesh or object id "
-                             "0) or its file name (repeatable)")
-    parser.add_argument("--opacity", action="append", nargs=2, metavar=("OBJ", "A"),
-                        help="opacity (0..1) of object OBJ (repeatable)")
-    parser.add_argument("--layers", type=int, default=4,
-                        help="surfaces composited along a ray behind transparent hits (default 4)")
+    parser.add_argument("--specular", type=float, default=0.0, help="4D Blinn-Phong weight (default 0: no highlights)")
+    parser.add_argument("--shininess", type=float, default=32.0, help="Blinn-Phong exponent (default 32)")
+    parser.add_argument("--shadows", action="store_true", help="cast 4D shadow rays towards every light")
+    parser.add_argument(
+        "--depth-cue",
+        type=float,
+        nargs=3,
+        metavar=("NEAR", "FAR", "STRENGTH"),
+        help="fade to black with 4D distance along the view ray",
+    )
+    parser.add_argument(
+        "--color",
+        action="append",
+        nargs=4,
+        metavar=("OBJ", "R", "G", "B"),
+        help="RGB (0..1) of object OBJ: its index (0 = first mesh or object id 0) or its file name (repeatable)",
+    )
+    parser.add_argument(
+        "--opacity", action="append", nargs=2, metavar=("OBJ", "A"), help="opacity (0..1) of object OBJ (repeatable)"
+    )
+    parser.add_argument(
+        "--layers", type=int, default=4, help="surfaces composited along a ray behind transparent hits (default 4)"
+    )
     parser.add_argument("--backend", choices=BACKENDS, default="auto")
-    parser.add_argument("--force", action="store_true",
-                        help="render even when the rays would take more than about half an hour")
-    parser.add_argument("--png", type=Path, metavar="FILE.png",
-                        help="also write a z-slice montage (FILE.png), a volume rendering "
-                             "(FILE_volume.png) and both in colour (FILE_color.png, "
-                             "FILE_color_volume.png)")
+    parser.add_argument(
+        "--force", action="store_true", help="render even when the rays would take more than about half an hour"
+    )
+    parser.add_argument(
+        "--png",
+        type=Path,
+        metavar="FILE.png",
+        help="also write a z-slice montage (FILE.png), a volume rendering "
+        "(FILE_volume.png) and both in colour (FILE_color.png, "
+        "FILE_color_volume.png)",
+    )
 
 
 def parse_light(tokens: list[str]):
@@ -83,11 +116,11 @@ def parse_light(tokens: list[str]):
     try:
         numbers = [float(w) for w in words]
     except ValueError:
-        raise ValueError(f"`--light` takes [point] X Y Z W [R G B [I]], got {' '.join(tokens)!r}"
-                         ) from None
+        raise ValueError(f"`--light` takes [point] X Y Z W [R G B [I]], got {' '.join(tokens)!r}") from None
     if len(numbers) not in (4, 7, 8):
-        raise ValueError(f"`--light` takes [point] X Y Z W [R G B [I]] (4, 7 or 8 numbers), got "
-                         f"{len(numbers)}: {' '.join(tokens)!r}")
+        raise ValueError(
+            f"`--light` takes [point] X Y Z W [R G B [I]] (4, 7 or 8 numbers), got {len(numbers)}: {' '.join(tokens)!r}"
+        )
     where = {"position" if kind == "point" else "direction": numbers[:4]}
     color = numbers[4:7] if len(numbers) >= 7 else (1.0, 1.0, 1.0)
     intensity = numbers[7] if len(numbers) == 8 else 1.0
@@ -103,20 +136,20 @@ def object_index(name: str, paths: list[Path], n_objects: int, option: str) -> i
         index = int(name)
     except ValueError:
         names = ", ".join(p.stem for p in paths)
-        raise ValueError(f"`{option}` object {name!r} is neither an index nor one of the meshes "
-                         f"({names})") from None
+        raise ValueError(f"`{option}` object {name!r} is neither an index nor one of the meshes ({names})") from None
     if not 0 <= index < n_objects:
-        raise ValueError(f"`{option}` object {index} is out of range: the scene has {n_objects} "
-                         f"object(s), 0..{n_objects - 1}")
+        raise ValueError(
+            f"`{option}` object {index} is out of range: the scene has {n_objects} object(s), 0..{n_objects - 1}"
+        )
     return index
 
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from .._atomic import all_or_nothing, check_output_file
     from ..camera import Camera4D
     from ..mesh import SimplexMesh, concatenate
-    from .._atomic import all_or_nothing, check_output_file
     from ..rendering import render
     from ..volumes import check_mhd_path
 
@@ -137,8 +170,7 @@ def run(args: argparse.Namespace) -> int:
     meshes = [SimplexMesh.load(p) for p in args.meshes]
     for path, mesh in zip(args.meshes, meshes):
         if mesh.dim != 4:
-            raise ValueError(f"`meshes`: {path.name} is a {mesh.dim}D mesh; render takes 4D meshes "
-                             "(tetrahedra in R^4)")
+            raise ValueError(f"`meshes`: {path.name} is a {mesh.dim}D mesh; render takes 4D meshes (tetrahedra in R^4)")
     scene = meshes[0] if len(meshes) == 1 else concatenate(meshes)
     ids = scene.cell_data.get("object_id") if len(meshes) == 1 else None
     n_objects = len(meshes) if ids is None else int(np.max(ids)) + 1
@@ -149,23 +181,35 @@ def run(args: argparse.Namespace) -> int:
     for obj, alpha in args.opacity or []:
         opacity[object_index(obj, args.meshes, n_objects, "--opacity")] = float(alpha)
     if args.eye is None:
-        camera = Camera4D.framing(scene.bounds, up=args.up, over=args.over, fov=args.fov,
-                                  projection=args.projection)
+        camera = Camera4D.framing(scene.bounds, up=args.up, over=args.over, fov=args.fov, projection=args.projection)
     else:
-        camera = Camera4D(args.eye, args.target, args.up, args.over, fov=args.fov,
-                          projection=args.projection)
+        camera = Camera4D(args.eye, args.target, args.up, args.over, fov=args.fov, projection=args.projection)
     print(camera)
-    image = render(scene, camera, tuple(size), ao=args.ao, samples=args.samples,
-                   max_distance=args.max_distance, denoise=args.denoise,
-                   light=lights or None, ambient=args.ambient, diffuse=args.diffuse,
-                   specular=args.specular, shininess=args.shininess, shadows=args.shadows,
-                   depth_cue=args.depth_cue, color=color, opacity=opacity, layers=args.layers,
-                   backend=args.backend, max_rays=math.inf if args.force else None)
+    image = render(
+        scene,
+        camera,
+        tuple(size),
+        ao=args.ao,
+        samples=args.samples,
+        max_distance=args.max_distance,
+        denoise=args.denoise,
+        light=lights or None,
+        ambient=args.ambient,
+        diffuse=args.diffuse,
+        specular=args.specular,
+        shininess=args.shininess,
+        shadows=args.shadows,
+        depth_cue=args.depth_cue,
+        color=color,
+        opacity=opacity,
+        layers=args.layers,
+        backend=args.backend,
+        max_rays=math.inf if args.force else None,
+    )
     print(image)
     with all_or_nothing(outputs):  # a failing picture leaves no new .vti behind
         written = _write(args, image, size)
-    print(f"{int(image.hit.sum()):,} of {image.hit.size:,} voxels hit; wrote "
-          + ", ".join(map(str, written)))
+    print(f"{int(image.hit.sum()):,} of {image.hit.size:,} voxels hit; wrote " + ", ".join(map(str, written)))
     return 0
 
 
@@ -176,15 +220,35 @@ def _write(args: argparse.Namespace, image, size) -> list:
     if args.png is not None:
         geo = image.geometry
         title = f"{', '.join(p.name for p in args.meshes)}: {'x'.join(map(str, size))} voxels, AO {args.ao}"
-        written.append(save_montage(args.png, image.shade, background=~image.hit,
-                                    title=title, label="shade", spacing=geo.spacing,
-                                    origin=geo.origin))
+        written.append(
+            save_montage(
+                args.png,
+                image.shade,
+                background=~image.hit,
+                title=title,
+                label="shade",
+                spacing=geo.spacing,
+                origin=geo.origin,
+            )
+        )
         stem = args.png.with_suffix("")
-        written.append(save_volume_png(f"{stem}_volume.png", image.shade, background=~image.hit,
-                                       title=title, label="shade", spacing=geo.spacing,
-                                       origin=geo.origin))
-        written.append(save_rgba_montage(f"{stem}_color.png", image.rgba, title=title,
-                                         spacing=geo.spacing, origin=geo.origin))
-        written.append(save_rgba_volume_png(f"{stem}_color_volume.png", image.rgba, title=title,
-                                            spacing=geo.spacing, origin=geo.origin))
+        written.append(
+            save_volume_png(
+                f"{stem}_volume.png",
+                image.shade,
+                background=~image.hit,
+                title=title,
+                label="shade",
+                spacing=geo.spacing,
+                origin=geo.origin,
+            )
+        )
+        written.append(
+            save_rgba_montage(f"{stem}_color.png", image.rgba, title=title, spacing=geo.spacing, origin=geo.origin)
+        )
+        written.append(
+            save_rgba_volume_png(
+                f"{stem}_color_volume.png", image.rgba, title=title, spacing=geo.spacing, origin=geo.origin
+            )
+        )
     return written

@@ -28,18 +28,21 @@ SERIES_NAME = "series.pvd"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("mesh", type=Path, metavar="MESH.npz", help="4D mesh saved by ao4d")
-    parser.add_argument("--out", required=True, type=Path,
-                        help="output .ply or .glb (a folder with --w-range)")
+    parser.add_argument("--out", required=True, type=Path, help="output .ply or .glb (a folder with --w-range)")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--w", type=float, help="slice at w = W (default 0)")
-    where.add_argument("--point", type=float, nargs=4, metavar="X",
-                       help="a point of the hyperplane (with --normal)")
-    where.add_argument("--w-range", type=float, nargs=2, metavar=("START", "STOP"),
-                       help="a series of slices w = const from START to STOP (both included)")
-    parser.add_argument("--count", type=int, default=None,
-                        help="number of slices of --w-range (default 10)")
-    parser.add_argument("--normal", type=float, nargs=4, metavar="X", default=None,
-                        help="hyperplane normal (default 0 0 0 1)")
+    where.add_argument("--point", type=float, nargs=4, metavar="X", help="a point of the hyperplane (with --normal)")
+    where.add_argument(
+        "--w-range",
+        type=float,
+        nargs=2,
+        metavar=("START", "STOP"),
+        help="a series of slices w = const from START to STOP (both included)",
+    )
+    parser.add_argument("--count", type=int, default=None, help="number of slices of --w-range (default 10)")
+    parser.add_argument(
+        "--normal", type=float, nargs=4, metavar="X", default=None, help="hyperplane normal (default 0 0 0 1)"
+    )
     parser.add_argument("--png", type=Path, metavar="FILE.png", help="also render a PNG")
 
 
@@ -72,12 +75,10 @@ def _g(value: float, digits: int = 6) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..mesh import SimplexMesh
-    from ..mesh_files import save_slice_mesh
-    from ..pictures import save_slice_png
-
     from .._atomic import all_or_nothing, check_output_file, check_output_folder
-    from ..mesh_files import SLICE_SUFFIXES
+    from ..mesh import SimplexMesh
+    from ..mesh_files import SLICE_SUFFIXES, save_slice_mesh
+    from ..pictures import save_slice_png
 
     if args.w_range is None and args.count is not None:
         raise ValueError("`--count` needs `--w-range START STOP`")
@@ -105,12 +106,20 @@ def run(args: argparse.Namespace) -> int:
         written = [save_slice_mesh(args.out, tri, occlusion="ao" if has_ao else None)]
         if args.png is not None:
             where = describe_hyperplane(point, normal)  # the plane actually cut, whatever the flags
-            written.append(save_slice_png(
-                args.png, tri, occlusion="ao" if has_ao else None,
-                title=f"{args.mesh.name}: slice {where}" + (", coloured by 4D AO" if has_ao else "")))
-    print(f"slice: {len(tri.vertices):,} vertices, {len(tri.faces):,} triangles"
-          + ("" if has_ao else " (mesh has no 'ao' point data: uncoloured)")
-          + "; wrote " + ", ".join(map(str, written)))
+            written.append(
+                save_slice_png(
+                    args.png,
+                    tri,
+                    occlusion="ao" if has_ao else None,
+                    title=f"{args.mesh.name}: slice {where}" + (", coloured by 4D AO" if has_ao else ""),
+                )
+            )
+    print(
+        f"slice: {len(tri.vertices):,} vertices, {len(tri.faces):,} triangles"
+        + ("" if has_ao else " (mesh has no 'ao' point data: uncoloured)")
+        + "; wrote "
+        + ", ".join(map(str, written))
+    )
     return 0
 
 
@@ -125,12 +134,13 @@ def _series(mesh, args: argparse.Namespace) -> int:
     if count > 100_000:
         raise ValueError(f"`--count` must be at most 100000, got {count}")
     if start == stop and count > 1:
-        raise ValueError(f"`--w-range` {start:g} {stop:g} is one point: {count} slices would all "
-                         "be the same; give START != STOP, or --w for one slice")
+        raise ValueError(
+            f"`--w-range` {start:g} {stop:g} is one point: {count} slices would all "
+            "be the same; give START != STOP, or --w for one slice"
+        )
     lo, hi = mesh.bounds
     if max(start, stop) < lo[3] or min(start, stop) > hi[3]:
-        raise ValueError(f"the w range [{start:g}, {stop:g}] misses the mesh (its w runs from "
-                         f"{lo[3]:g} to {hi[3]:g})")
+        raise ValueError(f"the w range [{start:g}, {stop:g}] misses the mesh (its w runs from {lo[3]:g} to {hi[3]:g})")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"`--out` {str(out)!r} must be a folder for a series, not a file")
@@ -139,10 +149,12 @@ def _series(mesh, args: argparse.Namespace) -> int:
     steps = write_series(mesh, ws, out, progress=_progress.bar(count, "slices", unit="slice"))
     filled = sum(1 for s in steps if s["triangles"])
     has_ao = "ao" in mesh.point_data
-    print(f"slice series: {count} slices w = {start:g} .. {stop:g} ({filled} not empty), "
-          f"{sum(s['triangles'] for s in steps):,} triangles"
-          + ("" if has_ao else " (mesh has no 'ao' point data: uncoloured)")
-          + f"; wrote {out / SERIES_NAME} and {2 * count} slice files in {out}")
+    print(
+        f"slice series: {count} slices w = {start:g} .. {stop:g} ({filled} not empty), "
+        f"{sum(s['triangles'] for s in steps):,} triangles"
+        + ("" if has_ao else " (mesh has no 'ao' point data: uncoloured)")
+        + f"; wrote {out / SERIES_NAME} and {2 * count} slice files in {out}"
+    )
     return 0
 
 
@@ -161,23 +173,22 @@ def write_series(mesh, ws, out: Path, *, progress=None) -> list[dict]:
             name = f"slice_{k:0{digits}d}"
             has_ao = "ao" in tri.vertex_attributes
             if len(tri.faces):
-                save_slice_mesh(out / f"{name}.ply", tri,
-                                occlusion="ao" if has_ao else None)
+                save_slice_mesh(out / f"{name}.ply", tri, occlusion="ao" if has_ao else None)
             else:
                 _empty_ply(out / f"{name}.ply")
             _save_vtp(out / f"{name}.vtp", tri)
-            steps.append({"w": float(w), "ply": f"{name}.ply", "vtp": f"{name}.vtp",
-                          "triangles": int(len(tri.faces))})
+            steps.append({"w": float(w), "ply": f"{name}.ply", "vtp": f"{name}.vtp", "triangles": int(len(tri.faces))})
             if progress is not None:
                 progress.update()
     finally:
         if progress is not None:
             progress.close()
-    lines = ['<?xml version="1.0"?>',
-             '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">',
-             "  <Collection>"]
-    lines += [f'    <DataSet timestep="{_timestep(s["w"])}" group="" part="0" file="{s["vtp"]}"/>'
-              for s in steps]
+    lines = [
+        '<?xml version="1.0"?>',
+        '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">',
+        "  <Collection>",
+    ]
+    lines += [f'    <DataSet timestep="{_timestep(s["w"])}" group="" part="0" file="{s["vtp"]}"/>' for s in steps]
     lines += ["  </Collection>", "</VTKFile>", ""]
     with atomic_open(out / SERIES_NAME, "w", encoding="utf-8") as fh:
         fh.write("\n".join(lines))
@@ -217,6 +228,8 @@ def _empty_ply(path: Path) -> None:
     from .._atomic import atomic_open
 
     with atomic_open(path, "w", encoding="ascii") as fh:
-        fh.write("ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
-                 "property float z\nelement face 0\nproperty list uchar int vertex_indices\n"
-                 "end_header\n")
+        fh.write(
+            "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+            "property float z\nelement face 0\nproperty list uchar int vertex_indices\n"
+            "end_header\n"
+        )

@@ -8,8 +8,10 @@ import argparse
 import sys
 from pathlib import Path
 
-HELP = ("write a self-contained HTML page that slices 4D meshes (.npz) or ray-marches a rendered "
-        "3D image (.vti, .mhd) on the GPU, in the browser")
+HELP = (
+    "write a self-contained HTML page that slices 4D meshes (.npz) or ray-marches a rendered "
+    "3D image (.vti, .mhd) on the GPU, in the browser"
+)
 EXAMPLES = """  ao4d view scene.npz --out scene.html              open scene.html in any current browser
   ao4d view a.npz b.npz --names ball torus --out both.html
   ao4d view scene.npz --w 0.3 --xw 90 --out turned.html
@@ -35,35 +37,54 @@ def _port(text: str) -> int:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..viewer import ANGLES
 
-    parser.add_argument("meshes", nargs="+", type=Path, metavar="FILE",
-                        help="meshes saved by ao4d (.npz: all 4D, or all 3D), or one image "
-                             "written by ao4d render (.vti or .mhd)")
-    parser.add_argument("--out", type=Path, metavar="PAGE.html",
-                        help="the page to write (default: view.html; not with --serve)")
-    parser.add_argument("--serve", action="store_true",
-                        help="serve the page on 127.0.0.1 instead of writing it (any size); Ctrl-C stops")
-    parser.add_argument("--port", type=_port, default=0,
-                        help="port for --serve (default: any free one; the URL is printed)")
+    parser.add_argument(
+        "meshes",
+        nargs="+",
+        type=Path,
+        metavar="FILE",
+        help="meshes saved by ao4d (.npz: all 4D, or all 3D), or one image written by ao4d render (.vti or .mhd)",
+    )
+    parser.add_argument(
+        "--out", type=Path, metavar="PAGE.html", help="the page to write (default: view.html; not with --serve)"
+    )
+    parser.add_argument(
+        "--serve",
+        action="store_true",
+        help="serve the page on 127.0.0.1 instead of writing it (any size); Ctrl-C stops",
+    )
+    parser.add_argument(
+        "--port", type=_port, default=0, help="port for --serve (default: any free one; the URL is printed)"
+    )
     parser.add_argument("--open", action="store_true", help="open the page in the default browser")
     parser.add_argument("--names", nargs="+", metavar="NAME", help="one label per mesh")
     parser.add_argument("--title", help="page title")
     start = parser.add_argument_group("initial view (the URL fragment overrides it)")
     start.add_argument("--w", type=float, help="hyperplane offset (default: the scene's centre in w)")
     for name in ANGLES:
-        start.add_argument(f"--{name}", type=float, default=0.0, metavar="DEG",
-                           help=f"4D rotation in the {name} plane, degrees")
+        start.add_argument(
+            f"--{name}", type=float, default=0.0, metavar="DEG", help=f"4D rotation in the {name} plane, degrees"
+        )
     start.add_argument("--az", type=float, default=30.0, metavar="DEG", help="camera azimuth (30)")
     start.add_argument("--el", type=float, default=20.0, metavar="DEG", help="camera elevation (20)")
     start.add_argument("--zoom", type=float, default=1.0, help="camera zoom (1)")
-    start.add_argument("--array", choices=("rgba", "shade", "occlusion", "depth"),
-                       help="images: the array shown (default rgba when present, else shade)")
-    start.add_argument("--cmap", default="magma",
-                       help="images: colour map of the scalar arrays (magma, viridis, inferno, "
-                            "cividis, gray, coolwarm)")
-    parser.add_argument("--no-compress", action="store_true",
-                        help="store the buffers uncompressed (for browsers without DecompressionStream)")
-    parser.add_argument("--max-mb", type=float, default=150.0,
-                        help="largest page to write, in MB (default 150); beyond it use --serve")
+    start.add_argument(
+        "--array",
+        choices=("rgba", "shade", "occlusion", "depth"),
+        help="images: the array shown (default rgba when present, else shade)",
+    )
+    start.add_argument(
+        "--cmap",
+        default="magma",
+        help="images: colour map of the scalar arrays (magma, viridis, inferno, cividis, gray, coolwarm)",
+    )
+    parser.add_argument(
+        "--no-compress",
+        action="store_true",
+        help="store the buffers uncompressed (for browsers without DecompressionStream)",
+    )
+    parser.add_argument(
+        "--max-mb", type=float, default=150.0, help="largest page to write, in MB (default 150); beyond it use --serve"
+    )
 
 
 def _run_image(args: argparse.Namespace) -> int:
@@ -87,13 +108,14 @@ def _run_image(args: argparse.Namespace) -> int:
     if not args.serve:
         if not args.max_mb > 0:
             raise ValueError(f"`--max-mb` must be > 0, got {args.max_mb}")
-        out = check_output_file(args.out if args.out is not None else Path("view.html"), "--out",
-                                (".html", ".htm"))
+        out = check_output_file(args.out if args.out is not None else Path("view.html"), "--out", (".html", ".htm"))
     data = load_image(image)
     if args.array is not None and args.array not in data.arrays:
-        raise ValueError(f"`--array` {args.array!r}: {image} holds only "
-                         f"{', '.join(map(repr, data.arrays))}"
-                         + (" (a .mhd file holds shade alone)" if image.suffix.lower() == ".mhd" else ""))
+        raise ValueError(
+            f"`--array` {args.array!r}: {image} holds only "
+            f"{', '.join(map(repr, data.arrays))}"
+            + (" (a .mhd file holds shade alone)" if image.suffix.lower() == ".mhd" else "")
+        )
     for note in data.notes:
         print(f"ao4d view: note: {note}", file=sys.stderr)
     with warnings.catch_warnings():
@@ -104,10 +126,12 @@ def _run_image(args: argparse.Namespace) -> int:
             text = image_page_text(data, state=state, title=args.title, compress=not args.no_compress)
             server = ViewServer(text.encode("utf-8"), [], "127.0.0.1", args.port)
             return _serve_until_stopped(server, f"{image}", args.open)
-        path = view_image(data, out, state=state, title=args.title, compress=not args.no_compress,
-                          max_bytes=int(args.max_mb * 1e6))
-    print(f"ao4d view: wrote {path} ({path.stat().st_size / 1e6:.1f} MB); open it in a browser "
-          f"(file://{path.resolve()})")
+        path = view_image(
+            data, out, state=state, title=args.title, compress=not args.no_compress, max_bytes=int(args.max_mb * 1e6)
+        )
+    print(
+        f"ao4d view: wrote {path} ({path.stat().st_size / 1e6:.1f} MB); open it in a browser (file://{path.resolve()})"
+    )
     if args.open:
         import webbrowser
 
@@ -135,12 +159,12 @@ def run(args: argparse.Namespace) -> int:
     suffixes = {p.suffix.lower() for p in args.meshes}
     if suffixes & {".vti", ".mhd"}:
         if suffixes - {".vti", ".mhd"}:
-            raise ValueError("`FILE`: meshes (.npz) and images (.vti, .mhd) go on separate pages, "
-                             f"got {sorted(suffixes)}")
+            raise ValueError(
+                f"`FILE`: meshes (.npz) and images (.vti, .mhd) go on separate pages, got {sorted(suffixes)}"
+            )
         return _run_image(args)
 
-    state = {"w": args.w, "az": args.az, "el": args.el, "zoom": args.zoom,
-             **{a: getattr(args, a) for a in ANGLES}}
+    state = {"w": args.w, "az": args.az, "el": args.el, "zoom": args.zoom, **{a: getattr(args, a) for a in ANGLES}}
     options = dict(names=args.names, state=state, title=args.title, compress=not args.no_compress)
     if args.serve:
         if args.out is not None:
@@ -151,12 +175,12 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"`--max-mb` must be > 0, got {args.max_mb}")
     from .._atomic import check_output_file
 
-    out = check_output_file(args.out if args.out is not None else Path("view.html"), "--out",
-                            (".html", ".htm"))  # before loading the meshes
+    out = check_output_file(
+        args.out if args.out is not None else Path("view.html"), "--out", (".html", ".htm")
+    )  # before loading the meshes
     path = view(args.meshes, out, max_bytes=int(args.max_mb * 1e6), **options)
     size = path.stat().st_size
-    print(f"ao4d view: wrote {path} ({size / 1e6:.1f} MB); open it in a browser "
-          f"(file://{path.resolve()})")
+    print(f"ao4d view: wrote {path} ({size / 1e6:.1f} MB); open it in a browser (file://{path.resolve()})")
     if args.open:
         import webbrowser
 

@@ -13,14 +13,12 @@ from typing import Any
 
 from ao4d._atomic import atomic_open, atomic_path
 
-__all__ = ["parse_args", "write_csv", "write_results", "figure", "finish_panel", "save_figure", "best_time",
-           "machine"]
+__all__ = ["parse_args", "write_csv", "write_results", "figure", "finish_panel", "save_figure", "best_time", "machine"]
 
 
 def parse_args(name: str, description: str, argv: Sequence[str] | None = None) -> argparse.Namespace:
     """``--out DIR`` (required) and ``--quick``."""
-    parser = argparse.ArgumentParser(prog=f"python -m datasets_gen.experiments.{name}",
-                                     description=description)
+    parser = argparse.ArgumentParser(prog=f"python -m datasets_gen.experiments.{name}", description=description)
     parser.add_argument("--out", required=True, type=Path, help="folder for NAME.csv and NAME.png")
     parser.add_argument("--quick", action="store_true", help="small sizes (seconds), for tests")
     return parser.parse_args(argv)

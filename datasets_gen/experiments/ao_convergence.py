@@ -38,8 +38,9 @@ def roof(dim: int):
     from ao4d import SimplexMesh, lift
 
     if dim == 3:
-        box = trimesh.creation.box(bounds=[[-HALF_WIDTH, -HALF_WIDTH, HEIGHT],
-                                           [HALF_WIDTH, HALF_WIDTH, HEIGHT + THICKNESS]])
+        box = trimesh.creation.box(
+            bounds=[[-HALF_WIDTH, -HALF_WIDTH, HEIGHT], [HALF_WIDTH, HALF_WIDTH, HEIGHT + THICKNESS]]
+        )
         return SimplexMesh(box.vertices, box.faces)
     box = trimesh.creation.box(extents=[2 * HALF_WIDTH] * 3)
     return lift.prism(box, THICKNESS, base=HEIGHT)
@@ -65,22 +66,39 @@ def measure(samples: Sequence[int], n_points: int, numpy_max_rays: int) -> list[
         normals = np.zeros((n_points, dim))
         normals[:, -1] = 1.0
         for backend in backends:
-            ambient_occlusion(mesh, points=points[:1], normals=normals[:1], samples=1,
-                              max_distance=REACH, backend=backend)  # build kernels and BVH
+            ambient_occlusion(
+                mesh, points=points[:1], normals=normals[:1], samples=1, max_distance=REACH, backend=backend
+            )  # build kernels and BVH
             for s in samples:
                 if backend == "numpy" and n_points * s > numpy_max_rays:
                     continue
                 t0 = time.perf_counter()
-                a = ambient_occlusion(mesh, points=points, normals=normals, samples=s,
-                                      max_distance=REACH, seed=s, backend=backend, progress=False)
+                a = ambient_occlusion(
+                    mesh,
+                    points=points,
+                    normals=normals,
+                    samples=s,
+                    max_distance=REACH,
+                    seed=s,
+                    backend=backend,
+                    progress=False,
+                )
                 seconds = time.perf_counter() - t0
-                rows.append({
-                    "dim": dim, "backend": backend, "samples": s, "points": n_points,
-                    "exact": exact, "mean": float(a.mean()), "bias": float(a.mean() - exact),
-                    "rms_error": float(np.sqrt(np.mean((a - exact) ** 2))),
-                    "rms_theory": math.sqrt(exact * (1 - exact) / s),
-                    "seconds": seconds, "rays_per_second": n_points * s / seconds,
-                })
+                rows.append(
+                    {
+                        "dim": dim,
+                        "backend": backend,
+                        "samples": s,
+                        "points": n_points,
+                        "exact": exact,
+                        "mean": float(a.mean()),
+                        "bias": float(a.mean() - exact),
+                        "rms_error": float(np.sqrt(np.mean((a - exact) ** 2))),
+                        "rms_theory": math.sqrt(exact * (1 - exact) / s),
+                        "seconds": seconds,
+                        "rays_per_second": n_points * s / seconds,
+                    }
+                )
     return rows
 
 
@@ -89,13 +107,18 @@ def fit_slopes(rows: list[dict], min_samples: int = 16) -> list[dict]:
     out = []
     for dim in sorted({r["dim"] for r in rows}):
         for backend in sorted({r["backend"] for r in rows}):
-            sel = [r for r in rows if (r["dim"], r["backend"]) == (dim, backend)
-                   and r["samples"] >= min_samples]
+            sel = [r for r in rows if (r["dim"], r["backend"]) == (dim, backend) and r["samples"] >= min_samples]
             if len(sel) >= 2:
-                slope = np.polyfit(np.log([r["samples"] for r in sel]),
-                                   np.log([r["rms_error"] for r in sel]), 1)[0]
-                out.append({"dim": dim, "backend": backend, "from_samples": min_samples,
-                            "to_samples": sel[-1]["samples"], "slope": float(slope)})
+                slope = np.polyfit(np.log([r["samples"] for r in sel]), np.log([r["rms_error"] for r in sel]), 1)[0]
+                out.append(
+                    {
+                        "dim": dim,
+                        "backend": backend,
+                        "from_samples": min_samples,
+                        "to_samples": sel[-1]["samples"],
+                        "slope": float(slope),
+                    }
+                )
     return out
 
 
@@ -108,15 +131,25 @@ def plot(rows: list[dict], path) -> None:
         s = np.array([r["samples"] for r in sel])
         slope = slopes.get((dim, backend))
         fitted = "" if slope is None else f", slope {slope:.2f}"
-        ax_e.loglog(s, [r["rms_error"] for r in sel], "o", color=colour,
-                    label=f"{dim}D measured (exact A = {sel[0]['exact']:.4f}{fitted})")
-        ax_e.loglog(s, [r["rms_theory"] for r in sel], "-", color=colour,
-                    label=f"{dim}D binomial sqrt(A(1-A)/s)")
+        ax_e.loglog(
+            s,
+            [r["rms_error"] for r in sel],
+            "o",
+            color=colour,
+            label=f"{dim}D measured (exact A = {sel[0]['exact']:.4f}{fitted})",
+        )
+        ax_e.loglog(s, [r["rms_theory"] for r in sel], "-", color=colour, label=f"{dim}D binomial sqrt(A(1-A)/s)")
         for backend, style in (("opencl", "-o"), ("numpy", "--s")):
             sb = [r for r in rows if r["dim"] == dim and r["backend"] == backend]
             if sb:
-                ax_t.loglog([r["samples"] for r in sb], [r["seconds"] for r in sb], style,
-                            color=colour, ms=4, label=f"{dim}D, {backend}")
+                ax_t.loglog(
+                    [r["samples"] for r in sb],
+                    [r["seconds"] for r in sb],
+                    style,
+                    color=colour,
+                    ms=4,
+                    label=f"{dim}D, {backend}",
+                )
     ax_e.set_xlabel("samples per point s")
     ax_e.set_ylabel("RMS error of A over the points")
     ax_e.legend(fontsize=7)
@@ -134,8 +167,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.quick:
         rows = measure((1, 4, 16, 64), n_points=64, numpy_max_rays=4096)
     else:
-        rows = measure((1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 4096), n_points=2048,
-                       numpy_max_rays=1 << 19)
+        rows = measure((1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 4096), n_points=2048, numpy_max_rays=1 << 19)
     write_results(args.out, NAME, rows, plot, {"fit": fit_slopes(rows)})
     return 0
 

@@ -19,8 +19,7 @@ from ._common import best_time, figure, finish_panel, machine, parse_args, save_
 NAME = "ao_throughput"
 
 
-def measure(sizes: Sequence[int], n_points: int, samples: int, brute_max: int, backends,
-            repeats: int) -> list[dict]:
+def measure(sizes: Sequence[int], n_points: int, samples: int, brute_max: int, backends, repeats: int) -> list[dict]:
     from ao4d import ambient_occlusion, extract_field, fields
 
     rows = []
@@ -36,19 +35,32 @@ def measure(sizes: Sequence[int], n_points: int, samples: int, brute_max: int, b
                         continue
 
                     def call():
-                        return ambient_occlusion(mesh, points=points, normals=sign * normals,
-                                                 samples=samples, backend=backend, accel=accel,
-                                                 progress=False)
+                        return ambient_occlusion(
+                            mesh,
+                            points=points,
+                            normals=sign * normals,
+                            samples=samples,
+                            backend=backend,
+                            accel=accel,
+                            progress=False,
+                        )
 
                     call()  # kernels, BVH and buffers ready before timing
                     seconds, a = best_time(call, repeats)
                     rays = len(points) * samples
-                    rows.append({
-                        "grid": n, "simplices": mesh.n_simplices, "scene": scene,
-                        "backend": backend, "accel": accel, "rays": rays,
-                        "seconds": seconds, "rays_per_second": rays / seconds,
-                        "mean_occlusion": float(np.mean(a)),
-                    })
+                    rows.append(
+                        {
+                            "grid": n,
+                            "simplices": mesh.n_simplices,
+                            "scene": scene,
+                            "backend": backend,
+                            "accel": accel,
+                            "rays": rays,
+                            "seconds": seconds,
+                            "rays_per_second": rays / seconds,
+                            "mean_occlusion": float(np.mean(a)),
+                        }
+                    )
     return rows
 
 
@@ -59,10 +71,20 @@ def plot(rows: list[dict], path) -> None:
             for accel, style in (("bvh", "-o"), ("brute", "--s")):
                 sel = [r for r in rows if (r["scene"], r["backend"], r["accel"]) == (scene, backend, accel)]
                 if sel:
-                    ax.loglog([r["simplices"] for r in sel], [r["rays_per_second"] for r in sel],
-                              style, color=colour, ms=4, label=f"{backend}, {accel}")
-        finish_panel(ax, title=f"rays from the sphere's vertices, {scene}",
-                     xlabel="tetrahedra in the mesh", ylabel="AO rays per second")
+                    ax.loglog(
+                        [r["simplices"] for r in sel],
+                        [r["rays_per_second"] for r in sel],
+                        style,
+                        color=colour,
+                        ms=4,
+                        label=f"{backend}, {accel}",
+                    )
+        finish_panel(
+            ax,
+            title=f"rays from the sphere's vertices, {scene}",
+            xlabel="tetrahedra in the mesh",
+            ylabel="AO rays per second",
+        )
     fig.suptitle(f"4D AO throughput, BVH vs brute force ({machine()})", fontsize=9)
     save_figure(fig, path)
 
@@ -73,11 +95,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(NAME, __doc__.splitlines()[0], argv)
     backends = ["opencl"] if cl.get_runtime(warn=False) else ["numpy"]
     if args.quick:
-        rows = measure((6, 8), n_points=32, samples=8, brute_max=10**4, backends=backends + ["numpy"],
-                       repeats=1)
+        rows = measure((6, 8), n_points=32, samples=8, brute_max=10**4, backends=backends + ["numpy"], repeats=1)
     else:
-        rows = measure((8, 10, 12, 16, 24, 32, 48), n_points=1024, samples=64, brute_max=6 * 10**4,
-                       backends=backends, repeats=3)
+        rows = measure(
+            (8, 10, 12, 16, 24, 32, 48), n_points=1024, samples=64, brute_max=6 * 10**4, backends=backends, repeats=3
+        )
     write_results(args.out, NAME, rows, plot)
     return 0
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-
 from ._common import best_time, figure, finish_panel, machine, parse_args, save_figure, write_results
 
 NAME = "extract_throughput"
@@ -26,14 +25,22 @@ def measure(sizes3: Sequence[int], sizes4: Sequence[int], repeats: int) -> list[
     rows = []
     for dim in (3, 4):  # load the tables and warm numpy's caches before anything is timed
         for method in ("cubes", "simplices"):
-            extract(sample(fields.hypersphere(1.0, dim=dim), (6,) * dim, (-1.2, 1.2)), method=method,
-                    progress=False)
+            extract(sample(fields.hypersphere(1.0, dim=dim), (6,) * dim, (-1.2, 1.2)), method=method, progress=False)
 
     def row(dim, n, tool, method, seconds, simplices):
         cells = (n - 1) ** dim
-        rows.append({"dim": dim, "n": n, "cells": cells, "tool": tool, "method": method,
-                     "seconds": seconds, "cells_per_second": cells / seconds,
-                     "simplices": simplices})
+        rows.append(
+            {
+                "dim": dim,
+                "n": n,
+                "cells": cells,
+                "tool": tool,
+                "method": method,
+                "seconds": seconds,
+                "cells_per_second": cells / seconds,
+                "simplices": simplices,
+            }
+        )
 
     for n in sizes3:
         values = sample(fields.hypersphere(1.0, dim=3), (n,) * 3, (-1.2, 1.2))
@@ -59,8 +66,14 @@ def ratio_table(rows: list[dict]) -> list[dict]:
     for n in sorted({r["n"] for r in rows if r["dim"] == 3}):
         sk = next(r for r in rows if (r["dim"], r["n"], r["tool"]) == (3, n, "scikit-image"))
         ours = next(r for r in rows if (r["dim"], r["n"], r["method"]) == (3, n, "cubes"))
-        out.append({"n": n, "skimage_seconds": sk["seconds"], "ao4d_seconds": ours["seconds"],
-                    "ao4d_over_skimage": ours["seconds"] / sk["seconds"]})
+        out.append(
+            {
+                "n": n,
+                "skimage_seconds": sk["seconds"],
+                "ao4d_seconds": ours["seconds"],
+                "ao4d_over_skimage": ours["seconds"] / sk["seconds"],
+            }
+        )
     return out
 
 
@@ -70,8 +83,14 @@ def plot(rows: list[dict], path) -> None:
         keys = sorted({(r["tool"], r["method"]) for r in rows if r["dim"] == dim})
         for i, (tool, method) in enumerate(keys):
             sel = [r for r in rows if (r["dim"], r["tool"], r["method"]) == (dim, tool, method)]
-            ax.loglog([r["cells"] for r in sel], [r["cells_per_second"] for r in sel], "-o", ms=4,
-                      color=f"C{i}", label=f"{tool} ({method})")
+            ax.loglog(
+                [r["cells"] for r in sel],
+                [r["cells_per_second"] for r in sel],
+                "-o",
+                ms=4,
+                color=f"C{i}",
+                label=f"{tool} ({method})",
+            )
         finish_panel(ax, title=f"{dim}D ball", xlabel=f"{dim}D grid cells", ylabel="cells per second")
     fig.suptitle(f"Extraction throughput ({machine()})", fontsize=9)
     save_figure(fig, path)

@@ -38,15 +38,23 @@ def measure(sizes: Sequence[int]) -> list[dict]:
                 t0 = time.perf_counter()
                 mesh = extract_field(f, n, (-half, half), method=method, progress=False)
                 seconds = time.perf_counter() - t0
-                rows.append({
-                    "shape": label, "method": method, "n": n, "spacing": 2 * half / (n - 1),
-                    "simplices": mesh.n_simplices, "closed": mesh.check().ok,
-                    "volume": mesh.volume, "volume_exact": f.volume,
-                    "volume_rel_error": mesh.volume / f.volume - 1,
-                    "measure": mesh.measure, "measure_exact": f.boundary_measure,
-                    "measure_rel_error": mesh.measure / f.boundary_measure - 1,
-                    "seconds": seconds,
-                })
+                rows.append(
+                    {
+                        "shape": label,
+                        "method": method,
+                        "n": n,
+                        "spacing": 2 * half / (n - 1),
+                        "simplices": mesh.n_simplices,
+                        "closed": mesh.check().ok,
+                        "volume": mesh.volume,
+                        "volume_exact": f.volume,
+                        "volume_rel_error": mesh.volume / f.volume - 1,
+                        "measure": mesh.measure,
+                        "measure_exact": f.boundary_measure,
+                        "measure_rel_error": mesh.measure / f.boundary_measure - 1,
+                        "seconds": seconds,
+                    }
+                )
     return rows
 
 
@@ -58,14 +66,13 @@ def plot(rows: list[dict], path) -> None:
             sel = [r for r in rows if r["shape"] == label and r["method"] == method]
             n = np.array([r["n"] for r in sel])
             for ax, key in ((ax_v, "volume_rel_error"), (ax_m, "measure_rel_error")):
-                ax.loglog(n, np.abs([r[key] for r in sel]), style, color=colours[label], ms=4,
-                          label=f"{label}, {method}")
+                ax.loglog(
+                    n, np.abs([r[key] for r in sel]), style, color=colours[label], ms=4, label=f"{label}, {method}"
+                )
     n_all = np.array(sorted({r["n"] for r in rows}), dtype=float)
-    for ax, what, key in ((ax_v, "4-volume", "volume_rel_error"),
-                          (ax_m, "boundary 3-measure", "measure_rel_error")):
+    for ax, what, key in ((ax_v, "4-volume", "volume_rel_error"), (ax_m, "boundary 3-measure", "measure_rel_error")):
         first = np.median([abs(r[key]) for r in rows if r["n"] == n_all[0]])
-        ax.loglog(n_all, first * (n_all / n_all[0]) ** -2, ":", color="0.3", lw=2,
-                  label="slope n^-2")
+        ax.loglog(n_all, first * (n_all / n_all[0]) ** -2, ":", color="0.3", lw=2, label="slope n^-2")
         ax.set_xticks(n_all, [f"{n:g}" for n in n_all], minor=False)
         ax.set_xticks([], minor=True)
         ax.set_xlabel("grid points per axis n")

@@ -57,12 +57,16 @@ def scenes(quick: bool) -> list[dict]:
 
     big, small = 0.6, 0.22
     ring_a = fields.torisphere(big, small)  # core circle in the xy plane
-    ring_b = fields.translate(fields.rotate(fields.torisphere(big, small), (1, 2), math.pi / 2),
-                              [big, 0, 0, 0])  # in the xz plane, through the first one's hole
+    ring_b = fields.translate(
+        fields.rotate(fields.torisphere(big, small), (1, 2), math.pi / 2), [big, 0, 0, 0]
+    )  # in the xz plane, through the first one's hole
     reach = big + small + 0.1
-    tori = extract_field(fields.union(ring_a, ring_b), (n,) * 4,
-                         ([-reach, -reach, -reach, -small - 0.1],
-                          [2 * big + small + 0.1, reach, reach, small + 0.1]), progress=False)
+    tori = extract_field(
+        fields.union(ring_a, ring_b),
+        (n,) * 4,
+        ([-reach, -reach, -reach, -small - 0.1], [2 * big + small + 0.1, reach, reach, small + 0.1]),
+        progress=False,
+    )
 
     # a tesseract with a spherical bowl in its facet towards the eye (-w): its inside is concave
     bowl_field = fields.difference(fields.tesseract(0.8), fields.hypersphere(0.72, [0, 0, 0, -0.75]))
@@ -72,10 +76,18 @@ def scenes(quick: bool) -> list[dict]:
     return [
         {"scene": "demo", "mesh": demo_mesh, "camera": demo.camera, "reach": REACH},
         {"scene": "demo (reach inf)", "mesh": demo_mesh, "camera": demo.camera, "reach": math.inf},
-        {"scene": "torus pair", "mesh": tori,
-         "camera": Camera4D.framing(tori.bounds, view=(0.2, -0.3, 0.25, 1.0), fov=40), "reach": REACH},
-        {"scene": "bowl (concave)", "mesh": bowl,
-         "camera": Camera4D.framing(bowl.bounds, view=down, fov=40), "reach": REACH},
+        {
+            "scene": "torus pair",
+            "mesh": tori,
+            "camera": Camera4D.framing(tori.bounds, view=(0.2, -0.3, 0.25, 1.0), fov=40),
+            "reach": REACH,
+        },
+        {
+            "scene": "bowl (concave)",
+            "mesh": bowl,
+            "camera": Camera4D.framing(bowl.bounds, view=down, fov=40),
+            "reach": REACH,
+        },
     ]
 
 
@@ -94,8 +106,9 @@ def measure(size: int, repeats: int, quick: bool) -> tuple[list[dict], list[dict
         images = {}
         for _ in range(repeats):  # in turn, so that all see the same load
             for name, kwargs in variants.items():
-                img = render(mesh, camera, (size,) * 3, max_distance=reach, seed=0, progress=False,
-                             max_rays=math.inf, **kwargs)
+                img = render(
+                    mesh, camera, (size,) * 3, max_distance=reach, seed=0, progress=False, max_rays=math.inf, **kwargs
+                )
                 timed[name].append((img.info["ao_seconds"], img.info["seconds"]))
                 images[name] = img
         traced = images["hits"]
@@ -107,25 +120,44 @@ def measure(size: int, repeats: int, quick: bool) -> tuple[list[dict], list[dict
             a = screen.occlusion[screen.hit].astype(np.float64)
             err = a - b
             ao_s = min(t[0] for t in timed[name])
-            rows.append({
-                "scene": item["scene"], "variant": name, "image": f"{size}^3",
-                "hits": int(screen.hit.sum()), "traced_samples": SAMPLES, "screen_samples": n_dirs,
-                "denoise": radius, "reach": reach, "mae": float(np.abs(err).mean()),
-                "correlation": float(np.corrcoef(a, b)[0, 1]) if a.std() > 0 and b.std() > 0 else float("nan"),
-                "mean_screen": float(a.mean()), "mean_traced": float(b.mean()),
-                "mean_error": float(err.mean()), "rms_error": float(np.sqrt((err**2).mean())),
-                "screen_ao_seconds": ao_s, "traced_ao_seconds": ao_t, "ao_speedup": ao_t / ao_s,
-                "screen_render_seconds": min(t[1] for t in timed[name]),
-                "traced_render_seconds": min(t[1] for t in timed["hits"]),
-                "backend": screen.info["backend"],
-            })
+            rows.append(
+                {
+                    "scene": item["scene"],
+                    "variant": name,
+                    "image": f"{size}^3",
+                    "hits": int(screen.hit.sum()),
+                    "traced_samples": SAMPLES,
+                    "screen_samples": n_dirs,
+                    "denoise": radius,
+                    "reach": reach,
+                    "mae": float(np.abs(err).mean()),
+                    "correlation": float(np.corrcoef(a, b)[0, 1]) if a.std() > 0 and b.std() > 0 else float("nan"),
+                    "mean_screen": float(a.mean()),
+                    "mean_traced": float(b.mean()),
+                    "mean_error": float(err.mean()),
+                    "rms_error": float(np.sqrt((err**2).mean())),
+                    "screen_ao_seconds": ao_s,
+                    "traced_ao_seconds": ao_t,
+                    "ao_speedup": ao_t / ao_s,
+                    "screen_render_seconds": min(t[1] for t in timed[name]),
+                    "traced_render_seconds": min(t[1] for t in timed["hits"]),
+                    "backend": screen.info["backend"],
+                }
+            )
             counts, _ = np.histogram(err, BINS)
             for lo, hi, c in zip(BINS[:-1], BINS[1:], counts):
-                hist_rows.append({"scene": item["scene"], "variant": name, "error_lo": float(lo),
-                                  "error_hi": float(hi), "voxels": int(c), "fraction": float(c / len(err))})
+                hist_rows.append(
+                    {
+                        "scene": item["scene"],
+                        "variant": name,
+                        "error_lo": float(lo),
+                        "error_hi": float(hi),
+                        "voxels": int(c),
+                        "fraction": float(c / len(err)),
+                    }
+                )
         if item["scene"] == "demo":
-            slices = {"screen": images[SCREEN_VARIANTS[0][0]].occlusion, "traced": traced.occlusion,
-                      "hit": traced.hit}
+            slices = {"screen": images[SCREEN_VARIANTS[0][0]].occlusion, "traced": traced.occlusion, "hit": traced.hit}
     return rows, hist_rows, slices
 
 
@@ -139,8 +171,17 @@ def step_sweep(size: int, repeats: int, quick: bool) -> list[dict]:
     shape = (size,) * 3
     for item in scenes(quick)[:2]:
         mesh, camera, reach = item["mesh"], item["camera"], item["reach"]
-        traced = render(mesh, camera, shape, ao="hits", samples=SAMPLES, max_distance=reach,
-                        seed=0, progress=False, max_rays=math.inf)
+        traced = render(
+            mesh,
+            camera,
+            shape,
+            ao="hits",
+            samples=SAMPLES,
+            max_distance=reach,
+            seed=0,
+            progress=False,
+            max_rays=math.inf,
+        )
         volume = DepthVolume.trace(mesh, camera, shape)
         hit = volume.hit.reshape(-1)
         origins, directions = (a.reshape(-1, 4) for a in camera.rays(shape))
@@ -152,14 +193,22 @@ def step_sweep(size: int, repeats: int, quick: bool) -> list[dict]:
             best = math.inf
             for _ in range(repeats):
                 t0 = time.perf_counter()
-                a = screen_space_occlusion(volume, points, normals, samples=SAMPLES,
-                                           max_distance=reach, steps=steps, seed=0)
+                a = screen_space_occlusion(
+                    volume, points, normals, samples=SAMPLES, max_distance=reach, steps=steps, seed=0
+                )
                 best = min(best, time.perf_counter() - t0)
-            rows.append({"scene": item["scene"], "steps": steps, "default": steps == default,
-                         "mae": float(np.abs(a - b).mean()),
-                         "correlation": float(np.corrcoef(a, b)[0, 1]),
-                         "mean_error": float((a - b).mean()), "seconds": best,
-                         "traced_ao_seconds": traced.info["ao_seconds"]})
+            rows.append(
+                {
+                    "scene": item["scene"],
+                    "steps": steps,
+                    "default": steps == default,
+                    "mae": float(np.abs(a - b).mean()),
+                    "correlation": float(np.corrcoef(a, b)[0, 1]),
+                    "mean_error": float((a - b).mean()),
+                    "seconds": best,
+                    "traced_ao_seconds": traced.info["ao_seconds"],
+                }
+            )
     return rows
 
 
@@ -178,9 +227,14 @@ def plot_all(rows: list[dict], hist_rows: list[dict], slices: dict, sweep: list[
         i = scene_names.index(r["scene"])
         style = "-" if r["variant"] == first else ":"
         sel = [h["fraction"] for h in hist_rows if (h["scene"], h["variant"]) == (r["scene"], r["variant"])]
-        ax_h.step(centres, sel, where="mid", color=f"C{i}", ls=style,
-                  label=f"{r['scene']}, {r['variant'].split(', ')[1]}: MAE {r['mae']:.3f}, "
-                        f"r = {r['correlation']:.2f}")
+        ax_h.step(
+            centres,
+            sel,
+            where="mid",
+            color=f"C{i}",
+            ls=style,
+            label=f"{r['scene']}, {r['variant'].split(', ')[1]}: MAE {r['mae']:.3f}, r = {r['correlation']:.2f}",
+        )
     ax_h.set_yscale("log")
     ax_h.set_xlabel("screen-space AO - ray-traced AO (per hit voxel)")
     ax_h.set_ylabel("fraction of hit voxels")
@@ -195,8 +249,9 @@ def plot_all(rows: list[dict], hist_rows: list[dict], slices: dict, sweep: list[
         sel = [next(r for r in rows if (r["scene"], r["variant"]) == (n, name)) for n in scene_names]
         ax_t.bar(x + 0.27 * k, [r["screen_ao_seconds"] for r in sel], 0.27, label=name)
         for xi, r in zip(x, sel):
-            ax_t.text(xi + 0.27 * k, r["screen_ao_seconds"], f"{r['ao_speedup']:.1f}x",
-                      ha="center", va="bottom", fontsize=6)
+            ax_t.text(
+                xi + 0.27 * k, r["screen_ao_seconds"], f"{r['ao_speedup']:.1f}x", ha="center", va="bottom", fontsize=6
+            )
     ax_t.set_xticks(x, [n.replace(" (", "\n(") for n in scene_names], fontsize=7)
     ax_t.set_ylabel(f"AO seconds at the same hits ({rows[0]['image']})")
     ax_t.set_ylim(0, 1.45 * max(traced + [r["screen_ao_seconds"] for r in rows]))
@@ -206,12 +261,18 @@ def plot_all(rows: list[dict], hist_rows: list[dict], slices: dict, sweep: list[
     ax_s = fig.add_subplot(grid[0, 3])
     for i, name in enumerate(dict.fromkeys(r["scene"] for r in sweep)):
         sel = [r for r in sweep if r["scene"] == name]
-        ax_s.plot([r["seconds"] for r in sel], [r["mae"] for r in sel], "o-", color=f"C{i}",
-                  label=f"{name} (ray traced: {sel[0]['traced_ao_seconds']:.2f} s)")
+        ax_s.plot(
+            [r["seconds"] for r in sel],
+            [r["mae"] for r in sel],
+            "o-",
+            color=f"C{i}",
+            label=f"{name} (ray traced: {sel[0]['traced_ao_seconds']:.2f} s)",
+        )
         for r in sel:
             mark = " (default)" if r["default"] in (True, "True") else ""
-            ax_s.annotate(f"{r['steps']}{mark}", (r["seconds"], r["mae"]), fontsize=6,
-                          textcoords="offset points", xytext=(3, 3))
+            ax_s.annotate(
+                f"{r['steps']}{mark}", (r["seconds"], r["mae"]), fontsize=6, textcoords="offset points", xytext=(3, 3)
+            )
     ax_s.set_xlabel("screen-space AO seconds, 64 directions")
     ax_s.set_ylabel("MAE against ray traced")
     ax_s.set_title("march points per direction", fontsize=8)
@@ -223,9 +284,11 @@ def plot_all(rows: list[dict], hist_rows: list[dict], slices: dict, sweep: list[
         diff = np.where(hit, np.abs(slices["screen"] - slices["traced"]), 0.0)
         k = int(np.argmax(diff.sum(axis=(0, 1))))  # the z-slice with the largest error
         show = lambda a: np.where(hit[:, :, k], a[:, :, k], np.nan).T  # noqa: E731  (x right, y up)
-        panels = [("ray-traced AO", slices["traced"], "magma_r", (0, 1)),
-                  ("screen-space AO", slices["screen"], "magma_r", (0, 1)),
-                  ("screen - ray traced", slices["screen"] - slices["traced"], "RdBu_r", (-0.3, 0.3))]
+        panels = [
+            ("ray-traced AO", slices["traced"], "magma_r", (0, 1)),
+            ("screen-space AO", slices["screen"], "magma_r", (0, 1)),
+            ("screen - ray traced", slices["screen"] - slices["traced"], "RdBu_r", (-0.3, 0.3)),
+        ]
         for j, (title, arr, cmap, (vmin, vmax)) in enumerate(panels):
             ax = fig.add_subplot(grid[1, j])
             im = ax.imshow(show(arr), origin="lower", cmap=cmap, vmin=vmin, vmax=vmax)
@@ -235,20 +298,27 @@ def plot_all(rows: list[dict], hist_rows: list[dict], slices: dict, sweep: list[
             fig.colorbar(im, ax=ax, shrink=0.8)
         ax = fig.add_subplot(grid[1, 3])
         ax.axis("off")
-        ax.text(0, 1, "Wrong by construction\n(blue: too open, red: too occluded)\n\n"
-                "- occluders the image does not\n"
-                "  show: the ground under objects,\n"
-                "  their hidden backs, anything\n"
-                "  outside the image: too open\n"
-                "- a visible surface is taken as\n"
-                "  solid up to the reach behind\n"
-                "  it: haloes on what lies behind\n"
-                "  silhouettes and thin objects\n"
-                "- march points leaving the\n"
-                "  image count as open",
-                va="top", fontsize=8, family="monospace")
-    fig.suptitle(f"4D screen-space AO vs ray-traced AO ({SAMPLES} rays), {rows[0]['image']} images "
-                 f"({machine()})", fontsize=9)
+        ax.text(
+            0,
+            1,
+            "Wrong by construction\n(blue: too open, red: too occluded)\n\n"
+            "- occluders the image does not\n"
+            "  show: the ground under objects,\n"
+            "  their hidden backs, anything\n"
+            "  outside the image: too open\n"
+            "- a visible surface is taken as\n"
+            "  solid up to the reach behind\n"
+            "  it: haloes on what lies behind\n"
+            "  silhouettes and thin objects\n"
+            "- march points leaving the\n"
+            "  image count as open",
+            va="top",
+            fontsize=8,
+            family="monospace",
+        )
+    fig.suptitle(
+        f"4D screen-space AO vs ray-traced AO ({SAMPLES} rays), {rows[0]['image']} images ({machine()})", fontsize=9
+    )
     save_figure(fig, path)
 
 
@@ -257,8 +327,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     size, repeats = (16, 1) if args.quick else (80, 3)
     rows, hist_rows, slices = measure(size, repeats, args.quick)
     sweep = step_sweep(size, repeats, args.quick)
-    write_results(args.out, NAME, rows, lambda r, p: plot_all(r, hist_rows, slices, sweep, p),
-                  {"histogram": hist_rows, "steps": sweep})
+    write_results(
+        args.out,
+        NAME,
+        rows,
+        lambda r, p: plot_all(r, hist_rows, slices, sweep, p),
+        {"histogram": hist_rows, "steps": sweep},
+    )
     return 0
 
 

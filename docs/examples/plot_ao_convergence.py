@@ -43,10 +43,7 @@ normals = np.tile([0.0, 0.0, 0.0, 1.0], (1000, 1))
 samples = [4, 8, 16, 32, 64, 128, 256]
 rms = []
 for s in samples:
-    errors = (
-        ao4d.ambient_occlusion(roof, points=points, normals=normals, samples=s, max_distance=REACH, seed=s)
-        - exact
-    )
+    errors = ao4d.ambient_occlusion(roof, points=points, normals=normals, samples=s, max_distance=REACH, seed=s) - exact
     rms.append(float(np.sqrt(np.mean(np.square(errors)))))
     print(f"{s:4d} samples: RMS error {rms[-1]:.4f}")
 

@@ -60,10 +60,7 @@ items_dir = folder / "data" / "items"
 meshes = [ao4d.SimplexMesh.load(p) for p in sorted(items_dir.glob("*/mesh.npz"))]
 aos = [np.load(p)["occlusion"] for p in sorted(items_dir.glob("*/ao.npz"))]
 for record, mesh in zip(records, meshes):
-    print(
-        f"item {record['index']}: {record['kind']}, {mesh.n_simplices} tetrahedra, "
-        f"closed: {mesh.check().closed}"
-    )
+    print(f"item {record['index']}: {record['kind']}, {mesh.n_simplices} tetrahedra, closed: {mesh.check().closed}")
 manifest = json.loads((folder / "data" / "manifest.json").read_text())
 print(f"manifest: {manifest['n_items']} items, {len(manifest['files'])} files hashed")
 

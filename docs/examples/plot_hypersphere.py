@@ -43,9 +43,7 @@ print(f"AO on the ball: min {ball.point_data['ao'].min():.2f}, max {ball.point_d
 
 # %%
 # Render a 32³ image volume: a 4D camera looks along +w, and its screen is a 3D grid of voxels.
-camera = ao4d.Camera4D(
-    eye=(0, 1.2, -0.4, -4.5), target=(0, 0.4, 0, 0), up=(0, 1, 0, 0), over=(0, 0, 1, 0), fov=40
-)
+camera = ao4d.Camera4D(eye=(0, 1.2, -0.4, -4.5), target=(0, 0.4, 0, 0), up=(0, 1, 0, 0), over=(0, 0, 1, 0), fov=40)
 image = ao4d.render(
     [ground, ball], camera, shape=(32, 32, 32), ao="vertices", light=(0, 1, 0, -1), ambient=0.8, diffuse=0.2
 )

@@ -37,9 +37,7 @@ torus = ao4d.extract_field(
 )
 meshes = [ground, ball, torus]
 
-camera = ao4d.Camera4D(
-    eye=(0, 1.8, -0.8, -5.0), target=(0, 0.5, 0, 0), up=(0, 1, 0, 0), over=(0, 0, 1, 0), fov=40
-)
+camera = ao4d.Camera4D(eye=(0, 1.8, -0.8, -5.0), target=(0, 0.5, 0, 0), up=(0, 1, 0, 0), over=(0, 0, 1, 0), fov=40)
 sun = ao4d.Light(direction=(-0.35, 1, -0.25, -0.45))
 lamp = ao4d.Light(position=(1, 2.5, 0, -1), color=(1, 0.8, 0.6), intensity=0.5)
 options = dict(
