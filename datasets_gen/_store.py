@@ -34,7 +34,7 @@ def is_url(out: Any) -> bool:
     return isinstance(out, str) and "://" in out
 
 
-def check_url(out: str) -> str:
+def check_url(out: str, name: str = "out") -> str:
     """Refuse a malformed URL ``out`` (``"://x"`` would otherwise be read as the local folder
     ``./:/x``): the part before ``://`` must be a protocol and the part after it a path.
 
@@ -46,25 +46,28 @@ def check_url(out: str) -> str:
     protocol, _, path = out.partition("://")
     if not _PROTOCOL.fullmatch(protocol) or not path.strip("/"):
         raise ValueError(
-            f"`out` {out!r} is not a URL of the form PROTOCOL://PATH (such as "
+            f"`{name}` {out!r} is not a URL of the form PROTOCOL://PATH (such as "
             "s3://bucket/run or file:///data/run) nor a local folder; give a folder "
             "path without '://' or a complete URL"
         )
     return out
 
 
-def open_store(out: str | os.PathLike) -> Store:
+def open_store(out: str | os.PathLike, name: str = "out") -> Store:
     """The store of ``out``: :class:`FsspecStore` for a URL, else :class:`LocalStore`.
+
+    ``name`` is the parameter that errors name (``out`` for the writer, ``path_or_url`` for
+    the loader).
 
     Raises
     ------
     ValueError
         A malformed URL (:func:`check_url`), or one whose protocol fsspec does not know or
         whose filesystem package is missing (``s3fs`` for ``s3://``, ``gcsfs`` for
-        ``gs://``), naming ``out``.
+        ``gs://``), naming ``name``.
     """
     if is_url(out):
-        return FsspecStore(check_url(out))
+        return FsspecStore(check_url(out, name), name)
     return LocalStore(Path(out))
 
 
@@ -246,14 +249,14 @@ class FsspecStore(Store):
     """A folder behind an fsspec URL; each write goes to a hidden temporary name first and is
     then moved into place, so a reader never sees part of a file."""
 
-    def __init__(self, url: str):
+    def __init__(self, url: str, name: str = "out"):
         import fsspec
 
         self.name = url
         try:
             self.fs, self.root = fsspec.core.url_to_fs(url)
         except (ImportError, ValueError) as exc:  # unknown protocol, or its package missing
-            raise ValueError(f"cannot open `out` {url!r}: {exc}") from None
+            raise ValueError(f"cannot open `{name}` {url!r}: {exc}") from None
         self.root = self.root.rstrip("/")
         try:
             from fsspec.implementations.memory import MemoryFileSystem

@@ -135,7 +135,7 @@ class Dataset:
     def _store(self) -> Store:
         store = self.__dict__.get("_store_obj")
         if store is None:
-            store = self.__dict__["_store_obj"] = open_store(self.location)
+            store = self.__dict__["_store_obj"] = open_store(self.location, "path_or_url")
         return store
 
     def __getstate__(self) -> dict:

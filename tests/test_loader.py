@@ -149,3 +149,10 @@ def test_dataset_labels_against_analytic_volumes(dataset):
         assert abs(frac - p) <= 5 * np.sqrt(p * (1 - p) / n), rec["index"]
         np.testing.assert_array_equal(item["sdf"] < 0, item["occupancy"])
         assert set(rec["samples"]["labels"]) >= {"occupancy", "sdf", "surface_points"}
+
+
+@pytest.mark.parametrize("url", ["nosuchprotocol://x/y", "://x"])
+def test_a_url_the_loader_cannot_open_names_its_parameter(url):
+    # the writer's store says `out`; a user of load() gave `path_or_url`
+    with pytest.raises((ValueError, DatasetError), match="`path_or_url`"):
+        load(url)[0]
