@@ -236,31 +236,26 @@ def _write_files(out: Path, scene, image, settings, seconds: dict[str, float], *
     done("image.mhd", image.save(out / "image.mhd"), out / "image.raw")
     done("image.vti", image.save(out / "image.vti"))
     from ..pictures import save_montage, save_rgba_montage, save_rgba_volume_png, save_slice_png, save_volume_png
+    from .render import shade_picture
 
     done(
         "montage",
-        save_montage(
+        shade_picture(
+            save_montage,
             out / "image_slices.png",
-            image.shade,
-            background=~image.hit,
+            image,
+            f"ao4d demo: z-slices of the 3D image, shade = {model} ({params})",
             cmap="magma",
-            title=f"ao4d demo: z-slices of the 3D image, shade = {model} ({params})",
-            label="shade",
-            spacing=geo.spacing,
-            origin=geo.origin,
         ),
     )
     done(
         "volume picture",
-        save_volume_png(
+        shade_picture(
+            save_volume_png,
             out / "image_volume.png",
-            image.shade,
-            background=~image.hit,
+            image,
+            f"ao4d demo: 3D image of a 4D scene ({params})",
             cmap="magma",
-            title=f"ao4d demo: 3D image of a 4D scene ({params})",
-            label="shade",
-            spacing=geo.spacing,
-            origin=geo.origin,
         ),
     )
     done(
