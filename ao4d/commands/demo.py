@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
-from ..cl import BACKENDS
+from ._options import add_backend
 
 HELP = "run the whole pipeline on a built-in 4D scene and write volumes, meshes and pictures"
 EXAMPLES = """  ao4d demo                          writes ./ao4d-demo/ (under a minute on 2 CPU cores)
@@ -309,9 +309,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="default",
         help="default: under a minute on 2 cores; high: finer grids, 128^3 image, 128 AO samples",
     )
-    parser.add_argument(
-        "--backend", choices=BACKENDS, default="auto", help="OpenCL device (auto) or the numpy fallback"
-    )
+    add_backend(parser, help="OpenCL device (auto) or the numpy fallback")
     parser.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)  # for tests
 
 

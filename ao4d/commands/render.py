@@ -7,7 +7,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from ..cl import BACKENDS
+from ._options import add_backend, add_force, add_meshes
 
 HELP = "render 4D meshes (.npz) into a 3D image volume (.mhd or .vti) with a 4D camera"
 EXAMPLES = """  ao4d render scene.npz --out image.mhd
@@ -44,13 +44,7 @@ LIGHT_HELP = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "meshes",
-        nargs="+",
-        type=Path,
-        metavar="MESH.npz",
-        help="4D meshes saved by ao4d (several: object ids follow their order)",
-    )
+    add_meshes(parser, metavar="MESH.npz", help="4D meshes saved by ao4d (several: object ids follow their order)")
     parser.add_argument("--out", required=True, type=Path, help="output volume, .mhd or .vti")
     parser.add_argument(
         "--size",
@@ -110,10 +104,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--layers", type=int, default=4, help="surfaces composited along a ray behind transparent hits (default 4)"
     )
-    parser.add_argument("--backend", choices=BACKENDS, default="auto")
-    parser.add_argument(
-        "--force", action="store_true", help="render even when the rays would take more than about half an hour"
-    )
+    add_backend(parser)
+    add_force(parser, help="render even when the rays would take more than about half an hour")
     parser.add_argument(
         "--png",
         type=Path,

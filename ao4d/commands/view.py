@@ -8,6 +8,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from ._options import add_meshes
+
 HELP = (
     "write a self-contained HTML page that slices 4D meshes (.npz) or ray-marches a rendered "
     "3D image (.vti, .mhd) on the GPU, in the browser"
@@ -37,10 +39,8 @@ def _port(text: str) -> int:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..viewer import ANGLES
 
-    parser.add_argument(
-        "meshes",
-        nargs="+",
-        type=Path,
+    add_meshes(
+        parser,
         metavar="FILE",
         help="meshes saved by ao4d (.npz: all 4D, or all 3D), or one image written by ao4d render (.vti or .mhd)",
     )
