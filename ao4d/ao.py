@@ -232,36 +232,25 @@ def ambient_occlusion(
     if idx.size == 0:
         return occlusion
     pts, nrm = pts[idx], nrm[idx]
+    # how every ray of this call is traced (the AO rays and those of points without a normal)
+    trace = dict(
+        samples=samples,
+        seed=seed,
+        offset=ORIGIN_OFFSET * tree.world_diagonal,
+        max_distance=max_distance,
+        runtime=runtime,
+        accel=accel,
+    )
     desc = f"{d}D AO ({cl.backend_name(runtime)})"
     with progress_bar(progress, idx.size * samples, desc) as bar:
-        counts = count_occluded(
-            mesh,
-            pts,
-            nrm,
-            samples=samples,
-            seed=seed,
-            offset=ORIGIN_OFFSET * tree.world_diagonal,
-            max_distance=max_distance,
-            runtime=runtime,
-            accel=accel,
-            bar=bar,
-        )
+        counts = count_occluded(mesh, pts, nrm, **trace, bar=bar)
     occlusion[idx] = counts / samples
     if points is None and at == "vertices":
         simplices = np.asarray(mesh_arrays(mesh)[1])
         _fill_flat_vertices(occlusion, simplices)
         alone = np.flatnonzero(_referenced(len(occlusion), simplices) & np.isnan(occlusion))
         if alone.size:  # clusters of zero measure only: no neighbour has an AO to share
-            occlusion[alone] = _both_sides(
-                mesh,
-                pts=np.asarray(mesh_arrays(mesh)[0])[alone],
-                samples=samples,
-                seed=seed,
-                offset=ORIGIN_OFFSET * tree.world_diagonal,
-                max_distance=max_distance,
-                runtime=runtime,
-                accel=accel,
-            )
+            occlusion[alone] = _both_sides(mesh, pts=np.asarray(mesh_arrays(mesh)[0])[alone], **trace)
     return occlusion
 
 

@@ -161,6 +161,13 @@ def _program(op: str, params: Sequence[float], *children: Any) -> tuple | None:
     return (op, tuple(float(x) for x in params), kids)
 
 
+def _named(op: str, **params: float) -> dict[str, Any]:
+    """A primitive's ``name`` (``"tiger(R1=0.8, R2=0.8, r=0.35)"``) and ``program`` (its
+    expression tree), both from the one list of its parameters."""
+    text = ", ".join(f"{key}={value:g}" for key, value in params.items())
+    return {"name": f"{op}({text})", "program": _program(op, tuple(params.values()))}
+
+
 def _ball_volume(dim: int, radius: float) -> float:
     return math.pi ** (dim / 2) / math.gamma(dim / 2 + 1) * radius**dim
 
@@ -228,7 +235,8 @@ def spheritorus(R: float = 1.0, r: float = 0.4) -> Field:
     Returns
     -------
     Field
-        Signed distance to the surface.
+        Exact signed distance to the surface; ``volume = 4 pi^2 R^2 r^2 + pi^2 r^4`` and
+        ``boundary_measure = 8 pi^2 R^2 r + 4 pi^2 r^3``.
 
     Notes
     -----
@@ -244,11 +252,10 @@ def spheritorus(R: float = 1.0, r: float = 0.4) -> Field:
     return Field(
         lambda p: np.hypot(_norm(p, slice(0, 3)) - R, p[..., 3]) - r,
         dim=4,
-        name=f"spheritorus(R={R:g}, r={r:g})",
         volume=4 * math.pi**2 * R**2 * r**2 + math.pi**2 * r**4,
         boundary_measure=8 * math.pi**2 * R**2 * r + 4 * math.pi**2 * r**3,
         extent=([-a, -a, -a, -r], [a, a, a, r]),
-        program=_program("spheritorus", (R, r)),
+        **_named("spheritorus", R=R, r=r),
     )
 
 
@@ -263,7 +270,8 @@ def torisphere(R: float = 1.0, r: float = 0.4) -> Field:
     Returns
     -------
     Field
-        Signed distance to the surface.
+        Exact signed distance to the surface; ``volume = 8/3 pi^2 R r^3`` and
+        ``boundary_measure = 8 pi^2 R r^2``.
 
     Notes
     -----
@@ -278,11 +286,10 @@ def torisphere(R: float = 1.0, r: float = 0.4) -> Field:
     return Field(
         lambda p: np.sqrt((_norm(p, slice(0, 2)) - R) ** 2 + p[..., 2] ** 2 + p[..., 3] ** 2) - r,
         dim=4,
-        name=f"torisphere(R={R:g}, r={r:g})",
         volume=8 / 3 * math.pi**2 * R * r**3,
         boundary_measure=8 * math.pi**2 * R * r**2,
         extent=([-a, -a, -r, -r], [a, a, r, r]),
-        program=_program("torisphere", (R, r)),
+        **_named("torisphere", R=R, r=r),
     )
 
 
@@ -298,7 +305,8 @@ def ditorus(R: float = 1.0, r1: float = 0.45, r2: float = 0.2) -> Field:
     Returns
     -------
     Field
-        Signed distance to the surface.
+        Exact signed distance to the surface; ``volume = 4 pi^3 R r1 r2^2`` and
+        ``boundary_measure = 8 pi^3 R r1 r2``.
 
     Notes
     -----
@@ -320,11 +328,10 @@ def ditorus(R: float = 1.0, r1: float = 0.45, r2: float = 0.2) -> Field:
     return Field(
         f,
         dim=4,
-        name=f"ditorus(R={R:g}, r1={r1:g}, r2={r2:g})",
         volume=4 * math.pi**3 * R * r1 * r2**2,
         boundary_measure=8 * math.pi**3 * R * r1 * r2,
         extent=([-a, -a, -b, -r2], [a, a, b, r2]),
-        program=_program("ditorus", (R, r1, r2)),
+        **_named("ditorus", R=R, r1=r1, r2=r2),
     )
 
 
@@ -341,7 +348,9 @@ def tiger(R1: float = 0.8, R2: float = 0.8, r: float = 0.35) -> Field:
     Returns
     -------
     Field
-        Signed distance to the surface.
+        Exact signed distance to the surface; ``volume = (2 pi R1) (2 pi R2) (pi r^2)`` and
+        ``boundary_measure = (2 pi R1) (2 pi R2) (2 pi r)``: the two core circles times the tube's
+        disk and circle.
 
     Notes
     -----
@@ -356,11 +365,10 @@ def tiger(R1: float = 0.8, R2: float = 0.8, r: float = 0.35) -> Field:
     return Field(
         lambda p: np.hypot(_norm(p, slice(0, 2)) - R1, _norm(p, slice(2, 4)) - R2) - r,
         dim=4,
-        name=f"tiger(R1={R1:g}, R2={R2:g}, r={r:g})",
         volume=4 * math.pi**3 * R1 * R2 * r**2,
         boundary_measure=8 * math.pi**3 * R1 * R2 * r,
         extent=([-a, -a, -b, -b], [a, a, b, b]),
-        program=_program("tiger", (R1, R2, r)),
+        **_named("tiger", R1=R1, R2=R2, r=r),
     )
 
 
@@ -389,11 +397,10 @@ def duocylinder(r1: float = 1.0, r2: float = 1.0) -> Field:
     return Field(
         f,
         dim=4,
-        name=f"duocylinder(r1={r1:g}, r2={r2:g})",
         volume=math.pi**2 * r1**2 * r2**2,
         boundary_measure=2 * math.pi**2 * r1 * r2 * (r1 + r2),
         extent=([-r1, -r1, -r2, -r2], [r1, r1, r2, r2]),
-        program=_program("duocylinder", (r1, r2)),
+        **_named("duocylinder", r1=r1, r2=r2),
     )
 
 
@@ -622,7 +629,8 @@ def union(*fields: Callable) -> Field:
     Returns
     -------
     Field
-        The union's field.
+        The union's field; it has an ``extent`` (the box around the operands') only when every
+        operand has one.
     """
     _check_fields(fields, "fields")
     dim = _common_dim(fields)
@@ -641,7 +649,8 @@ def intersection(*fields: Callable) -> Field:
     Parameters
     ----------
     *fields : Field or callable
-        The solids' fields, all of one dimension.
+        The solids' fields, all of one dimension; an unbounded one (a gyroid, the ground) is cut
+        to the ``extent`` of the others.
 
     Returns
     -------

@@ -602,11 +602,18 @@ def _voxel_picture(
     picture = np.ones(voxel.shape + (3,))
     shown = voxel >= 0
     picture[shown] = colours.reshape(-1, 3)[voxel[shown]]
-    fig_w, fig_h = 7.2, 6.4
-    fig = figure(fig_w, fig_h)
-    ax = fig.add_axes([0.1, 0.1, 0.68 if colorbar else 0.8, 0.78])
+    fig = figure(7.2, 6.4)
+    _boxed_picture(fig, picture, extent, occupied.shape, spacing, origin, title=title, colorbar=colorbar)
+    save_figure(fig, path)
+
+
+def _boxed_picture(fig, picture: np.ndarray, extent, shape, spacing, origin, *, title: str, colorbar=None) -> None:
+    """Draw an RGB ``picture`` (view coordinates ``extent``) in the labelled x/y/z box of a
+    ``shape`` grid at ``spacing`` and ``origin``, under ``title``, with a colour bar
+    ``(mappable, label)`` at the right if given."""
+    ax = fig.add_axes([0.1, 0.1, 0.68 if colorbar is not None else 0.8, 0.78])
     ax.imshow(np.clip(picture, 0, 1), extent=extent, interpolation="nearest")
-    _voxel_axes(ax, occupied.shape, spacing, origin)
+    _voxel_axes(ax, shape, spacing, origin)
     pad_x, pad_y = 0.12 * (extent[1] - extent[0]), 0.12 * (extent[3] - extent[2])
     ax.set_xlim(extent[0] - pad_x, extent[1] + 0.3 * pad_x)
     ax.set_ylim(extent[2] - pad_y, extent[3] + 0.3 * pad_y)
@@ -617,7 +624,20 @@ def _voxel_picture(
         mappable, label = colorbar
         cax = fig.add_axes([0.86, 0.18, 0.03, 0.62])
         fig.colorbar(mappable, cax=cax).set_label(label, fontsize=9)
-    save_figure(fig, path)
+
+
+def _scalar_bar(title: str, fmt: str) -> dict[str, object]:
+    """PyVista's ``scalar_bar_args`` of every 3D picture: a black vertical bar at the right."""
+    return {
+        "title": title,
+        "color": "black",
+        "vertical": True,
+        "position_x": 0.86,
+        "position_y": 0.15,
+        "height": 0.7,
+        "width": 0.07,
+        "fmt": fmt,
+    }
 
 
 def _frame_and_save(plotter, path: Path, title: str, *, ticks: str | None) -> None:
@@ -667,16 +687,7 @@ def _volume_png_pyvista(path, arr, lo, hi, *, title, label, cmap, spacing, origi
             opacity=opacity,
             shade=False,
             mapper="smart",
-            scalar_bar_args={
-                "title": label or "value",
-                "color": "black",
-                "vertical": True,
-                "position_x": 0.86,
-                "position_y": 0.15,
-                "height": 0.7,
-                "width": 0.07,
-                "fmt": "%.2f",
-            },
+            scalar_bar_args=_scalar_bar(label or "value", "%.2f"),
         )
         # nearest-voxel sampling: trilinear blending of surface voxels with the background
         # value would paint a dark fringe (low values) along every silhouette
@@ -994,16 +1005,7 @@ def save_slice_png(
                 cmap=cmap,
                 clim=(0.0, 1.0),
                 smooth_shading=True,
-                scalar_bar_args={
-                    "title": "1 - AO",
-                    "color": "black",
-                    "vertical": True,
-                    "position_x": 0.86,
-                    "position_y": 0.15,
-                    "height": 0.7,
-                    "width": 0.07,
-                    "fmt": "%.1f",
-                },
+                scalar_bar_args=_scalar_bar("1 - AO", "%.1f"),
             )
         _frame_and_save(plotter, path, title, ticks=None)
     finally:
@@ -1038,19 +1040,9 @@ def _slice_png_numpy(path: Path, tri, occ, *, title: str, cmap: str, size) -> No
     picture = np.ones(face.shape + (3,))
     picture[shown] = base * light[:, None]
     lo, hi = points.min(axis=0), points.max(axis=0)
-    shape = np.array([2, 2, 2])
-    fig = figure(size[0] / 100, size[1] / 100)
-    ax = fig.add_axes([0.1, 0.1, 0.68 if occ is not None else 0.8, 0.78])
-    ax.imshow(np.clip(picture, 0, 1), extent=extent, interpolation="nearest")
-    _voxel_axes(ax, shape, hi - lo, lo)
-    pad_x, pad_y = 0.12 * (extent[1] - extent[0]), 0.12 * (extent[3] - extent[2])
-    ax.set_xlim(extent[0] - pad_x, extent[1] + 0.3 * pad_x)
-    ax.set_ylim(extent[2] - pad_y, extent[3] + 0.3 * pad_y)
-    ax.set_aspect("equal")
-    ax.set_axis_off()
-    fig.suptitle(title, fontsize=10, y=0.97)
+    colorbar = None
     if occ is not None:
-        cax = fig.add_axes([0.86, 0.18, 0.03, 0.62])
-        mappable = matplotlib.cm.ScalarMappable(norm=matplotlib.colors.Normalize(0, 1), cmap=colormap)
-        fig.colorbar(mappable, cax=cax).set_label("1 - AO", fontsize=9)
+        colorbar = (matplotlib.cm.ScalarMappable(norm=matplotlib.colors.Normalize(0, 1), cmap=colormap), "1 - AO")
+    fig = figure(size[0] / 100, size[1] / 100)
+    _boxed_picture(fig, picture, extent, np.array([2, 2, 2]), hi - lo, lo, title=title, colorbar=colorbar)
     save_figure(fig, path)

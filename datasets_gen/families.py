@@ -479,19 +479,11 @@ def _lifted(p: dict, settings: dict, rng: np.random.Generator, rotation) -> Shap
 
 
 def _kinds() -> dict[str, Kind]:
-    kinds = {
-        name: _field_kind(name)
-        for name in (
-            "hypersphere",
-            "spheritorus",
-            "torisphere",
-            "ditorus",
-            "tiger",
-            "duocylinder",
-            "tesseract",
-            "indented_cube",
-        )
-    }
+    from ao4d.fields import PRESETS
+
+    # every named shape of ao4d.fields is a family, its parameters the constructor's, except the
+    # two with families of their own below (metaballs placed at random, the gyroid cut by a ball)
+    kinds = {name: _field_kind(name) for name in PRESETS if name not in ("metaballs", "gyroid")}
     kinds["metaballs"] = Kind(("n", "spread", "radius", "jitter", "sharpness"), _metaballs, _metaballs.__doc__)
     kinds["tesseracts"] = Kind(("n", "half", "spread", "rounding", "operation"), _tesseracts, _tesseracts.__doc__)
     kinds["gyroid_ball"] = Kind(("period", "thickness", "radius"), _gyroid_ball, _gyroid_ball.__doc__)

@@ -200,6 +200,13 @@ class _Writer:
             self.store.write_bytes(f"{self.rel}/{name}", data)
             self.hashes[name] = hashlib.sha256(data).hexdigest()
 
+    def npz(self, name: str, arrays: dict[str, Any]) -> None:
+        """Write ``arrays`` as the ``.npz`` file ``name`` of the item; packing them is timed as
+        ``write`` too."""
+        with _stage(self.timing, "write"):
+            data = npz_bytes(arrays)
+        self(name, data)
+
     def close(self, timing: bytes, record: bytes) -> None:
         """Write ``timing.json`` and then ``record.json``, which marks the item complete
         (neither is hashed in the record nor timed: the timing is already complete)."""
@@ -274,28 +281,18 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
                 backend=job.backend,
                 progress=False,
             )
-        with _stage(timing, "write"):
-            data = npz_bytes({"occlusion": np.asarray(occlusion, np.float64)})
-        write("ao.npz", data)
+        write.npz("ao.npz", {"occlusion": np.asarray(occlusion, np.float64)})
 
     extra: dict[str, Any] = {}
     ao_at = settings["ao"]["at"] if settings["ao"] else "vertices"
+    inputs = dict(occlusion=occlusion, ao_at=ao_at, backend=job.backend)  # for the labelled points and the frames
     if settings.get("samples"):
         from .samples import make_samples
 
         with _stage(timing, "samples"):
-            arrays, extra["samples"] = make_samples(
-                shape,
-                spec.family.kind,
-                settings["samples"],
-                np.random.default_rng(samples_ss),
-                occlusion=occlusion,
-                ao_at=ao_at,
-                backend=job.backend,
-            )
-        with _stage(timing, "write"):
-            data = npz_bytes(arrays)
-        write("samples.npz", data)
+            samples_rng = np.random.default_rng(samples_ss)
+            arrays, extra["samples"] = make_samples(shape, spec.family.kind, settings["samples"], samples_rng, **inputs)
+        write.npz("samples.npz", arrays)
     if settings.get("sequence"):
         from .sequence import make_sequence
 
@@ -304,15 +301,11 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
                 shape,
                 spec.family.kind,
                 settings["sequence"],
-                occlusion=occlusion,
-                ao_at=ao_at,
                 samples=settings.get("samples") or None,
                 rng=np.random.default_rng(sequence_ss),
-                backend=job.backend,
+                **inputs,
             )
-        with _stage(timing, "write"):
-            data = npz_bytes(arrays)
-        write("sequence.npz", data)
+        write.npz("sequence.npz", arrays)
 
     for render in settings["renders"]:
         title = f"item {spec.index}: {spec.family.name} ({spec.family.kind}), looking along +w"

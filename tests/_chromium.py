@@ -191,6 +191,22 @@ class Chromium:
                 self._handle_event(reply)
 
     # ------------------------------------------------------------------ page helpers
+    def mouse(self, kind: str, x: float, y: float, buttons: int = 0, **extra: Any) -> dict:
+        """One mouse event at (x, y) in CSS pixels: ``kind`` "mousePressed", "mouseMoved",
+        "mouseReleased" (the left button; ``buttons=1`` while it is held) or "mouseWheel";
+        ``extra`` goes to Input.dispatchMouseEvent (``modifiers=8``: shift; ``deltaY``)."""
+        return self.send(
+            "Input.dispatchMouseEvent",
+            session=True,
+            type=kind,
+            x=x,
+            y=y,
+            button="left" if kind != "mouseWheel" else "none",
+            buttons=buttons,
+            clickCount=1 if kind != "mouseMoved" else 0,
+            **extra,
+        )
+
     def evaluate(self, expression: str, *, timeout: float | None = None) -> Any:
         """Evaluate JavaScript in the page (promises awaited) and return its JSON value."""
         result = self.send(

@@ -340,19 +340,6 @@ def test_browser_url_state_round_trip(browser, sphere_page):
 def test_browser_drag_the_ramp_orbit_and_presets(browser, sphere_page):
     open_page(browser, sphere_page, "#array=shade&lo=0&hi=0&opacity=1&az=30&el=20&zoom=1")
 
-    def mouse(kind, px, py, buttons=0, **extra):
-        browser.send(
-            "Input.dispatchMouseEvent",
-            session=True,
-            type=kind,
-            x=px,
-            y=py,
-            button="left" if kind != "mouseWheel" else "none",
-            buttons=buttons,
-            clickCount=1 if kind != "mouseMoved" else 0,
-            **extra,
-        )
-
     box = browser.evaluate(
         "(() => { const r = document.getElementById('tf').getBoundingClientRect();"
         " return [r.left, r.top, r.width, r.height]; })()"
@@ -360,23 +347,23 @@ def test_browser_drag_the_ramp_orbit_and_presets(browser, sphere_page):
     left, top, w, h = box
     # the right handle sits at (hi, opacity) = (0, 1): grab near it... the left one is nearer at
     # the bottom, so drag from the top left: hi and opacity follow the pointer
-    mouse("mousePressed", left + 2, top + 4, buttons=1)
-    mouse("mouseMoved", left + 0.75 * w, top + 4 + 0.5 * (h - 18), buttons=1)
-    mouse("mouseReleased", left + 0.75 * w, top + 4 + 0.5 * (h - 18))
+    browser.mouse("mousePressed", left + 2, top + 4, buttons=1)
+    browser.mouse("mouseMoved", left + 0.75 * w, top + 4 + 0.5 * (h - 18), buttons=1)
+    browser.mouse("mouseReleased", left + 0.75 * w, top + 4 + 0.5 * (h - 18))
     s = browser.evaluate("window.ao4d.state()")
     assert s["hi"] == pytest.approx(0.75, abs=0.01) and s["opacity"] == pytest.approx(0.5, abs=0.02)
     # the bottom-left handle: lo
-    mouse("mousePressed", left + 2, top + h - 14, buttons=1)
-    mouse("mouseMoved", left + 0.25 * w, top + h - 14, buttons=1)
-    mouse("mouseReleased", left + 0.25 * w, top + h - 14)
+    browser.mouse("mousePressed", left + 2, top + h - 14, buttons=1)
+    browser.mouse("mouseMoved", left + 0.25 * w, top + h - 14, buttons=1)
+    browser.mouse("mouseReleased", left + 0.25 * w, top + h - 14)
     assert browser.evaluate("window.ao4d.state().lo") == pytest.approx(0.25, abs=0.01)
     x, y = 276 + 150, 190  # on the canvas
-    mouse("mousePressed", x, y, buttons=1)
-    mouse("mouseMoved", x + 50, y + 25, buttons=1)
-    mouse("mouseReleased", x + 50, y + 25)
+    browser.mouse("mousePressed", x, y, buttons=1)
+    browser.mouse("mouseMoved", x + 50, y + 25, buttons=1)
+    browser.mouse("mouseReleased", x + 50, y + 25)
     s = browser.evaluate("window.ao4d.state()")
     assert s["az"] == pytest.approx(30 - 0.4 * 50) and s["el"] == pytest.approx(20 + 0.4 * 25)
-    mouse("mouseWheel", x, y, deltaX=0, deltaY=-200)
+    browser.mouse("mouseWheel", x, y, deltaX=0, deltaY=-200)
     browser.wait_for("window.ao4d.state().zoom > 1.01", timeout=5)
     browser.evaluate("document.getElementById('preset-glass').click()")
     s = browser.evaluate("window.ao4d.state()")

@@ -726,31 +726,17 @@ def test_browser_mouse_keys_wheel_and_play(browser, sphere_page):
     open_page(browser, sphere_page, "#w=0&az=30&el=20&zoom=1")
     x, y = 276 + 200, 200  # on the canvas, right of the panel
 
-    def mouse(kind, px, py, buttons=0, modifiers=0, **extra):
-        browser.send(
-            "Input.dispatchMouseEvent",
-            session=True,
-            type=kind,
-            x=px,
-            y=py,
-            button="left" if kind != "mouseWheel" else "none",
-            buttons=buttons,
-            modifiers=modifiers,
-            clickCount=1 if kind != "mouseMoved" else 0,
-            **extra,
-        )
-
-    mouse("mousePressed", x, y, buttons=1)
-    mouse("mouseMoved", x + 50, y + 25, buttons=1)
-    mouse("mouseReleased", x + 50, y + 25)
+    browser.mouse("mousePressed", x, y, buttons=1)
+    browser.mouse("mouseMoved", x + 50, y + 25, buttons=1)
+    browser.mouse("mouseReleased", x + 50, y + 25)
     s = browser.evaluate("window.ao4d.state()")
     assert s["az"] == pytest.approx(30 - 0.4 * 50) and s["el"] == pytest.approx(20 + 0.4 * 25)
-    mouse("mousePressed", x, y, buttons=1, modifiers=8)  # shift: turn in xw / yw
-    mouse("mouseMoved", x + 40, y - 20, buttons=1, modifiers=8)
-    mouse("mouseReleased", x + 40, y - 20, modifiers=8)
+    browser.mouse("mousePressed", x, y, buttons=1, modifiers=8)  # shift: turn in xw / yw
+    browser.mouse("mouseMoved", x + 40, y - 20, buttons=1, modifiers=8)
+    browser.mouse("mouseReleased", x + 40, y - 20, modifiers=8)
     s = browser.evaluate("window.ao4d.state()")
     assert s["xw"] == pytest.approx(20) and s["yw"] == pytest.approx(-10) and s["az"] == pytest.approx(10)
-    mouse("mouseWheel", x, y, deltaX=0, deltaY=-200)
+    browser.mouse("mouseWheel", x, y, deltaX=0, deltaY=-200)
     browser.wait_for("window.ao4d.state().zoom > 1.01", timeout=5)
     assert browser.evaluate("window.ao4d.state().zoom") == pytest.approx(math.exp(0.3), rel=1e-6)
     for key in ("ArrowRight", "]"):

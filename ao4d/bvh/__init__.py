@@ -17,47 +17,22 @@ for its device copies, and traverses them.
 
 from __future__ import annotations
 
+from . import layout
 from .blocks import block_ranges, wide, widen, widen_topology
 from .cache import BUILDERS, block_lanes, device_tree, get_bvh
 from .host import build, check_mesh_arrays
-from .layout import (
-    BARY_EPS,
-    BVH,
-    LANES,
-    LEAF_BLOCKS,
-    MAX_LEAF_BLOCKS,
-    STACK_SIZE,
-    WIDTH,
-    Frame,
-    WideBVH,
-    barycentric,
-    box_area,
-    intersect,
-    sah_cost,
-)
+from .layout import *  # noqa: F403  (the names of layout.__all__, listed there once)
 
 __all__ = [
-    "BVH",
-    "WideBVH",
-    "Frame",
+    *layout.__all__,
     "build",
+    "check_mesh_arrays",
     "wide",
     "widen",
     "widen_topology",
     "block_ranges",
-    "intersect",
-    "barycentric",
-    "box_area",
-    "sah_cost",
     "get_bvh",
     "device_tree",
     "block_lanes",
-    "check_mesh_arrays",
     "BUILDERS",
-    "BARY_EPS",
-    "WIDTH",
-    "LANES",
-    "STACK_SIZE",
-    "LEAF_BLOCKS",
-    "MAX_LEAF_BLOCKS",
 ]

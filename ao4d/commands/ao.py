@@ -6,7 +6,7 @@ import argparse
 import math
 import time
 
-from ..cl import BACKENDS
+from ._options import add_backend, add_force
 
 HELP = "compute ambient occlusion of a mesh (.npz) and store it as point_data['ao']"
 EXAMPLES = """  ao4d ao torus.npz --samples 64 --out torus_ao.npz
@@ -34,16 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="per vertex (point_data) or per simplex centroid (cell_data) (vertices)",
     )
     parser.add_argument("--seed", type=int, default=0, help="direction seed (0)")
-    parser.add_argument(
-        "--backend",
-        choices=BACKENDS,
-        default="auto",
-        help="OpenCL when a device works, else numpy (auto)",
-    )
+    add_backend(parser, help="OpenCL when a device works, else numpy (auto)")
     parser.add_argument("--name", default="ao", help="data array name (ao)")
-    parser.add_argument(
-        "--force", action="store_true", help="trace even when the estimate is above the half-hour limit"
-    )
+    add_force(parser, help="trace even when the estimate is above the half-hour limit")
 
 
 def run(args: argparse.Namespace) -> int:

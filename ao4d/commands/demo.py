@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
-from ..cl import BACKENDS
+from ._options import add_backend
 
 HELP = "run the whole pipeline on a built-in 4D scene and write volumes, meshes and pictures"
 EXAMPLES = """  ao4d demo                          writes ./ao4d-demo/ (under a minute on 2 CPU cores)
@@ -236,31 +236,26 @@ def _write_files(out: Path, scene, image, settings, seconds: dict[str, float], *
     done("image.mhd", image.save(out / "image.mhd"), out / "image.raw")
     done("image.vti", image.save(out / "image.vti"))
     from ..pictures import save_montage, save_rgba_montage, save_rgba_volume_png, save_slice_png, save_volume_png
+    from .render import shade_picture
 
     done(
         "montage",
-        save_montage(
+        shade_picture(
+            save_montage,
             out / "image_slices.png",
-            image.shade,
-            background=~image.hit,
+            image,
+            f"ao4d demo: z-slices of the 3D image, shade = {model} ({params})",
             cmap="magma",
-            title=f"ao4d demo: z-slices of the 3D image, shade = {model} ({params})",
-            label="shade",
-            spacing=geo.spacing,
-            origin=geo.origin,
         ),
     )
     done(
         "volume picture",
-        save_volume_png(
+        shade_picture(
+            save_volume_png,
             out / "image_volume.png",
-            image.shade,
-            background=~image.hit,
+            image,
+            f"ao4d demo: 3D image of a 4D scene ({params})",
             cmap="magma",
-            title=f"ao4d demo: 3D image of a 4D scene ({params})",
-            label="shade",
-            spacing=geo.spacing,
-            origin=geo.origin,
         ),
     )
     done(
@@ -314,9 +309,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="default",
         help="default: under a minute on 2 cores; high: finer grids, 128^3 image, 128 AO samples",
     )
-    parser.add_argument(
-        "--backend", choices=BACKENDS, default="auto", help="OpenCL device (auto) or the numpy fallback"
-    )
+    add_backend(parser, help="OpenCL device (auto) or the numpy fallback")
     parser.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)  # for tests
 
 

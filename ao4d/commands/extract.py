@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import time
 
+from ._options import add_force
+
 HELP = "extract a closed, oriented simplex mesh from a named shape or a 2D/3D/4D data file"
 EXAMPLES = """  ao4d extract --shape spheritorus --grid 48 --out torus.npz
   ao4d extract --shape tiger --grid 64 --method simplices --out tiger.npz --vtu tiger.vtu
@@ -77,9 +79,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dim", type=int, choices=(2, 3, 4), help="refuse --input files of another dimension")
     parser.add_argument("--chunk", type=int, help="cell layers per slab (default: ~100 MB slabs)")
     parser.add_argument("--no-check", action="store_true", help="skip the closedness check")
-    parser.add_argument(
-        "--force", action="store_true", help="extract even when the estimate is above the ten-minute limit"
-    )
+    add_force(parser, help="extract even when the estimate is above the ten-minute limit")
 
 
 def _step(text: str) -> float | None:

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable
 from pathlib import Path
 
-from ..cl import BACKENDS
+from ._options import add_backend, add_force, add_meshes
 
 HELP = "render 4D meshes (.npz) into a 3D image volume (.mhd or .vti) with a 4D camera"
 EXAMPLES = """  ao4d render scene.npz --out image.mhd
@@ -19,6 +20,22 @@ EXAMPLES = """  ao4d render scene.npz --out image.mhd
   ao4d render scene.npz --out two.vti --light point 0 3 0 -1 1 0.9 0.8 --light 1 1 0 0 0.3 0.4 1 0.5
 """
 
+# the options that go to ao4d.render unchanged, under the same name
+PASSED_TO_RENDER = (
+    "ao",
+    "samples",
+    "max_distance",
+    "denoise",
+    "ambient",
+    "diffuse",
+    "specular",
+    "shininess",
+    "shadows",
+    "depth_cue",
+    "layers",
+    "backend",
+)
+
 LIGHT_HELP = (
     "a light (repeatable): X Y Z W is the direction towards a white directional light; "
     "'point X Y Z W' a point light at that position; optional R G B colour (0..1) and "
@@ -27,13 +44,7 @@ LIGHT_HELP = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "meshes",
-        nargs="+",
-        type=Path,
-        metavar="MESH.npz",
-        help="4D meshes saved by ao4d (several: object ids follow their order)",
-    )
+    add_meshes(parser, metavar="MESH.npz", help="4D meshes saved by ao4d (several: object ids follow their order)")
     parser.add_argument("--out", required=True, type=Path, help="output volume, .mhd or .vti")
     parser.add_argument(
         "--size",
@@ -93,10 +104,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--layers", type=int, default=4, help="surfaces composited along a ray behind transparent hits (default 4)"
     )
-    parser.add_argument("--backend", choices=BACKENDS, default="auto")
-    parser.add_argument(
-        "--force", action="store_true", help="render even when the rays would take more than about half an hour"
-    )
+    add_backend(parser)
+    add_force(parser, help="render even when the rays would take more than about half an hour")
     parser.add_argument(
         "--png",
         type=Path,
@@ -189,22 +198,11 @@ def run(args: argparse.Namespace) -> int:
         scene,
         camera,
         tuple(size),
-        ao=args.ao,
-        samples=args.samples,
-        max_distance=args.max_distance,
-        denoise=args.denoise,
         light=lights or None,
-        ambient=args.ambient,
-        diffuse=args.diffuse,
-        specular=args.specular,
-        shininess=args.shininess,
-        shadows=args.shadows,
-        depth_cue=args.depth_cue,
         color=color,
         opacity=opacity,
-        layers=args.layers,
-        backend=args.backend,
         max_rays=math.inf if args.force else None,
+        **{name: getattr(args, name) for name in PASSED_TO_RENDER},
     )
     print(image)
     with all_or_nothing(outputs):  # a failing picture leaves no new .vti behind
@@ -220,29 +218,9 @@ def _write(args: argparse.Namespace, image, size) -> list:
     if args.png is not None:
         geo = image.geometry
         title = f"{', '.join(p.name for p in args.meshes)}: {'x'.join(map(str, size))} voxels, AO {args.ao}"
-        written.append(
-            save_montage(
-                args.png,
-                image.shade,
-                background=~image.hit,
-                title=title,
-                label="shade",
-                spacing=geo.spacing,
-                origin=geo.origin,
-            )
-        )
+        written.append(shade_picture(save_montage, args.png, image, title))
         stem = args.png.with_suffix("")
-        written.append(
-            save_volume_png(
-                f"{stem}_volume.png",
-                image.shade,
-                background=~image.hit,
-                title=title,
-                label="shade",
-                spacing=geo.spacing,
-                origin=geo.origin,
-            )
-        )
+        written.append(shade_picture(save_volume_png, f"{stem}_volume.png", image, title))
         written.append(
             save_rgba_montage(f"{stem}_color.png", image.rgba, title=title, spacing=geo.spacing, origin=geo.origin)
         )
@@ -252,3 +230,20 @@ def _write(args: argparse.Namespace, image, size) -> list:
             )
         )
     return written
+
+
+def shade_picture(save: Callable[..., Path], path, image, title: str, **options) -> Path:
+    """One picture of a rendered image's shade: ``save`` (:func:`ao4d.pictures.save_montage` or
+    :func:`ao4d.pictures.save_volume_png`) on ``image.shade`` in world coordinates, the voxels no
+    ray hit drawn as background; ``options`` go to ``save`` (``cmap``...). Returns its path."""
+    geo = image.geometry
+    return save(
+        path,
+        image.shade,
+        background=~image.hit,
+        title=title,
+        label="shade",
+        spacing=geo.spacing,
+        origin=geo.origin,
+        **options,
+    )

@@ -8,6 +8,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from ._options import add_meshes
+
 HELP = (
     "write a self-contained HTML page that slices 4D meshes (.npz) or ray-marches a rendered "
     "3D image (.vti, .mhd) on the GPU, in the browser"
@@ -35,12 +37,10 @@ def _port(text: str) -> int:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..viewer import ANGLES
+    from ..viewer import ANGLES, MAX_BYTES
 
-    parser.add_argument(
-        "meshes",
-        nargs="+",
-        type=Path,
+    add_meshes(
+        parser,
         metavar="FILE",
         help="meshes saved by ao4d (.npz: all 4D, or all 3D), or one image written by ao4d render (.vti or .mhd)",
     )
@@ -83,14 +83,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="store the buffers uncompressed (for browsers without DecompressionStream)",
     )
     parser.add_argument(
-        "--max-mb", type=float, default=150.0, help="largest page to write, in MB (default 150); beyond it use --serve"
+        "--max-mb",
+        type=float,
+        default=MAX_BYTES / 1e6,
+        help=f"largest page to write, in MB (default {MAX_BYTES / 1e6:g}); beyond it use --serve",
     )
 
 
 def _run_image(args: argparse.Namespace) -> int:
     import warnings
 
-    from .._atomic import check_output_file
     from ..image_viewer import ImageRangeWarning, full_state, image_page_text, load_image, view_image
 
     if len(args.meshes) != 1:
@@ -104,11 +106,7 @@ def _run_image(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"`FILE`: no such image file: {image}")
     if args.serve and args.out is not None:
         raise ValueError("`--out` and `--serve` exclude each other: --serve writes no file")
-    out = None
-    if not args.serve:
-        if not args.max_mb > 0:
-            raise ValueError(f"`--max-mb` must be > 0, got {args.max_mb}")
-        out = check_output_file(args.out if args.out is not None else Path("view.html"), "--out", (".html", ".htm"))
+    out = None if args.serve else _page_file(args)
     data = load_image(image)
     if args.array is not None and args.array not in data.arrays:
         raise ValueError(
@@ -129,10 +127,24 @@ def _run_image(args: argparse.Namespace) -> int:
         path = view_image(
             data, out, state=state, title=args.title, compress=not args.no_compress, max_bytes=int(args.max_mb * 1e6)
         )
+    return _written(path, args.open)
+
+
+def _page_file(args: argparse.Namespace) -> Path:
+    """The page to write (``--out``, default view.html), checked with ``--max-mb`` before any work."""
+    from .._atomic import check_output_file
+
+    if not args.max_mb > 0:
+        raise ValueError(f"`--max-mb` must be > 0, got {args.max_mb}")
+    return check_output_file(args.out if args.out is not None else Path("view.html"), "--out", (".html", ".htm"))
+
+
+def _written(path: Path, open_browser: bool) -> int:
+    """Say where the page was written and open it if asked."""
     print(
         f"ao4d view: wrote {path} ({path.stat().st_size / 1e6:.1f} MB); open it in a browser (file://{path.resolve()})"
     )
-    if args.open:
+    if open_browser:
         import webbrowser
 
         webbrowser.open(path.resolve().as_uri())
@@ -171,18 +183,6 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("`--out` and `--serve` exclude each other: --serve writes no file")
         server = serve(args.meshes, port=args.port, **options)
         return _serve_until_stopped(server, f"{len(args.meshes)} mesh(es)", args.open)
-    if not args.max_mb > 0:
-        raise ValueError(f"`--max-mb` must be > 0, got {args.max_mb}")
-    from .._atomic import check_output_file
-
-    out = check_output_file(
-        args.out if args.out is not None else Path("view.html"), "--out", (".html", ".htm")
-    )  # before loading the meshes
+    out = _page_file(args)  # before loading the meshes
     path = view(args.meshes, out, max_bytes=int(args.max_mb * 1e6), **options)
-    size = path.stat().st_size
-    print(f"ao4d view: wrote {path} ({size / 1e6:.1f} MB); open it in a browser (file://{path.resolve()})")
-    if args.open:
-        import webbrowser
-
-        webbrowser.open(path.resolve().as_uri())
-    return 0
+    return _written(path, args.open)

@@ -13,7 +13,17 @@ from typing import Any
 
 from ao4d._atomic import atomic_open, atomic_path
 
-__all__ = ["parse_args", "write_csv", "write_results", "figure", "finish_panel", "save_figure", "best_time", "machine"]
+__all__ = [
+    "parse_args",
+    "write_csv",
+    "write_results",
+    "figure",
+    "measured",
+    "finish_panel",
+    "save_figure",
+    "best_time",
+    "machine",
+]
 
 
 def parse_args(name: str, description: str, argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -64,6 +74,13 @@ def figure(n_panels: int = 1, *, width: float = 5.0, height: float = 3.8):
     FigureCanvasAgg(fig)
     axes = [fig.add_subplot(1, n_panels, i + 1) for i in range(n_panels)]
     return fig, axes
+
+
+def measured(ax, rows: list[dict[str, Any]], x: str, y: str, style: str, **options: Any) -> None:
+    """One measured series on log-log axes: column ``y`` of ``rows`` against column ``x``,
+    markers of size 4, ``options`` (``color``, ``label``) to ``loglog``; nothing for no rows."""
+    if rows:
+        ax.loglog([r[x] for r in rows], [r[y] for r in rows], style, ms=4, **options)
 
 
 def finish_panel(ax, *, title: str, xlabel: str, ylabel: str) -> None:

@@ -25,7 +25,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._common import figure, machine, parse_args, save_figure, write_results
+from ._common import figure, machine, measured, parse_args, save_figure, write_results
 
 NAME = "ao_convergence"
 HEIGHT, REACH, HALF_WIDTH, THICKNESS = 0.5, 1.0, 1.2, 0.2
@@ -141,15 +141,7 @@ def plot(rows: list[dict], path) -> None:
         ax_e.loglog(s, [r["rms_theory"] for r in sel], "-", color=colour, label=f"{dim}D binomial sqrt(A(1-A)/s)")
         for backend, style in (("opencl", "-o"), ("numpy", "--s")):
             sb = [r for r in rows if r["dim"] == dim and r["backend"] == backend]
-            if sb:
-                ax_t.loglog(
-                    [r["samples"] for r in sb],
-                    [r["seconds"] for r in sb],
-                    style,
-                    color=colour,
-                    ms=4,
-                    label=f"{dim}D, {backend}",
-                )
+            measured(ax_t, sb, "samples", "seconds", style, color=colour, label=f"{dim}D, {backend}")
     ax_e.set_xlabel("samples per point s")
     ax_e.set_ylabel("RMS error of A over the points")
     ax_e.legend(fontsize=7)

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._common import best_time, figure, finish_panel, machine, parse_args, save_figure, write_results
+from ._common import best_time, figure, finish_panel, machine, measured, parse_args, save_figure, write_results
 
 NAME = "ao_throughput"
 
@@ -70,15 +70,7 @@ def plot(rows: list[dict], path) -> None:
         for backend, colour in (("opencl", "C0"), ("numpy", "C1")):
             for accel, style in (("bvh", "-o"), ("brute", "--s")):
                 sel = [r for r in rows if (r["scene"], r["backend"], r["accel"]) == (scene, backend, accel)]
-                if sel:
-                    ax.loglog(
-                        [r["simplices"] for r in sel],
-                        [r["rays_per_second"] for r in sel],
-                        style,
-                        color=colour,
-                        ms=4,
-                        label=f"{backend}, {accel}",
-                    )
+                measured(ax, sel, "simplices", "rays_per_second", style, color=colour, label=f"{backend}, {accel}")
         finish_panel(
             ax,
             title=f"rays from the sphere's vertices, {scene}",

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from ._common import best_time, figure, finish_panel, machine, parse_args, save_figure, write_results
+from ._common import best_time, figure, finish_panel, machine, measured, parse_args, save_figure, write_results
 
 NAME = "extract_throughput"
 
@@ -83,14 +83,7 @@ def plot(rows: list[dict], path) -> None:
         keys = sorted({(r["tool"], r["method"]) for r in rows if r["dim"] == dim})
         for i, (tool, method) in enumerate(keys):
             sel = [r for r in rows if (r["dim"], r["tool"], r["method"]) == (dim, tool, method)]
-            ax.loglog(
-                [r["cells"] for r in sel],
-                [r["cells_per_second"] for r in sel],
-                "-o",
-                ms=4,
-                color=f"C{i}",
-                label=f"{tool} ({method})",
-            )
+            measured(ax, sel, "cells", "cells_per_second", "-o", color=f"C{i}", label=f"{tool} ({method})")
         finish_panel(ax, title=f"{dim}D ball", xlabel=f"{dim}D grid cells", ylabel="cells per second")
     fig.suptitle(f"Extraction throughput ({machine()})", fontsize=9)
     save_figure(fig, path)
