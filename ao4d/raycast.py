@@ -177,7 +177,25 @@ def mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 def unit_rows(values: np.ndarray, name: str) -> np.ndarray:
-    """Rows of ``values`` scaled to unit length; zero-length rows are an error naming ``name``."""
+    """Rows of ``values`` scaled to unit length; zero-length rows are an error naming ``name``.
+
+    Parameters
+    ----------
+    values : (N, d) ndarray
+        Vectors, one per row.
+    name : str
+        The parameter they came from, named in the error.
+
+    Returns
+    -------
+    (N, d) ndarray
+        The rows divided by their lengths.
+
+    Raises
+    ------
+    ValueError
+        If a row has zero (or non-finite) length.
+    """
     length = np.linalg.norm(values, axis=1)
     bad = np.flatnonzero(~(length > 0))
     if bad.size:
@@ -186,7 +204,22 @@ def unit_rows(values: np.ndarray, name: str) -> np.ndarray:
 
 
 def progress_bar(progress: bool | None, total: int, desc: str):
-    """Progress over ``total`` rays (:mod:`ao4d._progress`), shown by default only for large work."""
+    """Progress over ``total`` rays (:mod:`ao4d._progress`), shown by default only for large work.
+
+    Parameters
+    ----------
+    progress : bool or None
+        Show the bar; ``None`` shows it for large work only.
+    total : int
+        Number of rays.
+    desc : str
+        The bar's label.
+
+    Returns
+    -------
+    context manager
+        The bar: enter it, then ``update(n)`` after each batch.
+    """
     show = total >= _PROGRESS_MIN_RAYS if progress is None else bool(progress)
     return _progress.bar(total, desc, unit="ray", unit_scale=True, show=show)
 

@@ -97,11 +97,8 @@ numpydoc_validation_exclude = {
     # slicing, sampling, rendering, scenes, volumes, mesh_files and screen_ao. The inner stages
     # below have pages too, but their docstrings are not yet all in numpydoc form (a follow-up:
     # remove a module from this list once its docstrings pass).
-    r"^ao4d\.(bvh|cl|image_viewer|pages|pictures|topology|viewer)\.",
     # the fields of a named tuple (their docstrings are Python's "Alias for field number k")
     r"^ao4d\.mesh_files\.MeshArrays\.(vertices|simplices|point_data|cell_data)$",
-    # helpers the other stages import from raycast (in its __all__ for them, not for users)
-    r"^ao4d\.raycast\.(unit_rows|progress_bar)$",
 }
 # Records (dataclasses, named tuples) document their fields under Attributes, which is also
 # their constructor's signature: PR01 would ask for every field twice.
