@@ -197,7 +197,7 @@ def inline(what: Any, *, height: int = HEIGHT, inline_limit: int = INLINE_LIMIT,
 
     Parameters
     ----------
-    what : SimplexMesh, .npz path, a sequence of them, RenderResult, .vti / .mhd path or 3D array
+    what : mesh, .npz path, a sequence of them, RenderResult, .vti / .mhd path or 3D array
         What to show, as for :func:`view`.
     height : int
         Height of the notebook's frame in pixels (at least 50).
@@ -235,8 +235,9 @@ def view(
 
     Parameters
     ----------
-    what : SimplexMesh, .npz path, sequence of them, RenderResult, or .vti / .mhd path
-        Meshes get the slicing page (:func:`ao4d.viewer.view`), an image the ray-marching page
+    what : mesh, .npz path, sequence of them, RenderResult, or .vti / .mhd path
+        Meshes (each a SimplexMesh, a trimesh.Trimesh, a (vertices, simplices) pair or an .npz
+        file) get the slicing page (:func:`ao4d.viewer.view`), an image the ray-marching page
         (:func:`ao4d.image_viewer.view_image`).
     path : path-like, optional
         Where to write the page (.html). Without it nothing is written.
@@ -382,7 +383,7 @@ def result_page(
 
     Parameters
     ----------
-    meshes : SimplexMesh, .npz path, or a sequence of them
+    meshes : SimplexMesh, trimesh.Trimesh, (vertices, simplices), .npz path, or a sequence of them
         As for :func:`ao4d.viewer.view`.
     image : RenderResult, .vti / .mhd path
         The scene's rendered image, as for :func:`ao4d.image_viewer.view_image`.

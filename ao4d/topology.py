@@ -5,6 +5,10 @@ simplex r // d omitting local vertex r % d. From the grouping follow face adjace
 faces, orientation consistency (boundary operator of simplicial homology) and singular vertices.
 :class:`~ao4d.mesh.SimplexMesh` caches the grouping and calls these functions; they take plain
 arrays and do no validation.
+
+Why this file is long: the face grouping and every check that reads it (adjacency, boundary,
+orientation, components, singular vertices, the report) stay one module because they share the
+one sort of the faces; each public function documents its arrays in numpydoc sections.
 """
 
 from __future__ import annotations

@@ -164,7 +164,7 @@ def scene_frame(meshes: Any, *, center: Any = None, offsets: Any = None) -> Fram
 
     Parameters
     ----------
-    meshes : SimplexMesh, path, or sequence of them
+    meshes : SimplexMesh, trimesh.Trimesh, (vertices, simplices), path to an .npz mesh, or a sequence of them
         As for :func:`view`.
     center : (d,) array_like, optional
         Rotation centre and camera target (default: centre of the scene's bounding box).
@@ -320,8 +320,8 @@ def slice_for_state(
 
     Parameters
     ----------
-    mesh : SimplexMesh or path
-        A 4D mesh.
+    mesh : SimplexMesh, (vertices, simplices) or path
+        A 4D mesh, in any form :func:`ao4d.mesh.as_mesh` takes, or an .npz file.
     state : mapping, optional
         The page's state (:func:`full_state`).
     frame : Frame, optional
@@ -660,18 +660,25 @@ def split_objects(mesh: Any, *, key: str = "object_id") -> list[SimplexMesh]:
 # --------------------------------------------------------------------------- input meshes
 
 
+# what every function here that takes meshes accepts (each entry, for a sequence)
+_MESH_FORMS = "a SimplexMesh, a trimesh.Trimesh, a (vertices, simplices) pair or a path to an .npz mesh"
+
+
 def _as_meshes(meshes: Any, names: Any, *, name: str = "meshes") -> list[tuple[Any, str]]:
     from . import SimplexMesh
+    from .mesh import as_mesh
 
-    if isinstance(meshes, (SimplexMesh, str, os.PathLike)):
+    if isinstance(meshes, (str, os.PathLike)):
         meshes = [meshes]
+    else:
+        try:  # one mesh in any form as_mesh takes (a SimplexMesh, a trimesh, a pair)
+            meshes = [as_mesh(meshes, name)]
+        except TypeError:
+            pass  # a sequence of meshes and paths, read entry by entry below
     try:
         items = list(meshes)
     except TypeError:
-        raise TypeError(
-            f"`{name}` must be a SimplexMesh, a path to an .npz mesh, or a sequence "
-            f"of them; got {type(meshes).__name__}"
-        ) from None
+        raise TypeError(f"`{name}` must be {_MESH_FORMS}, or a sequence of them; got {type(meshes).__name__}") from None
     if not items:
         raise ValueError(f"`{name}` must hold at least one mesh")
     if names is not None:
@@ -690,10 +697,12 @@ def _as_meshes(meshes: Any, names: Any, *, name: str = "meshes") -> list[tuple[A
             if not path.is_file():
                 raise FileNotFoundError(f"`{label}`: no such mesh file: {path}")
             mesh, default = SimplexMesh.load(path), path.stem
-        elif isinstance(item, SimplexMesh):
-            mesh, default = item, f"mesh {i}" if len(items) > 1 else "mesh"
         else:
-            raise TypeError(f"`{label}` must be a SimplexMesh or a path, got {type(item).__name__}")
+            try:
+                mesh = as_mesh(item, label)
+            except TypeError:
+                raise TypeError(f"`{label}` must be {_MESH_FORMS}; got {type(item).__name__}") from None
+            default = f"mesh {i}" if len(items) > 1 else "mesh"
         if mesh.dim not in (3, 4):
             raise ValueError(f"`{label}` must be a 3D or 4D mesh, got dimension {mesh.dim}")
         if mesh.n_simplices == 0:
@@ -931,9 +940,10 @@ def view(
 
     Parameters
     ----------
-    meshes : SimplexMesh, path to an .npz mesh, or a sequence of them
-        All 4D (sliced by the hyperplane) or all 3D (plain orbit view). ``point_data["ao"]``
-        (V,) in [0, 1], if present, colours them.
+    meshes : SimplexMesh, trimesh.Trimesh, (vertices, simplices), path to an .npz mesh, or a sequence of them
+        All 4D (sliced by the hyperplane) or all 3D (plain orbit view), each in any form
+        :func:`ao4d.mesh.as_mesh` takes or an .npz file. ``point_data["ao"]`` (V,) in [0, 1], if
+        present, colours them.
     path : path-like
         The HTML file, ending in .html or .htm (written atomically; checked before any work).
     names : sequence of str, optional
@@ -995,7 +1005,7 @@ def page_text(meshes: Any, **options: Any) -> str:
 
     Parameters
     ----------
-    meshes : SimplexMesh, path to an .npz mesh, or a sequence of them
+    meshes : SimplexMesh, trimesh.Trimesh, (vertices, simplices), path to an .npz mesh, or a sequence of them
         As for :func:`view`.
     **options
         The keyword options of :func:`view` (``names``, ``state``, ..., ``max_bytes``); an
@@ -1129,7 +1139,7 @@ def serve(meshes: Any, *, port: int = 0, host: str = "127.0.0.1", **options: Any
 
     Parameters
     ----------
-    meshes : SimplexMesh, path to an .npz mesh, or a sequence of them
+    meshes : SimplexMesh, trimesh.Trimesh, (vertices, simplices), path to an .npz mesh, or a sequence of them
         As for :func:`view`.
     port : int
         TCP port (0: any free one; see ``server.url``).
