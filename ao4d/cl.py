@@ -120,7 +120,7 @@ class DeviceReport:
     Attributes
     ----------
     platform : str
-        The platform's name.
+        Name of the platform that lists the device.
     device : str
         The device's name.
     kind : {"GPU", "CPU", "OTHER"}
@@ -236,7 +236,8 @@ def describe(runtime: Runtime | None) -> str:
     Parameters
     ----------
     runtime : Runtime or None
-        What :func:`resolve_backend` gave.
+        The device that computes (what :func:`get_runtime` or :func:`resolve_backend` gave), or
+        ``None`` for numpy.
 
     Returns
     -------
@@ -771,7 +772,7 @@ def resolve_backend(backend: str, *, warn: bool = True) -> Runtime | None:
     Returns
     -------
     Runtime or None
-        The device's runtime, or ``None`` for the numpy backend.
+        The runtime that computes; ``None`` when numpy does (asked for, or the fallback).
 
     Raises
     ------

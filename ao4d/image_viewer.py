@@ -644,18 +644,20 @@ def image_page_text(
 ) -> str:
     """The page of :func:`view_image` as a string (for notebooks and the demo's result page).
 
+    The same text :func:`view_image` writes to its file.
+
     Parameters
     ----------
     image : RenderResult, path to a .vti / .mhd file, ImageData, or (nx, ny, nz) array_like
-        The 4D camera's image (:func:`ao4d.render`, ``ao4d render``); a bare array is shade.
+        The image to show, as for :func:`view_image` (or already encoded, :func:`encode`).
     state : mapping, optional
-        Initial view (:func:`full_state`); the URL fragment overrides it.
+        As for :func:`view_image`.
     title : str, optional
-        The page's title (default: the image's name).
+        As for :func:`view_image`.
     compress : bool
-        zlib-compress the voxels (inflated by the browser's ``DecompressionStream``).
+        As for :func:`view_image`.
     max_bytes : int
-        Refuse pages larger than this (default 150 MB).
+        As for :func:`view_image`.
 
     Returns
     -------

@@ -187,7 +187,7 @@ def save_montage(
     Returns
     -------
     Path
-        The picture written.
+        The montage written (``path``).
     """
     path = _png_path(path)
     arr = _masked(volume_array(data).astype(np.float64), background)
@@ -280,9 +280,9 @@ def composite(
     background : (nx, ny, nz) bool array_like, optional
         Transparent voxels (non-finite values are also transparent).
     cmap : str
-        Matplotlib colour map.
+        Colour map of the values (a matplotlib name).
     vmin, vmax : float, optional
-        Colour range; default the range of the non-background values.
+        Values at the ends of the colour map (default: the range of the visible values).
     opacity : float
         Per-voxel opacity in (0, 1].
     axis : {0, 1, 2}
@@ -354,7 +354,7 @@ def save_volume_png(
     Returns
     -------
     Path
-        The picture written.
+        The volume rendering written (``path``).
     """
     path = _png_path(path)
     check_choice(backend, "backend", ("auto", "voxels", "pyvista", "numpy"))
@@ -802,12 +802,12 @@ def save_rgba_montage(
     spacing, origin : float or (3,) array_like
         Grid geometry, as in :func:`save_montage`.
     columns : int
-        Panels per row.
+        Panels per row, as in :func:`save_montage`.
 
     Returns
     -------
     Path
-        The picture written.
+        The montage of colours written (``path``).
     """
     path = _png_path(path)
     arr = rgba_array(rgba)
@@ -885,7 +885,7 @@ def save_rgba_volume_png(
     rgba : (nx, ny, nz, 4) array_like
         Straight RGBA in [0, 1] (float) or 0..255 (uint8), e.g. ``RenderResult.rgba``.
     title : str
-        Figure title.
+        Title above the picture.
     spacing, origin : float or (3,) array_like
         Grid geometry, as in :func:`save_montage`.
     backend : {"auto", "voxels", "pyvista", "numpy"}
@@ -898,7 +898,7 @@ def save_rgba_volume_png(
     Returns
     -------
     Path
-        The picture written.
+        The colour volume rendering written (``path``).
     """
     path = _png_path(path)
     check_choice(backend, "backend", ("auto", "voxels", "pyvista", "numpy"))
@@ -1035,7 +1035,7 @@ def save_slice_png(
     occlusion : (V,) array_like or str, optional
         As in :func:`ao4d.mesh_files.save_slice_mesh`; without it the mesh is drawn in one colour.
     title : str
-        Figure title.
+        Title above the slice.
     cmap : str
         Matplotlib colour map.
     size : (2,) tuple of int
@@ -1048,7 +1048,7 @@ def save_slice_png(
     Returns
     -------
     Path
-        The picture written.
+        The picture of the slice written (``path``).
     """
     path = _png_path(path)
     check_choice(backend, "backend", ("auto", "numpy", "pyvista"))

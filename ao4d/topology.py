@@ -116,9 +116,9 @@ def face_structure(simplices: np.ndarray, n_vertices: int) -> Faces:
     Parameters
     ----------
     simplices : (S, d) int ndarray
-        Vertex indices per simplex.
+        The mesh's simplices, as vertex indices.
     n_vertices : int
-        Number of vertices of the mesh (indices lie below it).
+        Vertices of the mesh (every index lies below it).
 
     Returns
     -------
@@ -253,9 +253,9 @@ def face_counts(simplices: np.ndarray, n_vertices: int, faces: Faces | None = No
     Parameters
     ----------
     simplices : (S, d) int ndarray
-        Vertex indices per simplex.
+        The simplices whose faces are counted.
     n_vertices : int
-        Number of vertices of the mesh (indices lie below it).
+        Vertices of the mesh (it sizes the face keys).
     faces : Faces, optional
         The grouping of the mesh's faces, when already made (:func:`face_structure`).
 
@@ -552,7 +552,7 @@ def face_adjacency(faces: Faces, d: int) -> np.ndarray:
     Parameters
     ----------
     faces : Faces
-        The grouping of the mesh's faces (:func:`face_structure`).
+        The face grouping of the mesh (:func:`face_structure`).
     d : int
         Vertices per simplex.
 
@@ -571,9 +571,9 @@ def boundary_faces(simplices: np.ndarray, faces: Faces) -> np.ndarray:
     Parameters
     ----------
     simplices : (S, d) int ndarray
-        Vertex indices per simplex.
+        The simplices the faces were grouped from.
     faces : Faces
-        The grouping of the mesh's faces (:func:`face_structure`).
+        Their grouping (:func:`face_structure`).
 
     Returns
     -------
@@ -599,7 +599,7 @@ def misoriented_faces(faces: Faces) -> int:
     Parameters
     ----------
     faces : Faces
-        The grouping of the mesh's faces (:func:`face_structure`).
+        A face grouping (:func:`face_structure`) with the induced signs.
 
     Returns
     -------
@@ -641,9 +641,9 @@ def component_count(simplices: np.ndarray, n_vertices: int, n_unused: int) -> in
     Parameters
     ----------
     simplices : (S, d) int ndarray
-        Vertex indices per simplex.
+        The simplices; no vertex may be singular.
     n_vertices : int
-        Number of vertices of the mesh (indices lie below it).
+        Vertices of the mesh, used or not.
     n_unused : int
         Vertices no simplex uses.
 
@@ -667,9 +667,9 @@ def component_labels(simplices: np.ndarray, n_vertices: int, faces: Faces | None
     Parameters
     ----------
     simplices : (S, d) int ndarray
-        Vertex indices per simplex.
+        The simplices to label.
     n_vertices : int
-        Number of vertices of the mesh (indices lie below it).
+        Vertices of the mesh (the nodes of the vertex graph).
     faces : Faces or None
         The grouping of the mesh's faces (:func:`face_structure`), or ``None`` (above).
 
@@ -703,11 +703,11 @@ def singular_vertices(simplices: np.ndarray, n_vertices: int, faces: Faces) -> i
     Parameters
     ----------
     simplices : (S, d) int ndarray
-        Vertex indices per simplex.
+        The simplices whose vertex stars are tested.
     n_vertices : int
-        Number of vertices of the mesh (indices lie below it).
+        Vertices of the mesh (the answer counts among them).
     faces : Faces
-        The grouping of the mesh's faces (:func:`face_structure`).
+        Their face grouping (:func:`face_structure`).
 
     Returns
     -------

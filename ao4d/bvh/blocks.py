@@ -106,9 +106,9 @@ def block_ranges(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarray]
     Parameters
     ----------
     tree : BVH
-        A binary tree.
+        A binary tree, whose leaves are cut into blocks.
     lanes : int, optional
-        Simplices per leaf block.
+        Simplices per block.
 
     Returns
     -------
@@ -141,9 +141,9 @@ def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarra
     Parameters
     ----------
     tree : BVH
-        A binary tree.
+        The binary tree to collapse.
     lanes : {4, 8, 16}, optional
-        Simplices per leaf block.
+        Simplices per leaf block, which sets how many blocks each leaf needs.
 
     Returns
     -------

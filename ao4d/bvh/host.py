@@ -342,12 +342,10 @@ def check_mesh_arrays(vertices: Any, simplices: Any, leaf_size: Any) -> tuple[np
 
     Parameters
     ----------
-    vertices : (V, d) array_like of float
-        d in {2, 3, 4}.
-    simplices : (S, d) array_like of int
-        Vertex indices per simplex.
+    vertices, simplices : array_like
+        As for :func:`build`.
     leaf_size : int
-        Most simplices per leaf.
+        As for :func:`build`.
 
     Returns
     -------

@@ -130,6 +130,8 @@ class Frame:
     def length(self, t: float) -> float:
         """A world length (or ray parameter of a unit direction) in tree units.
 
+        Exact both ways: the scale is a power of two.
+
         Parameters
         ----------
         t : float
@@ -361,10 +363,8 @@ def barycentric(inverse: np.ndarray, origin: np.ndarray, points: np.ndarray) -> 
 
     Parameters
     ----------
-    inverse : (P, d, d) float64
-        Per simplex, the inverse of ``[e1 .. e_{d-1} | n]`` (``BVH.inverse``).
-    origin : (P, d) float64
-        Vertex 0 of each simplex.
+    inverse, origin : ndarray
+        As for :func:`intersect`.
     points : (P, d) float64
         One point on each simplex.
 
