@@ -32,6 +32,11 @@ def kernel_cache_dir() -> Path | None:
     ``$XDG_CACHE_HOME/ao4d/kernels`` (``~/.cache/ao4d/kernels`` when it is unset or not an
     absolute path); when that cannot be written, a per-user folder in the temporary
     directory; when neither can, ``None`` (kernels are then compiled in every process).
+
+    Returns
+    -------
+    pathlib.Path or None
+        The folder, or ``None``.
     """
     return cache_dir("kernels")
 
@@ -52,7 +57,13 @@ def cache_dir(kind: str) -> Path | None:
 
 
 def kernel_build_stats() -> dict[str, int]:
-    """Counts for this process: programs ``compiled`` from source, loaded ``from_cache``."""
+    """Counts for this process: programs ``compiled`` from source, loaded ``from_cache``.
+
+    Returns
+    -------
+    dict of str to int
+        A copy of the counts.
+    """
     with _lock:
         return dict(_stats)
 

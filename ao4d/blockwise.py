@@ -1,7 +1,7 @@
 """Block-wise extraction of dask arrays and of fields: blocks as tasks on the active dask scheduler.
 
 :func:`ao4d.extract` hands dask arrays here, and :func:`ao4d.extract_field` does when given
-``chunks=``. Each block of the grid becomes one task that marches the block's cells with the
+``blocks=``. Each block of the grid becomes one task that marches the block's cells with the
 slab core of :mod:`ao4d.cells` (the engine :mod:`ao4d.march` uses) and returns a small *block mesh*: its vertices, its simplices
 (indices into its own vertices), the **global edge key** of every vertex and the global index of
 every active cell. The client welds the blocks by global edge key. Nothing else is shared
@@ -434,8 +434,8 @@ def _run(func: Callable, block_args: list[tuple], spec: _Spec, progress: bool | 
     return _weld(blocks, spec, len(spec.shape))
 
 
-def block_sizes(chunks: Any, shape: tuple[int, ...]) -> tuple[tuple[int, ...], ...]:
-    """Dask's per-axis block sizes for ``chunks`` on a grid of ``shape``, else an error naming ``chunks``.
+def block_sizes(chunks: Any, shape: tuple[int, ...], *, name: str = "chunks") -> tuple[tuple[int, ...], ...]:
+    """Dask's per-axis block sizes for ``chunks`` on a grid of ``shape``, else an error naming ``name``.
 
     Parameters
     ----------
@@ -443,6 +443,8 @@ def block_sizes(chunks: Any, shape: tuple[int, ...]) -> tuple[tuple[int, ...], .
         Points per block (dask's ``normalize_chunks`` rules).
     shape : tuple of int
         Grid points per axis.
+    name : str, optional
+        The caller's parameter, named in errors.
 
     Returns
     -------
@@ -452,13 +454,13 @@ def block_sizes(chunks: Any, shape: tuple[int, ...]) -> tuple[tuple[int, ...], .
     from dask.array.core import normalize_chunks
 
     if isinstance(chunks, bool) or (isinstance(chunks, (int, np.integer)) and chunks < 1):
-        raise ValueError(f"`chunks` must be a positive int, per-axis sizes or 'auto', got {chunks!r}")
+        raise ValueError(f"`{name}` must be a positive int, per-axis sizes or 'auto', got {chunks!r}")
     try:
         out = normalize_chunks(chunks, shape, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"`chunks` {chunks!r} does not fit a grid of shape {shape}: {exc}") from None
+        raise ValueError(f"`{name}` {chunks!r} does not fit a grid of shape {shape}: {exc}") from None
     if any(c < 1 for sizes in out for c in sizes):
-        raise ValueError(f"`chunks` must be positive, got {chunks!r}")
+        raise ValueError(f"`{name}` must be positive, got {chunks!r}")
     return out
 
 
@@ -573,7 +575,7 @@ def extract_field_blocks(
 ) -> SimplexMesh:
     """Sample and extract ``field`` block by block on the active scheduler.
 
-    Called by :func:`ao4d.extract_field` when it is given ``chunks``. Each task samples its own
+    Called by :func:`ao4d.extract_field` when it is given ``blocks``. Each task samples its own
     block (with the one-point overlap: the shared layers are sampled twice, about
     ``prod((c + 1) / c)`` of the points) and marches it, so no values travel between tasks and
     no process ever holds more than one block per thread. The field is pickled into every task
@@ -594,7 +596,8 @@ def extract_field_blocks(
     chunk : int or None
         As in :func:`ao4d.extract_field`.
     chunks : int, sequence of int, dask block sizes or "auto"
-        Grid points per block along each axis (dask's ``normalize_chunks`` rules).
+        The ``blocks`` of :func:`ao4d.extract_field`: grid points per block along each axis
+        (dask's ``normalize_chunks`` rules).
     progress : bool or None
         As in :func:`ao4d.extract_field`.
     backend : str
@@ -603,7 +606,7 @@ def extract_field_blocks(
     Returns
     -------
     SimplexMesh
-        Equal, array for array, to ``ao4d.extract_field(field, ...)`` without ``chunks``.
+        Equal, array for array, to ``ao4d.extract_field(field, ...)`` without ``blocks``.
     """
     import dask
 
@@ -620,8 +623,8 @@ def extract_field_blocks(
         chunk,
         backend=backend,
     )
-    ranges = _block_ranges(block_sizes(chunks, shape))
-    _check_blocks(ranges, spec, 8, f"`chunks={chunks!r}` on a grid of shape {shape}")
+    ranges = _block_ranges(block_sizes(chunks, shape, name="blocks"))
+    _check_blocks(ranges, spec, 8, f"`blocks={chunks!r}` on a grid of shape {shape}")
     args = [(field, [a[lo:hi] for a, (lo, hi) in zip(axes, box)], tuple(lo for lo, _ in box), spec) for box in ranges]
     token = dask.base.tokenize(dask.base.tokenize(field), [a.tobytes() for a in axes], spec)
     return _run(_field_block_mesh, args, spec, progress, token)
@@ -654,7 +657,7 @@ def field_array(field: Callable, shape: Any, bounds: Any, *, chunks: Any = "auto
     dask.array.Array
         (n_0, ..., n_{d-1}) float64; block values equal ``ao4d.sample(field, shape, bounds)``'s.
         Save it (``to_zarr``) or pass it to :func:`ao4d.extract`; for extraction alone,
-        ``ao4d.extract_field(..., chunks=)`` is cheaper (no values move between tasks).
+        ``ao4d.extract_field(..., blocks=)`` is cheaper (no values move between tasks).
 
     Examples
     --------

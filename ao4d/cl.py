@@ -115,7 +115,33 @@ class DeviceSelectionError(ValueError):
 
 @dataclass(frozen=True)
 class DeviceReport:
-    """What discovery found about one OpenCL device."""
+    """What discovery found about one OpenCL device.
+
+    Attributes
+    ----------
+    platform : str
+        Name of the platform that lists the device.
+    device : str
+        The device's name.
+    kind : {"GPU", "CPU", "OTHER"}
+        ``"OTHER"`` for several types at once and for accelerators (see :func:`kind_of`).
+    version : str
+        The device's OpenCL version string.
+    compute_units : int
+        Its compute units.
+    global_mem_mib : int
+        Its global memory in MiB.
+    usable : bool
+        Whether it built and ran the probe kernel.
+    reason : str
+        Why it cannot be used, or ``"ok"``.
+    types : str
+        Every type the device reports, e.g. ``"ACCELERATOR|GPU|CPU"``.
+    driver : str
+        The driver version.
+    position : int
+        Index among its platform's devices (tells identical devices apart).
+    """
 
     platform: str
     device: str
@@ -137,7 +163,19 @@ class DeviceReport:
 
 @dataclass
 class Runtime:
-    """A chosen OpenCL device with its context and in-order command queue."""
+    """A chosen OpenCL device with its context and in-order command queue.
+
+    Attributes
+    ----------
+    context : pyopencl.Context
+        A context on the device alone.
+    queue : pyopencl.CommandQueue
+        An in-order queue on it.
+    device : pyopencl.Device
+        The device.
+    report : DeviceReport
+        What discovery found about it.
+    """
 
     context: Any
     queue: Any
@@ -152,7 +190,17 @@ class Runtime:
 
 @dataclass(frozen=True)
 class Selection:
-    """Which device a request chose and why each device was or was not chosen."""
+    """Which device a request chose and why each device was or was not chosen.
+
+    Attributes
+    ----------
+    request : str
+        ``"auto"``, ``"cpu"``, ``"gpu"``, ``"none"`` or ``"name:<substring>"``.
+    chosen : DeviceReport or None
+        The device chosen, or ``None`` for numpy.
+    notes : tuple of (DeviceReport, str)
+        For each report, why it was or was not chosen.
+    """
 
     request: str  # "auto", "cpu", "gpu", "none" or "name:<substring>"
     chosen: DeviceReport | None
@@ -163,7 +211,18 @@ class Selection:
 
 
 def backend_name(runtime: Runtime | None) -> str:
-    """The backend that actually runs: ``"opencl"`` for a runtime, ``"numpy"`` for ``None``."""
+    """The backend that actually runs: ``"opencl"`` for a runtime, ``"numpy"`` for ``None``.
+
+    Parameters
+    ----------
+    runtime : Runtime or None
+        What :func:`resolve_backend` gave.
+
+    Returns
+    -------
+    {"opencl", "numpy"}
+        The backend's name.
+    """
     return "numpy" if runtime is None else "opencl"
 
 
@@ -173,6 +232,17 @@ def describe(runtime: Runtime | None) -> str:
     ``"AMD EPYC (Intel(R) OpenCL, CPU)"`` for a runtime; for ``None`` ``"numpy (no OpenCL
     device)"`` when discovery found none, ``"numpy (AO4D_DEVICE=none)"`` when OpenCL is switched
     off, and ``"numpy"`` when the numpy backend was asked for. Never starts discovery.
+
+    Parameters
+    ----------
+    runtime : Runtime or None
+        The device that computes (what :func:`get_runtime` or :func:`resolve_backend` gave), or
+        ``None`` for numpy.
+
+    Returns
+    -------
+    str
+        The line.
     """
     if runtime is not None:
         return runtime.name
@@ -198,8 +268,12 @@ def register_bundled_runtimes() -> str | None:
 
     Writes (once, atomically) a vendors folder holding the system's ICD files plus one for each
     runtime found in this Python's prefix, and sets ``OCL_ICD_VENDORS`` to it. Must run before
-    the first platform query of the process. Returns the folder, or ``None`` when there is
-    nothing to add.
+    the first platform query of the process.
+
+    Returns
+    -------
+    str or None
+        The folder, or ``None`` when there is nothing to add.
     """
     global _registered
     with _lock:
@@ -295,6 +369,20 @@ def kind_of(type_bits: int) -> tuple[str, str]:
     DEFAULT bit aside); several types at once (Oclgrind's ACCELERATOR|GPU|CPU simulator) or an
     accelerator give ``"OTHER"``, which ao4d uses only when named in ``AO4D_DEVICE``.
 
+    Parameters
+    ----------
+    type_bits : int
+        The device's ``CL_DEVICE_TYPE`` bit field.
+
+    Returns
+    -------
+    kind : {"GPU", "CPU", "OTHER"}
+        The kind ao4d chooses by.
+    types : str
+        Every type reported, joined by ``|`` (``"DEFAULT"`` or ``"NONE"`` when none).
+
+    Examples
+    --------
     >>> kind_of(4), kind_of(8 | 4 | 2)
     (('GPU', 'GPU'), ('OTHER', 'ACCELERATOR|GPU|CPU'))
     """
@@ -331,7 +419,13 @@ def _probe(cl, device) -> str:
 
 
 def device_reports() -> list[DeviceReport]:
-    """List every OpenCL platform/device with whether it works (probing each once per process)."""
+    """List every OpenCL platform/device with whether it works (probing each once per process).
+
+    Returns
+    -------
+    list of DeviceReport
+        In platform order, then device order.
+    """
     global _discovered
     with _lock:
         if _discovered:
@@ -422,7 +516,11 @@ def _missing_platforms() -> list[str]:
 def platform_problems() -> list[str]:
     """What made OpenCL platforms fail or disappear in this process (after discovery).
 
-    Empty when every vendor library the ICD loader was given produced its platform.
+    Returns
+    -------
+    list of str
+        One line per problem; empty when every vendor library the ICD loader was given produced
+        its platform.
     """
     device_reports()
     with _lock:
@@ -439,6 +537,13 @@ def device_request() -> tuple[str, str]:
     ``"name:<lower-case substring>"``; the last three may end in ``"#<k>"``, from a value such as
     ``gpu:1`` or ``nvidia:1``: the k-th (from 0) of the working devices it matches, in the order
     ``ao4d info`` lists them (two identical GPUs differ only by it).
+
+    Returns
+    -------
+    request : str
+        The parsed request.
+    raw : str
+        The variable's value as set (empty when unset).
     """
     raw = os.environ.get("AO4D_DEVICE", "")
     value = raw.strip().lower()
@@ -616,6 +721,11 @@ def get_runtime(prefer: str = "auto", *, warn: bool = True) -> Runtime | None:
         Emit :class:`NoOpenCLDeviceWarning` when falling back to numpy. The answer is kept per
         request, and the warning comes only with the call that first finds it.
 
+    Returns
+    -------
+    Runtime or None
+        The device's runtime, or ``None`` for the numpy backend.
+
     Raises
     ------
     DeviceSelectionError
@@ -658,6 +768,11 @@ def resolve_backend(backend: str, *, warn: bool = True) -> Runtime | None:
         :class:`NoOpenCLDeviceWarning` when ``warn``); ``"opencl"`` requires a device.
     warn : bool
         Warn when ``"auto"`` falls back to numpy.
+
+    Returns
+    -------
+    Runtime or None
+        The runtime that computes; ``None`` when numpy does (asked for, or the fallback).
 
     Raises
     ------
@@ -702,8 +817,22 @@ def check_device_memory(
 ) -> None:
     """Refuse, before any work, buffers the device cannot hold: one of them, or all at once.
 
-    ``nbytes`` maps what each buffer holds to its size; ``task`` names the work in the message
-    and ``fallback`` what to use instead.
+    Parameters
+    ----------
+    runtime : Runtime
+        The device.
+    nbytes : dict of str to int
+        What each buffer holds, mapped to its size in bytes.
+    task : str
+        The work, named in the message.
+    fallback : str, optional
+        What to use instead, named in the message.
+
+    Raises
+    ------
+    MemoryError
+        If one buffer exceeds the device's largest allocation, or all together exceed 80% of its
+        global memory.
     """
     dev = runtime.device
     for what, size in nbytes.items():
@@ -727,8 +856,28 @@ def build_kernels(runtime: Runtime, source: str, defines: dict[str, Any] | None 
     Shared code is reached with ``#include`` (the kernels folder is passed with ``-I``);
     specialisation uses ``-D NAME=VALUE`` from ``defines``. The compiled binary is kept in
     :func:`kernel_cache_dir` (``ao4d/_kernel_binaries.py``), so another process loads it
-    instead of compiling. A build
-    failure raises ``RuntimeError`` carrying the compiler log.
+    instead of compiling.
+
+    Parameters
+    ----------
+    runtime : Runtime
+        The device to build for.
+    source : str
+        A file name in ``kernels/``.
+    defines : dict, optional
+        Preprocessor definitions, passed as ``-D NAME=VALUE``.
+
+    Returns
+    -------
+    dict of str to pyopencl.Kernel
+        The program's kernels by function name (the same objects on later calls).
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``kernels/<source>`` does not exist.
+    RuntimeError
+        If the build fails; the message carries the compiler log.
     """
     cl = _import_cl()
     folder = data_dir("kernels")

@@ -120,7 +120,23 @@ class Field:
             self.extent.setflags(write=False)
 
     def __call__(self, points: Any) -> np.ndarray:
-        """Evaluate at ``points`` ((..., d) array_like); returns an (...) float64 array."""
+        """Evaluate the field at ``points``.
+
+        Parameters
+        ----------
+        points : (..., d) array_like
+            Points in R^d (d must match the field's ``dim`` when it has one).
+
+        Returns
+        -------
+        (...) float64 ndarray
+            The field's value at each point.
+
+        Raises
+        ------
+        ValueError
+            If ``points`` has the wrong last axis, or the function returns a wrong shape.
+        """
         pts = as_array(points, "points", dtype=np.float64)
         if pts.ndim == 0 or (self.dim is not None and pts.shape[-1] != self.dim):
             want = "d" if self.dim is None else str(self.dim)

@@ -214,6 +214,7 @@ def encode(image: Any, *, name: str | None = None) -> ImageData:
     Returns
     -------
     ImageData
+        The image as the page holds it (``image`` itself when it is one already).
     """
     if isinstance(image, ImageData):
         return image
@@ -343,6 +344,14 @@ def load_image(path: str | os.PathLike) -> ImageData:
     Returns
     -------
     ImageData
+        The image in the page's 8-bit form.
+
+    Raises
+    ------
+    ValueError
+        If the extension is neither .vti nor .mhd, or the file lacks the arrays it needs.
+    FileNotFoundError
+        If there is no such file.
     """
     from .volumes import read_mhd, read_vtk_image
 
@@ -400,7 +409,18 @@ def load_image(path: str | os.PathLike) -> ImageData:
 
 
 def image_frame(image: ImageData) -> Frame:
-    """The page's frame: centre of the image's box and its half diagonal (3D)."""
+    """The page's frame: centre of the image's box and its half diagonal (3D).
+
+    Parameters
+    ----------
+    image : ImageData
+        The image (:func:`encode`).
+
+    Returns
+    -------
+    Frame
+        Centre and radius the page's camera orbits.
+    """
     half = 0.5 * image.spacing * np.asarray(image.shape, np.float64)
     center = image.origin + half - 0.5 * image.spacing
     return Frame(center, float(np.linalg.norm(half)))
@@ -425,6 +445,12 @@ def full_state(state: Mapping[str, Any] | None = None, *, image: ImageData | Non
     Returns
     -------
     state : dict
+        Every key of :data:`DEFAULT_STATE`, checked.
+
+    Raises
+    ------
+    ValueError
+        If a key is unknown or a value out of range.
     """
     out = merged_state(state, DEFAULT_STATE, "{'array': 'shade', 'az': 40}")
     arrays = image.arrays if image is not None else ARRAYS
@@ -462,6 +488,18 @@ def transfer_function(state: Mapping[str, Any] | None = None) -> tuple[np.ndarra
 
     Colours are the 8-bit colour map the page holds, divided by 255; opacity is the ramp of the
     module conventions (before the step correction).
+
+    Parameters
+    ----------
+    state : mapping, optional
+        A view state (:func:`full_state`).
+
+    Returns
+    -------
+    colours : (256, 3) float64
+        The colour map, in [0, 1].
+    opacity : (256,) float64
+        The opacity ramp.
     """
     st = full_state(state)
     s = np.arange(256) / 255.0
@@ -606,7 +644,32 @@ def image_page_text(
 ) -> str:
     """The page of :func:`view_image` as a string (for notebooks and the demo's result page).
 
-    Parameters are those of :func:`view_image`.
+    The same text :func:`view_image` writes to its file.
+
+    Parameters
+    ----------
+    image : RenderResult, path to a .vti / .mhd file, ImageData, or (nx, ny, nz) array_like
+        The image to show, as for :func:`view_image` (or already encoded, :func:`encode`).
+    state : mapping, optional
+        As for :func:`view_image`.
+    title : str, optional
+        As for :func:`view_image`.
+    compress : bool
+        As for :func:`view_image`.
+    max_bytes : int
+        As for :func:`view_image`.
+
+    Returns
+    -------
+    str
+        The page's HTML.
+
+    Raises
+    ------
+    ValueError
+        A bad image, state or option; a page over ``max_bytes``.
+    TypeError
+        If ``title`` is not a string.
     """
     check_bool(compress, "compress")
     check_max_bytes(max_bytes)
@@ -689,6 +752,7 @@ def view_image(
     state : mapping, optional
         Initial view (:func:`full_state`); the URL fragment overrides it.
     title : str, optional
+        The page's title (default: the image's name).
     compress : bool
         zlib-compress the voxels (inflated by the browser's ``DecompressionStream``).
     max_bytes : int

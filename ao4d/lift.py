@@ -133,7 +133,8 @@ class TetSolid:
         return tris
 
 
-MeshLike = Union["trimesh.Trimesh", TetSolid]
+# a 3D solid: a triangle mesh in any form ao4d.mesh.as_mesh takes, or tetrahedra
+MeshLike = Union["trimesh.Trimesh", "SimplexMesh", tuple, TetSolid]
 
 
 def load_surface(path: str | os.PathLike) -> trimesh.Trimesh:
@@ -201,8 +202,9 @@ def tetrahedralize(
 
     Parameters
     ----------
-    surface : trimesh.Trimesh
-        Watertight, consistently wound, outward-oriented surface.
+    surface : trimesh.Trimesh, SimplexMesh or (vertices, triangles)
+        Watertight, consistently wound, outward-oriented surface; a 3D triangle mesh in any form
+        :func:`ao4d.mesh.as_mesh` takes.
     method : {"auto", "star", "tetwild"}
         See above.
     center : (3,) array_like, optional
@@ -225,8 +227,10 @@ def tetrahedralize(
 
     Raises
     ------
+    TypeError
+        If ``surface`` is not a triangle mesh.
     ValueError
-        If ``surface`` is not watertight, not consistently wound, inside-out, or empty.
+        If ``surface`` is not 3D, watertight, consistently wound and outward, or is empty.
 
     Examples
     --------
@@ -235,7 +239,7 @@ def tetrahedralize(
     >>> round(solid.volume, 9)
     6.0
     """
-    _check_surface(surface, "surface")
+    surface = _as_surface(surface, "surface")
     check_choice(method, "method", ("auto", "star", "tetwild"))
     if method != "tetwild":
         centre = (
@@ -290,8 +294,9 @@ def prism(solid: MeshLike, height: float = 1.0, *, base: float = 0.0) -> Simplex
 
     Parameters
     ----------
-    solid : trimesh.Trimesh or TetSolid
-        The 3D solid; a triangle mesh is cut with :func:`tetrahedralize` (``method="auto"``).
+    solid : trimesh.Trimesh, SimplexMesh, (vertices, triangles) or TetSolid
+        The 3D solid; a triangle mesh (any form :func:`ao4d.mesh.as_mesh` takes) is cut with
+        :func:`tetrahedralize` (``method="auto"``).
     height : float
         Extent along w, > 0.
     base : float
@@ -338,8 +343,9 @@ def cone(
 
     Parameters
     ----------
-    solid : trimesh.Trimesh or TetSolid
-        The 3D base solid.
+    solid : trimesh.Trimesh, SimplexMesh, (vertices, triangles) or TetSolid
+        The 3D base solid; a triangle mesh in any form :func:`ao4d.mesh.as_mesh` takes, or
+        tetrahedra.
     height : float
         w distance from the base to the apex, > 0.
     apex : (3,) array_like, optional
@@ -389,8 +395,9 @@ def spin(surface: MeshLike, k: int = 32, *, axis_tolerance: float = 1e-9) -> Sim
 
     Parameters
     ----------
-    surface : trimesh.Trimesh or TetSolid
-        Watertight outward surface in x >= 0 (a TetSolid contributes its boundary).
+    surface : trimesh.Trimesh, SimplexMesh, (vertices, triangles) or TetSolid
+        Watertight outward surface in x >= 0, a 3D triangle mesh in any form
+        :func:`ao4d.mesh.as_mesh` takes (a TetSolid contributes its boundary).
     k : int
         Number of rotation steps, >= 3.
     axis_tolerance : float
@@ -565,6 +572,28 @@ def _with_w(points: np.ndarray, w: float) -> np.ndarray:
     return np.column_stack([points, np.full(len(points), w)])
 
 
+def _as_surface(surface: object, name: str) -> trimesh.Trimesh:
+    """``surface`` as a checked ``trimesh.Trimesh``: a trimesh as it is, a 3D triangle mesh in any
+    other form :func:`ao4d.mesh.as_mesh` takes converted (vertices and winding kept)."""
+    import trimesh
+
+    from .mesh import as_mesh
+
+    if not isinstance(surface, trimesh.Trimesh):
+        try:
+            mesh = as_mesh(surface, name)
+        except TypeError:
+            raise TypeError(
+                f"`{name}` must be a trimesh.Trimesh, a 3D SimplexMesh, a (vertices, triangles) pair "
+                f"or a TetSolid, got {type(surface).__name__}"
+            ) from None
+        if mesh.dim != 3:
+            raise ValueError(f"`{name}` must be a 3D triangle mesh, got dimension {mesh.dim}")
+        surface = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.simplices), process=False)
+    _check_surface(surface, name)
+    return surface
+
+
 def _check_surface(surface: object, name: str) -> None:
     """Refuse anything but a watertight, consistently wound, outward triangle mesh."""
     import trimesh
@@ -587,8 +616,7 @@ def _check_surface(surface: object, name: str) -> None:
 def _as_solid(solid: MeshLike, name: str) -> TetSolid:
     if isinstance(solid, TetSolid):
         return solid
-    _check_surface(solid, name)
-    return tetrahedralize(solid)
+    return tetrahedralize(_as_surface(solid, name))
 
 
 def _surface_arrays(surface: MeshLike, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -596,7 +624,7 @@ def _surface_arrays(surface: MeshLike, name: str) -> tuple[np.ndarray, np.ndarra
     if isinstance(surface, TetSolid):
         used, tris = np.unique(surface.boundary, return_inverse=True)
         return surface.points[used], tris.reshape(-1, 3).astype(np.int64)
-    _check_surface(surface, name)
+    surface = _as_surface(surface, name)
     pts = np.asarray(surface.vertices, dtype=np.float64)
     used, tris = np.unique(np.asarray(surface.faces), return_inverse=True)
     return pts[used], tris.reshape(-1, 3).astype(np.int64)

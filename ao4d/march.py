@@ -3,7 +3,7 @@
 The public wrappers (:func:`extract`, :func:`extract_field`) validate and normalise their input
 and hand a slab reader to one core with no checks of its own: :func:`ao4d.cells_device.march`
 on the OpenCL device where one works, else the vectorised numpy engine
-:func:`ao4d.cells.march`; both give the same arrays. Dask arrays and ``chunks=`` go to
+:func:`ao4d.cells.march`; both give the same arrays. Dask arrays and ``blocks=`` go to
 :mod:`ao4d.blockwise`, which runs the same cores on blocks as dask tasks.
 
 How the core works, and the papers it follows, are described in :mod:`ao4d.cells`.

@@ -91,6 +91,19 @@ class MeshArrays(NamedTuple):
         return int(self.vertices.shape[1])
 
 
+# the fields' own docstrings (a named tuple's default is "Alias for field number k")
+for _field, _doc in zip(
+    MeshArrays._fields,
+    (
+        "The vertices, (V, d).",
+        "The simplices, (S, d) vertex indices.",
+        "Arrays per vertex, by name.",
+        "Arrays per simplex, by name.",
+    ),
+):
+    getattr(MeshArrays, _field).__doc__ = _doc
+
+
 def _format(path: str | os.PathLike) -> str:
     suffix = Path(path).suffix.lower()
     return {".npz": "npz", ".vtu": "vtu"}.get(suffix, "text")

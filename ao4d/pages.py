@@ -43,7 +43,18 @@ LAYOUTS = ("image", "slices", "both")
 
 def is_image(what: Any) -> bool:
     """True for what :mod:`ao4d.image_viewer` shows: a RenderResult, its ImageData, a .vti/.mhd
-    path, or a 3D numpy array of shade values."""
+    path, or a 3D numpy array of shade values.
+
+    Parameters
+    ----------
+    what : object
+        What :func:`view` was given.
+
+    Returns
+    -------
+    bool
+        Whether the image page shows it (otherwise the meshes' page does).
+    """
     import numpy as np
 
     from .image_viewer import ImageData
@@ -101,7 +112,18 @@ class InlinePage:
         )
 
     def save(self, path: str | os.PathLike) -> Page:
-        """Write the page (.html, atomically) and return it as a :class:`Page`."""
+        """Write the page (.html, atomically) and return it as a :class:`Page`.
+
+        Parameters
+        ----------
+        path : path-like
+            The file, ending in .html or .htm.
+
+        Returns
+        -------
+        Page
+            The path written.
+        """
         return Page(write_page(path, lambda: self.html))
 
     def close(self) -> None:
@@ -115,7 +137,15 @@ class InlinePage:
 
 
 class Page(type(Path())):  # type: ignore[misc]
-    """The path of a page written by :func:`view`; a notebook shows the page itself."""
+    """The path of a page written by :func:`view`; a notebook shows the page itself.
+
+    Parameters
+    ----------
+    *args : str or path-like
+        The path's segments, as for :class:`pathlib.Path`.
+    **kwargs
+        Passed to :class:`pathlib.Path`.
+    """
 
     def _repr_html_(self) -> str:
         return InlinePage(self.read_text(encoding="utf-8"), title=self.name)._repr_html_()
@@ -165,8 +195,29 @@ def _check_view_input(what: Any, options: dict) -> None:
 def inline(what: Any, *, height: int = HEIGHT, inline_limit: int = INLINE_LIMIT, **options: Any) -> InlinePage:
     """The page of ``what`` (meshes or an image, as for :func:`view`) held in memory.
 
-    ``options`` are those of :func:`ao4d.viewer.view` (meshes) or
-    :func:`ao4d.image_viewer.view_image` (images); an unknown one is an error.
+    Parameters
+    ----------
+    what : mesh, .npz path, a sequence of them, RenderResult, .vti / .mhd path or 3D array
+        What to show, as for :func:`view`.
+    height : int
+        Height of the notebook's frame in pixels (at least 50).
+    inline_limit : int
+        Pages longer than this are served from 127.0.0.1 instead of inlined.
+    **options
+        Those of :func:`ao4d.viewer.view` (meshes) or :func:`ao4d.image_viewer.view_image`
+        (images).
+
+    Returns
+    -------
+    InlinePage
+        The page; a notebook shows it.
+
+    Raises
+    ------
+    TypeError
+        If ``what`` is neither meshes nor an image, or an option is unknown.
+    ValueError
+        A bad option value.
     """
     text = _page_text(what, options)
     return InlinePage(text, title=str(options.get("title") or "ao4d view"), height=height, inline_limit=inline_limit)
@@ -184,8 +235,9 @@ def view(
 
     Parameters
     ----------
-    what : SimplexMesh, .npz path, sequence of them, RenderResult, or .vti / .mhd path
-        Meshes get the slicing page (:func:`ao4d.viewer.view`), an image the ray-marching page
+    what : mesh, .npz path, sequence of them, RenderResult, or .vti / .mhd path
+        Meshes (each a SimplexMesh, a trimesh.Trimesh, a (vertices, simplices) pair or an .npz
+        file) get the slicing page (:func:`ao4d.viewer.view`), an image the ray-marching page
         (:func:`ao4d.image_viewer.view_image`).
     path : path-like, optional
         Where to write the page (.html). Without it nothing is written.
@@ -331,7 +383,7 @@ def result_page(
 
     Parameters
     ----------
-    meshes : SimplexMesh, .npz path, or a sequence of them
+    meshes : SimplexMesh, trimesh.Trimesh, (vertices, simplices), .npz path, or a sequence of them
         As for :func:`ao4d.viewer.view`.
     image : RenderResult, .vti / .mhd path
         The scene's rendered image, as for :func:`ao4d.image_viewer.view_image`.
@@ -340,6 +392,7 @@ def result_page(
     names : sequence of str, optional
         One label per mesh.
     title : str
+        The page's title.
     tab : {"image", "slices", "both"}
         The layout it opens with (the fragment's ``tab=`` overrides it).
     slice_state, image_state : mapping, optional
@@ -350,6 +403,14 @@ def result_page(
     Returns
     -------
     page : Page
+        The path written.
+
+    Raises
+    ------
+    ValueError
+        A bad mesh, image, state or option; a page over ``max_bytes``.
+    TypeError
+        If ``title`` is not a string.
     """
     from ._validate import check_choice
     from .image_viewer import image_page_text

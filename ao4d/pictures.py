@@ -166,6 +166,7 @@ def save_montage(
     path : path-like
         Output ``.png``.
     data : (nx, ny, nz) array_like
+        The 3D image's values.
     title : str
         Figure title (put the parameters here).
     label : str
@@ -186,6 +187,7 @@ def save_montage(
     Returns
     -------
     Path
+        The montage written (``path``).
     """
     path = _png_path(path)
     arr = _masked(volume_array(data).astype(np.float64), background)
@@ -274,10 +276,13 @@ def composite(
     Parameters
     ----------
     data : (nx, ny, nz) array_like
+        The 3D image's values.
     background : (nx, ny, nz) bool array_like, optional
         Transparent voxels (non-finite values are also transparent).
     cmap : str
+        Colour map of the values (a matplotlib name).
     vmin, vmax : float, optional
+        Values at the ends of the colour map (default: the range of the visible values).
     opacity : float
         Per-voxel opacity in (0, 1].
     axis : {0, 1, 2}
@@ -330,7 +335,14 @@ def save_volume_png(
     path : path-like
         Output ``.png``.
     data : (nx, ny, nz) array_like
-    title, label, cmap, background, vmin, vmax, spacing, origin
+        The 3D image's values.
+    title, label, cmap : str
+        As in :func:`save_montage`.
+    background : (nx, ny, nz) bool array_like, optional
+        As in :func:`save_montage`.
+    vmin, vmax : float, optional
+        As in :func:`save_montage`.
+    spacing, origin : float or (3,) array_like
         As in :func:`save_montage`.
     backend : {"auto", "voxels", "pyvista", "numpy"}
         ``"voxels"`` (and ``"auto"``): numpy draws the nearest voxel along each ray
@@ -342,6 +354,7 @@ def save_volume_png(
     Returns
     -------
     Path
+        The volume rendering written (``path``).
     """
     path = _png_path(path)
     check_choice(backend, "backend", ("auto", "voxels", "pyvista", "numpy"))
@@ -398,7 +411,9 @@ def voxel_view(
     Parameters
     ----------
     occupied : (nx, ny, nz) bool array_like
+        The voxels drawn.
     spacing, origin : float or (3,) array_like
+        Grid geometry.
     width : int
         Pixels across the box's projection (the height follows).
     direction : (3,) array_like
@@ -495,7 +510,9 @@ def triangle_view(
     Parameters
     ----------
     points : (V, 3) array_like
+        The mesh's vertices.
     faces : (F, 3) int array_like
+        Vertex indices per triangle.
     width : int
         Pixels across the projection of ``box``.
     direction : (3,) array_like
@@ -715,7 +732,25 @@ _BACKGROUND = (0.33, 0.38, 0.45)  # the montages' blue-grey for voxels no ray hi
 
 
 def rgba_array(rgba, name: str = "rgba") -> np.ndarray:
-    """``rgba`` as an (nx, ny, nz, 4) float64 array in [0, 1] (uint8 is scaled by 1/255)."""
+    """``rgba`` as an (nx, ny, nz, 4) float64 array in [0, 1] (uint8 is scaled by 1/255).
+
+    Parameters
+    ----------
+    rgba : (nx, ny, nz, 4) array_like
+        Straight RGBA in [0, 1] (float) or 0..255 (uint8).
+    name : str
+        The parameter it came from, named in errors.
+
+    Returns
+    -------
+    (nx, ny, nz, 4) float64
+        The colours in [0, 1].
+
+    Raises
+    ------
+    ValueError
+        If the shape is wrong or a float value is outside [0, 1].
+    """
     arr = as_array(rgba, name, ndim=4, shape_tail=(4,))
     if arr.dtype == np.uint8:
         return arr.astype(np.float64) / 255.0
@@ -731,11 +766,14 @@ def over_background(rgba: np.ndarray, background=_BACKGROUND) -> np.ndarray:
     Parameters
     ----------
     rgba : (..., 4) float array_like in [0, 1]
+        Straight colours and their alpha.
     background : (3,) array_like
+        The background's RGB in [0, 1].
 
     Returns
     -------
     rgb : (..., 3) float64
+        The colours seen.
 
     Examples
     --------
@@ -768,12 +806,19 @@ def save_rgba_montage(
         Output ``.png``.
     rgba : (nx, ny, nz, 4) array_like
         Straight RGBA in [0, 1] (float) or 0..255 (uint8), e.g. ``RenderResult.rgba``.
-    title, n_slices, spacing, origin, columns
-        As in :func:`save_montage`; slices span the z range where alpha > 0.
+    title : str
+        Figure title.
+    n_slices : int
+        Number of evenly spaced z-slices, spanning the z range where alpha > 0.
+    spacing, origin : float or (3,) array_like
+        Grid geometry, as in :func:`save_montage`.
+    columns : int
+        Panels per row, as in :func:`save_montage`.
 
     Returns
     -------
     Path
+        The montage of colours written (``path``).
     """
     path = _png_path(path)
     arr = rgba_array(rgba)
@@ -850,14 +895,21 @@ def save_rgba_volume_png(
         Output ``.png``.
     rgba : (nx, ny, nz, 4) array_like
         Straight RGBA in [0, 1] (float) or 0..255 (uint8), e.g. ``RenderResult.rgba``.
-    title, spacing, origin, backend, size
+    title : str
+        Title above the picture.
+    spacing, origin : float or (3,) array_like
+        Grid geometry, as in :func:`save_montage`.
+    backend : {"auto", "voxels", "pyvista", "numpy"}
         As in :func:`save_volume_png` (``"numpy"`` composites along z with
         :func:`composite_rgba`; ``"voxels"`` shows the nearest voxel of alpha > 0 along each
         ray, its colour over white by its alpha).
+    size : (2,) tuple of int
+        Picture size in pixels.
 
     Returns
     -------
     Path
+        The colour volume rendering written (``path``).
     """
     path = _png_path(path)
     check_choice(backend, "backend", ("auto", "voxels", "pyvista", "numpy"))
@@ -920,10 +972,13 @@ def ao_colors(occlusion, *, cmap: str = "magma") -> np.ndarray:
     ----------
     occlusion : (N,) array_like
         Values in [0, 1]; NaN becomes grey.
+    cmap : str
+        Matplotlib colour map.
 
     Returns
     -------
     colors : (N, 4) uint8
+        The colour of each value.
     """
     import matplotlib
 
@@ -935,7 +990,27 @@ def ao_colors(occlusion, *, cmap: str = "magma") -> np.ndarray:
 
 
 def slice_scalars(tri, scalars, name: str) -> np.ndarray | None:
-    """Per-vertex values of a slice mesh: an array, or the name of one of its vertex attributes."""
+    """Per-vertex values of a slice mesh: an array, or the name of one of its vertex attributes.
+
+    Parameters
+    ----------
+    tri : trimesh.Trimesh
+        The slice mesh.
+    scalars : (V,) array_like, str or None
+        The values, or the name of a vertex attribute of ``tri``.
+    name : str
+        The parameter they came from, named in errors.
+
+    Returns
+    -------
+    (V,) float64 or None
+        The values (``None`` for ``None``).
+
+    Raises
+    ------
+    ValueError
+        If the name is not a vertex attribute or the values are not one per vertex.
+    """
     if scalars is None:
         return None
     if isinstance(scalars, str):
@@ -967,11 +1042,15 @@ def save_slice_png(
     path : path-like
         Output ``.png``.
     tri : trimesh.Trimesh
+        The slice mesh (:meth:`ao4d.SimplexMesh.slice`).
     occlusion : (V,) array_like or str, optional
         As in :func:`ao4d.mesh_files.save_slice_mesh`; without it the mesh is drawn in one colour.
     title : str
+        Title above the slice.
     cmap : str
+        Matplotlib colour map.
     size : (2,) tuple of int
+        Picture size in pixels.
     backend : {"auto", "numpy", "pyvista"}
         ``"numpy"`` (and ``"auto"``): :func:`triangle_view` with smooth (Gouraud) colours and a
         two-sided light above-left of the viewer, no render window; ``"pyvista"``: VTK
@@ -980,6 +1059,7 @@ def save_slice_png(
     Returns
     -------
     Path
+        The picture of the slice written (``path``).
     """
     path = _png_path(path)
     check_choice(backend, "backend", ("auto", "numpy", "pyvista"))

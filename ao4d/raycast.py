@@ -38,6 +38,7 @@ from . import _progress, cl
 from . import bvh as _bvh
 from ._validate import as_array, as_real, check_bool, check_choice, check_memory
 from .bvh import BUILDERS, get_bvh
+from .mesh import as_mesh
 from .sampling import cosine_hemisphere, sobol_table
 
 __all__ = [
@@ -153,8 +154,8 @@ def mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
 
     Parameters
     ----------
-    mesh : SimplexMesh or any object with ``vertices`` and ``simplices``
-        The mesh.
+    mesh : SimplexMesh, trimesh.Trimesh or (vertices, simplices)
+        The mesh, in any form :func:`ao4d.mesh.as_mesh` takes.
 
     Returns
     -------
@@ -162,13 +163,16 @@ def mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
         The vertices.
     simplices : (S, d) int64 numpy.ndarray
         The simplices, as vertex indices.
+
+    Raises
+    ------
+    TypeError
+        If ``mesh`` is not a mesh.
+    ValueError
+        If it does not live in 2D, 3D or 4D, or has no simplices.
     """
-    try:
-        vertices, simplices = np.asarray(mesh.vertices), np.asarray(mesh.simplices)
-    except AttributeError:
-        raise TypeError(
-            f"`mesh` must be an ao4d.SimplexMesh (vertices and simplices), got {type(mesh).__name__}"
-        ) from None
+    mesh = as_mesh(mesh)
+    vertices, simplices = np.asarray(mesh.vertices), np.asarray(mesh.simplices)
     if vertices.ndim != 2 or vertices.shape[1] not in (2, 3, 4):
         raise ValueError(f"`mesh` must live in 2D, 3D or 4D, got vertices of shape {vertices.shape}")
     if simplices.ndim != 2 or simplices.shape[0] == 0:
@@ -177,7 +181,25 @@ def mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 def unit_rows(values: np.ndarray, name: str) -> np.ndarray:
-    """Rows of ``values`` scaled to unit length; zero-length rows are an error naming ``name``."""
+    """Rows of ``values`` scaled to unit length; zero-length rows are an error naming ``name``.
+
+    Parameters
+    ----------
+    values : (N, d) ndarray
+        Vectors, one per row.
+    name : str
+        The parameter they came from, named in the error.
+
+    Returns
+    -------
+    (N, d) ndarray
+        The rows divided by their lengths.
+
+    Raises
+    ------
+    ValueError
+        If a row has zero (or non-finite) length.
+    """
     length = np.linalg.norm(values, axis=1)
     bad = np.flatnonzero(~(length > 0))
     if bad.size:
@@ -186,7 +208,22 @@ def unit_rows(values: np.ndarray, name: str) -> np.ndarray:
 
 
 def progress_bar(progress: bool | None, total: int, desc: str):
-    """Progress over ``total`` rays (:mod:`ao4d._progress`), shown by default only for large work."""
+    """Progress over ``total`` rays (:mod:`ao4d._progress`), shown by default only for large work.
+
+    Parameters
+    ----------
+    progress : bool or None
+        Show the bar; ``None`` shows it for large work only.
+    total : int
+        Number of rays.
+    desc : str
+        The bar's label.
+
+    Returns
+    -------
+    context manager
+        The bar: enter it, then ``update(n)`` after each batch.
+    """
     show = total >= _PROGRESS_MIN_RAYS if progress is None else bool(progress)
     return _progress.bar(total, desc, unit="ray", unit_scale=True, show=show)
 
@@ -518,8 +555,10 @@ def cast_rays(
 
     Parameters
     ----------
-    mesh : SimplexMesh
-        A mesh in R^d, d in {2, 3, 4}. Its BVH is built on first use and cached on it.
+    mesh : SimplexMesh, trimesh.Trimesh or (vertices, simplices)
+        A mesh in R^d, d in {2, 3, 4}, in any form :func:`ao4d.mesh.as_mesh` takes. A
+        ``SimplexMesh`` builds its BVH on first use and keeps it; the other forms are converted,
+        and their tree built, on every call.
     origins : (N, d) array_like of float
         Where the rays start.
     directions : (N, d) array_like of float
@@ -550,6 +589,7 @@ def cast_rays(
     >>> float(hits.t[0]), int(hits.simplex[0])
     (1.0, 0)
     """
+    mesh = as_mesh(mesh)
     vertices, _ = mesh_arrays(mesh)
     d = vertices.shape[1]
     # float32 or float64 inputs are kept as they are: each launch converts its own rays
@@ -784,8 +824,8 @@ def count_occluded(
 
     Parameters
     ----------
-    mesh : SimplexMesh
-        The occluding geometry.
+    mesh : SimplexMesh, trimesh.Trimesh or (vertices, simplices)
+        The occluding geometry, in any form :func:`ao4d.mesh.as_mesh` takes.
     points, normals : (N, d) float64
         Query points and their unit normals.
     samples, seed : int
@@ -804,6 +844,7 @@ def count_occluded(
     counts : (N,) int64
         Rays of each point that hit.
     """
+    mesh = as_mesh(mesh)
     tree = get_bvh(mesh, runtime=runtime)
     bar = _NullBar() if bar is None else bar
     if len(points) == 0:
@@ -849,6 +890,7 @@ def traversal_counts(
     tuple of float
         ``(nodes per ray, blocks per ray)``, or the four figures with ``detail``.
     """
+    mesh = as_mesh(mesh)
     check_choice(traversal, "traversal", AO_TRAVERSALS)
     detail = check_bool(detail, "detail")
     tree = get_bvh(mesh, runtime=runtime)

@@ -302,8 +302,8 @@ def prepare_scene(meshes) -> tuple[Any, np.ndarray]:
 
     Parameters
     ----------
-    meshes : SimplexMesh or sequence of SimplexMesh
-        4D meshes. A single mesh is used as is (not copied, so its cached BVH is reused) and
+    meshes : SimplexMesh, (vertices, simplices), or a sequence of them
+        4D meshes, each in any form :func:`ao4d.mesh.as_mesh` takes. A single SimplexMesh is used as is (not copied, so its cached BVH is reused) and
         keeps the ``cell_data["object_id"]`` it may carry (e.g. a saved scene), else id 0. A
         list of several is joined with :func:`ao4d.mesh.concatenate` (ids = list positions).
 
@@ -314,12 +314,7 @@ def prepare_scene(meshes) -> tuple[Any, np.ndarray]:
     object_id : (S,) int32
         The object id of each simplex.
     """
-    if isinstance(meshes, SimplexMesh):
-        items = [meshes]
-    elif isinstance(meshes, Sequence) and not isinstance(meshes, (str, bytes)):
-        items = as_meshes(meshes)
-    else:
-        raise TypeError(f"`meshes` must be a SimplexMesh or a list of them, got {type(meshes).__name__}")
+    items = as_meshes(meshes)
     scene = items[0] if len(items) == 1 else concatenate(items)
     if scene.dim != 4:
         raise ValueError(f"`meshes` must be 4D meshes (tetrahedra in R^4), got dimension {scene.dim}")
@@ -361,8 +356,9 @@ def render(
 
     Parameters
     ----------
-    meshes : SimplexMesh or sequence of SimplexMesh
-        4D meshes (closed surfaces or raw open tetrahedra). Lists are joined; the result's
+    meshes : SimplexMesh, (vertices, simplices), or a sequence of them
+        4D meshes (closed surfaces or raw open tetrahedra), each in any form
+        :func:`ao4d.mesh.as_mesh` takes. Lists are joined; the result's
         ``object_id`` is the list position (a single mesh keeps its ``cell_data["object_id"]``).
     camera : Camera4D
         The 4D camera; its image hyperplane holds the 3D image.

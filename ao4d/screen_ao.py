@@ -5,6 +5,9 @@ the depth of the visible 3-manifold (:class:`DepthVolume`). Screen-space AO esti
 DESIGN.md occlusion ``A`` at a visible point ``p`` with viewer-facing normal ``n`` from that
 volume alone, with a fixed number of look-ups per point instead of rays through a BVH.
 
+Why this file is long: the depth volume, the march on both backends and the denoiser stay one
+module because they are one technique and share its conventions (depth, normals, the reach).
+
 The variant
 -----------
 The ray-traced definition asks, per cosine-weighted direction ``w`` (the same directions
@@ -79,6 +82,7 @@ import numpy as np
 from . import cl
 from ._validate import as_array, as_real, check_int, check_memory, check_positive_int
 from .camera import Camera4D, image_shape
+from .mesh import as_mesh
 from .sampling import cosine_hemisphere, sobol_table
 
 __all__ = [
@@ -176,8 +180,9 @@ class DepthVolume:
 
         Parameters
         ----------
-        mesh : SimplexMesh
-            A 4D mesh (join several with :func:`ao4d.mesh.concatenate`).
+        mesh : SimplexMesh or (vertices, simplices)
+            A 4D mesh, in any form :func:`ao4d.mesh.as_mesh` takes (join several with
+            :func:`ao4d.mesh.concatenate`).
         camera : Camera4D
             The view.
         shape : (3,) tuple of int
@@ -189,12 +194,20 @@ class DepthVolume:
         -------
         DepthVolume
             The volume.
+
+        Raises
+        ------
+        TypeError
+            If ``mesh`` is not a mesh.
+        ValueError
+            If it is not 4D.
         """
         from .raycast import cast_rays
 
+        mesh = as_mesh(mesh)
         shape = _camera_shape(camera, shape)
-        if getattr(mesh, "dim", None) != 4:
-            raise ValueError("`mesh` must be a 4D SimplexMesh (tetrahedra in R^4)")
+        if mesh.dim != 4:
+            raise ValueError(f"`mesh` must be a 4D mesh (tetrahedra in R^4), got dimension {mesh.dim}")
         origins, directions = (a.reshape(-1, 4) for a in camera.rays(shape))
         hits = cast_rays(mesh, origins, directions, backend=backend)
         built = cls.of_first_hits(camera, shape, directions, hits.t, hits.simplex, np.asarray(mesh.simplex_normals))

@@ -5,6 +5,10 @@ simplex r // d omitting local vertex r % d. From the grouping follow face adjace
 faces, orientation consistency (boundary operator of simplicial homology) and singular vertices.
 :class:`~ao4d.mesh.SimplexMesh` caches the grouping and calls these functions; they take plain
 arrays and do no validation.
+
+Why this file is long: the face grouping and every check that reads it (adjacency, boundary,
+orientation, components, singular vertices, the report) stay one module because they share the
+one sort of the faces; each public function documents its arrays in numpydoc sections.
 """
 
 from __future__ import annotations
@@ -49,6 +53,19 @@ class Faces:
     relative to the face's sorted vertex order; ``columns`` (d, S) each simplex's vertex indices
     in increasing order, one row per rank (the face of entry r is simplex r // d's vertices
     without rank r % d); ``perm`` (S, d) int8 the local index (in the simplex) of each rank.
+
+    Attributes
+    ----------
+    order : (S*d,) int64
+        The entries sorted by face.
+    starts : (F+1,) int64
+        Delimits the groups of equal faces in ``order``.
+    sign : (S*d,) int8
+        The orientation (+1/-1) each entry's simplex induces on its face.
+    columns : (d, S) int
+        Each simplex's vertex indices in increasing order, one row per rank.
+    perm : (S, d) int8
+        The local index (in the simplex) of each rank.
     """
 
     order: np.ndarray
@@ -94,6 +111,25 @@ def _opposite(d: int) -> np.ndarray:
 
 
 def face_structure(simplices: np.ndarray, n_vertices: int) -> Faces:
+    """Group the (d-2)-faces of a mesh's simplices (the table the other checks read).
+
+    Parameters
+    ----------
+    simplices : (S, d) int ndarray
+        The mesh's simplices, as vertex indices.
+    n_vertices : int
+        Vertices of the mesh (every index lies below it).
+
+    Returns
+    -------
+    Faces
+        The grouping.
+
+    Raises
+    ------
+    MemoryError
+        If the face table would need more memory than ao4d allows itself.
+    """
     s, d = simplices.shape
     check_memory(s * d * 8 * 6.0, "the face table of this mesh")
     cols, locs, odd = _sort_simplices(simplices)
@@ -213,6 +249,26 @@ def face_counts(simplices: np.ndarray, n_vertices: int, faces: Faces | None = No
     Without ``faces`` one ``np.sort`` of words holding the face key and the induced sign's bit
     settles all four (no permutation is needed); with ``faces`` (or keys too wide for that
     word) they come from the grouping.
+
+    Parameters
+    ----------
+    simplices : (S, d) int ndarray
+        The simplices whose faces are counted.
+    n_vertices : int
+        Vertices of the mesh (it sizes the face keys).
+    faces : Faces, optional
+        The grouping of the mesh's faces, when already made (:func:`face_structure`).
+
+    Returns
+    -------
+    n_faces : int
+        Distinct faces.
+    boundary : int
+        Faces used by one simplex.
+    non_manifold : int
+        Faces used by three or more simplices.
+    misoriented : int
+        Faces shared by two simplices that induce the same orientation.
     """
     s, d = simplices.shape
     if faces is None and s and _bits(n_vertices) * (d - 1) + 1 <= _WORD_BITS:
@@ -287,6 +343,22 @@ def _pairs_within_groups(starts: np.ndarray, order: np.ndarray) -> tuple[np.ndar
 
 
 def connected_labels(n_nodes: int, a: np.ndarray, b: np.ndarray) -> tuple[int, np.ndarray]:
+    """Connected components of the undirected graph with edges ``(a[i], b[i])``.
+
+    Parameters
+    ----------
+    n_nodes : int
+        Number of nodes.
+    a, b : (E,) int ndarray
+        The edges' end nodes.
+
+    Returns
+    -------
+    n_components : int
+        Number of components.
+    labels : (n_nodes,) int ndarray
+        The component of each node.
+    """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -475,13 +547,39 @@ def warn_if_inside_out(mesh: Any, consequence: str, *, stacklevel: int = 3) -> N
 
 
 def face_adjacency(faces: Faces, d: int) -> np.ndarray:
-    """(P, 2) int64: pairs of simplices sharing a (d-2)-face (a chain for non-manifold faces)."""
+    """(P, 2) int64: pairs of simplices sharing a (d-2)-face (a chain for non-manifold faces).
+
+    Parameters
+    ----------
+    faces : Faces
+        The face grouping of the mesh (:func:`face_structure`).
+    d : int
+        Vertices per simplex.
+
+    Returns
+    -------
+    (P, 2) int64
+        Simplex index pairs.
+    """
     a, b = _pairs_within_groups(faces.starts, faces.order)
     return np.stack([a // d, b // d], axis=1).astype(np.int64)
 
 
 def boundary_faces(simplices: np.ndarray, faces: Faces) -> np.ndarray:
-    """(B, d-1) int64: the faces used by one simplex, in the orientation it induces on them."""
+    """(B, d-1) int64: the faces used by one simplex, in the orientation it induces on them.
+
+    Parameters
+    ----------
+    simplices : (S, d) int ndarray
+        The simplices the faces were grouped from.
+    faces : Faces
+        Their grouping (:func:`face_structure`).
+
+    Returns
+    -------
+    (B, d-1) int64
+        Vertex indices of each boundary face.
+    """
     d = simplices.shape[1]
     entries = faces.order[faces.starts[:-1][faces.counts == 1]]
     # the local index the face omits: the one missing from its d - 1 local indices
@@ -496,7 +594,18 @@ def boundary_faces(simplices: np.ndarray, faces: Faces) -> np.ndarray:
 
 
 def misoriented_faces(faces: Faces) -> int:
-    """Faces shared by two simplices that induce the same orientation on them."""
+    """Faces shared by two simplices that induce the same orientation on them.
+
+    Parameters
+    ----------
+    faces : Faces
+        A face grouping (:func:`face_structure`) with the induced signs.
+
+    Returns
+    -------
+    int
+        Their number.
+    """
     if not len(faces.order):
         return 0
     group_sign = np.add.reduceat(faces.sign[faces.order].astype(np.int64), faces.starts[:-1])
@@ -527,7 +636,22 @@ def _vertex_components(simplices: np.ndarray, n_vertices: int) -> tuple[int, np.
 def component_count(simplices: np.ndarray, n_vertices: int, n_unused: int) -> int:
     """Connected components of a mesh whose vertex stars are all connected through faces (no
     singular vertex): then simplices sharing a vertex are joined through faces, and the
-    components are those of the vertex graph (less the ``n_unused`` lone vertices)."""
+    components are those of the vertex graph (less the ``n_unused`` lone vertices).
+
+    Parameters
+    ----------
+    simplices : (S, d) int ndarray
+        The simplices; no vertex may be singular.
+    n_vertices : int
+        Vertices of the mesh, used or not.
+    n_unused : int
+        Vertices no simplex uses.
+
+    Returns
+    -------
+    int
+        Number of components.
+    """
     if len(simplices) == 0:
         return 0
     return int(_vertex_components(simplices, n_vertices)[0]) - n_unused
@@ -539,6 +663,20 @@ def component_labels(simplices: np.ndarray, n_vertices: int, faces: Faces | None
 
     ``faces=None`` says that every vertex's star is connected through faces (no singular
     vertex): then the components are those of the much smaller vertex graph.
+
+    Parameters
+    ----------
+    simplices : (S, d) int ndarray
+        The simplices to label.
+    n_vertices : int
+        Vertices of the mesh (the nodes of the vertex graph).
+    faces : Faces or None
+        The grouping of the mesh's faces (:func:`face_structure`), or ``None`` (above).
+
+    Returns
+    -------
+    (S,) int64
+        The component of each simplex.
     """
     s, d = simplices.shape
     if s == 0:
@@ -561,6 +699,20 @@ def singular_vertices(simplices: np.ndarray, n_vertices: int, faces: Faces) -> i
     circle. (2) In 4D the link is a closed surface (boundary vertices: a surface with boundary),
     so we also require its Euler characteristic #edges - #triangles + #tetrahedra through the
     vertex to be 2 (1 on the boundary): a connected closed surface with chi = 2 is a sphere.
+
+    Parameters
+    ----------
+    simplices : (S, d) int ndarray
+        The simplices whose vertex stars are tested.
+    n_vertices : int
+        Vertices of the mesh (the answer counts among them).
+    faces : Faces
+        Their face grouping (:func:`face_structure`).
+
+    Returns
+    -------
+    int
+        Number of singular vertices.
     """
     s, d = simplices.shape
     if s == 0 or d == 2:

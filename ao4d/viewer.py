@@ -141,7 +141,15 @@ _TEMPLATE = "viewer_page.html"
 
 @dataclass(frozen=True)
 class Frame:
-    """The scene's bounding ball: rotation centre and camera target ``center``, radius ``radius``."""
+    """The scene's bounding ball: rotation centre and camera target ``center``, radius ``radius``.
+
+    Attributes
+    ----------
+    center : (d,) float64
+        Rotation centre and camera target.
+    radius : float
+        Largest distance of a vertex from ``center``.
+    """
 
     center: np.ndarray  # (d,) float64
     radius: float
@@ -156,7 +164,7 @@ def scene_frame(meshes: Any, *, center: Any = None, offsets: Any = None) -> Fram
 
     Parameters
     ----------
-    meshes : SimplexMesh, path, or sequence of them
+    meshes : SimplexMesh, trimesh.Trimesh, (vertices, simplices), path to an .npz mesh, or a sequence of them
         As for :func:`view`.
     center : (d,) array_like, optional
         Rotation centre and camera target (default: centre of the scene's bounding box).
@@ -211,6 +219,7 @@ def full_state(state: Mapping[str, Any] | None = None, *, frame: Frame | None = 
         ``light`` (0/1 or bool) and ``hide`` (object indices). Missing keys take
         :data:`DEFAULT_STATE`; ``w`` defaults to the scene's centre in w (needs ``frame``).
     frame : Frame, optional
+        The scene's frame (:func:`scene_frame`), for the default ``w``.
 
     Returns
     -------
@@ -279,7 +288,9 @@ def transform(points: Any, state: Mapping[str, Any] | None = None, *, frame: Fra
     Parameters
     ----------
     points : (N, 4) array_like
+        4D points of the object.
     state : mapping, optional
+        The page's state (:func:`full_state`).
     frame : Frame
         The scene's frame (:func:`scene_frame`).
     offset : (4,) array_like, optional
@@ -288,6 +299,7 @@ def transform(points: Any, state: Mapping[str, Any] | None = None, *, frame: Fra
     Returns
     -------
     turned : (N, 4) float64
+        The points as the page places them.
     """
     x = as_array(points, "points", ndim=2, shape_tail=(4,), dtype=np.float64, finite=True)
     if frame.dim != 4:
@@ -308,8 +320,8 @@ def slice_for_state(
 
     Parameters
     ----------
-    mesh : SimplexMesh or path
-        A 4D mesh.
+    mesh : SimplexMesh, (vertices, simplices) or path
+        A 4D mesh, in any form :func:`ao4d.mesh.as_mesh` takes, or an .npz file.
     state : mapping, optional
         The page's state (:func:`full_state`).
     frame : Frame, optional
@@ -343,7 +355,27 @@ def slice_for_state(
 
 @dataclass(frozen=True)
 class Camera:
-    """The page's 3D camera for one canvas size (see the module conventions)."""
+    """The page's 3D camera for one canvas size (see the module conventions).
+
+    Attributes
+    ----------
+    eye, target : (3,) float64
+        Camera position and the point it looks at.
+    right, up, forward : (3,) float64
+        Unit axes of the camera; ``forward`` points from the eye to the target.
+    distance : float
+        From the eye to the target.
+    tan_half : float
+        Tangent of half the view angle across the shorter side.
+    scale : float
+        Pixels per unit of x/z (camera coordinates) on the image plane.
+    width, height : int
+        Canvas size in pixels.
+    near, far : float
+        Clip distances along ``forward``.
+    light : (3,) float64
+        Unit vector towards the light: above-left of the eye.
+    """
 
     eye: np.ndarray  # (3,)
     target: np.ndarray  # (3,)
@@ -364,6 +396,25 @@ def camera(state: Mapping[str, Any] | None, width: int, height: int, *, frame: F
     """The page's 3D camera for a ``width`` x ``height`` canvas.
 
     Depends only on ``az, el, zoom`` and the frame, never on ``w`` or the 4D angles.
+
+    Parameters
+    ----------
+    state : mapping or None
+        The page's state (:func:`full_state`).
+    width, height : int
+        Canvas size in pixels.
+    frame : Frame
+        The scene's frame (:func:`scene_frame`).
+
+    Returns
+    -------
+    Camera
+        The camera the page draws with.
+
+    Raises
+    ------
+    ValueError
+        If a size is not a positive integer or the state is bad.
     """
     st = full_state(state, frame=frame)
     w_px, h_px = _size(width, "width"), _size(height, "height")
@@ -408,9 +459,11 @@ def project(points: Any, state: Mapping[str, Any] | None, width: int, height: in
     points : (N, 3) array_like
         Scene coordinates (e.g. the vertices of :func:`slice_for_state`).
     state : mapping or None
+        The page's state (:func:`full_state`).
     width, height : int
         Canvas size in pixels (``window.ao4d.stats().canvas``).
     frame : Frame
+        The scene's frame (:func:`scene_frame`).
 
     Returns
     -------
@@ -451,6 +504,11 @@ def cut_table() -> list[int]:
     Output vertex k (0-5; vertices 0-2 and 3-5 make the two triangles) of case c is
     ``code = (table[c] >> 4k) & 15``: ``15`` emits nothing, else it lies on the edge from local
     vertex ``code >> 2`` (s < 0) to ``code & 3`` (s >= 0).
+
+    Returns
+    -------
+    list of int
+        One packed entry per case (16 cases of a tetrahedron's vertex signs).
     """
     packed = []
     for triangles in SLICE_CASES:  # the CPU slicer's table: page and mesh.slice cut alike
@@ -569,6 +627,7 @@ def split_objects(mesh: Any, *, key: str = "object_id") -> list[SimplexMesh]:
     mesh : SimplexMesh
         With ``cell_data[key]`` (S,) integer ids.
     key : str
+        The name of the ids in ``cell_data``.
 
     Returns
     -------
@@ -601,18 +660,25 @@ def split_objects(mesh: Any, *, key: str = "object_id") -> list[SimplexMesh]:
 # --------------------------------------------------------------------------- input meshes
 
 
+# what every function here that takes meshes accepts (each entry, for a sequence)
+_MESH_FORMS = "a SimplexMesh, a trimesh.Trimesh, a (vertices, simplices) pair or a path to an .npz mesh"
+
+
 def _as_meshes(meshes: Any, names: Any, *, name: str = "meshes") -> list[tuple[Any, str]]:
     from . import SimplexMesh
+    from .mesh import as_mesh
 
-    if isinstance(meshes, (SimplexMesh, str, os.PathLike)):
+    if isinstance(meshes, (str, os.PathLike)):
         meshes = [meshes]
+    else:
+        try:  # one mesh in any form as_mesh takes (a SimplexMesh, a trimesh, a pair)
+            meshes = [as_mesh(meshes, name)]
+        except TypeError:
+            pass  # a sequence of meshes and paths, read entry by entry below
     try:
         items = list(meshes)
     except TypeError:
-        raise TypeError(
-            f"`{name}` must be a SimplexMesh, a path to an .npz mesh, or a sequence "
-            f"of them; got {type(meshes).__name__}"
-        ) from None
+        raise TypeError(f"`{name}` must be {_MESH_FORMS}, or a sequence of them; got {type(meshes).__name__}") from None
     if not items:
         raise ValueError(f"`{name}` must hold at least one mesh")
     if names is not None:
@@ -631,10 +697,12 @@ def _as_meshes(meshes: Any, names: Any, *, name: str = "meshes") -> list[tuple[A
             if not path.is_file():
                 raise FileNotFoundError(f"`{label}`: no such mesh file: {path}")
             mesh, default = SimplexMesh.load(path), path.stem
-        elif isinstance(item, SimplexMesh):
-            mesh, default = item, f"mesh {i}" if len(items) > 1 else "mesh"
         else:
-            raise TypeError(f"`{label}` must be a SimplexMesh or a path, got {type(item).__name__}")
+            try:
+                mesh = as_mesh(item, label)
+            except TypeError:
+                raise TypeError(f"`{label}` must be {_MESH_FORMS}; got {type(item).__name__}") from None
+            default = f"mesh {i}" if len(items) > 1 else "mesh"
         if mesh.dim not in (3, 4):
             raise ValueError(f"`{label}` must be a 3D or 4D mesh, got dimension {mesh.dim}")
         if mesh.n_simplices == 0:
@@ -872,9 +940,10 @@ def view(
 
     Parameters
     ----------
-    meshes : SimplexMesh, path to an .npz mesh, or a sequence of them
-        All 4D (sliced by the hyperplane) or all 3D (plain orbit view). ``point_data["ao"]``
-        (V,) in [0, 1], if present, colours them.
+    meshes : SimplexMesh, trimesh.Trimesh, (vertices, simplices), path to an .npz mesh, or a sequence of them
+        All 4D (sliced by the hyperplane) or all 3D (plain orbit view), each in any form
+        :func:`ao4d.mesh.as_mesh` takes or an .npz file. ``point_data["ao"]`` (V,) in [0, 1], if
+        present, colours them.
     path : path-like
         The HTML file, ending in .html or .htm (written atomically; checked before any work).
     names : sequence of str, optional
@@ -890,6 +959,7 @@ def view(
     cmap : str
         Colour map of ``1 - AO`` for a single mesh (default "magma", as ``ao4d slice``).
     title : str, optional
+        The page's title.
     compress : bool
         zlib-compress the buffers (inflated by the browser's ``DecompressionStream``).
     cull : {"auto", "back", "front", "none"}
@@ -935,7 +1005,7 @@ def page_text(meshes: Any, **options: Any) -> str:
 
     Parameters
     ----------
-    meshes : SimplexMesh, path to an .npz mesh, or a sequence of them
+    meshes : SimplexMesh, trimesh.Trimesh, (vertices, simplices), path to an .npz mesh, or a sequence of them
         As for :func:`view`.
     **options
         The keyword options of :func:`view` (``names``, ``state``, ..., ``max_bytes``); an
@@ -944,6 +1014,14 @@ def page_text(meshes: Any, **options: Any) -> str:
     Returns
     -------
     page : str
+        The page's HTML.
+
+    Raises
+    ------
+    ValueError
+        Bad meshes, state or options; a page over ``max_bytes``.
+    TypeError
+        An unknown option.
     """
     options = _options(options, "page_text")
     max_bytes, compress = check_max_bytes(options.pop("max_bytes")), options["compress"]
@@ -976,7 +1054,26 @@ def page_text(meshes: Any, **options: Any) -> str:
 
 
 class ViewServer:
-    """A page and its buffers served over HTTP on 127.0.0.1 (from :func:`serve`)."""
+    """A page and its buffers served over HTTP on 127.0.0.1 (from :func:`serve`).
+
+    Parameters
+    ----------
+    page : bytes
+        The page's HTML, served at ``/`` and ``/index.html``.
+    blobs : list of bytes
+        Buffers served at ``/data/<k>``.
+    host : str
+        Address to listen on.
+    port : int
+        TCP port (0: any free one).
+
+    Raises
+    ------
+    ValueError
+        If ``port`` is not in 0..65535.
+    OSError
+        If the port cannot be bound.
+    """
 
     def __init__(self, page: bytes, blobs: list[bytes], host: str, port: int):
         files = {"/": page, "/index.html": page}
@@ -1042,7 +1139,7 @@ def serve(meshes: Any, *, port: int = 0, host: str = "127.0.0.1", **options: Any
 
     Parameters
     ----------
-    meshes : SimplexMesh, path to an .npz mesh, or a sequence of them
+    meshes : SimplexMesh, trimesh.Trimesh, (vertices, simplices), path to an .npz mesh, or a sequence of them
         As for :func:`view`.
     port : int
         TCP port (0: any free one; see ``server.url``).

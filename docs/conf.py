@@ -89,19 +89,13 @@ numpydoc_validation_checks = {
     "RT05",
     "PR08",
 }
+# Every documented function, class, method and property of every module on the API pages is
+# validated. The one exclusion: module and class constants (autodata). They are values, not
+# callables: their one-line ``#:`` comments have no sections to check, and autodoc gives a
+# constant without such a comment its value type's docstring (``int``'s, ``tuple``'s), which
+# numpydoc would then check as if it were the constant's.
 numpydoc_validation_exclude = {
-    r"\.[A-Z][A-Z0-9_]+$",  # module constants, documented where they are listed
-    r"\.__.*__$",
-    # Validated: the top-level names (ao4d.extract, ao4d.SimplexMesh, ...), fields, lut, lift,
-    # raycast, camera, lighting, readers, datasets_gen, ao, march, blockwise, mesh, geometry,
-    # slicing, sampling, rendering, scenes, volumes, mesh_files and screen_ao. The inner stages
-    # below have pages too, but their docstrings are not yet all in numpydoc form (a follow-up:
-    # remove a module from this list once its docstrings pass).
-    r"^ao4d\.(bvh|cl|image_viewer|pages|pictures|topology|viewer)\.",
-    # the fields of a named tuple (their docstrings are Python's "Alias for field number k")
-    r"^ao4d\.mesh_files\.MeshArrays\.(vertices|simplices|point_data|cell_data)$",
-    # helpers the other stages import from raycast (in its __all__ for them, not for users)
-    r"^ao4d\.raycast\.(unit_rows|progress_bar)$",
+    r"\.[A-Z][A-Z0-9_]+$",
 }
 # Records (dataclasses, named tuples) document their fields under Attributes, which is also
 # their constructor's signature: PR01 would ask for every field twice.

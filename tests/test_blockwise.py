@@ -185,10 +185,15 @@ def test_too_many_blocks_refused_before_work(monkeypatch):
     monkeypatch.setattr(blockwise, "MAX_BLOCKS", 100)
     with pytest.raises(ValueError, match="blocks .*use larger chunks"):
         ao4d.extract(da.zeros((40, 40, 40), chunks=5))
-    with pytest.raises(ValueError, match="`chunks`"):
+    # the errors name the parameter the caller gave: `blocks` (extract_field), `chunks` (field_array)
+    with pytest.raises(ValueError, match="`blocks`"):
         ao4d.extract_field(fields.hypersphere(1.0), 64, (-1, 1), blocks=0)
-    with pytest.raises(ValueError, match="`chunks`"):
+    with pytest.raises(ValueError, match="`blocks`"):
         ao4d.extract_field(fields.hypersphere(1.0), 64, (-1, 1), blocks=(4, 4))
+    with pytest.raises(ValueError, match="`blocks=2`"):
+        ao4d.extract_field(fields.hypersphere(1.0), 64, (-1, 1), blocks=2)
+    with pytest.raises(ValueError, match="`chunks`"):
+        blockwise.field_array(fields.hypersphere(1.0), 64, (-1, 1), chunks=0)
 
 
 def test_progress_counts_blocks(monkeypatch):

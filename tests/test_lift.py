@@ -348,3 +348,38 @@ def test_boundary_is_the_faces_of_one_tet_outward():
     assert len(once) == 48 and sorted(tuple(sorted(f)) for f in solid.boundary.tolist()) == sorted(once)
     surface = trimesh.Trimesh(solid.points, solid.boundary, process=False)
     assert surface.is_watertight and surface.volume == pytest.approx(8.0, rel=1e-12)
+
+
+@pytest.mark.parametrize("form", ["simplex_mesh", "pair"])
+def test_a_simplex_mesh_and_a_pair_lift_as_the_trimesh_does(form):
+    import ao4d
+
+    box = _box()
+    given_as = {
+        "simplex_mesh": ao4d.SimplexMesh.from_trimesh(box),
+        "pair": (np.asarray(box.vertices), np.asarray(box.faces)),
+    }[form]
+    want, got = lift.tetrahedralize(box), lift.tetrahedralize(given_as)
+    np.testing.assert_array_equal(got.points, want.points)
+    np.testing.assert_array_equal(got.tets, want.tets)
+    for func in (lift.prism, lift.cone, lambda s: lift.spin(s, 8)):
+        a, b = func(box), func(given_as)
+        np.testing.assert_array_equal(b.vertices, a.vertices)
+        np.testing.assert_array_equal(b.simplices, a.simplices)
+
+
+def test_a_wrong_surface_type_is_a_type_error_naming_it():
+    for call, name in (
+        (lift.tetrahedralize, "surface"),
+        (lift.prism, "solid"),
+        (lift.cone, "solid"),
+        (lift.spin, "surface"),
+    ):
+        with pytest.raises(TypeError, match=f"`{name}` must be a trimesh.Trimesh, a 3D SimplexMesh, a .*got str"):
+            call("box.stl")
+    square = ([[0, 0], [1, 0], [1, 1], [0, 1]], [[0, 1], [1, 2], [2, 3], [3, 0]])
+    with pytest.raises(ValueError, match="`surface` must be a 3D triangle mesh, got dimension 2"):
+        lift.tetrahedralize(square)
+    opened = (np.asarray(_box().vertices), np.asarray(_box().faces)[1:])
+    with pytest.raises(ValueError, match="`solid` is not watertight"):
+        lift.prism(opened)

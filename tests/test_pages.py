@@ -298,3 +298,24 @@ def test_browser_demo_page_both_views_and_its_fragment(browser, demo_dir):
     assert browser.evaluate("window.ao4d.tab()") == "both"
     assert browser.evaluate("window.ao4d.views().slices.state().w") == pytest.approx(0.2)
     assert browser.errors == []
+
+
+def test_view_and_result_page_take_a_trimesh_and_pairs(sphere, image, tmp_path):
+    import trimesh
+
+    tri = trimesh.creation.icosphere(subdivisions=1)
+    mesh3 = ao4d.SimplexMesh.from_trimesh(tri)
+    want3 = ao4d.view(mesh3, tmp_path / "m3.html").read_bytes()
+    assert ao4d.view(tri, tmp_path / "t.html").read_bytes() == want3
+    assert pages.inline((np.asarray(tri.vertices), np.asarray(tri.faces))).html == pages.inline(mesh3).html
+    pair = (sphere.vertices, sphere.simplices)
+    assert ao4d.view(pair).html == ao4d.view(ao4d.SimplexMesh(*pair)).html
+    want = pages.result_page([ao4d.SimplexMesh(*pair)], image, tmp_path / "r.html").read_bytes()
+    assert pages.result_page([pair], image, tmp_path / "rp.html").read_bytes() == want
+    with pytest.raises(
+        TypeError, match=r"`meshes` must be a SimplexMesh, a trimesh.Trimesh, a \(vertices, simplices\)"
+    ):
+        pages.result_page(3, image, tmp_path / "bad.html")
+    with pytest.raises(TypeError, match=r"`meshes` must be a SimplexMesh, a trimesh.Trimesh.*; got dict"):
+        ao4d.view([{"vertices": 1}], tmp_path / "bad.html")
+    assert not (tmp_path / "bad.html").exists()

@@ -639,3 +639,77 @@ def test_ao_counts_on_dense_shapes_equal_brute_force(lanes, shift, cl_runtime, m
             np.testing.assert_array_equal(packet, brute, err_msg=name)
             np.testing.assert_array_equal(rays, brute, err_msg=name)
             assert 0.03 < packet.mean() / 40 < 0.6, name  # occluded, not closed off
+
+
+def _mesh_forms():
+    """A closed 3D mesh as a SimplexMesh, as a trimesh.Trimesh and as a (vertices, simplices) pair."""
+    import trimesh
+
+    tri = trimesh.creation.icosphere(subdivisions=1)
+    mesh = ao4d.SimplexMesh.from_trimesh(tri)
+    return mesh, {"trimesh": tri, "pair": (np.asarray(tri.vertices), np.asarray(tri.faces))}
+
+
+@pytest.mark.parametrize("form", ["trimesh", "pair"])
+@pytest.mark.parametrize("closest", [True, False])
+def test_cast_rays_takes_a_trimesh_and_a_pair(form, closest):
+    mesh, forms = _mesh_forms()
+    rng = np.random.default_rng(7)
+    o = rng.normal(size=(300, 3)) * 2.0
+    w = -o + rng.normal(size=(300, 3)) * 0.3  # most rays aim at the sphere
+    want = raycast.cast_rays(mesh, o, w, closest=closest, backend="numpy")
+    got = raycast.cast_rays(forms[form], o, w, closest=closest, backend="numpy")
+    assert (want.simplex >= 0).sum() > 100
+    np.testing.assert_array_equal(got.simplex, want.simplex)
+    np.testing.assert_array_equal(got.t, want.t)
+    np.testing.assert_array_equal(got.barycentric, want.barycentric)
+    # a 4D pair too
+    soup = soup_scene(np.random.default_rng(3), 4)
+    o4, w4 = random_rays(np.random.default_rng(4), 4, 500)
+    want4 = raycast.cast_rays(soup, o4, w4, backend="numpy")
+    got4 = raycast.cast_rays((soup.vertices, soup.simplices), o4, w4, backend="numpy")
+    np.testing.assert_array_equal(got4.simplex, want4.simplex)
+    np.testing.assert_array_equal(got4.t, want4.t)
+
+
+@pytest.mark.parametrize("form", ["trimesh", "pair"])
+def test_count_occluded_takes_a_trimesh_and_a_pair(form):
+    mesh, forms = _mesh_forms()
+    points, normals = np.asarray(mesh.vertices) * 1.5, np.asarray(mesh.vertices)  # above the sphere, facing out
+    points[::2] *= 0.0  # half of them at the centre, facing out: every ray hits
+    args = dict(samples=16, seed=2, offset=1e-6, max_distance=np.inf, runtime=None)
+    normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    want = raycast.count_occluded(mesh, points, normals, **args)
+    got = raycast.count_occluded(forms[form], points, normals, **args)
+    assert want[::2].tolist() == [16] * len(want[::2]) and want[1::2].max() == 0
+    np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("form", ["trimesh", "pair"])
+def test_traversal_counts_takes_a_trimesh_and_a_pair(form, cl_runtime):
+    mesh, forms = _mesh_forms()
+    points, normals = np.asarray(mesh.vertices) * 0.5, np.asarray(mesh.vertices)
+    normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    args = dict(samples=8, offset=0.0, runtime=cl_runtime)
+    want = raycast.traversal_counts(mesh, points, normals, **args)
+    got = raycast.traversal_counts(forms[form], points, normals, **args)
+    assert got == want
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda bad: raycast.cast_rays(bad, [[0, 0, 0]], [[0, 0, 1]], backend="numpy"),
+        lambda bad: raycast.count_occluded(
+            bad, np.zeros((1, 3)), np.eye(3)[:1], samples=4, seed=0, offset=0.0, max_distance=1.0, runtime=None
+        ),
+        lambda bad: raycast.traversal_counts(bad, np.zeros((1, 3)), np.eye(3)[:1], samples=4, offset=0.0, runtime=None),
+        lambda bad: raycast.mesh_arrays(bad),
+    ],
+)
+def test_a_wrong_mesh_type_is_a_type_error_naming_mesh(call):
+    for bad in (object(), "sphere.npz", 3.0, [1, 2, 3]):
+        with pytest.raises(
+            TypeError, match="`mesh` must be a SimplexMesh, a trimesh.Trimesh, a \\(vertices, simplices\\)"
+        ):
+            call(bad)

@@ -343,3 +343,19 @@ def test_bad_depth_volume():
     # background voxels need no normal
     vol = DepthVolume.from_hits(cam, (2, 2, 2), np.full(8, np.inf), np.zeros((8, 4)))
     assert not vol.hit.any()
+
+
+def test_trace_takes_a_pair_and_refuses_other_types_naming_mesh():
+    import trimesh
+
+    scene = _wall_scene()
+    cam = _oblique_camera()
+    want = DepthVolume.trace(scene, cam, (8, 8, 8), backend="numpy")
+    got = DepthVolume.trace((scene.vertices, scene.simplices), cam, (8, 8, 8), backend="numpy")
+    assert want.hit.sum() > 100
+    np.testing.assert_array_equal(got.depth, want.depth)
+    np.testing.assert_array_equal(got.normals, want.normals)
+    with pytest.raises(TypeError, match="`mesh` must be a SimplexMesh, a trimesh.Trimesh"):
+        DepthVolume.trace("scene.npz", cam, (8, 8, 8))
+    with pytest.raises(ValueError, match="`mesh` must be a 4D mesh"):  # a trimesh is 3D
+        DepthVolume.trace(trimesh.creation.box(), cam, (8, 8, 8))

@@ -904,3 +904,37 @@ def test_a_busy_port_is_named(small_sphere):
     with viewer.serve(small_sphere) as first:
         with pytest.raises(OSError, match=f"port {first.port}.*--port"):
             viewer.serve(small_sphere, port=first.port)
+
+
+def test_a_trimesh_and_pairs_give_the_pages_of_the_simplex_mesh(small_sphere, tmp_path):
+    import trimesh
+
+    tri = trimesh.creation.icosphere(subdivisions=1)
+    mesh3 = ao4d.SimplexMesh.from_trimesh(tri)
+    want3 = viewer.page_text(mesh3)
+    assert viewer.page_text(tri) == want3
+    assert viewer.page_text((np.asarray(tri.vertices), np.asarray(tri.faces))) == want3
+    pair = (small_sphere.vertices, small_sphere.simplices)
+    assert viewer.page_text([small_sphere, pair]) == viewer.page_text([small_sphere, small_sphere])
+    want = viewer.view(small_sphere, tmp_path / "mesh.html").read_bytes()
+    assert viewer.view(pair, tmp_path / "pair.html").read_bytes() == want
+    frame, got = viewer.scene_frame(small_sphere), viewer.scene_frame(pair)
+    np.testing.assert_array_equal(got.center, frame.center)
+    assert got.radius == frame.radius
+    cut, cut_pair = (viewer.slice_for_state(m, {"w": 0.3, "xw": 20}) for m in (small_sphere, pair))
+    assert len(cut.faces) > 50
+    np.testing.assert_array_equal(cut_pair.vertices, cut.vertices)
+    np.testing.assert_array_equal(cut_pair.faces, cut.faces)
+
+
+def test_a_wrong_mesh_type_is_a_type_error_naming_the_parameter(small_sphere, tmp_path):
+    forms = r"a SimplexMesh, a trimesh.Trimesh, a \(vertices, simplices\) pair or a path to an .npz mesh"
+    with pytest.raises(TypeError, match=f"`meshes` must be {forms}, or a sequence of them; got float"):
+        viewer.page_text(3.0)
+    with pytest.raises(TypeError, match=rf"`meshes\[1\]` must be {forms}; got dict"):
+        viewer.view([small_sphere, {}], tmp_path / "bad.html")
+    with pytest.raises(TypeError, match=f"`mesh` must be {forms}"):
+        viewer.slice_for_state(object(), {})
+    with pytest.raises(TypeError, match=f"`meshes` must be {forms}"):
+        viewer.scene_frame(None)
+    assert not (tmp_path / "bad.html").exists()

@@ -22,7 +22,20 @@ __all__ = ["wide", "widen", "widen_topology", "block_ranges", "device_wide_tree"
 
 def wide(tree: BVH, lanes: int | None = None) -> WideBVH:
     """The 8-wide, structure-of-arrays form the OpenCL kernels traverse, built once per
-    ``lanes`` (simplices per leaf block, default ``LANES``) and kept on the tree."""
+    ``lanes`` (simplices per leaf block, default ``LANES``) and kept on the tree.
+
+    Parameters
+    ----------
+    tree : BVH
+        A binary tree.
+    lanes : {4, 8, 16}, optional
+        Simplices per leaf block (default ``LANES``).
+
+    Returns
+    -------
+    WideBVH
+        The tree's wide form (the same object on later calls).
+    """
     lanes = LANES if lanes is None else lanes
     if lanes not in tree._wide:
         tree._wide[lanes] = widen(tree, lanes)
@@ -36,6 +49,25 @@ def widen(tree: BVH, lanes: int = LANES) -> WideBVH:
     (4, 8 or 16) simplices. :mod:`ao4d.ao` asks for 16 on CPUs (one AVX-512 register per row of
     a block test, faster than 4 or 8 lanes: the benchmarks guide) and 4 on GPUs, whose work-items
     run vector lanes one after another and would only pay for wide vectors in registers.
+
+    Parameters
+    ----------
+    tree : BVH
+        A binary tree.
+    lanes : {4, 8, 16}, optional
+        Simplices per leaf block.
+
+    Returns
+    -------
+    WideBVH
+        A new wide tree (:func:`wide` keeps one per ``lanes`` on the tree).
+
+    Raises
+    ------
+    ValueError
+        If ``lanes`` is not 4, 8 or 16.
+    RuntimeError
+        If the tree is deeper than the kernels' traversal stack holds.
     """
     boxes, children, block_first, block_count, depth = widen_topology(tree, lanes)
     lane = np.arange(lanes)
@@ -69,7 +101,22 @@ def block_ranges(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarray]
     """First tree-order simplex and simplex count (B,) int64 of every leaf block: each binary
     leaf, in simplex order, becomes ``ceil(count / lanes)`` consecutive blocks, block k holding
     its simplices ``k * lanes`` to ``(k + 1) * lanes - 1``. The collapse does not change them, so
-    :mod:`ao4d.bvh.device` fills the blocks on the device while the host collapses."""
+    :mod:`ao4d.bvh.device` fills the blocks on the device while the host collapses.
+
+    Parameters
+    ----------
+    tree : BVH
+        A binary tree, whose leaves are cut into blocks.
+    lanes : int, optional
+        Simplices per block.
+
+    Returns
+    -------
+    first : (B,) int64
+        First tree-order simplex of each block.
+    count : (B,) int64
+        Its number of simplices (1 to ``lanes``).
+    """
     leaves, per_leaf, first_block = _leaf_blocks(tree, lanes)
     start = -tree.meta[leaves, 0].astype(np.int64) - 1
     size = tree.meta[leaves, 1].astype(np.int64)
@@ -89,13 +136,32 @@ def _leaf_blocks(tree: BVH, lanes: int) -> tuple[np.ndarray, np.ndarray, np.ndar
 def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     """The wide form of :func:`widen` without the leaf blocks' contents.
 
-    Returns ``boxes`` (K, 2, d, 8) float32, ``children`` (K, 8) int32 (see :class:`WideBVH`),
-    per leaf block its first tree-order simplex and its count (B,) int32 each (lane l holds
-    simplex first + l for l < count), and the wide depth; :func:`widen` fills the blocks on the
-    host, :mod:`ao4d.bvh.device` on the device.
+    :func:`widen` fills the blocks on the host, :mod:`ao4d.bvh.device` on the device.
+
+    Parameters
+    ----------
+    tree : BVH
+        The binary tree to collapse.
+    lanes : {4, 8, 16}, optional
+        Simplices per leaf block, which sets how many blocks each leaf needs.
+
+    Returns
+    -------
+    boxes : (K, 2, d, 8) float32
+        The wide nodes' child boxes (see :class:`WideBVH`).
+    children : (K, 8) int32
+        The wide nodes' children (see :class:`WideBVH`).
+    block_first : (B,) int32
+        Per leaf block, its first tree-order simplex (lane l holds simplex first + l).
+    block_count : (B,) int32
+        Per leaf block, its number of simplices.
+    depth : int
+        Levels of wide nodes.
 
     Raises
     ------
+    ValueError
+        If ``lanes`` is not 4, 8 or 16.
     RuntimeError
         If the tree is deeper than the kernels' traversal stack (``STACK_SIZE`` entries) holds.
     """

@@ -125,7 +125,18 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
 
 def block_lanes(runtime) -> int:
     """Simplices per leaf block on this device: ``bvh.LANES`` (16) on CPUs, 4 elsewhere (why:
-    bvh.widen)."""
+    bvh.widen).
+
+    Parameters
+    ----------
+    runtime : ao4d.cl.Runtime
+        The device that traverses the tree.
+
+    Returns
+    -------
+    int
+        16 or 4.
+    """
     import pyopencl as pcl
 
     return LANES if runtime.device.type & pcl.device_type.CPU else 4
@@ -133,7 +144,28 @@ def block_lanes(runtime) -> int:
 
 def device_tree(mesh: Any, tree: BVH, runtime) -> dict[str, Any]:
     """Device copies of the wide tree, uploaded once per context and kept in ``mesh.cache``
-    (dropped with the tree when the mesh changes; meshes without a cache upload per call)."""
+    (dropped with the tree when the mesh changes; meshes without a cache upload per call).
+
+    Parameters
+    ----------
+    mesh : SimplexMesh or object
+        The mesh whose tree this is; its ``cache`` (when it has one) keeps the copies.
+    tree : BVH
+        The mesh's tree (:func:`get_bvh`).
+    runtime : ao4d.cl.Runtime
+        The device to upload to.
+
+    Returns
+    -------
+    dict
+        The device buffers ``boxes``, ``children`` and ``blocks`` and the host values
+        ``n_blocks``, ``lanes`` and ``block_first``.
+
+    Raises
+    ------
+    MemoryError
+        If the wide tree does not fit in the device's memory.
+    """
     lanes = block_lanes(runtime)
     key = ("ao4d.bvh/device-tree", id(runtime.context), lanes, id(tree), layout.STACK_SIZE)
     cache = getattr(mesh, "cache", None)

@@ -338,7 +338,31 @@ def _pad4(a: np.ndarray) -> np.ndarray:
 
 
 def check_mesh_arrays(vertices: Any, simplices: Any, leaf_size: Any) -> tuple[np.ndarray, np.ndarray, int]:
-    """The input checks of both builders: (V, d) finite floats, (S, d) in-range integers, S > 0."""
+    """The input checks of both builders: (V, d) finite floats, (S, d) in-range integers, S > 0.
+
+    Parameters
+    ----------
+    vertices, simplices : array_like
+        As for :func:`build`.
+    leaf_size : int
+        As for :func:`build`.
+
+    Returns
+    -------
+    vertices : (V, d) float64
+        The checked vertices.
+    simplices : (S, d) int array
+        The checked simplices.
+    leaf_size : int
+        The checked leaf size.
+
+    Raises
+    ------
+    ValueError
+        If a shape, a value or an index is out of range.
+    TypeError
+        If ``simplices`` does not hold integers or ``leaf_size`` is not an integer.
+    """
     vertices = as_array(vertices, "vertices", ndim=2, dtype=np.float64, finite=True)
     d = vertices.shape[1]
     if d not in (2, 3, 4):
@@ -372,6 +396,7 @@ def build(vertices: Any, simplices: Any, *, leaf_size: int = 16, progress: bool 
     Returns
     -------
     BVH
+        The tree, in the identity frame.
 
     Raises
     ------

@@ -77,29 +77,86 @@ class Frame:
 
     @classmethod
     def identity(cls, dim: int) -> "Frame":
-        """The frame that leaves coordinates as they are."""
+        """The frame that leaves coordinates as they are.
+
+        Parameters
+        ----------
+        dim : int
+            Ambient dimension d.
+
+        Returns
+        -------
+        Frame
+            Centre at the origin, scale 1.
+        """
         return cls(np.zeros(dim), 1.0)
 
     @classmethod
     def fit(cls, vertices: np.ndarray) -> "Frame":
-        """The frame of points ``vertices`` (V, d): their box's centre, half extent in [1/2, 1)."""
+        """The frame of points ``vertices`` (V, d): their box's centre, half extent in [1/2, 1).
+
+        Parameters
+        ----------
+        vertices : (V, d) array_like
+            The points the frame must hold.
+
+        Returns
+        -------
+        Frame
+            Centred on the points' bounding box, scaled by a power of two.
+        """
         lo, hi = vertices.min(0).astype(np.float64), vertices.max(0).astype(np.float64)
         half = float(np.max(hi - lo)) / 2
         exponent = math.frexp(half)[1] if half > 0 else 0
         return cls(0.5 * (lo + hi), math.ldexp(1.0, -exponent))
 
     def points(self, x: np.ndarray) -> np.ndarray:
-        """Points (N, d) in tree coordinates, float64."""
+        """Points (N, d) in tree coordinates, float64.
+
+        Parameters
+        ----------
+        x : (N, d) array_like
+            Points in world coordinates.
+
+        Returns
+        -------
+        (N, d) float64
+            ``(x - centre) * scale``.
+        """
         out = np.subtract(x, self.centre, dtype=np.float64)
         out *= self.scale
         return out
 
     def length(self, t: float) -> float:
-        """A world length (or ray parameter of a unit direction) in tree units."""
+        """A world length (or ray parameter of a unit direction) in tree units.
+
+        Exact both ways: the scale is a power of two.
+
+        Parameters
+        ----------
+        t : float
+            A length in world units.
+
+        Returns
+        -------
+        float
+            ``t * scale``.
+        """
         return t * self.scale
 
     def world_length(self, t):
-        """A tree length (scalar or array) in world units."""
+        """A tree length (scalar or array) in world units.
+
+        Parameters
+        ----------
+        t : float or ndarray
+            A length in tree units.
+
+        Returns
+        -------
+        float or ndarray
+            ``t / scale``.
+        """
         return t / self.scale
 
 
@@ -164,7 +221,20 @@ class BVH:
 
     def frames(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``inverse[p]`` and ``origin[p]`` of tree-order simplices ``p`` (a device-built tree
-        computes just these instead of all)."""
+        computes just these instead of all).
+
+        Parameters
+        ----------
+        p : (N,) int array
+            Tree-order simplex indices.
+
+        Returns
+        -------
+        inverse : (N, d, d) float64
+            The simplices' inverse matrices.
+        origin : (N, d) float64
+            Their vertex 0.
+        """
         return self.inverse[p], self.origin[p]
 
 
@@ -201,7 +271,18 @@ class WideBVH:
 
 def box_area(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Boundary (d-1)-measure of boxes: the chance that a random ray meets a convex body is
-    proportional to it (Cauchy), which makes it the SAH weight in any dimension."""
+    proportional to it (Cauchy), which makes it the SAH weight in any dimension.
+
+    Parameters
+    ----------
+    lo, hi : (..., d) ndarray
+        Low and high corners of the boxes (d = 2, 3 or 4).
+
+    Returns
+    -------
+    (...,) ndarray
+        The boundary measure of each box (empty extents count as zero).
+    """
     e = np.maximum(hi - lo, 0.0)
     d = e.shape[-1]
     if d == 2:
@@ -218,6 +299,20 @@ def sah_cost(tree: BVH, *, traversal: float = 1.0, intersection: float = 1.0) ->
     ``sum over inner nodes of A(n) * traversal + sum over leaves of A(l) * count(l) *
     intersection``, divided by ``A(root)``, with ``A`` the boxes' boundary (d-1)-measure (the
     weight :mod:`ao4d.bvh.host` splits by): the expected cost of a random ray that meets the root.
+
+    Parameters
+    ----------
+    tree : BVH
+        A binary tree.
+    traversal : float, optional
+        Cost of visiting an inner node.
+    intersection : float, optional
+        Cost of one ray-simplex test.
+
+    Returns
+    -------
+    float
+        The relative cost (NaN when the root box has no area).
     """
     d = tree.dim
     area = box_area(tree.lo[:, :d].astype(np.float64), tree.hi[:, :d].astype(np.float64))
@@ -235,6 +330,7 @@ def intersect(
     Parameters
     ----------
     inverse : (P, d, d) float64
+        Per simplex, the inverse of ``[e1 .. e_{d-1} | n]`` (``BVH.inverse``).
     origin : (P, d) float64
         Vertex 0 of each simplex.
     ray_o, ray_w : (P, d) float64
@@ -245,6 +341,7 @@ def intersect(
     Returns
     -------
     hit : (P,) bool
+        Whether ray p hits simplex p within ``t_max``.
     t : (P,) float64
         Ray parameter of the hyperplane crossing (meaningful where ``hit``).
     """
@@ -262,6 +359,19 @@ def intersect(
 
 
 def barycentric(inverse: np.ndarray, origin: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Barycentric weights ``(P, d)`` of points lying on simplices (vertex 0 first)."""
+    """Barycentric weights ``(P, d)`` of points lying on simplices (vertex 0 first).
+
+    Parameters
+    ----------
+    inverse, origin : ndarray
+        As for :func:`intersect`.
+    points : (P, d) float64
+        One point on each simplex.
+
+    Returns
+    -------
+    (P, d) float64
+        The weights of the simplex's vertices 0 to d-1, summing to one.
+    """
     beta = np.einsum("pik,pk->pi", inverse[:, :-1, :], points - origin)
     return np.concatenate([1.0 - beta.sum(1, keepdims=True), beta], axis=1)
