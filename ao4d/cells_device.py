@@ -63,8 +63,8 @@ from typing import Any
 
 import numpy as np
 
-from . import cl
 from .cells import CellTable, Geometry, Job, Plan, SlabMesh, join, threshold
+from .opencl import cl
 
 __all__ = ["FLOAT32", "IN_PLACE", "device_layers", "fits", "get_runtime", "march", "march_slabs", "release_buffers"]
 
@@ -122,7 +122,7 @@ def get_runtime(backend: str = "auto") -> cl.Runtime | None:
     Parameters
     ----------
     backend : {"auto", "opencl", "numpy"}
-        ``"auto"``: the device :func:`ao4d.cl.get_runtime` chooses (``AO4D_DEVICE``), numpy
+        ``"auto"``: the device :func:`ao4d.opencl.cl.get_runtime` chooses (``AO4D_DEVICE``), numpy
         when none works (no warning: the mesh is the same); ``"opencl"`` requires a device.
     """
     return cl.resolve_backend(backend, warn=False)
@@ -574,7 +574,7 @@ def march_slabs(
     job : ao4d.cells.Job
         The extraction, as for :func:`ao4d.cells.march_slabs` (the callers validate); its
         ``layers_per_slab`` is the numpy engine's slab, whose vertex order the device keeps.
-    runtime : ao4d.cl.Runtime
+    runtime : ao4d.opencl.cl.Runtime
         The device.
     cells : bool
         Also report each slab's new vertices' keys, active cells and their simplex counts

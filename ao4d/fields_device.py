@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from . import cl
+from .opencl import cl
 
 __all__ = ["TRANSCENDENTAL_ULPS", "device_source", "host_matches", "reader", "sample_layers"]
 
@@ -237,8 +237,8 @@ def device_source(field: Any, dim: int) -> tuple[str, np.ndarray] | None:
 def _kernel(runtime: cl.Runtime, generated: str, dim: int) -> Any:
     """The ``sample_field`` kernel of ``kernels/fields.cl`` with ``generated`` appended, built once
     per context and source (and kept in the binary cache across processes)."""
-    from . import _kernel_binaries
     from ._resources import data_dir
+    from .opencl import binaries as _kernel_binaries
 
     lanes = host_matches()["lanes"]
     text = (
@@ -446,8 +446,8 @@ def sample_layers(
         The grid's coordinates per axis.
     start, stop : int
         The layers (last-axis indices) to sample.
-    runtime : ao4d.cl.Runtime, optional
-        The device; default the chosen one (:func:`ao4d.cl.get_runtime`).
+    runtime : ao4d.opencl.cl.Runtime, optional
+        The device; default the chosen one (:func:`ao4d.opencl.cl.get_runtime`).
 
     Returns
     -------

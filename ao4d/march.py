@@ -37,8 +37,8 @@ from .cells import check_slab_memory as _check_slab_memory
 from .cells import layers_per_slab as _layers_per_slab
 from .cells import march as _march
 from .cells import outside_value
-from .cl import BACKENDS
 from .mesh import SimplexMesh
+from .opencl.cl import BACKENDS
 from .topology import GRID_EDGE_KEY
 
 __all__ = ["extract", "extract_field", "METHODS"]
@@ -156,7 +156,7 @@ def extract(
         an affine map keeps the mesh closed, and a negative determinant reverses the simplices
         so that the normals still point out of the solid.
     backend : {"auto", "opencl", "numpy"}
-        Where the marching runs: ``"auto"`` on the OpenCL device :mod:`ao4d.cl` chooses
+        Where the marching runs: ``"auto"`` on the OpenCL device :mod:`ao4d.opencl.cl` chooses
         (``AO4D_DEVICE``) and in numpy where none works; ``"opencl"`` requires a device.
         Every backend gives the same arrays (:mod:`ao4d.cells_device`).
 

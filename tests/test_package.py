@@ -97,7 +97,7 @@ def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 
 def test_no_import_cycles():
-    # the package __init__ maps names lazily; it imports nothing but ao4d._tbb at import time
+    # the package __init__ maps names lazily; it imports nothing but ao4d.opencl.tbb at import time
     graph = {m: _imports(m) for m in MODULES if m != "ao4d"}
     for deps in graph.values():
         deps.discard("ao4d")
@@ -112,7 +112,7 @@ def test_cycle_finder_finds_cycles():
 @pytest.mark.parametrize("name", PUBLIC)
 def test_every_public_module_imports_first_in_a_fresh_interpreter(name):
     # each module first, so that no import order hides a missing or circular import
-    code = f"import {name}, sys; assert 'pyopencl' not in sys.modules or {name!r}.startswith('ao4d.cl')"
+    code = f"import {name}, sys; assert 'pyopencl' not in sys.modules or {name!r}.startswith('ao4d.opencl.cl')"
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
 
 

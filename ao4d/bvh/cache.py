@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from .. import cl
 from .._validate import check_choice, check_positive_int
+from ..opencl import cl
 from . import blocks, device, host, layout
 from .blocks import device_wide_tree
 from .layout import BVH, LANES, MAX_LEAF_BLOCKS, Frame
@@ -66,10 +66,10 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
         Most simplices per leaf.
     builder : {"auto", "host", "device"}
         ``"host"``: ``ao4d.bvh.host.build`` (numpy); ``"device"``: ``ao4d.bvh.device.build`` on
-        ``runtime`` (default: the device :func:`ao4d.cl.get_runtime` chooses). ``"auto"``: a
+        ``runtime`` (default: the device :func:`ao4d.opencl.cl.get_runtime` chooses). ``"auto"``: a
         tree already cached for the mesh, whichever built it; else the device builder when
         ``runtime`` is given (the ray-casting functions pass theirs), the host builder otherwise.
-    runtime : ao4d.cl.Runtime, optional
+    runtime : ao4d.opencl.cl.Runtime, optional
         The OpenCL device that will trace the tree.
 
     Returns

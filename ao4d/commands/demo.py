@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
-from ..cl import BACKENDS
+from ..opencl.cl import BACKENDS
 
 HELP = "run the whole pipeline on a built-in 4D scene and write volumes, meshes and pictures"
 EXAMPLES = """  ao4d demo                          writes ./ao4d-demo/ (under a minute on 2 CPU cores)
@@ -81,7 +81,7 @@ def _size(path: Path) -> str:
 
 
 def _device(backend: str) -> str:
-    from .. import cl
+    from ..opencl import cl
 
     return cl.describe(cl.resolve_backend(backend, warn=False))
 
@@ -113,11 +113,11 @@ def run_demo(
     DemoReport
     """
 
-    from .. import cl
     from .._atomic import all_or_nothing, check_output_folder
     from .._validate import check_choice
     from ..ao import ambient_occlusion
     from ..mesh import concatenate
+    from ..opencl import cl
     from ..raycast import get_bvh
     from ..rendering import render
     from ..scenes import QUALITY, default_scene, extract_scene

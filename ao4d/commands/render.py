@@ -6,7 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
-from ..cl import BACKENDS
+from ..opencl.cl import BACKENDS
 
 HELP = "render 4D meshes (.npz) into a 3D image volume (.mhd or .vti) with a 4D camera"
 EXAMPLES = """  ao4d render scene.npz --out image.mhd
