@@ -34,8 +34,8 @@ __version__ = "0.1.0"
 # (public name -> "module:attribute", the module relative to this package)
 _EXPORTS = {
     "sample": "fields:sample",
-    "extract": "march:extract",
-    "extract_field": "march:extract_field",
+    "extract": "marching.march:extract",
+    "extract_field": "marching.march:extract_field",
     "read_grid": "readers:read_grid",
     "SimplexMesh": "mesh:SimplexMesh",
     "ambient_occlusion": "ao:ambient_occlusion",
@@ -51,17 +51,14 @@ _EXPORTS = {
 # ``__all__`` and ``dir`` so that ``ao`` stands apart from ``ambient_occlusion``, ``sampling``
 # from ``sample``, ``viewer`` from ``view``
 _MODULES = (
-    "lut",
+    "marching",
     "opencl",
     "fields",
-    "fields_device",
     "geometry",
     "topology",
     "slicing",
     "mesh",
     "mesh_files",
-    "march",
-    "blockwise",
     "readers",
     "bvh",
     "raycast",
@@ -84,6 +81,12 @@ _MODULES = (
 # modules that moved into a subpackage: old name -> new name (relative to this package). The
 # old paths are permanent, silent aliases (no DeprecationWarning: docs/ARCHITECTURE.md says why)
 _MOVED = {
+    "lut": "marching.lut",
+    "cells": "marching.cells",
+    "cells_device": "marching.cells_device",
+    "fields_device": "marching.fields_device",
+    "march": "marching.march",
+    "blockwise": "marching.blockwise",
     "cl": "opencl.cl",
     "_kernel_binaries": "opencl.binaries",
     "_tbb": "opencl.tbb",

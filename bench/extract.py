@@ -223,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     start = time.perf_counter()
 
-    from ao4d import cells_device
+    from ao4d.marching import cells_device
 
     line, load = machine_line()
     print(line)

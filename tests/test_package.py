@@ -173,7 +173,7 @@ def test_all_and_dir_list_functions_and_classes_and_modules_stay_attributes():
 
 
 def test_every_public_top_level_module_is_reachable_as_an_attribute():
-    # not attributes: the command line, and the marching engines behind ao4d.march
+    # not attributes: the command line, and the marching engines behind ao4d.marching.march
     top = {m.split(".")[1] for m in PUBLIC if m.count(".") >= 1} - {"cli", "commands", "cells", "cells_device"}
     assert top <= set(ao4d._MODULES), sorted(top - set(ao4d._MODULES))
     assert not set(ao4d._MODULES) & set(ao4d.__all__)
