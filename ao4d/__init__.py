@@ -44,14 +44,15 @@ _EXPORTS = {
     "Light": "lighting:Light",
     "render": "rendering:render",
     "RenderResult": "rendering:RenderResult",
-    "view": "pages:view",
+    "view": "browser.pages:view",
 }
 
 # the stages' modules: reachable as ``ao4d.<name>`` (loaded on first use), kept out of
 # ``__all__`` and ``dir`` so that ``ao`` stands apart from ``ambient_occlusion``, ``sampling``
-# from ``sample``, ``viewer`` from ``view``
+# from ``sample``
 _MODULES = (
     "marching",
+    "browser",
     "opencl",
     "fields",
     "geometry",
@@ -73,9 +74,6 @@ _MODULES = (
     "pictures",
     "lift",
     "scenes",
-    "viewer",
-    "image_viewer",
-    "pages",
 )
 
 # modules that moved into a subpackage: old name -> new name (relative to this package). The
@@ -90,6 +88,10 @@ _MOVED = {
     "cl": "opencl.cl",
     "_kernel_binaries": "opencl.binaries",
     "_tbb": "opencl.tbb",
+    "pages": "browser.pages",
+    "viewer": "browser.viewer",
+    "image_viewer": "browser.image_viewer",
+    "_page": "browser._page",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -170,8 +170,8 @@ class RenderResult:
         )
 
     def _repr_html_(self) -> str:
-        """The image's ray-marching page (:mod:`ao4d.image_viewer`), shown inline in Jupyter."""
-        from .pages import inline
+        """The image's ray-marching page (:mod:`ao4d.browser.image_viewer`), shown inline in Jupyter."""
+        from .browser.pages import inline
 
         return inline(self)._repr_html_()
 

@@ -299,8 +299,8 @@ def _write_files(out: Path, scene, image, settings, seconds: dict[str, float], *
             title=f"ao4d demo: slice w = 0 coloured by 4D AO ({samples} samples)",
         ),
     )
-    from ..pages import result_page  # the same scene in the browser: slices and projection
-    from ..viewer import split_objects
+    from ..browser.pages import result_page  # the same scene in the browser: slices and projection
+    from ..browser.viewer import split_objects
 
     done("view.html", result_page(split_objects(scene), image, out / "view.html", title="ao4d demo", names=names))
     return files
