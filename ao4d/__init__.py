@@ -116,7 +116,7 @@ class _MovedModule(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         module.__spec__ = module.__spec__.loader_state  # its own spec again: the new name
 
 
-if not any(isinstance(finder, _MovedModule) for finder in sys.meta_path):
+if not any(type(finder).__qualname__ == "_MovedModule" for finder in sys.meta_path):  # once, reloads too
     sys.meta_path.append(_MovedModule())
 
 

@@ -29,7 +29,7 @@ def lazy_face(package: str, exports: dict[str, str]) -> tuple[Callable[[str], An
     getattr : callable
         Loads a public name from its module on first use and keeps it in the package.
     dir : callable
-        The public names, sorted.
+        The public names and the module's dunder names (``__all__``, ``__doc__``, ...), sorted.
     """
 
     def __getattr__(name: str) -> Any:
@@ -41,6 +41,7 @@ def lazy_face(package: str, exports: dict[str, str]) -> tuple[Callable[[str], An
         return value
 
     def __dir__() -> list[str]:
-        return sorted(exports)
+        dunders = (name for name in vars(sys.modules[package]) if name.startswith("__"))
+        return sorted({*exports, *dunders})
 
     return __getattr__, __dir__

@@ -54,8 +54,9 @@ nitpicky = True
 nitpick_ignore_regex = [
     # internal modules (private, or the engines behind a documented module) have no pages;
     # docstrings name them so that a reader of the source can follow
-    (r"py:.*", r"ao4d\._.*"),
-    (r"py:.*", r"ao4d\.cells(_device)?(\..*)?"),
+    (r"py:.*", r"ao4d\.(\w+\.)?_.*"),
+    (r"py:.*", r"ao4d\.marching\.(cells|cells_device|fields_device)(\..*)?"),
+    (r"py:.*", r"ao4d\.opencl\.(binaries|tbb)(\..*)?"),
     (r"py:.*", r"ao4d\.bvh\.(host|device|collapse|layout|blocks|cache)(\..*)?"),
     (r"py:.*", r"_.*"),
     ("py:class", r"numpy\.typing\..*"),
