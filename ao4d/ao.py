@@ -19,11 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from . import cl
 from ._validate import as_array, check_choice, check_int, check_memory, check_positive_int
 from .bvh.host import nondegenerate
 from .geometry import simplex_normals
 from .mesh import as_mesh, warn_if_inside_out
+from .opencl import cl
 from .raycast import ACCELS, check_distance, check_rays, count_occluded, get_bvh, mesh_arrays, progress_bar, unit_rows
 from .topology import GRID_EDGE_KEY
 

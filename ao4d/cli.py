@@ -61,7 +61,8 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "command", None):
         parser.print_help()
         return 0
-    from . import _progress, cl
+    from . import _progress
+    from .opencl import cl
 
     _progress.set_enabled(not args.no_progress)
     try:

@@ -92,7 +92,7 @@ class Field:
         A box ``(lo, hi)`` containing the solid; ``None`` when unbounded or unknown.
     program : tuple, optional
         The same field as a small expression tree ``(op, params, children)`` that
-        ``ao4d.fields_device`` evaluates in an OpenCL kernel with ``func``'s operations;
+        ``ao4d.marching.fields_device`` evaluates in an OpenCL kernel with ``func``'s operations;
         ``None`` (any other callable): sampled on the host only.
     """
 
@@ -169,7 +169,7 @@ def _extent_of(field: Any) -> np.ndarray | None:
 
 
 def _program(op: str, params: Sequence[float], *children: Any) -> tuple | None:
-    """A field's expression tree for ``ao4d.fields_device``: ``(op, params, children)``, the
+    """A field's expression tree for ``ao4d.marching.fields_device``: ``(op, params, children)``, the
     children being the operands' trees; ``None`` when an operand has none (a plain callable)."""
     kids = tuple(getattr(c, "program", None) for c in children)
     if any(k is None for k in kids):

@@ -34,11 +34,12 @@ from typing import Any
 
 import numpy as np
 
-from . import _progress, cl
+from . import _progress
 from . import bvh as _bvh
 from ._validate import as_array, as_real, check_bool, check_choice, check_memory
 from .bvh import BUILDERS, get_bvh
 from .mesh import as_mesh
+from .opencl import cl
 from .sampling import cosine_hemisphere, sobol_table
 
 __all__ = [
@@ -391,7 +392,7 @@ def sample_directions(runtime, normals: np.ndarray, samples: int, seed: int, *, 
 
     Parameters
     ----------
-    runtime : ao4d.cl.Runtime
+    runtime : ao4d.opencl.cl.Runtime
         The OpenCL device.
     normals : (N, d) float64
         Unit normals.
@@ -624,7 +625,7 @@ class Tracer:
     ----------
     tree : ao4d.bvh.BVH
         The mesh's tree (:func:`ao4d.bvh.get_bvh`).
-    runtime : ao4d.cl.Runtime or None
+    runtime : ao4d.opencl.cl.Runtime or None
         The OpenCL device, or None for the numpy traversal.
     device : dict or None
         The tree's device copies (:func:`ao4d.bvh.device_tree`) on ``runtime``.
@@ -637,13 +638,13 @@ class Tracer:
 
     @classmethod
     def of(cls, mesh: Any, runtime: Any) -> Tracer:
-        """The tracer of ``mesh`` on ``runtime`` (:func:`ao4d.cl.resolve_backend`'s answer).
+        """The tracer of ``mesh`` on ``runtime`` (:func:`ao4d.opencl.cl.resolve_backend`'s answer).
 
         Parameters
         ----------
         mesh : SimplexMesh
             A mesh with at least one simplex.
-        runtime : ao4d.cl.Runtime or None
+        runtime : ao4d.opencl.cl.Runtime or None
             The OpenCL device, or None for numpy.
 
         Returns
@@ -832,7 +833,7 @@ def count_occluded(
         Rays per point, and the seed of the directions' random shifts.
     offset, max_distance : float
         How far above the point the rays start, and their reach (world units).
-    runtime : ao4d.cl.Runtime or None
+    runtime : ao4d.opencl.cl.Runtime or None
         The OpenCL device, or None for the numpy traversal.
     accel : {"bvh", "brute"}
         Traverse the BVH, or test every simplex.

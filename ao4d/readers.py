@@ -114,7 +114,7 @@ class Grid:
     @property
     def lazy(self) -> bool:
         """True when the values are a dask array (read block by block when used)."""
-        from .blockwise import is_dask_array
+        from .marching.blockwise import is_dask_array
 
         return is_dask_array(self.values)
 
@@ -371,7 +371,7 @@ def _as_dask(values: Any, chunks: Any, text: str) -> Any:
     import dask.array as da
     import dask.base
 
-    from .blockwise import block_sizes, is_dask_array
+    from .marching.blockwise import block_sizes, is_dask_array
 
     sizes = block_sizes(chunks, tuple(int(n) for n in values.shape))
     if is_dask_array(values):

@@ -54,13 +54,14 @@ from typing import Any, Literal
 
 import numpy as np
 
-from . import _progress, cl
+from . import _progress
 from ._validate import as_array, as_real, check_bool, check_choice, check_int, check_memory, check_positive_int
 from .ao import ORIGIN_OFFSET, ambient_occlusion
 from .camera import Camera4D, ImageGeometry, image_shape
 from .compositing import over, unpremultiply
 from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, lambert
 from .mesh import SimplexMesh, as_meshes, concatenate, warn_if_inside_out
+from .opencl import cl
 from .raycast import RAYS_PER_SECOND, Tracer, check_distance, check_rays, trace
 from .screen_ao import (
     DENOISE_PER_SECOND,
@@ -131,7 +132,7 @@ class RenderResult:
         ``ao="screen"``, an upper bound), ``hits``; ``primary_seconds``, ``layer_seconds``,
         ``shadow_seconds``, ``ao_seconds``, ``seconds`` (the whole call); ``backend``, the one
         that ran (``"opencl"`` or ``"numpy"``), with ``device``, its description
-        (:func:`ao4d.cl.describe`).
+        (:func:`ao4d.opencl.cl.describe`).
     """
 
     shade: np.ndarray
@@ -169,8 +170,8 @@ class RenderResult:
         )
 
     def _repr_html_(self) -> str:
-        """The image's ray-marching page (:mod:`ao4d.image_viewer`), shown inline in Jupyter."""
-        from .pages import inline
+        """The image's ray-marching page (:mod:`ao4d.browser.image_viewer`), shown inline in Jupyter."""
+        from .browser.pages import inline
 
         return inline(self)._repr_html_()
 
@@ -422,7 +423,7 @@ def render(
     shading : {"smooth", "flat"}
         Shading normals interpolated from vertex normals, or the hit simplex's own.
     backend : {"auto", "opencl", "numpy"}
-        Resolved once (:func:`ao4d.cl.resolve_backend`); primary, layer and shadow rays
+        Resolved once (:func:`ao4d.opencl.cl.resolve_backend`); primary, layer and shadow rays
         (:func:`ao4d.raycast.trace`) and AO (:func:`ao4d.ambient_occlusion`) all run on it.
     progress : bool, optional
         Progress bars (:mod:`ao4d._progress`: silenced by ``--no-progress``); default on for

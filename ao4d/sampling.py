@@ -127,7 +127,7 @@ def _sobol_file(samples: int, ndim: int, seed: int) -> Path | None:
     whose scrambling defines the table."""
     from importlib.metadata import PackageNotFoundError, version
 
-    from ._kernel_binaries import cache_dir
+    from .opencl.binaries import cache_dir
 
     folder = cache_dir("sobol")
     try:

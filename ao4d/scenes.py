@@ -245,7 +245,7 @@ def extract_scene(
     list of SimplexMesh
         One closed mesh per object, in scene order.
     """
-    from .march import extract_field
+    from .marching.march import extract_field
 
     cell = as_real(cell, "cell", gt=0)
     check_choice(method, "method", ("cubes", "simplices"))

@@ -79,10 +79,10 @@ from functools import cached_property
 
 import numpy as np
 
-from . import cl
 from ._validate import as_array, as_real, check_int, check_memory, check_positive_int
 from .camera import Camera4D, image_shape
 from .mesh import as_mesh
+from .opencl import cl
 from .sampling import cosine_hemisphere, sobol_table
 
 __all__ = [

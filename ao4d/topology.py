@@ -370,7 +370,7 @@ def connected_labels(n_nodes: int, a: np.ndarray, b: np.ndarray) -> tuple[int, n
 # report
 # --------------------------------------------------------------------------------------------
 
-# What marching extraction guarantees by construction (ao4d.march marks its meshes; the marks
+# What marching extraction guarantees by construction (ao4d.marching.march marks its meshes; the marks
 # go when the arrays change): every vertex link is a sphere, or a disk where the mesh is open.
 # Each cell's patch is a ball bounded on the cell's facets, neighbours agree on shared facets,
 # and vertices are welded per grid edge, so a vertex's star is the patches of the cells around

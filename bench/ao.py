@@ -439,7 +439,8 @@ def main(argv=None) -> int:
         parser.error(f"--shapes: unknown {unknown}; choose from {', '.join(SHAPES)}")
 
     import ao4d
-    from ao4d import _progress, cl
+    from ao4d import _progress
+    from ao4d.opencl import cl
 
     _progress.set_enabled(False)  # no progress lines from the host builder in the table
     began = time.perf_counter()

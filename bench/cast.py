@@ -130,7 +130,8 @@ def main(argv=None) -> int:
     if args.rounds < 1:
         parser.error(f"--rounds must be at least 1, got {args.rounds}")
     import ao4d
-    from ao4d import _progress, cl, raycast
+    from ao4d import _progress, raycast
+    from ao4d.opencl import cl
 
     _progress.set_enabled(False)  # no progress lines in the table
     began = time.perf_counter()

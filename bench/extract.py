@@ -41,7 +41,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 def machine_line() -> tuple[str, float]:
     """(a line naming the CPU, its SIMD, caches, the OpenCL device and the load; load average)."""
-    from ao4d import cl
+    from ao4d.opencl import cl
 
     model, flags = platform.processor() or "unknown CPU", set()
     try:
@@ -162,7 +162,8 @@ _FIRST_CALL = """
 import time, json
 t0 = time.perf_counter()
 import ao4d
-from ao4d import fields, cl
+from ao4d import fields
+from ao4d.opencl import cl
 values = ao4d.sample(fields.hypersphere(1.0, dim=3), 256, (-1.2, 1.2))
 t1 = time.perf_counter()
 mesh = ao4d.extract(values, 0.0, progress=False)
@@ -222,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     start = time.perf_counter()
 
-    from ao4d import cells_device
+    from ao4d.marching import cells_device
 
     line, load = machine_line()
     print(line)

@@ -4,7 +4,7 @@
    float64, never held anywhere): the in-process slab path (``extract_field``) against
    ``extract_field(..., blocks=)`` on a ``LocalCluster`` of 2 worker processes (1 thread each),
    started with dask's default worker environment and inside
-   ``ao4d.blockwise.worker_environment()`` (no ``MALLOC_TRIM_THRESHOLD_``).
+   ``ao4d.marching.blockwise.worker_environment()`` (no ``MALLOC_TRIM_THRESHOLD_``).
    Wall time, cells per second, peak resident memory of the client process (taken when the
    extraction returns) and of each worker (``ru_maxrss``), and whether the two meshes are identical (sha256 of vertices and simplices).
    Each case runs in a fresh process, one after the other.
@@ -81,14 +81,14 @@ def _case(kind: str, grid: int, chunks: int) -> dict:
 
         from distributed import Client, LocalCluster
 
-        from ao4d.blockwise import WorkerEnvironmentWarning, worker_environment
+        from ao4d.marching.blockwise import WorkerEnvironmentWarning, worker_environment
 
         warnings.simplefilter("ignore", WorkerEnvironmentWarning)  # the default case is measured
         env = worker_environment() if kind == "cluster-tuned" else contextlib.nullcontext()
         with env:
             cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0")
         with cluster, Client(cluster) as client:
-            client.run(lambda: __import__("ao4d.blockwise"))  # warm the workers' imports
+            client.run(lambda: __import__("ao4d.marching.blockwise"))  # warm the workers' imports
             t0 = time.perf_counter()
             mesh = ao4d.extract_field(field, grid, bounds, blocks=chunks, progress=False)
             result["seconds"] = time.perf_counter() - t0
@@ -188,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{slab['closed'] and cluster['closed'] and tuned['closed']}; identical arrays on all "
             f"paths: {same}; speed-up over the slab path {slab['seconds'] / cluster['seconds']:.2f}x "
             f"(dask's worker environment), {slab['seconds'] / tuned['seconds']:.2f}x "
-            "(ao4d.blockwise.worker_environment)"
+            "(ao4d.marching.blockwise.worker_environment)"
         )
     if not args.skip_datasets:
         with tempfile.TemporaryDirectory(prefix="ao4d-scale-") as tmp:

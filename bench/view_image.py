@@ -3,7 +3,7 @@ software WebGL2 (SwiftShader: the GPU emulated on the CPU cores).
 
 The 4D camera's image of a hypersphere (radius 1, seen from w = -4, one light, no AO) is rendered
 by :func:`ao4d.render` at 64^3, 128^3 and 256^3 voxels, written with
-:func:`ao4d.image_viewer.view_image` and loaded in Debian's Chromium. Each frame the fragment
+:func:`ao4d.browser.image_viewer.view_image` and loaded in Debian's Chromium. Each frame the fragment
 shader ray-marches every pixel through the volume (2 samples per voxel, nearest voxel, front to
 back, stopping at opacity 0.995). Figures per size and transfer function:
 
@@ -13,7 +13,7 @@ back, stopping at opacity 0.995). Figures per size and transfer function:
 * the transfer functions: ``surface`` (opaque: rays stop at the first hit voxel) and ``glass``
   (opacity 0.15 ramp: rays cross the whole object).
 
-The peer is the same ray-march in numpy (:func:`ao4d.image_viewer.reference_march`, one frame),
+The peer is the same ray-march in numpy (:func:`ao4d.browser.image_viewer.reference_march`, one frame),
 what a page without GPU marching would run per frame.
 
     python bench/view_image.py                      # 64, 128, 256; 1024x640 window
@@ -57,7 +57,7 @@ def main(argv=None) -> int:
 
     from _chromium import Chromium
 
-    from ao4d import image_viewer as iv
+    from ao4d.browser import image_viewer as iv
 
     rows = []
     with (

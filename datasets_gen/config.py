@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from ao4d.cl import BACKENDS
+from ao4d.opencl.cl import BACKENDS
 
 from ._checks import check_keys
 from .samples import check_samples

@@ -301,7 +301,7 @@ def _extract(
     f: Any, settings: dict, rotation: np.ndarray | None, derived: dict, support: Support | None = None
 ) -> Shape:
     """Extract ``f`` (rotated) on its fitted grid; ``support`` is the unrotated solid's."""
-    from ao4d.march import extract_field
+    from ao4d.marching.march import extract_field
 
     g = _rotated_field(f, rotation)
     grid = _grid_for(g, support, rotation, settings)

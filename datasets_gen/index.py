@@ -373,8 +373,8 @@ def device_name() -> str:
     Returns
     -------
     str
-        The device's description (:func:`ao4d.cl.describe`).
+        The device's description (:func:`ao4d.opencl.cl.describe`).
     """
-    from ao4d import cl
+    from ao4d.opencl import cl
 
     return cl.describe(cl.resolve_backend("auto", warn=False))

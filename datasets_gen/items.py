@@ -359,7 +359,7 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
 def _build_bvh(mesh: Any, backend: str) -> None:
     """Build (and cache on ``mesh``) the BVH that the AO rays and the renders will trace, on
     the device they run on, so that its time is a stage of its own."""
-    from ao4d import cl
+    from ao4d.opencl import cl
     from ao4d.raycast import get_bvh
 
     get_bvh(mesh, runtime=cl.resolve_backend(backend, warn=False))
@@ -367,7 +367,7 @@ def _build_bvh(mesh: Any, backend: str) -> None:
 
 def _backend_ran(backend: str) -> str:
     """The backend that computes for a requested ``backend`` ("auto" resolves to one)."""
-    from ao4d import cl
+    from ao4d.opencl import cl
 
     return cl.backend_name(cl.resolve_backend(backend, warn=False))
 

@@ -110,7 +110,7 @@ def run(
     ValueError
         Before any work: a malformed URL, a damaged ``run.json``, ``workers > 1`` into a
         filesystem that lives in this process (``memory://``), an ``AO4D_DEVICE`` that names
-        no working device (:class:`ao4d.cl.DeviceSelectionError`). After the items: the index
+        no working device (:class:`ao4d.opencl.cl.DeviceSelectionError`). After the items: the index
         cannot be written (a full disk; the message names the file, the items are kept).
     """
     from ao4d import _progress

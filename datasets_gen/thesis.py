@@ -31,8 +31,8 @@ import numpy as np
 
 import ao4d
 from ao4d.camera import Camera4D
-from ao4d.cl import BACKENDS
 from ao4d.mesh import SimplexMesh
+from ao4d.opencl.cl import BACKENDS
 
 __all__ = ["raw_scenes", "closed_scenes", "thesis_camera", "render_pair", "render_full", "main", "SCENES"]
 

@@ -54,8 +54,9 @@ nitpicky = True
 nitpick_ignore_regex = [
     # internal modules (private, or the engines behind a documented module) have no pages;
     # docstrings name them so that a reader of the source can follow
-    (r"py:.*", r"ao4d\._.*"),
-    (r"py:.*", r"ao4d\.cells(_device)?(\..*)?"),
+    (r"py:.*", r"ao4d\.(\w+\.)?_.*"),
+    (r"py:.*", r"ao4d\.marching\.(cells|cells_device|fields_device)(\..*)?"),
+    (r"py:.*", r"ao4d\.opencl\.(binaries|tbb)(\..*)?"),
     (r"py:.*", r"ao4d\.bvh\.(host|device|collapse|layout|blocks|cache)(\..*)?"),
     (r"py:.*", r"_.*"),
     ("py:class", r"numpy\.typing\..*"),
@@ -164,7 +165,7 @@ def _resolve_short_names(app, env, node, contnode):
     """Resolve ``SimplexMesh.slice``-style references written relative to another module.
 
     Docstrings name objects as their own module sees them (``SimplexMesh`` in ``ao4d.topology``,
-    ``RenderResult.save`` in ``ao4d.image_viewer``); the pages document them under their public
+    ``RenderResult.save`` in ``ao4d.browser.image_viewer``); the pages document them under their public
     names (``ao4d.SimplexMesh``). A reference that Sphinx cannot resolve is looked up as the end
     of exactly one documented name, preferring the shortest; an attribute documented only in its
     class's Attributes section resolves to the class.

@@ -1,5 +1,5 @@
 // The shape library's fields (ao4d/fields.py) sampled on a grid slab on the device, for
-// ao4d/fields_device.py, which appends the field itself: a function
+// ao4d/marching/fields_device.py, which appends the field itself: a function
 //
 //     double field_value(const double *p, __constant const double *prm)
 //
@@ -17,7 +17,7 @@
 //
 // exp, sin and cos (metaballs, gyroid) are the device's: not required to be numpy's bits.
 //
-// Defines (written by ao4d/fields_device.py above this file): DIM (2, 3, 4), SUMSQ_LANES.
+// Defines (written by ao4d/marching/fields_device.py above this file): DIM (2, 3, 4), SUMSQ_LANES.
 // The slab is laid out as ao4d.fields.evaluate_layers lays it: the grid's last axis first, then
 // axes 0 .. DIM-2 in C order.
 

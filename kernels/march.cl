@@ -1,4 +1,4 @@
-// Marching extraction of one slab of grid layers (ao4d/cells_device.py drives it): the whole
+// Marching extraction of one slab of grid layers (ao4d/marching/cells_device.py drives it): the whole
 // march, from the values as stored to the final vertex positions and simplices.
 //
 // The slab is a C-order engine grid of shape (n0, n1, ..., n_{DIM-1}); n0 = cell layers + 1.
@@ -6,10 +6,10 @@
 // one work-item per chunk of CHUNK consecutive points, walked in order 16 points at a time (a
 // vector of 16 cases or masks that are all zero, most of the grid, is skipped at once).
 // Per-chunk counts plus an exclusive scan over chunks give each point and cell its place in the
-// output in the numpy engine's order (ao4d/cells.py):
+// output in the numpy engine's order (ao4d/marching/cells.py):
 //
 //   sign        per point: 1 where the value is positive (one comparison in the value's own
-//               type against a threshold that makes it exact: ao4d/cells.py's threshold)
+//               type against a threshold that makes it exact: ao4d/marching/cells.py's threshold)
 //   classify    per point: the cell's case (bit v = corner v positive; 0 when no simplex) and
 //               the bit mask of the crossed edges starting here that are new in this slab (not
 //               carried from the slab below)
@@ -120,7 +120,7 @@ typedef uchar vmask_t;
 #define CHUNK_KERNEL __attribute__((vec_type_hint(uchar16)))
 
 // Offset of the corner (or edge direction) with user bits v from a point: s0 .. s3 are the
-// strides of user axes 0 .. 3 (ao4d/cells.py's corner_offsets).
+// strides of user axes 0 .. 3 (ao4d/marching/cells.py's corner_offsets).
 inline int corner_offset(const int v, const int s0, const int s1, const int s2, const int s3)
 {
     return (v & 1) * s0 + ((v >> 1) & 1) * s1
@@ -160,7 +160,7 @@ inline void count_vertices(__global const vmask_t *vmask, const int x0, const in
 }
 
 // Direction j's mask (cube corner): the cube table has the d axis directions, the Kuhn table
-// every non-empty mask, both in increasing order (ao4d/cells.py's plan.dirs).
+// every non-empty mask, both in increasing order (ao4d/marching/cells.py's plan.dirs).
 #if NDIRS == DIM
 #define DIR_MASK(j) (1 << (j))
 #else

@@ -13,8 +13,10 @@ import numpy as np
 import pyopencl as pcl
 
 import ao4d
-from ao4d import bvh, cl, fields_device, raycast
+from ao4d import bvh, raycast
 from ao4d.bvh import device
+from ao4d.marching import fields_device
+from ao4d.opencl import cl
 
 ran: set[str] = set()
 

@@ -88,7 +88,7 @@ def tiny_reference(tiny_config, tmp_path_factory):
 @pytest.fixture(scope="session")
 def cl_runtime():
     """The OpenCL runtime ao4d chooses; skips the test when this machine has none."""
-    from ao4d import cl
+    from ao4d.opencl import cl
 
     runtime = cl.get_runtime(warn=False)
     if runtime is None:
@@ -97,7 +97,7 @@ def cl_runtime():
 
 
 def pytest_report_header(config):
-    from ao4d import cl
+    from ao4d.opencl import cl
 
     runtime = cl.get_runtime(warn=False)
     return f"ao4d OpenCL device: {runtime.name if runtime else 'none (numpy backend only)'}"

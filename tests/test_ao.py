@@ -457,7 +457,7 @@ def test_without_opencl_auto_falls_back_and_opencl_is_refused():
         "with warnings.catch_warnings(record=True) as w:\n"
         "    warnings.simplefilter('always')\n"
         "    a = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=64)\n"
-        "assert any(issubclass(x.category, ao4d.cl.NoOpenCLDeviceWarning) for x in w), w\n"
+        "assert any(issubclass(x.category, ao4d.opencl.cl.NoOpenCLDeviceWarning) for x in w), w\n"
         "assert a[0] == ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=64, backend='numpy')[0]\n"
         "try:\n"
         "    ao4d.ambient_occlusion(mesh, points=p, normals=n, backend='opencl')\n"

@@ -1,4 +1,4 @@
-"""Block-wise extraction of dask arrays and fields (ao4d.blockwise) against the one-process path.
+"""Block-wise extraction of dask arrays and fields (ao4d.marching.blockwise) against the one-process path.
 
 The block path promises the slab path's mesh array for array (same vertex and simplex order), so
 the comparisons here are exact (``np.array_equal``), which implies the weaker claims too (same
@@ -92,7 +92,7 @@ def test_dask_dtypes_inside_and_fortran_source():
 
 
 def test_dask_empty_and_flat_fields():
-    from ao4d.march import EmptyMeshWarning
+    from ao4d.marching.march import EmptyMeshWarning
 
     ones = da.ones((6, 7, 8, 5), chunks=3)
     with pytest.warns(EmptyMeshWarning, match="empty"):
@@ -136,7 +136,7 @@ def test_field_blocks_name_a_non_finite_field():
 
 
 def test_field_array_equals_sample():
-    from ao4d.blockwise import field_array
+    from ao4d.marching.blockwise import field_array
 
     field = fields.spheritorus(0.8, 0.35)
     x = field_array(field, (9, 8, 7, 10), (-1.3, 1.3), chunks=(4, 3, 7, 4))
@@ -180,7 +180,7 @@ def test_dask_bad_input_named():
 
 
 def test_too_many_blocks_refused_before_work(monkeypatch):
-    from ao4d import blockwise
+    from ao4d.marching import blockwise
 
     monkeypatch.setattr(blockwise, "MAX_BLOCKS", 100)
     with pytest.raises(ValueError, match="blocks .*use larger chunks"):
@@ -274,7 +274,7 @@ def test_process_workers_pickle_the_tasks(tmp_path):
 
     from distributed import Client, LocalCluster
 
-    from ao4d.blockwise import WorkerEnvironmentWarning, worker_environment
+    from ao4d.marching.blockwise import WorkerEnvironmentWarning, worker_environment
 
     values = _noise(np.random.default_rng(11), (11, 10, 9, 8))
     np.save(tmp_path / "v.npy", values)

@@ -1,4 +1,4 @@
-"""Tests for ao4d.cells, the marching engine: case indices, cell tables, the tie rule,
+"""Tests for ao4d.marching.cells, the marching engine: case indices, cell tables, the tie rule,
 interpolation (also of the infinite padding of ``closed=True``), welding across slabs, the
 layout independence of the strides, and the slab memory check."""
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import ao4d
-from ao4d import cells, lut
+from ao4d.marching import cells, lut
 
 DIMS = (2, 3, 4)
 

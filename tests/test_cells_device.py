@@ -1,5 +1,5 @@
-"""Tests for ao4d.cells_device, the marching engine on the OpenCL device: the same vertices and
-simplices as the numpy engine (ao4d.cells), array for array and in the same order, for both
+"""Tests for ao4d.marching.cells_device, the marching engine on the OpenCL device: the same vertices and
+simplices as the numpy engine (ao4d.marching.cells), array for array and in the same order, for both
 methods in 2D, 3D and 4D, on random fields, values exactly at the level, flat fields, thin
 slabs, Fortran arrays, closed=True, fields and dask blocks; and the table property the kernels
 rely on (a case uses exactly its crossed edges).
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import ao4d
-from ao4d import cells, cells_device
+from ao4d.marching import cells, cells_device
 
 DIMS = (2, 3, 4)
 METHODS = ("cubes", "simplices")
@@ -290,7 +290,7 @@ def test_small_device_slabs_with_closed_fields_and_dask(cl_runtime, monkeypatch)
 @pytest.mark.parametrize("method", METHODS)
 def test_the_float32_path_gives_the_same_simplices_and_close_vertices(cl_runtime, monkeypatch, dtype, method):
     """Where the device has no cl_khr_fp64 (forced here): exact comparisons (the same
-    simplices, in order) and vertices within the bound stated in ao4d.cells_device, far from
+    simplices, in order) and vertices within the bound stated in ao4d.marching.cells_device, far from
     the origin too (the bound grows with |origin|)."""
     from ao4d import fields
 

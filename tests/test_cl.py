@@ -13,7 +13,8 @@ import textwrap
 import numpy as np
 import pytest
 
-from ao4d import _tbb, cl
+from ao4d.opencl import cl
+from ao4d.opencl import tbb as _tbb
 
 LINUX_X86 = sys.platform.startswith("linux") and platform.machine() == "x86_64"
 
@@ -122,7 +123,7 @@ def test_bad_prefer():
 def test_no_device_falls_back_with_one_warning():
     out = _run(
         """
-        import warnings, ao4d.cl as c
+        import warnings, ao4d.opencl.cl as c
         with warnings.catch_warnings(record=True) as w:
             warnings.simplefilter('always')
             assert c.get_runtime() is None
@@ -280,7 +281,7 @@ def test_unknown_ao4d_device_is_an_error_listing_devices():
         assert rep.device in out.stderr
     api = _run(
         """
-        from ao4d import cl
+        from ao4d.opencl import cl
         assert cl.resolve_backend('numpy') is None  # the numpy backend never looks at devices
         try:
             cl.resolve_backend('auto')
@@ -364,7 +365,7 @@ def test_foreign_tbb_loaded_first_is_explained(foreign_tbb):
         """
         import warnings
         import ao4d, ao4d.cli
-        from ao4d import cl
+        from ao4d.opencl import cl
         with warnings.catch_warnings(record=True) as w:
             warnings.simplefilter('always')
             assert cl.get_runtime() is None
@@ -396,7 +397,7 @@ def test_ao4d_imported_first_makes_both_work(foreign_tbb):
         + _LOAD_O3DLIKE.format(lib=str(foreign_tbb / "libo3dlike.so"))
         + textwrap.dedent(
             """
-        from ao4d import cl
+        from ao4d.opencl import cl
         print(cl.describe(cl.get_runtime(warn=False)))
         print(o3d.o3d_like_tbb().decode())
         """
@@ -421,7 +422,7 @@ def test_open3d_either_order():
     first = _run(
         """
         import open3d, ao4d
-        from ao4d import cl
+        from ao4d.opencl import cl
         print(cl.describe(cl.get_runtime(warn=False)))
         print(' '.join(cl.platform_problems()))
         """
@@ -434,7 +435,7 @@ def test_open3d_either_order():
     after = _run(
         """
         import ao4d, open3d as o3d, numpy as np
-        from ao4d import cl
+        from ao4d.opencl import cl
         print(cl.describe(cl.get_runtime(warn=False)))
         scene = o3d.t.geometry.RaycastingScene()
         sphere = o3d.geometry.TriangleMesh.create_sphere(1.0)
@@ -455,7 +456,7 @@ def test_open3d_either_order():
 
 _BUILD = """
 import json, os
-from ao4d import cl
+from ao4d.opencl import cl
 rt = cl.get_runtime(warn=False)
 assert rt is not None
 cl.build_kernels(rt, 'selftest.cl', {{'SCALE': {scale}}})
@@ -500,7 +501,7 @@ def test_unwritable_cache_home_falls_back(cl_runtime, tmp_path):
 
 
 def test_no_writable_cache_still_builds(cl_runtime, monkeypatch):
-    from ao4d import _kernel_binaries
+    from ao4d.opencl import binaries as _kernel_binaries
 
     monkeypatch.setattr(_kernel_binaries, "kernel_cache_dir", lambda: None)
     before = cl.kernel_build_stats()

@@ -232,7 +232,7 @@ def test_full_disk_while_writing_the_index_of_a_folder(tiny_config, tmp_path, mo
 def test_impossible_device_is_refused_before_any_work(tiny_config, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("AO4D_DEVICE", "nonsense-device-xyz")
     out = tmp_path / "run"
-    from ao4d.cl import DeviceSelectionError
+    from ao4d.opencl.cl import DeviceSelectionError
 
     with pytest.raises(DeviceSelectionError, match="AO4D_DEVICE='nonsense-device-xyz'"):
         run(tiny_config, out, progress=False)

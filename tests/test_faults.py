@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 import ao4d
-from ao4d import _atomic, cli, march
+from ao4d import _atomic, cli
+from ao4d.marching import march
 from ao4d.mesh import InsideOutWarning, SimplexMesh
 
 
@@ -317,7 +318,7 @@ def test_render_refuses_bad_outputs_before_rendering(mesh_file, tmp_path, capsys
 def test_extract_command_estimates_and_refuses_huge_grids(tmp_path, capsys, monkeypatch):
     # before: a 300^4 grid started without an estimate
     sampled = []
-    monkeypatch.setattr("ao4d.march.extract_field", lambda *a, **k: sampled.append(1))
+    monkeypatch.setattr("ao4d.marching.march.extract_field", lambda *a, **k: sampled.append(1))
     code, text = _cli(capsys, "extract", "--shape", "hypersphere", "--grid", "300", "--out", tmp_path / "x.npz")
     assert code == 2 and "7.99e+09 cells: about 13 min" in text and "pass --force" in text
     assert not sampled and not (tmp_path / "x.npz").exists()

@@ -226,7 +226,7 @@ def test_bad_input_is_named(call, error, match):
 
 
 def test_fields_carry_their_expression_tree_and_plain_callables_none():
-    """Field.program (what ao4d.fields_device evaluates on the device): every preset and
+    """Field.program (what ao4d.marching.fields_device evaluates on the device): every preset and
     combinator has one, with its parameters; any plain callable inside makes it None."""
     for name in F.PRESETS:
         prog = F.preset(name).program

@@ -1,4 +1,4 @@
-"""Tests for ao4d.fields_device: the shape library's fields sampled on the OpenCL device.
+"""Tests for ao4d.marching.fields_device: the shape library's fields sampled on the OpenCL device.
 
 The device's values are compared with the host's (ao4d.fields.evaluate_layers, numpy) by
 ``np.array_equal`` for every kind of field and composition, on grids in 2D, 3D and 4D, at
@@ -7,7 +7,7 @@ device's own transcendental functions that differs (gyroid's sin, cos) is held t
 bound. extract_field's meshes with device sampling are the host-sampled meshes array for array,
 on the device engine and on the numpy engine; fields that cannot go to the device (plain
 callables, a plain callable inside a composition, a dimension mismatch), devices without fp64
-(forced: ao4d.cells_device.FLOAT32) and backend="numpy" keep host sampling.
+(forced: ao4d.marching.cells_device.FLOAT32) and backend="numpy" keep host sampling.
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 import ao4d
-from ao4d import cells_device, fields, fields_device
+from ao4d import fields
+from ao4d.marching import cells_device, fields_device
 
 
 def _exact():

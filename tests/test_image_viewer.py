@@ -1,9 +1,9 @@
-"""``ao4d view IMAGE.vti`` / :mod:`ao4d.image_viewer`: the 8-bit image, the transfer function,
+"""``ao4d view IMAGE.vti`` / :mod:`ao4d.browser.image_viewer`: the 8-bit image, the transfer function,
 the numpy ray-march against analytic answers, and the page in headless Chromium (SwiftShader)
 held to that numpy ray-march pixel by pixel.
 
 The browser tests read the page's own pixels (``window.ao4d.capture()``: premultiplied RGBA, alpha
-0 where nothing is drawn) and compare them with :func:`ao4d.image_viewer.reference_march` of the
+0 where nothing is drawn) and compare them with :func:`ao4d.browser.image_viewer.reference_march` of the
 same image, transfer function, clipping and camera: the silhouettes (alpha > 1/2) overlap by
 IoU >= 95 % and the median colour error over pixels inside both is <= 0.02 (DESIGN bar of the
 issue). The ray-march is nearest-voxel on both sides, so a disagreement is a real difference of
@@ -22,7 +22,7 @@ from _chromium import browser_or_skip, capture, open_page
 
 import ao4d
 from ao4d import cli
-from ao4d import image_viewer as iv
+from ao4d.browser import image_viewer as iv
 
 # --------------------------------------------------------------------------- images
 
@@ -124,7 +124,7 @@ def test_reference_march_composites_a_slab_analytically():
     assert half == pytest.approx(1 - (1 - a) ** 8, rel=1e-9)
     # the box's silhouette head on: 12 voxels wide at distance D, scale px per unit
     frame = iv.image_frame(data)
-    cam = ao4d.viewer.camera({"az": 0, "el": 0}, 40, 40, frame=frame)
+    cam = ao4d.browser.viewer.camera({"az": 0, "el": 0}, 40, 40, frame=frame)
     near = cam.distance - 8.0  # the front face, z = +8 from the centre
     width_px = (pic[20, :, 3] > 0).sum()
     assert width_px == pytest.approx(12 * cam.scale / near, abs=1.0)
@@ -378,7 +378,7 @@ def test_browser_drag_the_ramp_orbit_and_presets(browser, sphere_page):
 def test_cli_serves_the_image_page(sphere_image, tmp_path, capsys, monkeypatch):
     import urllib.request
 
-    from ao4d import viewer
+    from ao4d.browser import viewer
 
     vti = sphere_image.save(tmp_path / "s.vti")
     got = {}

@@ -1,4 +1,4 @@
-"""Tests of ao4d.lut: every entry of every table, checked in exact integer arithmetic.
+"""Tests of ao4d.marching.lut: every entry of every table, checked in exact integer arithmetic.
 
 Geometry is done on doubled coordinates (corners 0/2, edge midpoints 0/1/2), so normals and
 orientation signs are exact integers: no tolerances are needed except for the Qhull volume
@@ -19,8 +19,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from ao4d import lut
 from ao4d.cli import main as cli_main
+from ao4d.marching import lut
 
 CASES = [(d, k) for d in lut.DIMS for k in lut.KINDS]
 CASE_IDS = [f"{k}{d}d" for d, k in CASES]

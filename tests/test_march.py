@@ -1,4 +1,4 @@
-"""Tests for ao4d.march: closedness, orientation, accuracy against analytic volumes, agreement
+"""Tests for ao4d.marching.march: closedness, orientation, accuracy against analytic volumes, agreement
 with scikit-image (3D marching cubes, 2D contours) and trimesh, slab welding, bad input."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from scipy.ndimage import gaussian_filter
 from scipy.spatial import cKDTree
 
 import ao4d
-from ao4d import cells, march
 from ao4d import fields as F
+from ao4d.marching import cells, march
 from ao4d.topology import GRID_EDGE_KEY
 
 METHODS = ("cubes", "simplices")
@@ -110,7 +110,7 @@ def _tricky_grid(draw):
     return v, level
 
 
-@pytest.mark.filterwarnings("ignore::ao4d.march.EmptyMeshWarning")
+@pytest.mark.filterwarnings("ignore::ao4d.marching.march.EmptyMeshWarning")
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(grid=_tricky_grid(), method=st.sampled_from(METHODS))
 def test_random_fields_give_closed_oriented_meshes(grid, method):

@@ -97,7 +97,7 @@ def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 
 def test_no_import_cycles():
-    # the package __init__ maps names lazily; it imports nothing but ao4d._tbb at import time
+    # the package __init__ maps names lazily; it imports nothing but ao4d.opencl.tbb at import time
     graph = {m: _imports(m) for m in MODULES if m != "ao4d"}
     for deps in graph.values():
         deps.discard("ao4d")
@@ -112,7 +112,7 @@ def test_cycle_finder_finds_cycles():
 @pytest.mark.parametrize("name", PUBLIC)
 def test_every_public_module_imports_first_in_a_fresh_interpreter(name):
     # each module first, so that no import order hides a missing or circular import
-    code = f"import {name}, sys; assert 'pyopencl' not in sys.modules or {name!r}.startswith('ao4d.cl')"
+    code = f"import {name}, sys; assert 'pyopencl' not in sys.modules or {name!r}.startswith('ao4d.opencl.cl')"
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
 
 
@@ -173,10 +173,247 @@ def test_all_and_dir_list_functions_and_classes_and_modules_stay_attributes():
 
 
 def test_every_public_top_level_module_is_reachable_as_an_attribute():
-    # not attributes: the command line, and the marching engines behind ao4d.march
-    top = {m.split(".")[1] for m in PUBLIC if m.count(".") >= 1} - {"cli", "commands", "cells", "cells_device"}
+    # not attributes: the command line (modules and subpackages alike are top-level here)
+    top = {m.split(".")[1] for m in PUBLIC if m.count(".") >= 1} - {"cli", "commands"}
     assert top <= set(ao4d._MODULES), sorted(top - set(ao4d._MODULES))
     assert not set(ao4d._MODULES) & set(ao4d.__all__)
+
+
+# -- subpackages: their faces, and the old paths of the modules that moved into them -------------
+
+SUBPACKAGES = sorted(m.removesuffix(".__init__") for m in MODULES if m.count(".") == 2 and m.endswith(".__init__"))
+
+
+def test_subpackages_are_the_issues_and_named_for_no_exported_function():
+    assert {"ao4d.marching", "ao4d.browser", "ao4d.opencl", "ao4d.bvh"} <= set(SUBPACKAGES)
+    # (the command modules are named for their commands: `ao4d render` runs ao4d.render)
+    leaves = {m.removesuffix(".__init__").rpartition(".")[2] for m in MODULES if not m.startswith("ao4d.commands.")}
+    assert not leaves & set(ao4d.__all__), sorted(leaves & set(ao4d.__all__))
+
+
+def test_module_leaf_names_are_unique():
+    # a module's test file is tests/test_<last part>.py and its old path ao4d.<last part>: both
+    # need the last part to name one module (the commands, named for theirs, are tested in test_cli.py)
+    leaves = [m.rpartition(".")[2] for m in MODULES if not m.endswith("__init__") and ".commands." not in m]
+    assert len(leaves) == len(set(leaves)), sorted({x for x in leaves if leaves.count(x) > 1})
+
+
+# modules tested in another module's file (where the file names the home of the tests)
+_TESTED_ELSEWHERE = {
+    "ao4d.scenes": "test_demo.py",  # the demo scene, through `ao4d demo`
+    "ao4d.bvh.blocks": "test_bvh.py",
+    "ao4d.bvh.cache": "test_bvh.py",
+    "ao4d.bvh.host": "test_bvh.py",
+    "ao4d.bvh.layout": "test_bvh.py",
+    "ao4d.bvh.device": "test_bvh_device.py",
+    "ao4d.bvh.collapse": "test_bvh_collapse.py",
+    "ao4d.opencl.binaries": "test_cl.py",  # kernel binaries reused across processes, unwritable caches
+    "ao4d.opencl.tbb": "test_cl.py",  # the foreign TBB, Open3D in either order
+}
+
+
+def test_every_public_module_has_its_test_file():
+    tests = ROOT / "tests"
+    missing = []
+    for name in PUBLIC:
+        if name.startswith("ao4d.commands."):  # one file: test_cli.py
+            expected = "test_cli.py"
+        else:
+            expected = _TESTED_ELSEWHERE.get(name, f"test_{name.rpartition('.')[2]}.py")
+        if not (tests / expected).is_file():
+            missing.append(f"{name}: tests/{expected}")
+    assert not missing, missing
+
+
+@pytest.mark.parametrize("package", [p for p in SUBPACKAGES if p != "ao4d.commands"])
+def test_subpackage_face_is_its_all_and_imports_lazily(package):
+    # `import ao4d.<package>` is as cheap as `import ao4d`; its names are its __all__, each the
+    # object its module defines; `from ao4d.<package> import *` gives exactly those
+    code = (
+        f"import sys, importlib, ao4d, {package} as p\n"
+        "lazy = 'numpy' not in sys.modules and 'pyopencl' not in sys.modules\n"
+        f"assert lazy or {package!r} == 'ao4d.bvh', sorted(m for m in sys.modules if m.startswith('ao4d'))\n"
+        "public = [n for n in dir(p) if not n.startswith('_')]\n"
+        "assert p.__all__ and public == sorted(p.__all__) or p.__name__ == 'ao4d.bvh', public\n"
+        "for name in p.__all__:\n"
+        "    value = getattr(p, name)\n"
+        "    home = importlib.import_module(getattr(value, '__module__', None) or p.__name__)\n"
+        "    assert home.__name__.startswith(p.__name__ + '.') or home is p, (name, home)\n"
+        "    assert getattr(home, getattr(value, '__name__', name), value) is value, name\n"
+        "ns = {}\n"
+        f"exec('from {package} import *', ns)\n"
+        "assert sorted(k for k in ns if k != '__builtins__') == sorted(p.__all__)\n"
+    )
+    subprocess.run([sys.executable, "-W", "error", "-c", code], check=True, timeout=120)
+
+
+def test_moved_modules_have_no_files_at_their_old_paths():
+    for old, new in ao4d._MOVED.items():
+        assert f"ao4d.{new}" in MODULES, new
+        assert not (PACKAGE / f"{old}.py").exists() and not (PACKAGE / old).exists(), old
+        assert new.partition(".")[0] in ao4d._MODULES, new  # moved into a reachable subpackage
+
+
+def test_every_module_of_the_issues_subpackages_keeps_its_old_path():
+    moved = {f"ao4d.{new}" for new in ao4d._MOVED.values()}
+    for package in ("ao4d.marching", "ao4d.browser", "ao4d.opencl"):
+        inside = {m for m in MODULES if m.startswith(package + ".") and not m.endswith(".__init__")}
+        assert inside <= moved, sorted(inside - moved)
+
+
+_OLD_PATHS = """
+import importlib, sys, warnings
+warnings.simplefilter("error")  # the old paths are silent: a -W error run keeps working
+import ao4d
+assert {first!r} in ("old", "new")
+for old, new in ao4d._MOVED.items():
+    if {first!r} == "new":
+        module = importlib.import_module(f"ao4d.{{new}}")
+    alias = importlib.import_module(f"ao4d.{{old}}")
+    module = importlib.import_module(f"ao4d.{{new}}")
+    assert alias is module, (old, alias, module)
+    assert sys.modules[f"ao4d.{{old}}"] is module and sys.modules[f"ao4d.{{new}}"] is module
+    assert getattr(ao4d, old) is module, old
+    assert module.__name__ == module.__spec__.name == f"ao4d.{{new}}", (module.__name__, module.__spec__.name)
+    parent = importlib.import_module(f"ao4d.{{new}}".rpartition(".")[0])
+    assert getattr(parent, new.rpartition(".")[2]) is module
+    importlib.reload(module)
+    assert sys.modules[f"ao4d.{{old}}"] is module is sys.modules[f"ao4d.{{new}}"]
+importlib.reload(ao4d)
+assert sum(type(f).__qualname__ == "_MovedModule" for f in sys.meta_path) == 1  # one finder, reloads too
+assert importlib.import_module("ao4d.cl") is sys.modules["ao4d.opencl.cl"]
+"""
+
+
+@pytest.mark.parametrize("first", ["old", "new"])
+def test_old_import_paths_give_the_same_module_objects(first):
+    subprocess.run([sys.executable, "-c", _OLD_PATHS.format(first=first)], check=True, timeout=240)
+
+
+def test_old_import_paths_in_user_code():
+    # the forms users have: import, from-import of a name, of a module, attribute access, pickles
+    code = (
+        "import pickle, warnings\n"
+        "warnings.simplefilter('error')\n"
+        "import ao4d.viewer, ao4d.browser.viewer\n"
+        "assert ao4d.viewer is ao4d.browser.viewer\n"
+        "from ao4d.viewer import view\n"
+        "assert view is ao4d.browser.viewer.view\n"
+        "from ao4d.cells import Job\n"
+        "from ao4d.marching.cells import Job as Job2\n"
+        "assert Job is Job2\n"
+        "from ao4d import lut, cl, pages\n"
+        "import ao4d.marching.lut, ao4d.opencl.cl, ao4d.browser.pages\n"
+        "assert (lut, cl, pages) == (ao4d.marching.lut, ao4d.opencl.cl, ao4d.browser.pages)\n"
+        "import ao4d.march as m\n"
+        "assert m.extract is ao4d.extract and ao4d.march.extract_field is ao4d.extract_field\n"
+        "from ao4d.cl import DeviceSelectionError\n"
+        "assert pickle.loads(pickle.dumps(DeviceSelectionError)) is DeviceSelectionError\n"
+        "old = pickle.dumps(DeviceSelectionError, protocol=0).replace(b'ao4d.opencl.cl\\n', b'ao4d.cl\\n')\n"
+        "assert old.startswith(b'cao4d.cl\\n'), old\n"
+        "assert pickle.loads(old) is DeviceSelectionError  # a pickle written before the move\n"
+        "try:\n"
+        "    import ao4d.nope\n"
+        "except ModuleNotFoundError:\n"
+        "    pass\n"
+        "else:\n"
+        "    raise AssertionError('ao4d.nope imported')\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+# -- imports: nothing upward, private names inside their subpackage ------------------------------
+
+
+def _is_module(name: str) -> bool:
+    return name in MODULES or f"{name}.__init__" in MODULES
+
+
+def _import_targets(name: str):
+    """(target module, imported name, line) for every ``from X import n`` in ``name``'s source."""
+    package = _subpackage(name)
+    for node in ast.walk(ast.parse(_module_file(name).read_text())):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                parts = package.split(".")
+                target = ".".join(parts[: len(parts) - node.level + 1] + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target == "ao4d" or target.startswith("ao4d."):
+                for alias in node.names:
+                    yield target, alias.name, node.lineno
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.startswith("ao4d."):
+                    head, _, leaf = alias.name.rpartition(".")
+                    yield head, leaf, node.lineno
+
+
+def _subpackage(module: str) -> str:
+    """The package a module belongs to: ``ao4d.marching`` for ``ao4d.marching.lut`` and for
+    ``ao4d.marching.__init__``, ``ao4d`` for the top-level modules."""
+    return module.removesuffix(".__init__") if module.endswith(".__init__") else module.rpartition(".")[0]
+
+
+def test_nothing_imports_upward():
+    # a module takes names from the modules that define them, never from a package above it
+    # (whose face re-exports them lazily): the version is the one name the package itself defines
+    upward = []
+    for name in MODULES:
+        for target, imported, line in _import_targets(name):
+            if _is_module(f"{target}.{imported}") or imported == "__version__":
+                continue
+            if f"{target}.__init__" in MODULES and name.startswith(target + "."):
+                upward.append(f"{name}:{line} from {target} import {imported}")
+    assert not upward, upward
+
+
+def test_underscore_names_cross_module_borders_only_within_a_subpackage():
+    # a private module of a subpackage serves that subpackage; a private name of a module serves
+    # its subpackage (the top-level modules, each its own: ao4d's shared private helpers
+    # _validate, _atomic, ... are modules, imported whole or for their public names)
+    crossing = []
+    for name in MODULES:
+        for target, imported, line in _import_targets(name):
+            full = f"{target}.{imported}"
+            if _is_module(full):  # a module
+                private = imported.startswith("_")
+                home = target  # the package that holds the module
+                ok = not private or home == "ao4d" or name.startswith(home + ".")
+            elif imported.startswith("_") and not imported.startswith("__"):  # a name in a module
+                home = _subpackage(target)
+                ok = target == name or (home != "ao4d" and name.startswith(home + "."))
+            else:
+                continue
+            if not ok:
+                crossing.append(f"{name}:{line} takes {imported} from {target}")
+    assert not crossing, crossing
+
+
+def test_the_import_rules_find_what_they_forbid(tmp_path, monkeypatch):
+    # the two rules above on a tiny package of their own kind
+    global PACKAGE, MODULES
+    root = tmp_path / "ao4d"
+    (root / "sub").mkdir(parents=True)
+    (root / "__init__.py").write_text("")
+    (root / "top.py").write_text("from .sub.a import _hidden\nfrom .sub import _priv\n")
+    (root / "sub" / "__init__.py").write_text("")
+    (root / "sub" / "a.py").write_text("from . import b\nfrom .b import _ok\nfrom .. import thing\n")
+    (root / "sub" / "b.py").write_text("_ok = 1\n")
+    (root / "sub" / "_priv.py").write_text("")
+    monkeypatch.setattr(sys.modules[__name__], "PACKAGE", root)
+    monkeypatch.setattr(
+        sys.modules[__name__],
+        "MODULES",
+        ["ao4d.__init__", "ao4d.top", "ao4d.sub.__init__", "ao4d.sub.a", "ao4d.sub.b", "ao4d.sub._priv"],
+    )
+    with pytest.raises(AssertionError, match=r"ao4d\.sub\.a:3 from ao4d import thing"):
+        test_nothing_imports_upward()
+    with pytest.raises(AssertionError) as info:
+        test_underscore_names_cross_module_borders_only_within_a_subpackage()
+    assert "ao4d.top:1 takes _hidden from ao4d.sub.a" in str(info.value)
+    assert "ao4d.top:2 takes _priv from ao4d.sub" in str(info.value)
+    assert "ao4d.sub.a" not in str(info.value).replace("from ao4d.sub.a", "")
 
 
 def test_long_files_say_why():

@@ -1,9 +1,9 @@
-""":mod:`ao4d.pages`: ``ao4d.view`` for meshes and images, inline display in Jupyter (a real
+""":mod:`ao4d.browser.pages`: ``ao4d.view`` for meshes and images, inline display in Jupyter (a real
 notebook executed by ``nbclient`` in a real kernel), and the demo's one page with both views,
 loaded in headless Chromium (SwiftShader).
 
 The browser tests hold the result page's projection view of the demo image to the numpy
-ray-march (:func:`ao4d.image_viewer.reference_march`) as ``tests/test_image_viewer.py`` does for
+ray-march (:func:`ao4d.browser.image_viewer.reference_march`) as ``tests/test_image_viewer.py`` does for
 a page of its own: silhouette IoU >= 95 %, median colour error <= 0.02.
 """
 
@@ -20,8 +20,8 @@ import pytest
 from _chromium import Chromium, browser_or_skip, capture, find_chromium
 
 import ao4d
-from ao4d import _page, pages
-from ao4d import image_viewer as iv
+from ao4d.browser import _page, pages
+from ao4d.browser import image_viewer as iv
 
 
 @pytest.fixture(scope="module")
@@ -137,7 +137,7 @@ def _own_script(text):
 
 
 def _shared_definitions():
-    """The functions and arrow constants ao4d/page_common.js defines (at its top level)."""
+    """The functions and arrow constants ao4d/browser/page_common.js defines (at its top level)."""
     script = _page.common_script()
     names = set(re.findall(r"^  (?:async )?function (\w+)\(|^  const (\w+) = \(", script, re.M))
     names = {a or b for a, b in names}
@@ -166,7 +166,7 @@ def _assert_one_shared_script(text):
 
 
 def test_pages_hold_the_shared_script_once_and_no_copy(sphere, image, tmp_path):
-    from ao4d import viewer
+    from ao4d.browser import viewer
 
     _assert_one_shared_script(viewer.page_text(sphere))
     _assert_one_shared_script(iv.image_page_text(image))
@@ -187,7 +187,7 @@ def test_pages_hold_the_shared_script_once_and_no_copy(sphere, image, tmp_path):
 def test_page_sources_share_no_run_of_six_lines():
     """The pages' sources and the shared frame and script: each idea written once (the
     ``duplicates`` tool's bar, exact lines here)."""
-    folder = Path(ao4d.__file__).parent
+    folder = Path(ao4d.__file__).parent / "browser"
     sources = {
         name: (folder / name).read_text().splitlines()
         for name in ("viewer_page.html", "image_page.html", "page_frame.html", "page_common.js")

@@ -13,7 +13,8 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 import ao4d
-from ao4d import bvh, cl, raycast
+from ao4d import bvh, raycast
+from ao4d.opencl import cl
 
 DIMS = (2, 3, 4)
 

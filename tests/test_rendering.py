@@ -892,7 +892,7 @@ def test_weights_that_can_exceed_one_warn():
 
 def test_info_names_the_backend_that_ran():
     # issue 10: info["backend"] stored the request ("auto")
-    from ao4d import cl
+    from ao4d.opencl import cl
 
     mesh, cam = _small_scene()
     img = render(mesh, cam, (6, 6, 6), ao="none")

@@ -217,7 +217,7 @@ def test_sobol_tables_are_kept_across_processes(tmp_path, monkeypatch):
 
 
 def test_sobol_tables_work_without_a_writable_cache(tmp_path, monkeypatch):
-    from ao4d import _kernel_binaries
+    from ao4d.opencl import binaries as _kernel_binaries
 
     monkeypatch.setattr(_kernel_binaries, "cache_dir", lambda kind: None)
     sampling._sobol_cached.cache_clear()

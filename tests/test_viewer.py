@@ -1,10 +1,10 @@
-"""``ao4d view`` / :mod:`ao4d.viewer`: the page's geometry in numpy, the HTML file, and the page
+"""``ao4d view`` / :mod:`ao4d.browser.viewer`: the page's geometry in numpy, the HTML file, and the page
 itself in a real headless Chromium (software WebGL2: SwiftShader), asserting on pixels.
 
 The browser tests compare the page's own pixels (``window.ao4d.capture()``: the canvas, alpha 0
 where nothing is drawn) with analytic slices of hyperspheres under the page's camera
-(:func:`ao4d.viewer.camera`) and with the CPU slice (:meth:`SimplexMesh.slice` via
-:func:`ao4d.viewer.slice_for_state`) rasterised here in numpy with :func:`ao4d.viewer.project`.
+(:func:`ao4d.browser.viewer.camera`) and with the CPU slice (:meth:`SimplexMesh.slice` via
+:func:`ao4d.browser.viewer.slice_for_state`) rasterised here in numpy with :func:`ao4d.browser.viewer.project`.
 """
 
 from __future__ import annotations
@@ -25,7 +25,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ao4d
-from ao4d import cli, viewer
+from ao4d import cli
+from ao4d.browser import viewer
 
 HALF = math.radians(viewer.HALF_FOV_DEG)
 
@@ -709,7 +710,7 @@ def test_browser_url_state_round_trip(browser, sphere_page):
     open_page(browser, sphere_page, "#w=0.3&xw=90&az=30&el=20&zoom=1.5")
     s = browser.evaluate("window.ao4d.state()")
     assert (s["w"], s["xw"], s["az"], s["el"], s["zoom"], s["xy"]) == (0.3, 90, 30, 20, 1.5, 0)
-    # setState wraps and clamps like ao4d.viewer.full_state, and writes the fragment
+    # setState wraps and clamps like ao4d.browser.viewer.full_state, and writes the fragment
     s = browser.evaluate("window.ao4d.setState({yz: 12.5, xy: 270, el: 120, light: 0})")
     py = viewer.full_state({"yz": 12.5, "xy": 270, "el": 120, "light": 0})
     assert (s["yz"], s["xy"], s["el"], s["light"]) == (py["yz"], py["xy"], py["el"], py["light"])

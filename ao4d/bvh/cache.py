@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from .. import cl
 from .._validate import check_choice, check_positive_int
+from ..opencl import cl
 from . import blocks, device, host, layout
 from .blocks import device_wide_tree
 from .layout import BVH, LANES, MAX_LEAF_BLOCKS, Frame
@@ -66,10 +66,10 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
         Most simplices per leaf.
     builder : {"auto", "host", "device"}
         ``"host"``: ``ao4d.bvh.host.build`` (numpy); ``"device"``: ``ao4d.bvh.device.build`` on
-        ``runtime`` (default: the device :func:`ao4d.cl.get_runtime` chooses). ``"auto"``: a
+        ``runtime`` (default: the device :func:`ao4d.opencl.cl.get_runtime` chooses). ``"auto"``: a
         tree already cached for the mesh, whichever built it; else the device builder when
         ``runtime`` is given (the ray-casting functions pass theirs), the host builder otherwise.
-    runtime : ao4d.cl.Runtime, optional
+    runtime : ao4d.opencl.cl.Runtime, optional
         The OpenCL device that will trace the tree.
 
     Returns
@@ -129,7 +129,7 @@ def block_lanes(runtime) -> int:
 
     Parameters
     ----------
-    runtime : ao4d.cl.Runtime
+    runtime : ao4d.opencl.cl.Runtime
         The device that traverses the tree.
 
     Returns
@@ -152,7 +152,7 @@ def device_tree(mesh: Any, tree: BVH, runtime) -> dict[str, Any]:
         The mesh whose tree this is; its ``cache`` (when it has one) keeps the copies.
     tree : BVH
         The mesh's tree (:func:`get_bvh`).
-    runtime : ao4d.cl.Runtime
+    runtime : ao4d.opencl.cl.Runtime
         The device to upload to.
 
     Returns

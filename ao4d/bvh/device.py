@@ -42,8 +42,8 @@ from typing import Any
 
 import numpy as np
 
-from .. import cl
 from .._validate import check_positive_int
+from ..opencl import cl
 from . import host
 from .blocks import device_wide_tree, release_source
 from .layout import _BOX_FMA_MARGIN, _BOX_MARGIN, BARY_EPS, BVH
@@ -187,8 +187,8 @@ def build(
         Vertex indices per simplex.
     leaf_size : int
         Most simplices per leaf (1 to 64; the kernels' leaf blocks need at most 16 per block).
-    runtime : ao4d.cl.Runtime, optional
-        The device to build on (default: the one :func:`ao4d.cl.get_runtime` chooses).
+    runtime : ao4d.opencl.cl.Runtime, optional
+        The device to build on (default: the one :func:`ao4d.opencl.cl.get_runtime` chooses).
     subtree, chunk : int, optional
         Nodes of at most ``subtree`` simplices are built by one work-item each; the level
         passes over larger nodes give each work-item ``chunk`` simplices. Defaults follow the

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..cl import BACKENDS
+from ..opencl.cl import BACKENDS
 
 
 def add_meshes(parser: argparse.ArgumentParser, *, metavar: str, help: str) -> None:

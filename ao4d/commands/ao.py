@@ -42,11 +42,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from .. import cl
     from .._atomic import check_output_file
     from ..ao import ambient_occlusion
     from ..mesh import SimplexMesh
     from ..mesh_files import SUFFIXES, MeshArrays, read_field_data, write
+    from ..opencl import cl
     from ..raycast import RAYS_PER_SECOND, duration
 
     out = check_output_file(args.out, "--out", SUFFIXES)  # before any work

@@ -81,7 +81,7 @@ def _size(path: Path) -> str:
 
 
 def _device(backend: str) -> str:
-    from .. import cl
+    from ..opencl import cl
 
     return cl.describe(cl.resolve_backend(backend, warn=False))
 
@@ -113,11 +113,11 @@ def run_demo(
     DemoReport
     """
 
-    from .. import cl
     from .._atomic import all_or_nothing, check_output_folder
     from .._validate import check_choice
     from ..ao import ambient_occlusion
     from ..mesh import concatenate
+    from ..opencl import cl
     from ..raycast import get_bvh
     from ..rendering import render
     from ..scenes import QUALITY, default_scene, extract_scene
@@ -294,8 +294,8 @@ def _write_files(out: Path, scene, image, settings, seconds: dict[str, float], *
             title=f"ao4d demo: slice w = 0 coloured by 4D AO ({samples} samples)",
         ),
     )
-    from ..pages import result_page  # the same scene in the browser: slices and projection
-    from ..viewer import split_objects
+    from ..browser.pages import result_page  # the same scene in the browser: slices and projection
+    from ..browser.viewer import split_objects
 
     done("view.html", result_page(split_objects(scene), image, out / "view.html", title="ao4d demo", names=names))
     return files

@@ -25,7 +25,7 @@ shapes: hypersphere, spheritorus, torisphere, ditorus, tiger, duocylinder, tesse
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..fields import PRESETS
-    from ..march import METHODS
+    from ..marching.march import METHODS
 
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--shape", choices=sorted(PRESETS), help="a named 4D shape")
@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
 
     from .._atomic import all_or_nothing, check_output_file
     from ..fields import preset
-    from ..march import EmptyMeshWarning, extract, extract_field
+    from ..marching.march import EmptyMeshWarning, extract, extract_field
     from ..mesh_files import SUFFIXES, MeshArrays, write
 
     _check_options(args)

@@ -23,7 +23,9 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from .. import __version__, _tbb, cl
+    from .. import __version__
+    from ..opencl import cl
+    from ..opencl import tbb as _tbb
 
     try:
         import pyopencl

@@ -17,7 +17,7 @@ EXAMPLES = """  ao4d lut verify                 checksums, then rebuild and comp
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..lut import DIMS, KINDS
+    from ..marching.lut import DIMS, KINDS
 
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
 
@@ -58,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import lut
+    from ..marching import lut
 
     dims = tuple(args.dim) if args.dim else lut.DIMS
     kinds = tuple(args.kind) if args.kind else lut.KINDS

@@ -37,7 +37,7 @@ def _port(text: str) -> int:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..viewer import ANGLES, MAX_BYTES
+    from ..browser.viewer import ANGLES, MAX_BYTES
 
     add_meshes(
         parser,
@@ -93,7 +93,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _run_image(args: argparse.Namespace) -> int:
     import warnings
 
-    from ..image_viewer import ImageRangeWarning, full_state, image_page_text, load_image, view_image
+    from ..browser.image_viewer import ImageRangeWarning, full_state, image_page_text, load_image, view_image
 
     if len(args.meshes) != 1:
         raise ValueError(f"`FILE`: one image (.vti or .mhd) per page, got {len(args.meshes)} files")
@@ -119,7 +119,7 @@ def _run_image(args: argparse.Namespace) -> int:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ImageRangeWarning)  # the notes are printed above
         if args.serve:
-            from ..viewer import ViewServer
+            from ..browser.viewer import ViewServer
 
             text = image_page_text(data, state=state, title=args.title, compress=not args.no_compress)
             server = ViewServer(text.encode("utf-8"), [], "127.0.0.1", args.port)
@@ -166,7 +166,7 @@ def _serve_until_stopped(server, what: str, open_browser: bool) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..viewer import ANGLES, serve, view
+    from ..browser.viewer import ANGLES, serve, view
 
     suffixes = {p.suffix.lower() for p in args.meshes}
     if suffixes & {".vti", ".mhd"}:

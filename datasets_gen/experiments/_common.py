@@ -114,7 +114,7 @@ def machine() -> str:
     """One line naming the machine and the OpenCL device, for plot footnotes."""
     import os
 
-    from ao4d import cl
+    from ao4d.opencl import cl
 
     runtime = cl.get_runtime(warn=False)
     device = runtime.name if runtime else "no OpenCL device"

@@ -55,7 +55,8 @@ def exact_occlusion(dim: int, mesh) -> float:
 
 
 def measure(samples: Sequence[int], n_points: int, numpy_max_rays: int) -> list[dict]:
-    from ao4d import ambient_occlusion, cl
+    from ao4d import ambient_occlusion
+    from ao4d.opencl import cl
 
     backends = ["numpy"] + (["opencl"] if cl.get_runtime(warn=False) else [])
     rows = []

@@ -82,7 +82,7 @@ def plot(rows: list[dict], path) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from ao4d import cl
+    from ao4d.opencl import cl
 
     args = parse_args(NAME, __doc__.splitlines()[0], argv)
     backends = ["opencl"] if cl.get_runtime(warn=False) else ["numpy"]

@@ -1,5 +1,5 @@
-// ao4d/page_common.js: the script every ao4d page shares (the slicing page, the image page and the
-// result page that holds both). ao4d/_page.py inlines it, once, as its own <script> before the
+// ao4d/browser/page_common.js: the script every ao4d page shares (the slicing page, the image page and the
+// result page that holds both). ao4d/browser/_page.py inlines it, once, as its own <script> before the
 // page's script, so each page stays one self-contained file. It defines one global,
 // `ao4dPage`: functions that take what they work on (the page's gl, canvas, state), small
 // objects that keep their own state (the fragment writer, the fps clock, frames on demand), and

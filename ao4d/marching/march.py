@@ -1,12 +1,12 @@
 """Marching extraction of closed, oriented simplex meshes from 2D, 3D and 4D scalar grids.
 
 The public wrappers (:func:`extract`, :func:`extract_field`) validate and normalise their input
-and hand a slab reader to one core with no checks of its own: :func:`ao4d.cells_device.march`
+and hand a slab reader to one core with no checks of its own: :func:`ao4d.marching.cells_device.march`
 on the OpenCL device where one works, else the vectorised numpy engine
-:func:`ao4d.cells.march`; both give the same arrays. Dask arrays and ``blocks=`` go to
-:mod:`ao4d.blockwise`, which runs the same cores on blocks as dask tasks.
+:func:`ao4d.marching.cells.march`; both give the same arrays. Dask arrays and ``blocks=`` go to
+:mod:`ao4d.marching.blockwise`, which runs the same cores on blocks as dask tasks.
 
-How the core works, and the papers it follows, are described in :mod:`ao4d.cells`.
+How the core works, and the papers it follows, are described in :mod:`ao4d.marching.cells`.
 """
 
 from __future__ import annotations
@@ -17,9 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from . import cells_device
-from ._deprecation import DEPRECATED, renamed
-from ._validate import (
+from .._deprecation import DEPRECATED, renamed
+from .._validate import (
     as_array,
     as_real,
     as_vector,
@@ -29,6 +28,10 @@ from ._validate import (
     check_grid_lengths,
     check_positive_int,
 )
+from ..mesh import SimplexMesh
+from ..opencl.cl import BACKENDS
+from ..topology import GRID_EDGE_KEY
+from . import cells_device
 from .cells import PROGRESS_CELLS as _PROGRESS_CELLS
 from .cells import Geometry as _Geometry
 from .cells import Job as _Job
@@ -37,9 +40,6 @@ from .cells import check_slab_memory as _check_slab_memory
 from .cells import layers_per_slab as _layers_per_slab
 from .cells import march as _march
 from .cells import outside_value
-from .cl import BACKENDS
-from .mesh import SimplexMesh
-from .topology import GRID_EDGE_KEY
 
 __all__ = ["extract", "extract_field", "METHODS"]
 
@@ -58,7 +58,7 @@ def _progress_bar(progress: bool | None, n_cells: int, n_layers: int) -> Any:
         progress = n_cells >= _PROGRESS_CELLS
     if not progress:
         return None
-    from . import _progress
+    from .. import _progress
 
     return _progress.bar(n_layers, "extract", unit="layer")
 
@@ -77,7 +77,7 @@ def _run(
     reread: bool = False,
 ) -> SimplexMesh:
     """Check the slab memory, then march with a progress bar (on the OpenCL device when one
-    works, :mod:`ao4d.cells_device`; the same arrays as the numpy engine); wrap the result."""
+    works, :mod:`ao4d.marching.cells_device`; the same arrays as the numpy engine); wrap the result."""
     runtime = cells_device.get_runtime(backend)
     layers = _layers_per_slab(chunk, geom, method)
     _check_slab_memory(geom, min(layers, geom.shape[0] - 1), method, itemsize)
@@ -87,7 +87,7 @@ def _run(
     if runtime is not None and cells_device.fits(geom, layers, table):
         # device slabs grow past the numpy engine's unless the user chose them (chunk=)
         engine, extra = cells_device.march, {"runtime": runtime, "reread": reread, "grow": chunk is None}
-    else:  # slabs of fields sampled on the device, as host arrays (ao4d.fields_device)
+    else:  # slabs of fields sampled on the device, as host arrays (ao4d.marching.fields_device)
         read = getattr(read, "host", read)
     bar = _progress_bar(progress, math.prod(n - 1 for n in geom.shape), geom.shape[0] - 1)
     try:
@@ -125,7 +125,7 @@ def extract(
         by slab and never copied whole. A dask array (any chunking) is extracted block by block,
         each block a task on the active dask scheduler (threads by default, a
         ``distributed.Client`` when one exists), and gives the same mesh array for array; see
-        :mod:`ao4d.blockwise` for the memory a worker and the client need. Every axis needs at
+        :mod:`ao4d.marching.blockwise` for the memory a worker and the client need. Every axis needs at
         least 2 points.
     level : float
         Iso-value.
@@ -156,9 +156,9 @@ def extract(
         an affine map keeps the mesh closed, and a negative determinant reverses the simplices
         so that the normals still point out of the solid.
     backend : {"auto", "opencl", "numpy"}
-        Where the marching runs: ``"auto"`` on the OpenCL device :mod:`ao4d.cl` chooses
+        Where the marching runs: ``"auto"`` on the OpenCL device :mod:`ao4d.opencl.cl` chooses
         (``AO4D_DEVICE``) and in numpy where none works; ``"opencl"`` requires a device.
-        Every backend gives the same arrays (:mod:`ao4d.cells_device`).
+        Every backend gives the same arrays (:mod:`ao4d.marching.cells_device`).
 
     Returns
     -------
@@ -372,7 +372,7 @@ def _affine(affine: Any, d: int, spacing: Any, origin: Any) -> tuple[np.ndarray,
 
 
 def _extract_dask(values, level, spacing, origin, method, inside, chunk, progress, closed, backend) -> SimplexMesh:
-    """Validate the options as :func:`extract` does, then run the blocks (ao4d.blockwise)."""
+    """Validate the options as :func:`extract` does, then run the blocks (ao4d.marching.blockwise)."""
     from .blockwise import extract_blocks
 
     d = values.ndim if values.ndim in (2, 3, 4) else 1  # the shape error comes from blockwise
@@ -438,7 +438,7 @@ def extract_field(
     blocks : int, sequence of int, dask chunk sizes or "auto", optional
         Sample and extract block by block instead, each block (this many grid points per axis,
         dask's ``chunks`` rules) a task on the active dask scheduler (threads, or a
-        ``distributed.Client`` when one exists; see :mod:`ao4d.blockwise` for worker and client
+        ``distributed.Client`` when one exists; see :mod:`ao4d.marching.blockwise` for worker and client
         memory). Same result.
     progress : bool, optional
         tqdm bar; by default from 2^21 cells on.
@@ -460,7 +460,7 @@ def extract_field(
     >>> mesh.check().ok
     True
     """
-    from .fields import evaluate_layers, grid_axes
+    from ..fields import evaluate_layers, grid_axes
 
     blocks = renamed("extract_field", "chunks", chunks, "blocks", blocks, None)
     if not callable(field):
@@ -579,8 +579,8 @@ def _checked(
     """
     import warnings
 
-    from .mesh import InsideOutWarning
-    from .topology import MARCHING_PROVED
+    from ..mesh import InsideOutWarning
+    from ..topology import MARCHING_PROVED
 
     mesh._mark_constructed(MARCHING_PROVED)  # what the table guarantees: check() need not test it
     if mesh.n_simplices == 0:

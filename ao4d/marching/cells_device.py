@@ -1,15 +1,15 @@
-"""The marching engine of :mod:`ao4d.cells` on the OpenCL device (``kernels/march.cl``): the
+"""The marching engine of :mod:`ao4d.marching.cells` on the OpenCL device (``kernels/march.cl``): the
 whole march, from the values as stored to the final arrays.
 
 It gives the arrays the numpy engine gives, vertex for vertex and simplex for simplex, so
-:mod:`ao4d.march` and :mod:`ao4d.blockwise` take either engine. The numpy engine stays the
+:mod:`ao4d.marching.march` and :mod:`ao4d.marching.blockwise` take either engine. The numpy engine stays the
 reference and the backend where no OpenCL device works.
 
 Per slab, the host uploads the values as they are stored (float16, float32, float64, 8- to
 64-bit integers; anything else as float64) and the device
 
 1. compares every value with the level once (``sign``: one comparison in the values' own type
-   against :func:`ao4d.cells.threshold`, which makes it equal to ``float64(v) >= level``),
+   against :func:`ao4d.marching.cells.threshold`, which makes it equal to ``float64(v) >= level``),
 2. classifies every cell (its case) and finds the crossed edges starting at every point that
    are new in this slab (an edge of the layer shared with the slab below keeps the vertex that
    slab gave it: the *carry*, kept on the device);
@@ -63,7 +63,7 @@ from typing import Any
 
 import numpy as np
 
-from . import cl
+from ..opencl import cl
 from .cells import CellTable, Geometry, Job, Plan, SlabMesh, join, threshold
 
 __all__ = ["FLOAT32", "IN_PLACE", "device_layers", "fits", "get_runtime", "march", "march_slabs", "release_buffers"]
@@ -122,7 +122,7 @@ def get_runtime(backend: str = "auto") -> cl.Runtime | None:
     Parameters
     ----------
     backend : {"auto", "opencl", "numpy"}
-        ``"auto"``: the device :func:`ao4d.cl.get_runtime` chooses (``AO4D_DEVICE``), numpy
+        ``"auto"``: the device :func:`ao4d.opencl.cl.get_runtime` chooses (``AO4D_DEVICE``), numpy
         when none works (no warning: the mesh is the same); ``"opencl"`` requires a device.
     """
     return cl.resolve_backend(backend, warn=False)
@@ -342,7 +342,7 @@ class _Engine:
         blk = scratch("blocks", 4 * blocks * 4)
         totals_buf = scratch("totals", 16)
         t = time.perf_counter()
-        fill = getattr(slab, "fill_device", None)  # a field sampled on the device: ao4d.fields_device
+        fill = getattr(slab, "fill_device", None)  # a field sampled on the device: ao4d.marching.fields_device
         if fill is not None:
             fill(self.runtime, values)
         else:
@@ -564,17 +564,17 @@ def march_slabs(
     slab_points: int | None = None,
     grow: bool = True,
 ) -> Iterator[SlabMesh]:
-    """:func:`ao4d.cells.march_slabs` on the device: the same arrays, in device slabs.
+    """:func:`ao4d.marching.cells.march_slabs` on the device: the same arrays, in device slabs.
 
     The yielded :class:`SlabMesh` parts cover device slabs (multiples of ``layers_per_slab``,
     :func:`device_layers`); concatenated, their arrays are those of the numpy engine's parts.
 
     Parameters
     ----------
-    job : ao4d.cells.Job
-        The extraction, as for :func:`ao4d.cells.march_slabs` (the callers validate); its
+    job : ao4d.marching.cells.Job
+        The extraction, as for :func:`ao4d.marching.cells.march_slabs` (the callers validate); its
         ``layers_per_slab`` is the numpy engine's slab, whose vertex order the device keeps.
-    runtime : ao4d.cl.Runtime
+    runtime : ao4d.opencl.cl.Runtime
         The device.
     cells : bool
         Also report each slab's new vertices' keys, active cells and their simplex counts
@@ -646,7 +646,7 @@ def march(
     reread: bool = False,
     grow: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`ao4d.cells.march` on the device: (vertices (V, d) float64, simplices (S, d) int64;
+    """:func:`ao4d.marching.cells.march` on the device: (vertices (V, d) float64, simplices (S, d) int64;
     the numpy engine's are int32 while they fit, the same values).
 
     ``reread``: ``read`` is cheap (an array in memory): the output is allocated once at its size

@@ -2,7 +2,7 @@
 
 :func:`ao4d.extract` hands dask arrays here, and :func:`ao4d.extract_field` does when given
 ``blocks=``. Each block of the grid becomes one task that marches the block's cells with the
-slab core of :mod:`ao4d.cells` (the engine :mod:`ao4d.march` uses) and returns a small *block mesh*: its vertices, its simplices
+slab core of :mod:`ao4d.marching.cells` (the engine :mod:`ao4d.marching.march` uses) and returns a small *block mesh*: its vertices, its simplices
 (indices into its own vertices), the **global edge key** of every vertex and the global index of
 every active cell. The client welds the blocks by global edge key. Nothing else is shared
 between tasks, so the blocks can run anywhere:
@@ -66,8 +66,9 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import check_finite
+from ..mesh import SimplexMesh
 from . import cells_device
-from ._validate import check_finite
 from .cells import (
     PROGRESS_CELLS,
     Geometry,
@@ -79,7 +80,6 @@ from .cells import (
     march_slabs,
     outside_value,
 )
-from .mesh import SimplexMesh
 
 __all__ = [
     "extract_blocks",
@@ -108,7 +108,7 @@ def worker_environment() -> Iterator[None]:
     (the documented ``None`` override) and also kept out of this process's own environment,
     which the nanny fills in and new workers inherit::
 
-        with ao4d.blockwise.worker_environment():
+        with ao4d.marching.blockwise.worker_environment():
             cluster = LocalCluster(n_workers=8)      # or SLURMCluster(...), KubeCluster(...)
 
     For ``dask worker`` processes started elsewhere (dask-jobqueue, Kubernetes), put
@@ -168,7 +168,7 @@ def _check_workers(client: Any) -> None:
         warnings.warn(
             f"{len(slow)} of {len(settings)} dask workers run with MALLOC_TRIM_THRESHOLD_="
             f"{settings[slow[0]][1]} (dask's default), which made ao4d's block-wise extraction 3.4x "
-            "slower here: start them inside `with ao4d.blockwise.worker_environment():` (see its "
+            "slower here: start them inside `with ao4d.marching.blockwise.worker_environment():` (see its "
             "docstring)",
             WorkerEnvironmentWarning,
             stacklevel=5,
@@ -204,7 +204,7 @@ class _Spec:
     level: float
     method: str
     inside: str
-    perm: tuple[int, ...]  # engine axis e holds user axis perm[e] (as in ao4d.march)
+    perm: tuple[int, ...]  # engine axis e holds user axis perm[e] (as in ao4d.marching.march)
     shape: tuple[int, ...]  # global grid, user axes
     origin: tuple[float, ...]
     spacing: tuple[float, ...]
@@ -212,7 +212,7 @@ class _Spec:
     # closed=True: ``shape`` is the grid padded by one outside cell per side, whose grid index
     # is one more than the user's (block offsets are in the padded grid)
     padded: bool = False
-    backend: str = "auto"  # where each task marches: ao4d.cells_device.get_runtime(backend)
+    backend: str = "auto"  # where each task marches: ao4d.marching.cells_device.get_runtime(backend)
 
 
 @dataclass
@@ -289,7 +289,7 @@ def _block_mesh(values: np.ndarray, offset: tuple[int, ...], spec: _Spec) -> _Bl
 
 def _field_block_mesh(field: Callable, axes: list[np.ndarray], offset: tuple[int, ...], spec: _Spec) -> _BlockMesh:
     """Sample ``field`` on one block's points (with overlap) and march it."""
-    from .fields import evaluate_layers
+    from ..fields import evaluate_layers
 
     values = evaluate_layers(field, axes, 0, len(axes[-1]))
     bad = ~np.isfinite(values)
@@ -423,7 +423,7 @@ def _run(func: Callable, block_args: list[tuple], spec: _Spec, progress: bool | 
     n_cells = math.prod(n - 1 for n in spec.shape)
     bar = None
     if (n_cells >= PROGRESS_CELLS) if progress is None else progress:
-        from . import _progress
+        from .. import _progress
 
         bar = _progress.bar(len(tasks), "extract", unit="block")
     try:
@@ -631,7 +631,7 @@ def extract_field_blocks(
 
 
 def _sample_block(field: Callable, axes: list[np.ndarray], block_info: Any = None) -> np.ndarray:
-    from .fields import evaluate_layers
+    from ..fields import evaluate_layers
 
     (lo_hi) = block_info[None]["array-location"]
     sub = [a[lo:hi] for a, (lo, hi) in zip(axes, lo_hi)]
@@ -668,7 +668,7 @@ def field_array(field: Callable, shape: Any, bounds: Any, *, chunks: Any = "auto
     """
     import dask.array as da
 
-    from .fields import grid_axes
+    from ..fields import grid_axes
 
     if not callable(field):
         raise TypeError(f"`field` must be callable on (..., d) points, got {type(field).__name__}")

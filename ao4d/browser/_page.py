@@ -1,11 +1,11 @@
-"""What the writers of ao4d's pages share: :mod:`ao4d.viewer`, :mod:`ao4d.image_viewer` and
-:mod:`ao4d.pages`.
+"""What the writers of ao4d's pages share: :mod:`ao4d.browser.viewer`, :mod:`ao4d.browser.image_viewer` and
+:mod:`ao4d.browser.pages`.
 
-Every page holds the one shared script, ``ao4d/page_common.js`` (the fragment, buffers, camera,
+Every page holds the one shared script, ``ao4d/browser/page_common.js`` (the fragment, buffers, camera,
 shader compiling, frames on demand, orbit and keys, PNG and read-back, the page's life), inlined
 once as its own ``<script>`` where its template says ``<!--AO4D_COMMON-->``; the page's own
 script then uses its functions (``ao4dPage``). The slicing page and the image page also share
-their frame, ``ao4d/page_frame.html`` (the panel, the canvas, their style): each fills in its
+their frame, ``ao4d/browser/page_frame.html`` (the panel, the canvas, their style): each fills in its
 head, its panel and its body (:func:`framed`). A page stays one self-contained file that opens
 from ``file://``.
 Here too: the scene's JSON inside a ``<script>``, the size of base64 text, degrees wrapped as the
@@ -22,7 +22,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from ._atomic import atomic_open, check_output_file
+from .._atomic import atomic_open, check_output_file
 
 __all__ = [
     "COMMON_MARK",
@@ -47,8 +47,8 @@ _SLOTS = ("<!--AO4D_HEAD-->", "<!--AO4D_PANEL-->", "<!--AO4D_BODY-->")  # a page
 
 @functools.cache
 def common_script() -> str:
-    """The text of the shared script (``ao4d/page_common.js``)."""
-    text = resources.files("ao4d").joinpath(_COMMON_FILE).read_text(encoding="utf-8")
+    """The text of the shared script (``ao4d/browser/page_common.js``)."""
+    text = resources.files("ao4d.browser").joinpath(_COMMON_FILE).read_text(encoding="utf-8")
     # inlined in a <script> and searched for the templates' marks: it may hold neither
     for bad in ("</script", COMMON_MARK, _DATA_MARK, *_SLOTS, "__AO4D_", "__TITLE__", "__META__"):
         if bad in text:  # pragma: no cover - the shipped script holds none
@@ -64,11 +64,11 @@ def with_common_script(text: str) -> str:
 
 
 def framed(name: str) -> str:
-    """A shipped page (``ao4d/viewer_page.html``, ``ao4d/image_page.html``) in the shared frame
-    (``ao4d/page_frame.html``: the panel, the canvas, the shared style and script): the page's
+    """A shipped page (``ao4d/browser/viewer_page.html``, ``ao4d/browser/image_page.html``) in the shared frame
+    (``ao4d/browser/page_frame.html``: the panel, the canvas, the shared style and script): the page's
     three parts, after its lines ``<!--AO4D_HEAD-->``, ``<!--AO4D_PANEL-->`` and
     ``<!--AO4D_BODY-->``, go where the frame has the same lines."""
-    files = resources.files("ao4d")
+    files = resources.files("ao4d.browser")
     frame = with_common_script(files.joinpath(_FRAME_FILE).read_text(encoding="utf-8"))
     page = files.joinpath(name).read_text(encoding="utf-8")
     head, sep, rest = page.partition(_SLOTS[0] + "\n")

@@ -50,9 +50,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._npz import npz_bytes
-from ._validate import check_choice
-from .geometry import cross
+from .._npz import npz_bytes
+from .._validate import check_choice
+from ..geometry import cross
 
 __all__ = [
     "Table",
@@ -553,7 +553,7 @@ def _build_arrays(cell: _Cell, *, show: bool) -> tuple[np.ndarray, np.ndarray]:
     One hull per class of ``cell.group``; its facets' flags are pulled in the labels of every
     entry of the class at once.
     """
-    from . import _progress
+    from .. import _progress
 
     n = cell.n
     rep, elem = _orbits(cell.group[:, :n])
@@ -602,7 +602,7 @@ def build(dim: int, kind: str = "cube", *, progress: bool | None = None) -> Tabl
     Examples
     --------
     >>> import ao4d
-    >>> t = ao4d.lut.build(3)
+    >>> t = ao4d.marching.lut.build(3)
     >>> t.entry(1).tolist()  # corner 0 positive: one triangle on its y, x and z edges
     [[4, 0, 8]]
     """
@@ -729,7 +729,7 @@ def save(table: Table, folder: str | os.PathLike) -> Path:
     pathlib.Path
         The written file.
     """
-    from ._atomic import atomic_open
+    from .._atomic import atomic_open
 
     path = Path(folder) / table_filename(table.dim, table.kind)
     with atomic_open(path, "wb") as fh:
@@ -762,7 +762,7 @@ def write_tables(
     seconds : dict of str to float
         Build time of each written file.
     """
-    from ._atomic import atomic_open
+    from .._atomic import atomic_open
 
     dims = [_check_dim(d) for d in dims]
     kinds = [check_choice(k, "kind", KINDS) for k in kinds]
@@ -802,7 +802,7 @@ def _read_manifest(path: Path) -> dict:
 
 
 def _lut_folder() -> Path:
-    from ._resources import data_dir
+    from .._resources import data_dir
 
     return data_dir("lut")
 
@@ -833,7 +833,7 @@ def load(dim: int, kind: str = "cube") -> Table:
     Examples
     --------
     >>> import ao4d
-    >>> t = ao4d.lut.load(4)
+    >>> t = ao4d.marching.lut.load(4)
     >>> t.simplices.shape[1], t.n_entries
     (4, 65536)
     """

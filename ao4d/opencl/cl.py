@@ -26,13 +26,13 @@ Intel's CPU runtime from PyPI (``intel-opencl-rt``) installs ``<prefix>/lib/libi
 registers it with a placeholder path. Before the first platform query we write an ICD folder that
 lists it by absolute path together with every vendor the system already has, and point the ICD
 loader at that folder through ``OCL_ICD_VENDORS``; the user never sets anything. Its TBB is loaded
-at ``import ao4d`` (see ``ao4d/_tbb.py``); when a platform still fails to load, discovery says
+at ``import ao4d`` (see ``ao4d/opencl/tbb.py``); when a platform still fails to load, discovery says
 which library broke it (:func:`platform_problems`).
 
 Compiled programs persist across processes in ``$XDG_CACHE_HOME/ao4d/kernels`` (``~/.cache``
 by default; a temporary folder when that is read-only), keyed by the source with every kernel
 header, the build options, and the platform, device and driver versions
-(``ao4d/_kernel_binaries.py``).
+(``ao4d/opencl/binaries.py``).
 
 Nothing here runs at ``import ao4d``: pyopencl is imported on first use.
 """
@@ -50,10 +50,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from . import _kernel_binaries, _tbb
-from ._kernel_binaries import kernel_build_stats, kernel_cache_dir
-from ._resources import data_dir
-from ._validate import check_choice
+from .._resources import data_dir
+from .._validate import check_choice
+from . import binaries as _kernel_binaries
+from . import tbb as _tbb
+from .binaries import kernel_build_stats, kernel_cache_dir
 
 __all__ = [
     "BACKENDS",
@@ -473,7 +474,7 @@ def _missing_platforms() -> list[str]:
 
     The ICD loader drops a library that fails to load without a word. A library it kept is
     mapped into the process; for each one that is not, load it ourselves to learn the loader's
-    error, and name a foreign ``libtbb`` when one is mapped (the Open3D case, ``ao4d/_tbb.py``).
+    error, and name a foreign ``libtbb`` when one is mapped (the Open3D case, ``ao4d/opencl/tbb.py``).
     """
     mapped = _tbb.mapped_libraries()
     if not mapped:
@@ -855,7 +856,7 @@ def build_kernels(runtime: Runtime, source: str, defines: dict[str, Any] | None 
 
     Shared code is reached with ``#include`` (the kernels folder is passed with ``-I``);
     specialisation uses ``-D NAME=VALUE`` from ``defines``. The compiled binary is kept in
-    :func:`kernel_cache_dir` (``ao4d/_kernel_binaries.py``), so another process loads it
+    :func:`kernel_cache_dir` (``ao4d/opencl/binaries.py``), so another process loads it
     instead of compiling.
 
     Parameters

@@ -1,11 +1,11 @@
 """The 4D camera's 3D image in the browser: one self-contained WebGL2 page that ray-marches it.
 
-:func:`view_image` writes an HTML file holding the page (``ao4d/image_page.html``, in the frame and
-with the script every ao4d page shares, :mod:`ao4d._page`) and the image
+:func:`view_image` writes an HTML file holding the page (``ao4d/browser/image_page.html``, in the frame and
+with the script every ao4d page shares, :mod:`ao4d.browser._page`) and the image
 of :func:`ao4d.render` (a :class:`~ao4d.rendering.RenderResult`, or the ``.vti`` / ``.mhd`` file
 ``ao4d render`` writes). The page ray-marches the volume on the GPU every frame, with a transfer
 function (colour map presets and an opacity ramp dragged on the page), axis-aligned clipping
-planes and the orbit camera of the slicing page (:mod:`ao4d.viewer`). It needs no network and
+planes and the orbit camera of the slicing page (:mod:`ao4d.browser.viewer`). It needs no network and
 opens from ``file://``. :func:`reference_march` is the same ray-march in numpy, sample for sample.
 
 Why this stays one module: the page's JavaScript mirrors every convention below, and
@@ -37,7 +37,7 @@ Transfer function
     [q / 255 >= lo]`` when ``hi <= lo`` (:func:`transfer_function`). With ``array="rgba"`` the
     colour is the voxel's own and the opacity is the ramp at the voxel's shade times its alpha.
 Ray-march
-    The camera is :func:`ao4d.viewer.camera` of the frame (``c``, ``|h|``): pixel ``(i, j)``
+    The camera is :func:`ao4d.browser.viewer.camera` of the frame (``c``, ``|h|``): pixel ``(i, j)``
     (x right, y down) casts the ray from the eye through its centre, direction
     ``normalize(forward + (i + 1/2 - W/2) / scale * right - (j + 1/2 - H/2) / scale * up)``.
     The ray is clipped to the box ``[-h + 2 h x0, -h + 2 h x1]`` (per axis, the state's
@@ -82,9 +82,9 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import as_real, check_bool, check_choice
+from ..compositing import over
 from ._page import b64_size, check_max_bytes, scene_json, template, wrap_degrees, write_page
-from ._validate import as_real, check_bool, check_choice
-from .compositing import over
 from .viewer import HALF_FOV_DEG, MARGIN, ZOOM_RANGE, Camera, Frame, camera, merged_state
 
 __all__ = [
@@ -353,7 +353,7 @@ def load_image(path: str | os.PathLike) -> ImageData:
     FileNotFoundError
         If there is no such file.
     """
-    from .volumes import read_mhd, read_vtk_image
+    from ..volumes import read_mhd, read_vtk_image
 
     p = Path(path)
     suffix = check_choice(p.suffix.lower(), "image extension", (".vti", ".mhd"))
@@ -438,7 +438,7 @@ def full_state(state: Mapping[str, Any] | None = None, *, image: ImageData | Non
         Any of :data:`DEFAULT_STATE`'s keys. ``array`` in {"rgba", "shade", "occlusion",
         "depth"} (default "rgba" when the image has colours, else "shade"), ``cmap`` in
         :data:`CMAPS`, ``lo, hi`` in [0, 1], ``opacity`` in [0, 1], clip planes ``x0 <= x1``,
-        ``y0 <= y1``, ``z0 <= z1`` in [0, 1], ``az, el, zoom`` as in :func:`ao4d.viewer.full_state`.
+        ``y0 <= y1``, ``z0 <= z1`` in [0, 1], ``az, el, zoom`` as in :func:`ao4d.browser.viewer.full_state`.
     image : ImageData, optional
         Checks that ``array`` is one the image has.
 

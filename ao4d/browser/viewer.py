@@ -1,7 +1,7 @@
 """The browser viewer: one self-contained WebGL2 page that slices 4D tetrahedral meshes on the GPU.
 
-:func:`view` writes an HTML file holding the page (``ao4d/viewer_page.html``: HTML, JavaScript,
-GLSL, in the frame and with the script every ao4d page shares, :mod:`ao4d._page`) and the meshes (float32 vertices, uint32 simplices, float32 AO; zlib-compressed and
+:func:`view` writes an HTML file holding the page (``ao4d/browser/viewer_page.html``: HTML, JavaScript,
+GLSL, in the frame and with the script every ao4d page shares, :mod:`ao4d.browser._page`) and the meshes (float32 vertices, uint32 simplices, float32 AO; zlib-compressed and
 base64-encoded, inflated in the browser by ``DecompressionStream``). It needs no network and
 opens from ``file://``. Scenes too large to inline are served by :func:`serve` on 127.0.0.1.
 
@@ -61,7 +61,7 @@ Examples
 ...     page = ao4d.view(mesh, pathlib.Path(tmp) / "sphere.html")
 ...     print(page.read_text()[:15])
 <!DOCTYPE html>
->>> tri = ao4d.viewer.slice_for_state(mesh, {"w": 0.5, "xw": 30})
+>>> tri = ao4d.browser.viewer.slice_for_state(mesh, {"w": 0.5, "xw": 30})
 >>> bool(abs(np.linalg.norm(tri.vertices, axis=1).max() - np.sqrt(1 - 0.25)) < 0.1)
 True
 """
@@ -82,14 +82,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._validate import as_array, as_real, check_bool, check_choice
+from ..slicing import SLICE_CASES
 from ._page import b64_size, check_max_bytes, scene_json, template, wrap_degrees, write_page
-from ._validate import as_array, as_real, check_bool, check_choice
-from .slicing import SLICE_CASES
 
 if TYPE_CHECKING:  # pragma: no cover
     import trimesh
 
-    from . import SimplexMesh
+    from ..mesh import SimplexMesh
 
 __all__ = [
     "ANGLES",
@@ -334,7 +334,7 @@ def slice_for_state(
     slice : trimesh.Trimesh
         Vertices in scene coordinates ``(x'_x, x'_y, x'_z)``, point data (``"ao"``) attached.
     """
-    from . import SimplexMesh
+    from ..mesh import SimplexMesh
 
     items = _as_meshes(mesh, None, name="mesh")
     if len(items) != 1:
@@ -635,7 +635,7 @@ def split_objects(mesh: Any, *, key: str = "object_id") -> list[SimplexMesh]:
         One per distinct id, in increasing id order; only the vertices each uses, point data
         (``"ao"``) carried along.
     """
-    from . import SimplexMesh
+    from ..mesh import SimplexMesh
 
     if not isinstance(mesh, SimplexMesh):
         raise TypeError(f"`mesh` must be a SimplexMesh, got {type(mesh).__name__}")
@@ -665,8 +665,7 @@ _MESH_FORMS = "a SimplexMesh, a trimesh.Trimesh, a (vertices, simplices) pair or
 
 
 def _as_meshes(meshes: Any, names: Any, *, name: str = "meshes") -> list[tuple[Any, str]]:
-    from . import SimplexMesh
-    from .mesh import as_mesh
+    from ..mesh import SimplexMesh, as_mesh
 
     if isinstance(meshes, (str, os.PathLike)):
         meshes = [meshes]
@@ -735,7 +734,7 @@ def _facing(vertices: np.ndarray, simplices: np.ndarray) -> str:
     bit: a closed, consistently oriented mesh sorts into pairs ``(2 f, 2 f + 1)``, one pair per
     face ``f``.
     """
-    from .geometry import simplex_normals
+    from ..geometry import simplex_normals
 
     d = simplices.shape[1]
     n = int(simplices.max()) + 1
@@ -854,7 +853,7 @@ def _build(
         blobs.append(_Blob(data, meta))
         return meta
 
-    from ._progress import bar
+    from .._progress import bar
 
     if progress is not None:
         check_bool(progress, "progress")
@@ -1027,9 +1026,7 @@ def page_text(meshes: Any, **options: Any) -> str:
     max_bytes, compress = check_max_bytes(options.pop("max_bytes")), options["compress"]
     items = _as_meshes(meshes, options.pop("names"))
     raw = sum(m.n_vertices * m.dim * 4 + m.n_simplices * m.dim * 4 + m.n_vertices * 4 for m, _ in items)
-    limit_text = (
-        f"over `max_bytes` = {max_bytes / 1e6:.0f} MB; serve it instead: `ao4d view ... --serve` (or ao4d.viewer.serve)"
-    )
+    limit_text = f"over `max_bytes` = {max_bytes / 1e6:.0f} MB; serve it instead: `ao4d view ... --serve` (or ao4d.browser.viewer.serve)"
     if not compress and b64_size(raw) > max_bytes:
         raise ValueError(f"the page would be about {b64_size(raw) / 1e6:.0f} MB, {limit_text}")
     if b64_size(raw) > 8 * max_bytes:  # beyond what compression can bring under the limit

@@ -1,5 +1,5 @@
-"""The marching engine shared by :mod:`ao4d.march` (slabs in one process) and
-:mod:`ao4d.blockwise` (dask blocks): cell tables, classification, emission and welding by global
+"""The marching engine shared by :mod:`ao4d.marching.march` (slabs in one process) and
+:mod:`ao4d.marching.blockwise` (dask blocks): cell tables, classification, emission and welding by global
 edge id. Vectorised numpy with no checks of its own: the callers validate.
 
 How the core works (all numpy, no Python loop over cells):
@@ -12,7 +12,7 @@ How the core works (all numpy, no Python loop over cells):
    combined axis by axis (d passes over the slab instead of 2^d).
 2. Look up the simplices of the active cells (case neither 0 nor all ones) in a *cell table*:
    rows of d edge ids, each edge given by its lower corner ``a`` and direction mask ``m``
-   (``a & m == 0``). The cube table comes straight from :func:`ao4d.lut.load`; the Kuhn table
+   (``a & m == 0``). The cube table comes straight from :func:`ao4d.marching.lut.load`; the Kuhn table
    concatenates, per cube case, the simplex-table entries of the d! Kuhn cells (with the
    orientation reversed in odd cells), so both methods share the rest of the pipeline. Kuhn
    edges include cube diagonals (any non-zero ``m``).
@@ -31,7 +31,7 @@ The engine marches any grid that a ``read(a, b)`` callable serves slab by slab (
 whose :meth:`Job.slabs` is the slab loop of both engines); a grid that is a block of a larger
 one carries its index ``offset`` (:class:`Geometry`), and :func:`march_slabs` reports each
 slab's vertices with their edge keys and active cells, which is what block-wise welding needs.
-The device engine (:mod:`ao4d.cells_device`) takes the same :class:`Job` and gives the same
+The device engine (:mod:`ao4d.marching.cells_device`) takes the same :class:`Job` and gives the same
 arrays. The names without an underscore are shared inside the package (march, cells_device and
 blockwise import them); none is part of the public API.
 
@@ -56,7 +56,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import check_finite, check_memory, check_positive_int
+from .._validate import check_finite, check_memory, check_positive_int
 
 # Dense key-map entries per slab (points x directions). 2^23 keeps the per-slab working set
 # (key map, mark array, case array, values) near 100 MB in 4D.
@@ -348,7 +348,7 @@ class _Welder:
 @dataclass
 class SlabMesh:
     """What one slab adds: its new vertices, its simplices (indices into all vertices so far)
-    and, for block-wise welding (:mod:`ao4d.blockwise`), the engine keys of those vertices
+    and, for block-wise welding (:mod:`ao4d.marching.blockwise`), the engine keys of those vertices
     (``point * n_dirs + dir``, point = engine linear index in this grid) and the engine linear
     index of each active cell's lowest corner with its simplex count."""
 

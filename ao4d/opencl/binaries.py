@@ -7,7 +7,7 @@ pyopencl's version (it adds its own ``-I`` to every build). A damaged or stale e
 and rebuilt. On the project's machine Intel's CPU runtime compiles ``ao.cl`` in 0.5-0.65 s and
 loads its binary in 8-10 ms.
 
-Used by :mod:`ao4d.cl` (device probes and ``build_kernels``); nothing here chooses devices.
+Used by :mod:`ao4d.opencl.cl` (device probes and ``build_kernels``); nothing here chooses devices.
 """
 
 from __future__ import annotations
@@ -131,7 +131,7 @@ def built_program(cl, ctx, device, depends: str, text: str, options: list[str]):
     with _lock:
         _stats["compiled"] += 1
     if path is not None:
-        from ._atomic import atomic_open
+        from .._atomic import atomic_open
 
         try:
             binary = program.get_info(cl.program_info.BINARIES)[0]

@@ -7,11 +7,11 @@ tree of its operations. Here that tree becomes an OpenCL function (one generated
 node, calling the primitives of ``kernels/fields.cl``; the parameters in a constant buffer, so a
 program is built once per shape of tree), and a kernel samples it on a slab of grid layers:
 
-* :func:`ao4d.march.extract_field` hands the device engine (:mod:`ao4d.cells_device`) slabs that
+* :func:`ao4d.marching.march.extract_field` hands the device engine (:mod:`ao4d.marching.cells_device`) slabs that
   are sampled straight into the engine's value buffer: the host never holds the grid's values
   (:func:`reader`); the numpy engine gets the same values sampled on the device and downloaded.
 * Any other callable (no ``program``, or a tree with a plain callable in it), a device without
-  ``cl_khr_fp64`` (or :data:`ao4d.cells_device.FLOAT32` set) and ``backend="numpy"`` keep the
+  ``cl_khr_fp64`` (or :data:`ao4d.marching.cells_device.FLOAT32` set) and ``backend="numpy"`` keep the
   host's sampling (:func:`ao4d.fields.evaluate_layers`).
 
 Exactness: the kernel evaluates in double with numpy's operations in numpy's order and no
@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from . import cl
+from ..opencl import cl
 
 __all__ = ["TRANSCENDENTAL_ULPS", "device_source", "host_matches", "reader", "sample_layers"]
 
@@ -237,8 +237,8 @@ def device_source(field: Any, dim: int) -> tuple[str, np.ndarray] | None:
 def _kernel(runtime: cl.Runtime, generated: str, dim: int) -> Any:
     """The ``sample_field`` kernel of ``kernels/fields.cl`` with ``generated`` appended, built once
     per context and source (and kept in the binary cache across processes)."""
-    from . import _kernel_binaries
-    from ._resources import data_dir
+    from .._resources import data_dir
+    from ..opencl import binaries as _kernel_binaries
 
     lanes = host_matches()["lanes"]
     text = (
@@ -268,7 +268,7 @@ def _kernel(runtime: cl.Runtime, generated: str, dim: int) -> Any:
 
 def usable(runtime: cl.Runtime | None) -> bool:
     """Whether fields may be sampled on ``runtime``: it exists, has ``cl_khr_fp64``, and
-    :data:`ao4d.cells_device.FLOAT32` (the path of devices without it) is not set."""
+    :data:`ao4d.marching.cells_device.FLOAT32` (the path of devices without it) is not set."""
     from . import cells_device
 
     return runtime is not None and not cells_device.FLOAT32 and "cl_khr_fp64" in runtime.device.extensions
@@ -396,7 +396,7 @@ def reader(
     check: Callable[[np.ndarray, int], None] | None = None,
     first: list[float] | None = None,
 ) -> Callable[[int, int], Any]:
-    """The slab reader of :func:`ao4d.march.extract_field`: on the device where it can be.
+    """The slab reader of :func:`ao4d.marching.march.extract_field`: on the device where it can be.
 
     Parameters
     ----------
@@ -405,7 +405,7 @@ def reader(
     axes : sequence of (n_k,) float64 arrays
         The grid's coordinates per axis (:func:`ao4d.fields.grid_axes`).
     backend : {"auto", "opencl", "numpy"}
-        As for :func:`ao4d.march.extract_field` (validated there).
+        As for :func:`ao4d.marching.march.extract_field` (validated there).
     host_read : callable
         ``host_read(a, b)``: the host's sampled layers, returned where the field or the device
         does not qualify (:func:`device_source`, :func:`usable`).
@@ -419,7 +419,7 @@ def reader(
     -------
     callable
         ``host_read`` itself, or a reader whose slabs the device engine samples into its own
-        buffers (:class:`ao4d.cells_device` calls their ``fill_device``) and whose ``host``
+        buffers (:class:`ao4d.marching.cells_device` calls their ``fill_device``) and whose ``host``
         attribute reads host arrays sampled on the device (for the numpy engine).
     """
     if backend == "numpy":
@@ -446,8 +446,8 @@ def sample_layers(
         The grid's coordinates per axis.
     start, stop : int
         The layers (last-axis indices) to sample.
-    runtime : ao4d.cl.Runtime, optional
-        The device; default the chosen one (:func:`ao4d.cl.get_runtime`).
+    runtime : ao4d.opencl.cl.Runtime, optional
+        The device; default the chosen one (:func:`ao4d.opencl.cl.get_runtime`).
 
     Returns
     -------

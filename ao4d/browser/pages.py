@@ -1,12 +1,12 @@
 """Pages for people: a whole result in one file, and any page shown inline in Jupyter.
 
-:func:`view` is ``ao4d.view``: meshes go to the slicing page (:mod:`ao4d.viewer`), a rendered
+:func:`view` is ``ao4d.view``: meshes go to the slicing page (:mod:`ao4d.browser.viewer`), a rendered
 image (a :class:`~ao4d.rendering.RenderResult`, or the ``.vti`` / ``.mhd`` file of ``ao4d render``)
-to the ray-marching page (:mod:`ao4d.image_viewer`). With a path it writes the page and returns a
+to the ray-marching page (:mod:`ao4d.browser.image_viewer`). With a path it writes the page and returns a
 :class:`Page` (a :class:`pathlib.Path`); without one it returns an :class:`InlinePage`. Both
 have ``_repr_html_``, so a notebook shows the page in its output: an ``iframe`` whose ``srcdoc``
 holds the self-contained page, or, above :data:`INLINE_LIMIT`, an ``iframe`` on the page served
-from 127.0.0.1 by this kernel (:class:`ao4d.viewer.ViewServer`).
+from 127.0.0.1 by this kernel (:class:`ao4d.browser.viewer.ViewServer`).
 
 :func:`result_page` writes one file with both views of a scene: the slices of its meshes and the
 projection of its rendered image, as tabs or side by side (``ao4d demo``'s ``view.html``). Each
@@ -31,7 +31,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ._atomic import check_output_file
+from .._atomic import check_output_file
 from ._page import scene_json, with_common_script, write_page
 
 __all__ = ["INLINE_LIMIT", "InlinePage", "Page", "inline", "is_image", "result_page", "view"]
@@ -42,7 +42,7 @@ LAYOUTS = ("image", "slices", "both")
 
 
 def is_image(what: Any) -> bool:
-    """True for what :mod:`ao4d.image_viewer` shows: a RenderResult, its ImageData, a .vti/.mhd
+    """True for what :mod:`ao4d.browser.image_viewer` shows: a RenderResult, its ImageData, a .vti/.mhd
     path, or a 3D numpy array of shade values.
 
     Parameters
@@ -204,7 +204,7 @@ def inline(what: Any, *, height: int = HEIGHT, inline_limit: int = INLINE_LIMIT,
     inline_limit : int
         Pages longer than this are served from 127.0.0.1 instead of inlined.
     **options
-        Those of :func:`ao4d.viewer.view` (meshes) or :func:`ao4d.image_viewer.view_image`
+        Those of :func:`ao4d.browser.viewer.view` (meshes) or :func:`ao4d.browser.image_viewer.view_image`
         (images).
 
     Returns
@@ -237,8 +237,8 @@ def view(
     ----------
     what : mesh, .npz path, sequence of them, RenderResult, or .vti / .mhd path
         Meshes (each a SimplexMesh, a trimesh.Trimesh, a (vertices, simplices) pair or an .npz
-        file) get the slicing page (:func:`ao4d.viewer.view`), an image the ray-marching page
-        (:func:`ao4d.image_viewer.view_image`).
+        file) get the slicing page (:func:`ao4d.browser.viewer.view`), an image the ray-marching page
+        (:func:`ao4d.browser.image_viewer.view_image`).
     path : path-like, optional
         Where to write the page (.html). Without it nothing is written.
     height : int
@@ -247,7 +247,7 @@ def view(
         Largest page (characters) a notebook gets inline; a larger one is served from
         127.0.0.1 by the kernel.
     **options
-        Keyword options of :func:`ao4d.viewer.view` or :func:`ao4d.image_viewer.view_image`
+        Keyword options of :func:`ao4d.browser.viewer.view` or :func:`ao4d.browser.image_viewer.view_image`
         (``state``, ``title``, ``names``, ...); an unknown one is a ``TypeError``.
 
     Returns
@@ -276,7 +276,7 @@ _OUTER = """<!DOCTYPE html>
 <meta name="generator" content="ao4d result page">
 <title>__TITLE__</title>
 <link rel="icon" href="data:,">
-<!-- ao4d result page (ao4d/pages.py): the slicing view and the projection view of one 4D scene,
+<!-- ao4d result page (ao4d/browser/pages.py): the slicing view and the projection view of one 4D scene,
      each a self-contained page in an iframe (srcdoc). Self-contained: no network access. -->
 <style>
   html, body { margin: 0; height: 100%; background: #1d2027; color: #e6e8ec;
@@ -384,9 +384,9 @@ def result_page(
     Parameters
     ----------
     meshes : SimplexMesh, trimesh.Trimesh, (vertices, simplices), .npz path, or a sequence of them
-        As for :func:`ao4d.viewer.view`.
+        As for :func:`ao4d.browser.viewer.view`.
     image : RenderResult, .vti / .mhd path
-        The scene's rendered image, as for :func:`ao4d.image_viewer.view_image`.
+        The scene's rendered image, as for :func:`ao4d.browser.image_viewer.view_image`.
     path : path-like
         The page (.html; written atomically, checked before any work).
     names : sequence of str, optional
@@ -412,7 +412,7 @@ def result_page(
     TypeError
         If ``title`` is not a string.
     """
-    from ._validate import check_choice
+    from .._validate import check_choice
     from .image_viewer import image_page_text
     from .viewer import page_text
 
