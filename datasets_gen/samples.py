@@ -321,34 +321,49 @@ def corners_distance(corners: np.ndarray, points: np.ndarray, *, pairs_per_step:
     table = _Simplices(corners)
     centroids = corners.mean(axis=1)
     radii = np.max(np.linalg.norm(corners - centroids[:, None, :], axis=2), axis=1)
-    rho = float(radii.max())
     tree = cKDTree(centroids)
     k = min(8, len(centroids))
     _, near = tree.query(points, k=k)
     near = near.reshape(len(points), k)
     upper = table.distance(np.repeat(points, k, axis=0), near.ravel()).reshape(-1, k).min(axis=1)
     out = upper.copy()
+    # simplices in classes of similar bounding radius (doubling from twice the median), each with
+    # its own tree: a few long slivers widen only their own class's search, not every search
+    cut = max(float(np.median(radii)), 1e-300) * 2.0 ** np.arange(1, 64)
+    group = np.searchsorted(cut, radii)
+    classes = []
+    for g in np.unique(group):
+        members = np.flatnonzero(group == g)
+        classes.append((members, float(radii[members].max()), cKDTree(centroids[members])))
     # all simplices whose bounding ball may come nearer than the best so far, in bounded
-    # steps of points with similar bounds (sorted), the pairs found by one k-d tree join
+    # steps of points with similar bounds (sorted, within `band`), the pairs found by one k-d
+    # tree join per class
     order = np.argsort(upper, kind="stable")
+    ordered = upper[order]
+    band = 2.0 * float(np.median(radii))  # a step's bounds differ by at most this: no wide search for near points
     step = 64
     start = 0
     while start < len(order):
-        chunk = order[start : start + step]
-        start += len(chunk)
-        pairs = cKDTree(points[chunk]).sparse_distance_matrix(
-            tree, float(upper[chunk].max()) + rho, output_type="ndarray"
-        )
-        if not len(pairs):
-            continue
-        idx, sim = chunk[pairs["i"]], pairs["j"].astype(np.int64)
-        # each simplex lies in its ball: one farther than the best so far cannot come nearer
-        keep = pairs["v"] - radii[sim] <= upper[idx]
-        idx, sim = idx[keep], sim[keep]
-        if len(sim):
-            np.minimum.at(out, idx, table.distance(points[idx], sim))
+        stop = start + max(1, int(np.searchsorted(ordered[start : start + step], ordered[start] + band, side="right")))
+        chunk = order[start:stop]
+        start = stop
+        found = 0
+        chunk_tree = cKDTree(points[chunk])
+        for members, rho, class_tree in classes:
+            pairs = chunk_tree.sparse_distance_matrix(
+                class_tree, float(upper[chunk].max()) + rho, output_type="ndarray"
+            )
+            found += len(pairs)
+            if not len(pairs):
+                continue
+            idx, sim = chunk[pairs["i"]], members[pairs["j"]]
+            # each simplex lies in its ball: one farther than the best so far cannot come nearer
+            keep = pairs["v"] - radii[sim] <= upper[idx]
+            idx, sim = idx[keep], sim[keep]
+            if len(sim):
+                np.minimum.at(out, idx, table.distance(points[idx], sim))
         # keep steps near pairs_per_step pairs
-        step = int(np.clip(step * pairs_per_step / max(1, len(pairs)), 1, 4096))
+        step = int(np.clip(step * pairs_per_step / max(1, found), 1, 4096))
     return out
 
 
