@@ -26,11 +26,12 @@ rows are ``[frame_point_offsets[j]:frame_point_offsets[j + 1]]``, and likewise f
     Per frame, ``uniform // frames`` points uniform in the frame's box (the samples box's other
     three axes, ``record["sequence"]["frame_samples"]["box"]``), then for each sigma in order
     ``near_surface // frames`` points on the frame's triangles (uniform by area) plus Gaussian
-    offsets of ``sigma`` times the box's 3D diagonal (none in an empty frame); each count at
-    least 1 where the 4D count is not 0 (:func:`frame_counts`). Occupancy is the 4D solid's at
+    offsets of ``sigma`` times the box's 3D diagonal (none in an empty frame: one without
+    triangles of positive area); each count at least 1 where the 4D count is not 0
+    (:func:`frame_counts`). Occupancy is the 4D solid's at
     the point (the frame is the solid's slice): the field's sign, or the mesh inside test for
     lifted items; ``frame_sdf`` is the exact distance to the frame's triangles signed by
-    occupancy (negative exactly where occupied; infinite in a frame with no triangles).
+    occupancy (negative exactly where occupied; infinite in an empty frame).
 ``frame_surface_points``, ``frame_surface_normals`` (Q, 3) float32, ``frame_surface_ao`` (Q,) float32, ``frame_surface_offsets`` (F + 1,)
     Per non-empty frame ``surface // frames`` points uniform by area on its triangles, the
     triangle's outward unit normal, and the AO there (interpolated per vertex, or the cut
@@ -166,6 +167,12 @@ def frame_counts(samples: dict[str, Any], frames: int) -> dict[str, int]:
     }
 
 
+def _area(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The total area of a triangle mesh (0 for none, or only degenerate triangles)."""
+    corners = vertices[faces]
+    return float(np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum())
+
+
 def _triangle_samples(
     vertices: np.ndarray, faces: np.ndarray, count: int, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -199,7 +206,7 @@ def _frame_samples(
     Per frame ``j`` (3D coordinates ``y``, the 4D point ``x = y @ basis + origins[j]``): the
     uniform points in the frame's box, then for each sigma the near-surface points (points
     uniform by area on the frame's triangles plus Gaussian offsets of ``sigma`` times the box's
-    3D diagonal; none in an empty frame), labelled by occupancy at ``x`` (as the 4D samples:
+    3D diagonal; none in a frame without triangles of positive area), labelled by occupancy at ``x`` (as the 4D samples:
     the field's sign or the mesh inside test) and the exact distance to the frame's triangles
     signed by occupancy; then the surface points, normals and AO (``vertex_ao``: the frames'
     interpolated vertex AO; ``face_ao``: per frame, each triangle's value). Every draw comes from
@@ -212,12 +219,13 @@ def _frame_samples(
     ylo, yhi = basis @ blo, basis @ bhi  # basis rows are signed unit axes or a reflection
     ylo, yhi = np.minimum(ylo, yhi), np.maximum(ylo, yhi)
     diagonal = float(np.linalg.norm(yhi - ylo))
-    points, surface, normals, surface_ao = [], [], [], []
+    points, surface, normals, surface_ao, has_surface = [], [], [], [], []
     for j, frame in enumerate(slices):
         vertices = np.asarray(frame.vertices, np.float64).reshape(-1, 3)
         faces = np.asarray(frame.faces, np.int64).reshape(-1, 3)
         parts = [ylo + (yhi - ylo) * rng.random((counts["uniform"], 3))]
-        if len(faces):
+        has_surface.append(bool(len(faces)) and _area(vertices, faces) > 0)
+        if has_surface[-1]:
             for sigma in samples["sigmas"]:
                 base = _triangle_samples(vertices, faces, counts["near_surface"], rng)[0]
                 parts.append(base + rng.normal(0.0, sigma * diagonal, size=(counts["near_surface"], 3)))
@@ -231,7 +239,7 @@ def _frame_samples(
         points.append(np.concatenate(parts).astype(np.float32))
     point_offsets = np.concatenate([[0], np.cumsum([len(p) for p in points])]).astype(np.int64)
     surface_offsets = np.zeros(len(slices) + 1, np.int64)
-    surface_offsets[1:] = np.cumsum([counts["surface"] if len(s.faces) else 0 for s in slices])
+    surface_offsets[1:] = np.cumsum([counts["surface"] if has else 0 for has in has_surface])
     y = np.concatenate(points)
     frame_of = np.repeat(np.arange(len(slices)), np.diff(point_offsets))
     x = y.astype(np.float64) @ basis + origins[frame_of]
@@ -239,7 +247,7 @@ def _frame_samples(
     distance = np.full(len(y), np.inf)
     for j, frame in enumerate(slices):
         rows = slice(point_offsets[j], point_offsets[j + 1])
-        if len(frame.faces) and rows.stop > rows.start:
+        if has_surface[j] and rows.stop > rows.start:
             corners = np.asarray(frame.vertices, np.float64)[np.asarray(frame.faces, np.int64)]
             distance[rows] = corners_distance(corners, y[rows].astype(np.float64))
     arrays = {

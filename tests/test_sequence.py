@@ -125,6 +125,27 @@ def test_frame_samples_same_seed_same_bytes():
     assert one == two and one != other
 
 
+def test_an_empty_frame_has_uniform_points_only():
+    import trimesh
+
+    from datasets_gen.sequence import _frame_samples
+
+    shape = _ball()
+    w = np.array([0.0, 0.0, 0.0, 1.0])
+    slices = [shape.mesh.slice(w * 0.1, w), trimesh.Trimesh(), shape.mesh.slice(w * -0.1, w)]
+    origins = w * np.array([0.1, 0.95, -0.1])[:, None]
+    samples = check_samples({"uniform": 3 * 50, "near_surface": 3 * 20, "sigmas": [0.01], "surface": 3 * 10})
+    basis = np.eye(4)[:3]
+    arrays, record = _frame_samples(
+        shape, "hypersphere", samples, np.random.default_rng(0), "numpy", slices, basis, origins, False, None
+    )
+    np.testing.assert_array_equal(arrays["frame_point_offsets"], [0, 70, 120, 190])
+    np.testing.assert_array_equal(arrays["frame_surface_offsets"], [0, 10, 10, 20])
+    empty = slice(70, 120)
+    assert not arrays["frame_occupancy"][empty].any() and np.isposinf(arrays["frame_sdf"][empty]).all()
+    assert record["points"] == 190 and record["surface_points"] == 20 and "surface_ao" not in record["labels"]
+
+
 def test_frame_samples_of_a_lifted_prism():
     # a lifted box prism (mesh labels): frames inside its height are the box, of known volume
     from _datasets import BOX_PRISM
