@@ -340,7 +340,8 @@ def corners_distance(corners: np.ndarray, points: np.ndarray, *, pairs_per_step:
     # tree join per class
     order = np.argsort(upper, kind="stable")
     ordered = upper[order]
-    band = 2.0 * float(np.median(radii))  # a step's bounds differ by at most this: no wide search for near points
+    # a step's bounds differ by at most `band`: no wide search for the points near the mesh
+    band = 2.0 * float(np.median(radii)) or float(radii.max())
     step = 64
     start = 0
     while start < len(order):
