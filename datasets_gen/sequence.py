@@ -42,6 +42,10 @@ rows are ``[frame_point_offsets[j]:frame_point_offsets[j + 1]]``, and likewise f
 ``sdf`` is always ``"mesh"``: the 4D field's value is no distance within a frame).
 :func:`frame_samples_of` splits the arrays by frame.
 
+Cost: the distances to the frames' triangles (:func:`datasets_gen.samples.corners_distance`)
+dominate; a ditorus of the shipped ``training`` config (17 frames of about 7600 triangles,
+2889 points each) takes 4.7 s for its whole sequence here, 3.7 s of it distances.
+
 :func:`frames_of` turns the arrays back into ``trimesh.Trimesh`` objects.
 """
 
