@@ -8,7 +8,8 @@ plain mesh (everything computed).
 Part 2, a dataset on a 2-worker LocalCluster, once with the workers writing their items into
 the folder and once with the items sent back to the client: the item bytes the client
 received and the client's peak traced memory (tracemalloc) per item, and whether the two
-manifests are identical.
+manifests are identical; then the stage table of the second run (its stages around AO
+against the AO stage) and the load average beside each run.
 
     python bench/datasets.py                       # both parts, the smoke config
     python bench/datasets.py --config tori --skip-check
@@ -17,6 +18,7 @@ manifests are identical.
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 import tracemalloc
@@ -66,8 +68,11 @@ def bench_writes(config: str, workers: int) -> None:
                 f"workers write: {str(shared):5}  {summary.made} items, {summary.seconds:.1f} s; "
                 f"client received {summary.received / 2**20:.2f} MiB ({summary.received / n / 2**20:.2f} "
                 f"MiB per item), client peak traced memory {peak / 2**20:.1f} MiB "
-                f"({peak / n / 2**20:.2f} MiB per item); dataset {summary.bytes / 2**20:.1f} MiB"
+                f"({peak / n / 2**20:.2f} MiB per item); dataset {summary.bytes / 2**20:.1f} MiB; "
+                f"load average {os.getloadavg()[0]:.2f}"
             )
+            if shared:  # where the time went (wall-clock per stage, so load inflates it)
+                print(summary.stage_table())
     print("manifests identical:", manifests[False] == manifests[True])
 
 

@@ -23,9 +23,22 @@ from ._store import Store
 from .config import Config, ItemSpec
 from .items import RUN_FORMAT, item_folder, versions
 
-__all__ = ["RunSummary", "UNHASHED", "run_info", "claim_out", "check_same_run", "write_index", "device_name"]
+__all__ = [
+    "RunSummary",
+    "AROUND_AO",
+    "UNHASHED",
+    "run_info",
+    "claim_out",
+    "check_same_run",
+    "write_index",
+    "device_name",
+]
 
 UNHASHED = ("timing.json", "summary.json", "manifest.json")
+
+
+#: the stages around AO that the throughput target weighs against it (besides ``picture_*``)
+AROUND_AO = ("check", "bvh", "write")
 
 
 @dataclass
@@ -99,7 +112,25 @@ class RunSummary:
             f"  {'items':<10} {total:9.2f} {total / self.made:9.3f} {100.0:6.1f}%  "
             f"(summed over {self.made} items; {self.items_per_minute:.1f} items/min wall)"
         )
+        around = self.around_ao
+        if around is not None:
+            lines.append(
+                f"  around AO (check, bvh, write, picture_*): {around['seconds']:.2f} s = "
+                f"{around['ratio']:.2f} x the ao stage"
+            )
         return "\n".join(lines)
+
+    @property
+    def around_ao(self) -> dict[str, float] | None:
+        """The stages around AO (:data:`AROUND_AO`: mesh check, BVH, writing, pictures) against
+        the AO stage: ``{"seconds": their sum, "ao": the AO stage's, "ratio": seconds / ao}``,
+        summed over the items made; ``None`` when no item made AO.
+        """
+        ao = self.stages.get("ao", 0.0)
+        if ao <= 0:
+            return None
+        around = sum(v for n, v in self.stages.items() if n in AROUND_AO or n.startswith("picture_"))
+        return {"seconds": around, "ao": ao, "ratio": around / ao}
 
     @property
     def items_per_minute(self) -> float:
@@ -358,6 +389,7 @@ def write_index(store: Store, items: list[ItemSpec], summary: RunSummary) -> int
                 "items_per_minute": summary.items_per_minute,
                 "bytes": size,
                 "stages": summary.stages,
+                "around_ao": summary.around_ao,
             }
         ),
     )

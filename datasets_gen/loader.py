@@ -3,6 +3,7 @@
 >>> ds = load("data/tori", split="train", normalize=True)     # doctest: +SKIP
 >>> item = ds[0]          # vertices, simplices, ao, points, occupancy, sdf, ..., record
 >>> frames = ds.frames(0) # the item's sequence.npz as trimesh.Trimesh frames
+>>> ds.frame_samples(0)[3]["occupancy"]  # frame 3's labelled 3D points   # doctest: +SKIP
 
 A :class:`Dataset` holds only the folder's address, the item list (from ``items.csv``) and the
 manifest; each ``ds[i]`` reads that item's files when asked (a local folder or any fsspec URL,
@@ -82,7 +83,8 @@ class Dataset:
 
     ``len(ds)`` items; ``ds[i]`` a dict of numpy arrays (``vertices``, ``simplices``, ``ao`` when
     present, the ``samples.npz`` arrays when present) plus ``record`` (the item's JSON record);
-    ``ds.records`` every record; ``ds.frames(i)`` the item's sequence frames; ``ds.indices`` the
+    ``ds.records`` every record; ``ds.frames(i)`` the item's sequence frames and
+    ``ds.frame_samples(i)`` their 3D samples; ``ds.indices`` the
     dataset indices of the items (``ds[i]`` is item ``ds.indices[i]``).
 
     Parameters
@@ -264,6 +266,42 @@ class Dataset:
         """
         from .sequence import frames_of
 
+        return frames_of(self._sequence(i))
+
+    def frame_samples(self, i: int) -> list[dict[str, Any]]:
+        """The per-frame 3D learning samples of item ``ds[i]``'s ``sequence.npz``.
+
+        Parameters
+        ----------
+        i : int
+            Position in the dataset of an item made with ``sequence`` and ``samples`` settings.
+
+        Returns
+        -------
+        list of dict
+            One per frame, in the order of :meth:`frames`: ``points`` (K, 3) float32,
+            ``occupancy`` (K,) bool, ``sdf`` (K,) float32, ``surface_points`` and
+            ``surface_normals`` (M, 3) float32, ``surface_ao`` (M,) when the item has AO, and
+            ``time``; in the frame's 3D coordinates (with ``normalize``, normalised as the
+            frames' vertices, ``sdf`` divided by the scale).
+
+        Raises
+        ------
+        DatasetError
+            The item has no sequence, or its sequence has no samples (the config sets no
+            ``samples``).
+        """
+        from .sequence import frame_samples_of
+
+        out = frame_samples_of(self._sequence(i))
+        if not out:
+            raise DatasetError(
+                f"item {self._index(i)}: its sequence.npz has no frame samples (the config sets no `samples`)"
+            )
+        return out
+
+    def _sequence(self, i: int) -> dict[str, np.ndarray]:
+        """The arrays of ``ds[i]``'s ``sequence.npz``, normalised when asked."""
         index = self._index(i)
         record = self.record(i)
         if "sequence.npz" not in record.get("files", {}):
@@ -271,8 +309,14 @@ class Dataset:
         arrays = self._npz(index, "sequence.npz")
         if self.normalize:  # a frame's point y is x = x0 + y @ basis with x0 along the axis
             loc, scale = np.asarray(record["normalization"]["loc"]), float(record["normalization"]["scale"])
-            arrays["vertices"] = (arrays["vertices"] - arrays["basis"] @ loc) / scale
-        return frames_of(arrays)
+            shift = arrays["basis"] @ loc
+            for name in ("vertices", "frame_points", "frame_surface_points"):
+                if name in arrays:
+                    a = arrays[name]
+                    arrays[name] = ((a - shift) / scale).astype(a.dtype)
+            if "frame_sdf" in arrays:
+                arrays["frame_sdf"] = (arrays["frame_sdf"] / scale).astype(np.float32)
+        return arrays
 
 
 def normalized(item: dict[str, Any]) -> dict[str, Any]:

@@ -42,6 +42,7 @@ distance of a vertex from it.
 from __future__ import annotations
 
 import copy
+import functools
 import itertools
 import math
 from typing import Any
@@ -59,6 +60,7 @@ __all__ = [
     "sample_box",
     "surface_samples",
     "mesh_distance",
+    "corners_distance",
     "mesh_occupancy",
     "make_samples",
     "SAMPLE_ARRAYS",
@@ -215,23 +217,30 @@ def _simplex_distance(p: np.ndarray, corners: np.ndarray) -> np.ndarray:
     return np.sqrt(best)
 
 
-class _Simplices:
-    """Per-simplex values for fast exact point-to-tetrahedron distances (:meth:`distance`).
+def _faces(corners: int) -> list[list[int]]:
+    """Every face of two or more of a simplex's ``corners`` corners, as corner subsets."""
+    return [list(c) for k in range(2, corners + 1) for c in itertools.combinations(range(corners), k)]
 
+
+class _Simplices:
+    """Per-simplex values for fast exact point-to-simplex distances (:meth:`distance`).
+
+    ``corners`` (S, n, d): tetrahedra (n = 4) of a 4D mesh or triangles (n = 3) of a 3D frame.
     Every vector is taken relative to the simplex's first corner (no cancellation between
-    large coordinates): ``E`` (S, 4, d) the corners minus corner 0 (row 0 zero) and the
+    large coordinates): ``E`` (S, n, d) the corners minus corner 0 (row 0 zero) and the
     diagonal of their Gram matrix; for each face of two or more corners, the inverse of its
     edges' Gram matrix, the constant part of its projection's right-hand side, and whether
     it is well conditioned.
     """
 
     def __init__(self, corners: np.ndarray):
+        self.n = corners.shape[1]
         self.v0 = np.ascontiguousarray(corners[:, 0])
         self.E = corners - corners[:, :1]
         W = np.einsum("sid,sjd->sij", self.E, self.E)
         self.diag = np.ascontiguousarray(np.einsum("sii->si", W))
         self.faces = []
-        for face in _FACES[4:]:
+        for face in _faces(self.n):
             i0, rest = face[0], list(face[1:])
             m = len(rest)
             gram = np.empty((len(W), m, m))
@@ -255,12 +264,12 @@ class _Simplices:
     def _distance(self, p: np.ndarray, sim: np.ndarray) -> np.ndarray:
         r0 = p - self.v0[sim]
         E = self.E[sim]
-        P = [np.zeros(len(sim))] + [np.einsum("kd,kd->k", E[:, i], r0) for i in range(1, 4)]  # r0 . E_i (E_0 = 0)
+        P = [np.zeros(len(sim))] + [np.einsum("kd,kd->k", E[:, i], r0) for i in range(1, self.n)]  # r0 . E_i
         diag = self.diag[sim]
         rr = np.einsum("kd,kd->k", r0, r0)
         # |p - v_i|^2 = |r0|^2 - 2 r0.E_i + E_i.E_i
-        norms = [rr] + [rr - 2 * P[i] + diag[:, i] for i in range(1, 4)]
-        best = np.minimum(np.minimum(norms[0], norms[1]), np.minimum(norms[2], norms[3]))
+        norms = [rr] + [rr - 2 * P[i] + diag[:, i] for i in range(1, self.n)]
+        best = functools.reduce(np.minimum, norms)
         for i0, rest, inverse, const, ok in self.faces:
             inv, c = inverse[sim], const[sim]
             # rhs_k = (E_k - E_i0) . (r0 - E_i0)
@@ -295,43 +304,67 @@ def mesh_distance(mesh: Any, points: np.ndarray, *, pairs_per_step: int = 1 << 1
 
     Candidates come from a k-d tree of simplex centroids: with ``u`` the distance to the nearest
     of a few candidates, only simplices whose bounding ball (centroid, farthest corner) comes
-    within ``u`` can be nearer, and those are all tested.
+    within ``u`` can be nearer, and those are all tested (:func:`corners_distance`).
     """
+    return corners_distance(mesh.vertices[mesh.simplices], points, pairs_per_step=pairs_per_step)
+
+
+def corners_distance(corners: np.ndarray, points: np.ndarray, *, pairs_per_step: int = 1 << 18) -> np.ndarray:
+    """Exact distance from each point (K, d) to the nearest of the simplices ``corners``
+    (S, n, d): tetrahedra of a 4D mesh, triangles of a 3D frame; float64. See :func:`mesh_distance`."""
     from scipy.spatial import cKDTree
 
     points = np.asarray(points, np.float64)
-    corners = mesh.vertices[mesh.simplices]  # (S, 4, 4)
+    corners = np.asarray(corners, np.float64)
+    if not len(corners):
+        raise ValueError("`corners` holds no simplex to measure distances to")
     table = _Simplices(corners)
     centroids = corners.mean(axis=1)
     radii = np.max(np.linalg.norm(corners - centroids[:, None, :], axis=2), axis=1)
-    rho = float(radii.max())
     tree = cKDTree(centroids)
     k = min(8, len(centroids))
     _, near = tree.query(points, k=k)
     near = near.reshape(len(points), k)
     upper = table.distance(np.repeat(points, k, axis=0), near.ravel()).reshape(-1, k).min(axis=1)
     out = upper.copy()
+    # simplices in classes of similar bounding radius (doubling from twice the median), each with
+    # its own tree: a few long slivers widen only their own class's search, not every search
+    cut = max(float(np.median(radii)), 1e-300) * 2.0 ** np.arange(1, 64)
+    group = np.searchsorted(cut, radii)
+    classes = []
+    for g in np.unique(group):
+        members = np.flatnonzero(group == g)
+        classes.append((members, float(radii[members].max()), cKDTree(centroids[members])))
     # all simplices whose bounding ball may come nearer than the best so far, in bounded
-    # steps of points with similar bounds (sorted), the pairs found by one k-d tree join
+    # steps of points with similar bounds (sorted, within `band`), the pairs found by one k-d
+    # tree join per class
     order = np.argsort(upper, kind="stable")
+    ordered = upper[order]
+    # a step's bounds differ by at most `band`: no wide search for the points near the mesh
+    band = 2.0 * float(np.median(radii)) or float(radii.max())
     step = 64
     start = 0
     while start < len(order):
-        chunk = order[start : start + step]
-        start += len(chunk)
-        pairs = cKDTree(points[chunk]).sparse_distance_matrix(
-            tree, float(upper[chunk].max()) + rho, output_type="ndarray"
-        )
-        if not len(pairs):
-            continue
-        idx, sim = chunk[pairs["i"]], pairs["j"].astype(np.int64)
-        # each simplex lies in its ball: one farther than the best so far cannot come nearer
-        keep = pairs["v"] - radii[sim] <= upper[idx]
-        idx, sim = idx[keep], sim[keep]
-        if len(sim):
-            np.minimum.at(out, idx, table.distance(points[idx], sim))
+        stop = start + max(1, int(np.searchsorted(ordered[start : start + step], ordered[start] + band, side="right")))
+        chunk = order[start:stop]
+        start = stop
+        found = 0
+        chunk_tree = cKDTree(points[chunk])
+        for members, rho, class_tree in classes:
+            pairs = chunk_tree.sparse_distance_matrix(
+                class_tree, float(upper[chunk].max()) + rho, output_type="ndarray"
+            )
+            found += len(pairs)
+            if not len(pairs):
+                continue
+            idx, sim = chunk[pairs["i"]], members[pairs["j"]]
+            # each simplex lies in its ball: one farther than the best so far cannot come nearer
+            keep = pairs["v"] - radii[sim] <= upper[idx]
+            idx, sim = idx[keep], sim[keep]
+            if len(sim):
+                np.minimum.at(out, idx, table.distance(points[idx], sim))
         # keep steps near pairs_per_step pairs
-        step = int(np.clip(step * pairs_per_step / max(1, len(pairs)), 1, 4096))
+        step = int(np.clip(step * pairs_per_step / max(1, found), 1, 4096))
     return out
 
 
@@ -373,11 +406,18 @@ def _labels(
         return occupancy, None
     if signed is None:
         signed = np.where(occupancy, -1.0, 1.0) * mesh_distance(shape.mesh, points)
-    sdf32 = signed.astype(np.float32)
+    return occupancy, signed_float32(occupancy, signed)
+
+
+def signed_float32(occupancy: np.ndarray, signed: np.ndarray) -> np.ndarray:
+    """``signed`` as float32 with its sign made to agree with ``occupancy``: negative exactly
+    where occupied (a rounding to -0.0 or a point on the mesh becomes the least negative
+    float32; a negative value outside becomes 0)."""
+    sdf32 = np.asarray(signed).astype(np.float32)
     tiny = np.float32(np.finfo(np.float32).smallest_subnormal)
-    sdf32[occupancy & ~(sdf32 < 0)] = -tiny  # a rounding to -0.0 or a point on the mesh
+    sdf32[occupancy & ~(sdf32 < 0)] = -tiny
     sdf32[~occupancy & (sdf32 < 0)] = 0.0
-    return occupancy, sdf32
+    return sdf32
 
 
 def labels_provenance(shape: Any, kind: str) -> dict[str, str]:

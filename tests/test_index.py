@@ -168,3 +168,8 @@ def test_stage_table_groups_renders_and_shares_the_total():
     assert float(rows["render_*"][1]) == 1.0 and float(rows["picture_*"][1]) == 0.5
     assert float(rows["ao"][3].rstrip("%")) == 50.0 and float(rows["items"][1]) == 8.0
     assert summary.items_per_minute == 2.0 and "2 made" in str(summary)
+    assert summary.around_ao == {"seconds": 0.5, "ao": 4.0, "ratio": 0.125}  # the pictures only
+    summary.add_timing({"check": 0.5, "bvh": 0.25, "write": 0.25, "ao": 4.0, "samples": 9.0})
+    assert summary.around_ao == {"seconds": 1.5, "ao": 8.0, "ratio": 1.5 / 8.0}
+    assert "around AO (check, bvh, write, picture_*): 1.50 s = 0.19 x the ao stage" in summary.stage_table()
+    assert RunSummary(Path("x"), 1, made=1).around_ao is None

@@ -131,6 +131,40 @@ def test_fsspec_url_and_frames(dataset):
         np.testing.assert_allclose(norm.vertices, (raw.vertices - loc[:3]) / scale)
 
 
+def test_frame_samples(tmp_path, dataset):
+    import json
+    import shutil
+
+    ds, normed = load(dataset), load(dataset, normalize=True)
+    rec = ds.record(0)
+    info = rec["sequence"]["frame_samples"]
+    frames, samples = ds.frames(0), ds.frame_samples(0)
+    assert len(samples) == len(frames) == 3
+    loc, scale = np.array(rec["normalization"]["loc"]), rec["normalization"]["scale"]
+    with np.load(dataset / "items/00000/sequence.npz") as z:
+        np.testing.assert_array_equal(np.concatenate([f["points"] for f in samples]), z["frame_points"])
+        np.testing.assert_array_equal(np.concatenate([f["surface_ao"] for f in samples]), z["frame_surface_ao"])
+    for frame, sample, norm in zip(frames, samples, normed.frame_samples(0)):
+        assert sample["time"] == frame.metadata["time"]
+        assert len(sample["points"]) == info["uniform"] + info["near_surface"] * len(info["sigmas"])
+        assert len(sample["surface_points"]) == info["surface"]
+        np.testing.assert_array_equal(sample["sdf"] < 0, sample["occupancy"])
+        # axis w: the frame's coordinates are x, y, z, normalised as the frame's vertices
+        np.testing.assert_allclose(norm["points"], (sample["points"] - loc[:3]) / scale, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(norm["sdf"], sample["sdf"] / scale, rtol=1e-6)
+        np.testing.assert_array_equal(norm["surface_normals"], sample["surface_normals"])
+    copy = shutil.copytree(dataset, tmp_path / "copy")  # a sequence made without samples
+    path = copy / "items/00000/sequence.npz"
+    with np.load(path) as z:
+        kept = {k: z[k] for k in z.files if not k.startswith("frame_")}
+    np.savez(path, **kept)
+    rec_path = copy / "items/00000/record.json"
+    del rec["sequence"]["frame_samples"]
+    rec_path.write_text(json.dumps(rec))
+    with pytest.raises(DatasetError, match="item 0: its sequence.npz has no frame samples"):
+        load(copy).frame_samples(0)
+
+
 def test_not_a_dataset(tmp_path):
     with pytest.raises(DatasetError, match="holds no readable dataset"):
         datasets_gen.load(tmp_path)

@@ -15,6 +15,7 @@ from datasets_gen.families import build_shape, random_rotation
 from datasets_gen.samples import (
     _simplex_distance,
     check_samples,
+    corners_distance,
     make_samples,
     mesh_distance,
     normalization,
@@ -116,6 +117,23 @@ def test_mesh_distance_is_the_brute_force_minimum():
     corners = shape.mesh.vertices[shape.mesh.simplices]
     brute = np.array([_simplex_distance(np.repeat(p[None], len(corners), 0), corners).min() for p in pts])
     np.testing.assert_allclose(mesh_distance(shape.mesh, pts), brute, rtol=1e-12, atol=1e-12)
+
+
+def test_triangle_distances_against_trimesh_with_slivers():
+    # 3D frames: exact distances to triangles, also where a few long slivers widen the search
+    import trimesh
+
+    mesh = trimesh.creation.torus(0.6, 0.25, major_sections=48, minor_sections=16)
+    slivers = np.array(
+        [[[-0.9, 0.0, 0.0], [0.9, 0.0, 0.01], [0.9, 0.02, 0.0]], [[0, -1, 0.3], [0, 1, 0.3], [0, 1, 0.31]]]
+    )
+    corners = np.concatenate([mesh.vertices[mesh.faces], slivers])
+    rng = np.random.default_rng(2)
+    pts = np.concatenate([rng.uniform(-1.2, 1.2, (300, 3)), mesh.sample(100, seed=1) + rng.normal(0, 0.01, (100, 3))])
+    # brute force: trimesh's closest point on every triangle, the least distance per point
+    near = [trimesh.triangles.closest_point(corners, np.repeat(p[None], len(corners), 0)) for p in pts]
+    want = np.array([np.linalg.norm(c - p, axis=1).min() for c, p in zip(near, pts)])
+    np.testing.assert_allclose(corners_distance(corners, pts), want, rtol=1e-9, atol=1e-12)
 
 
 def test_point_to_tetrahedron_distance_cases():

@@ -6,6 +6,7 @@ import csv
 import json
 from collections import Counter
 
+import numpy as np
 import pytest
 from _datasets import BALL, BOX_PRISM, config, family
 
@@ -89,3 +90,7 @@ def test_splits_and_samples_are_the_same_for_any_worker_count(tmp_path):
     assert a == b == [split_of({"train": 0.5, "val": 0.25, "test": 0.25}, 2, i) for i in range(8)]
     assert set(a) == {"train", "val", "test"}
     assert (tmp_path / "one" / "manifest.json").read_bytes() == (tmp_path / "two" / "manifest.json").read_bytes()
+    # the sequences hold per-frame samples (the lifted item's labelled by rays from its generator)
+    for index in (0, 7):
+        with np.load(tmp_path / "two" / "items" / f"{index:05d}" / "sequence.npz") as z:
+            assert len(z["frame_points"]) == len(z["frame_occupancy"]) == len(z["frame_sdf"]) > 0
