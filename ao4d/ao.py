@@ -20,8 +20,7 @@ from typing import Any
 import numpy as np
 
 from ._validate import as_array, check_choice, check_int, check_memory, check_positive_int
-from .bvh.host import nondegenerate
-from .geometry import simplex_normals
+from .bvh.host import measured_normals
 from .mesh import as_mesh, warn_if_inside_out
 from .opencl import cl
 from .raycast import ACCELS, check_distance, check_rays, count_occluded, get_bvh, mesh_arrays, progress_bar, unit_rows
@@ -65,6 +64,12 @@ def _query_points(mesh, at, points, normals, d):
             raise ValueError(f"`points` and `normals` must have the same length, got {len(points)} and {len(normals)}")
         return points, unit_rows(normals, "normals"), np.ones(len(points), dtype=bool)
     check_choice(at, "at", ("vertices", "simplices"))
+    # kept in the mesh's cache (cleared when the mesh changes): the normals and the degeneracy
+    # test are a third of a repeated call's time at a million simplices (benchmarks guide)
+    key = f"ao4d.ao.query_points.{at}"
+    cached = mesh.cache.get(key)
+    if cached is not None:
+        return cached
     vertices, simplices = mesh_arrays(mesh)
     vertices = np.asarray(vertices, dtype=np.float64)
     raw = _measured_normals(vertices, simplices)
@@ -74,7 +79,11 @@ def _query_points(mesh, at, points, normals, d):
         points, normals = vertices[simplices].mean(1), _unit(raw)
     length = np.linalg.norm(normals, axis=1)
     defined = np.isfinite(length) & (length > 0.5)  # unit, or zero where undefined
-    return points, np.where(defined[:, None], normals, 0.0), defined
+    query = (points, np.where(defined[:, None], normals, 0.0), defined)
+    for array in query:
+        array.flags.writeable = False
+    mesh.cache[key] = query
+    return query
 
 
 def _measured_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
@@ -84,9 +93,7 @@ def _measured_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray
     An exact zero test would depend on the scene's scale: scaling rounds the corners of a flat
     simplex off its hyperplane, and its normal becomes rounding noise pointing anywhere.
     """
-    raw = simplex_normals(vertices, simplices)
-    raw[~nondegenerate(vertices, np.asarray(simplices))] = 0.0
-    return raw
+    return measured_normals(vertices, np.asarray(simplices))
 
 
 def _vertex_sums(raw: np.ndarray, simplices: np.ndarray, n: int) -> np.ndarray:

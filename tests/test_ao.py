@@ -214,6 +214,22 @@ def test_simplex_mode_equals_explicit_centroids():
     np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("at", ["vertices", "simplices"])
+def test_the_query_points_kept_on_the_mesh_follow_its_changes(at):
+    # a repeated call reuses the mesh's normals; a moved vertex must not see stale ones
+    mesh = sphere_over_ground(np.random.default_rng(1450), 4)
+    first = ao4d.ambient_occlusion(mesh, at=at, samples=16, backend="numpy")
+    assert f"ao4d.ao.query_points.{at}" in mesh.cache
+    np.testing.assert_array_equal(ao4d.ambient_occlusion(mesh, at=at, samples=16, backend="numpy"), first)
+    moved = mesh.vertices.copy()
+    moved[:, -1] *= 1.5
+    mesh.vertices = moved
+    fresh = ao4d.SimplexMesh(moved, mesh.simplices)
+    again = ao4d.ambient_occlusion(mesh, at=at, samples=16, backend="numpy")
+    np.testing.assert_array_equal(again, ao4d.ambient_occlusion(fresh, at=at, samples=16, backend="numpy"))
+    assert not np.array_equal(again, first, equal_nan=True)
+
+
 def test_launch_size_does_not_change_results(monkeypatch, cl_runtime):
     rng = np.random.default_rng(1500)
     mesh = sphere_over_ground(rng, 4)

@@ -238,3 +238,22 @@ def test_nondegenerate_is_the_test_frames_applies(d):
     keep = bvh.host.nondegenerate(v, s, chunk=7)
     np.testing.assert_array_equal(np.flatnonzero(keep), bvh.host.frames(v, s)[0])
     assert not keep[:50].any() and keep.sum() < 300
+
+
+@pytest.mark.parametrize("d", (2, 3, 4))
+@pytest.mark.parametrize("block", (7, 1 << 14))
+def test_measured_normals_are_the_normals_with_the_dropped_simplices_zeroed(d, block, monkeypatch):
+    # AO's one-pass normals must be the bits of the two passes they replace, block by block
+    from ao4d.geometry import simplex_normals
+
+    monkeypatch.setattr(bvh.host, "_NORMALS_BLOCK", block)
+    rng = np.random.default_rng(3300 + d)
+    v = rng.normal(size=(40, d)) * 1e5 + 3e6  # far from the origin: the threshold is relative
+    s = rng.integers(0, 40, (300, d))
+    s[:50, -1] = s[:50, 0]
+    v[s[50:80, -1]] = v[s[50:80, 0]] + 1e-8 * rng.normal(size=(30, d))
+    expected = simplex_normals(v, s)
+    expected[~bvh.host.nondegenerate(v, s)] = 0.0
+    got = bvh.host.measured_normals(v, s)
+    assert got.tobytes() == expected.tobytes()
+    assert not got[:50].any() and got[80:].any()

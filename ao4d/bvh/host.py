@@ -23,7 +23,7 @@ from .._validate import as_array, check_positive_int
 from ..geometry import cross_components
 from .layout import _BOX_FMA_MARGIN, _BOX_MARGIN, BARY_EPS, BVH, box_area
 
-__all__ = ["build", "check_mesh_arrays", "frames", "nondegenerate"]
+__all__ = ["build", "check_mesh_arrays", "frames", "measured_normals", "nondegenerate"]
 
 _DEGENERATE_RTOL = 1e-12  # |n| below this times (longest edge)^(d-1): zero measure
 _SAH_BINS = 32
@@ -63,6 +63,41 @@ def nondegenerate(vertices: np.ndarray, simplices: np.ndarray, *, chunk: int = 1
         edges = [p - pts[0] for p in pts[1:]]
         keep[start : start + chunk] = _keep(edges, cross_components(edges))[0]
     return keep
+
+
+_NORMALS_BLOCK = 1 << 14  # simplices per step of measured_normals: its temporaries stay in L2
+
+
+def measured_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
+    """Simplex normals with the rows of the simplices :func:`nondegenerate` drops set to zero.
+
+    One pass over cache-sized blocks: the edges and their cross product serve both the normals
+    and the test, which see the same bits as :func:`ao4d.geometry.simplex_normals` and
+    :func:`nondegenerate` do.
+
+    Parameters
+    ----------
+    vertices : (V, d) numpy.ndarray of float64
+        Vertex coordinates, d in {2, 3, 4}.
+    simplices : (S, d) numpy.ndarray of int
+        Vertex indices of each simplex.
+
+    Returns
+    -------
+    numpy.ndarray
+        (S, d) float64: ``simplex_normals(vertices, simplices)`` with degenerate rows zero.
+    """
+    d = vertices.shape[1]
+    coords = np.ascontiguousarray(vertices.T, dtype=np.float64)
+    out = np.empty((len(simplices), d), dtype=np.float64)
+    for start in range(0, len(simplices), _NORMALS_BLOCK):
+        ids = np.ascontiguousarray(simplices[start : start + _NORMALS_BLOCK].T)
+        p0 = np.take(coords, ids[0], axis=1)
+        edges = [np.take(coords, ids[k], axis=1) - p0 for k in range(1, d)]
+        normals = cross_components(edges)
+        normals[:, ~_keep(edges, normals)[0]] = 0.0
+        out[start : start + _NORMALS_BLOCK] = normals.T
+    return out
 
 
 def frames(vertices: np.ndarray, simplices: np.ndarray):
