@@ -64,10 +64,11 @@ def _query_points(mesh, at, points, normals, d):
             raise ValueError(f"`points` and `normals` must have the same length, got {len(points)} and {len(normals)}")
         return points, unit_rows(normals, "normals"), np.ones(len(points), dtype=bool)
     check_choice(at, "at", ("vertices", "simplices"))
-    # kept in the mesh's cache (cleared when the mesh changes): the normals and the degeneracy
-    # test are a third of a repeated call's time at a million simplices (benchmarks guide)
-    key = f"ao4d.ao.query_points.{at}"
-    cached = mesh.cache.get(key)
+    # at the vertices, kept in the mesh's cache (cleared when the mesh changes; (V, d) values, as
+    # much as the vertex normals): the normals and the degeneracy test were a third of a repeated
+    # call's time at a million simplices (benchmarks guide). Per simplex it would hold 2 (S, d).
+    key = "ao4d.ao.query_points.vertices"
+    cached = mesh.cache.get(key) if at == "vertices" else None
     if cached is not None:
         return cached
     vertices, simplices = mesh_arrays(mesh)
@@ -80,9 +81,10 @@ def _query_points(mesh, at, points, normals, d):
     length = np.linalg.norm(normals, axis=1)
     defined = np.isfinite(length) & (length > 0.5)  # unit, or zero where undefined
     query = (points, np.where(defined[:, None], normals, 0.0), defined)
-    for array in query:
-        array.flags.writeable = False
-    mesh.cache[key] = query
+    if at == "vertices":
+        for array in query:
+            array.flags.writeable = False
+        mesh.cache[key] = query
     return query
 
 
