@@ -73,7 +73,10 @@ def _query_points(mesh, at, points, normals, d):
         return cached
     vertices, simplices = mesh_arrays(mesh)
     vertices = np.asarray(vertices, dtype=np.float64)
-    raw = _measured_normals(vertices, simplices)
+    # zero where the BVH's degeneracy test (relative to the simplex's size) finds no measure: an
+    # exact zero test would depend on the scene's scale, as scaling rounds the corners of a flat
+    # simplex off its hyperplane and its normal becomes rounding noise pointing anywhere
+    raw = measured_normals(vertices, np.asarray(simplices))
     if at == "vertices":
         points, normals = vertices, _unit(_vertex_sums(raw, simplices, len(vertices)))
     else:
@@ -86,16 +89,6 @@ def _query_points(mesh, at, points, normals, d):
             array.flags.writeable = False
         mesh.cache[key] = query
     return query
-
-
-def _measured_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
-    """Simplex normals (length ~ measure), zero where the BVH's test
-    (:func:`ao4d.bvh.host.nondegenerate`, relative to the simplex's size) finds no measure.
-
-    An exact zero test would depend on the scene's scale: scaling rounds the corners of a flat
-    simplex off its hyperplane, and its normal becomes rounding noise pointing anywhere.
-    """
-    return measured_normals(vertices, np.asarray(simplices))
 
 
 def _vertex_sums(raw: np.ndarray, simplices: np.ndarray, n: int) -> np.ndarray:
@@ -259,7 +252,7 @@ def ambient_occlusion(
         _fill_flat_vertices(occlusion, simplices)
         alone = np.flatnonzero(_referenced(len(occlusion), simplices) & np.isnan(occlusion))
         if alone.size:  # clusters of zero measure only: no neighbour has an AO to share
-            occlusion[alone] = _both_sides(mesh, pts=np.asarray(mesh_arrays(mesh)[0])[alone], **trace)
+            occlusion[alone] = _both_sides(mesh, np.asarray(mesh_arrays(mesh)[0])[alone], trace)
     return occlusion
 
 
@@ -269,9 +262,7 @@ def _referenced(n: int, simplices: np.ndarray) -> np.ndarray:
     return used
 
 
-def _both_sides(
-    mesh, *, pts: np.ndarray, samples: int, seed: int, offset: float, max_distance: float, runtime: Any, accel: str
-) -> np.ndarray:
+def _both_sides(mesh, pts: np.ndarray, trace: dict[str, Any]) -> np.ndarray:
     """AO of points without a normal: the mean over the two hemispheres about the first axis.
 
     A cluster of zero-measure simplices that touches nothing else (a grid point exactly at the
@@ -284,18 +275,8 @@ def _both_sides(
     axis[:, 0] = 1.0
     total = np.zeros(len(pts))
     for sign in (1.0, -1.0):
-        total += count_occluded(
-            mesh,
-            pts,
-            sign * axis,
-            samples=samples,
-            seed=seed,
-            offset=offset,
-            max_distance=max_distance,
-            runtime=runtime,
-            accel=accel,
-        )
-    return total / (2 * samples)
+        total += count_occluded(mesh, pts, sign * axis, **trace)
+    return total / (2 * trace["samples"])
 
 
 def _fill_flat_vertices(occlusion: np.ndarray, simplices: np.ndarray) -> None:

@@ -9,12 +9,12 @@ builder and the camera all use these functions.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
 
-__all__ = ["cross", "cross_components", "simplex_normals"]
+__all__ = ["cross", "cross_components", "edge_blocks", "simplex_normals"]
 
 # Simplices per block when gathering corners: the block's temporaries (about 30 arrays) stay in
 # a core's L2 cache, which larger blocks overflow (figures in the benchmarks guide)
@@ -116,12 +116,34 @@ def simplex_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
     >>> simplex_normals(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
     array([[0., 0., 1.]])
     """
+    out = np.empty((len(simplices), vertices.shape[1]), dtype=np.float64)
+    for rows, edges in edge_blocks(vertices, simplices):
+        out[rows] = cross_components(edges).T
+    return out
+
+
+def edge_blocks(vertices: np.ndarray, simplices: np.ndarray, block: int = _BLOCK) -> Iterator[tuple[slice, list]]:
+    """The simplices' edges from their first vertex, ``block`` simplices at a time.
+
+    Parameters
+    ----------
+    vertices : (V, d) float64
+        Vertex coordinates.
+    simplices : (S, d) int
+        Vertex indices of each simplex.
+    block : int
+        Simplices per step (the default keeps the temporaries in a core's L2 cache).
+
+    Yields
+    ------
+    rows : slice
+        The block's simplices.
+    edges : list of d-1 (d, B) float64 arrays
+        ``p_k - p_0`` for k = 1 .. d-1, component-major (as :func:`cross_components` takes them).
+    """
     d = vertices.shape[1]
     coords = np.ascontiguousarray(vertices.T, dtype=np.float64)  # (d, V): contiguous gathers
-    out = np.empty((len(simplices), d), dtype=np.float64)
-    for start in range(0, len(simplices), _BLOCK):
-        ids = np.ascontiguousarray(simplices[start : start + _BLOCK].T)  # (d, B)
+    for start in range(0, len(simplices), block):
+        ids = np.ascontiguousarray(simplices[start : start + block].T)  # (d, B)
         p0 = np.take(coords, ids[0], axis=1)
-        edges = [np.take(coords, ids[k], axis=1) - p0 for k in range(1, d)]
-        out[start : start + _BLOCK] = cross_components(edges).T
-    return out
+        yield slice(start, start + ids.shape[1]), [np.take(coords, ids[k], axis=1) - p0 for k in range(1, d)]

@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import _progress
 from .._validate import as_array, check_positive_int
-from ..geometry import cross_components
+from ..geometry import cross_components, edge_blocks
 from .layout import _BOX_FMA_MARGIN, _BOX_MARGIN, BARY_EPS, BVH, box_area
 
 __all__ = ["build", "check_mesh_arrays", "frames", "measured_normals", "nondegenerate"]
@@ -54,14 +54,9 @@ def nondegenerate(vertices: np.ndarray, simplices: np.ndarray, *, chunk: int = 1
     """(S,) bool: the simplices :func:`frames` keeps (float64 vertices (V, d), simplices (S, d)),
     ``chunk`` simplices at a time. The device builder takes it from here on devices without
     double precision, so that both builders keep the same simplices."""
-    d = vertices.shape[1]
-    coords = np.ascontiguousarray(vertices.T, dtype=np.float64)
     keep = np.empty(len(simplices), dtype=bool)
-    for start in range(0, len(simplices), chunk):
-        ids = np.ascontiguousarray(simplices[start : start + chunk].T)
-        pts = [np.take(coords, ids[k], axis=1) for k in range(d)]
-        edges = [p - pts[0] for p in pts[1:]]
-        keep[start : start + chunk] = _keep(edges, cross_components(edges))[0]
+    for rows, edges in edge_blocks(vertices, simplices, chunk):
+        keep[rows] = _keep(edges, cross_components(edges))[0]
     return keep
 
 
@@ -87,16 +82,11 @@ def measured_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
     numpy.ndarray
         (S, d) float64: ``simplex_normals(vertices, simplices)`` with degenerate rows zero.
     """
-    d = vertices.shape[1]
-    coords = np.ascontiguousarray(vertices.T, dtype=np.float64)
-    out = np.empty((len(simplices), d), dtype=np.float64)
-    for start in range(0, len(simplices), _NORMALS_BLOCK):
-        ids = np.ascontiguousarray(simplices[start : start + _NORMALS_BLOCK].T)
-        p0 = np.take(coords, ids[0], axis=1)
-        edges = [np.take(coords, ids[k], axis=1) - p0 for k in range(1, d)]
+    out = np.empty((len(simplices), vertices.shape[1]), dtype=np.float64)
+    for rows, edges in edge_blocks(vertices, simplices, _NORMALS_BLOCK):
         normals = cross_components(edges)
         normals[:, ~_keep(edges, normals)[0]] = 0.0
-        out[start : start + _NORMALS_BLOCK] = normals.T
+        out[rows] = normals.T
     return out
 
 
