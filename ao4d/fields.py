@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from ._pages import aligned_empty
 from ._validate import as_array, as_real, as_vector, check_memory, check_positive_int
 
 __all__ = [
@@ -1020,4 +1021,7 @@ def sample(field: Callable, shape: Any, bounds: Any) -> np.ndarray:
     # the layers are evaluated last-axis-first, then reordered: two float64 grids at the peak
     check_memory(16.0 * math.prod(n), f"sampling a grid of shape {tuple(n)}")
     layers = evaluate_layers(field, axes, 0, n[-1])
-    return np.ascontiguousarray(np.moveaxis(layers, 0, -1))
+    # on a page: a CPU device then reads the grid in place when it is extracted (ao4d._pages)
+    values = aligned_empty(n, layers.dtype)
+    values[...] = np.moveaxis(layers, 0, -1)
+    return values

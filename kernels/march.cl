@@ -219,11 +219,27 @@ __kernel void classify(
 
 // 1 where the value is positive: mode 0 `v >= thr`, 1 `v <= thr`, 2 none (a level beyond an
 // integer type's range).
-__kernel void sign(__global const value_t *values, __global uchar *sign, cmp_t thr, int mode)
+// FINITE(a, i): value i is neither NaN nor infinite (VFLOAT: the values are float or double)
+#if VKIND == 1
+#define FINITE(a, i) isfinite(vload_half((i), (a)))
+#elif VKIND == 2
+#define FINITE(a, i) (((a)[i] & 0x7ff0000000000000UL) != 0x7ff0000000000000UL)
+#elif VFLOAT
+#define FINITE(a, i) isfinite((a)[i])
+#else
+#define FINITE(a, i) 1
+#endif
+
+// which side of the level each value lies on; bad[0] = 1 where a value is NaN or infinite (every
+// work-item that finds one writes the same 1: the host checks the values in this pass, not in
+// one of its own)
+__kernel void sign(__global const value_t *values, __global uchar *sign, cmp_t thr, int mode,
+                   __global int *bad)
 {
     const int p = get_global_id(0);
     const cmp_t v = LOAD_CMP(values, p);
     sign[p] = (uchar)(mode == 0 ? v >= thr : (mode == 1 ? v <= thr : 0));
+    if (!FINITE(values, p)) bad[0] = 1;
 }
 
 __kernel CHUNK_KERNEL void count(__global const case_t *cases, __global const vmask_t *vmask,

@@ -326,3 +326,67 @@ def test_output_written_in_place_or_read_back_is_the_same(cl_runtime, monkeypatc
             monkeypatch.setattr(cells_device, "_SLAB_POINTS", points)
             for reread in (False, True):
                 _assert_same(*_engines(values, 0.1, method, "below", 1, cl_runtime, reread))
+
+
+@pytest.mark.parametrize("in_place", [True, False])
+def test_values_read_in_place_or_copied_give_the_same_arrays(cl_runtime, monkeypatch, in_place):
+    """A CPU device reads an array aligned to 128 bytes in place (ao4d._pages), others are copied
+    (and every array on other devices, forced here): the numpy engine's arrays either way, the
+    caller's array unchanged and not kept."""
+    import sys
+
+    from ao4d._pages import HOST_PTR_ALIGN, aligned_empty, readable_in_place
+
+    monkeypatch.setattr(cells_device, "IN_PLACE", in_place)
+    rng = np.random.default_rng(3029)
+    for shape in ((40, 33, 35), (9, 6, 5, 7)):
+        base = aligned_empty(int(np.prod(shape)) + 2, np.float64)
+        aligned = base[: np.prod(shape)].reshape(shape)
+        shifted = base[2:].reshape(shape)  # 16 bytes past the alignment: copied
+        assert readable_in_place(aligned) and not readable_in_place(shifted)
+        assert aligned.ctypes.data % HOST_PTR_ALIGN == 0
+        for values in (aligned, shifted):
+            values[...] = rng.standard_normal(shape)
+            before, refs = values.copy(), sys.getrefcount(values)
+            for method in METHODS:
+                got = ao4d.extract(values, 0.1, method=method, progress=False, backend="opencl")
+                ref = ao4d.extract(values, 0.1, method=method, progress=False, backend="numpy")
+                _assert_same_mesh(ref, got)
+            assert sys.getrefcount(values) == refs
+            np.testing.assert_array_equal(values, before)
+
+
+@pytest.mark.parametrize("float32_path", [False, True])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32, np.float16])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_the_device_finds_non_finite_values_in_its_first_pass(cl_runtime, monkeypatch, float32_path, dtype, bad):
+    """A grid in one device slab is checked by the sign kernel, not by a host pass; the error
+    names `values` and counts the bad values, as the host check's does (float64 stored as
+    ordered integers where the device lacks fp64: forced here)."""
+    from ao4d.marching import march
+
+    monkeypatch.setattr(cells_device, "FLOAT32", float32_path)
+    host_checks = []
+    monkeypatch.setattr(march, "check_finite", lambda *a: host_checks.append(a))
+    values = np.linspace(-1.0, 1.0, 11 * 12 * 13).reshape(11, 12, 13).astype(dtype)
+    values[0, 0, 0] = values[10, 5, 12] = values[4, 11, 3] = bad
+    with pytest.raises(ValueError, match=r"`values` contains 3 non-finite value\(s\)"):
+        ao4d.extract(values, 0.0, progress=False, backend="opencl")
+    assert host_checks == []
+    values[values != values] = 0.5  # NaN gone
+    values[np.isinf(values)] = 0.5
+    ao4d.extract(values, 0.0, progress=False, backend="opencl")  # nothing flagged
+
+
+def test_a_grid_in_several_device_slabs_is_checked_before_any_marching(cl_runtime, monkeypatch):
+    """Where the device would mark slab after slab (``chunk=`` fixes its slabs), the host checks
+    the whole array first, so a bad value in the last layer fails before the first slab."""
+
+    def march(*args, **kwargs):
+        raise AssertionError("marched before the values were checked")
+
+    monkeypatch.setattr(cells_device, "march", march)
+    values = np.linspace(-1.0, 1.0, 20 * 6 * 7).reshape(20, 6, 7)
+    values[-1, 3, 3] = np.nan
+    with pytest.raises(ValueError, match=r"`values` contains 1 non-finite value"):
+        ao4d.extract(values, 0.0, progress=False, backend="opencl", chunk=2)

@@ -178,6 +178,10 @@ def test_sample_places_grid_points_on_both_bounds():
     # plain callables work with a tuple shape
     v2 = ao4d.sample(lambda p: p[..., 0], (2, 2), (0, 1))
     np.testing.assert_array_equal(v2, [[0, 0], [1, 1]])
+    # C order on a page (a CPU device extracts it in place), whatever the field returns
+    for values in (v, v2, ao4d.sample(F.hypersphere(1.0), 9, (-1, 1))):
+        assert values.flags.c_contiguous and values.flags.writeable and values.dtype == np.float64
+        assert values.ctypes.data % 4096 == 0
 
 
 def test_sample_matches_direct_evaluation_across_blocks(monkeypatch):

@@ -907,3 +907,25 @@ def test_a_complex_valued_field_is_refused_like_complex_values():
         ao4d.extract_field(field, (5,) * 4, (-1.0, 1.0))
     with pytest.raises(TypeError, match="`field` must return real numbers"):
         ao4d.sample(field, (5,) * 4, (-1.0, 1.0))
+
+
+@pytest.mark.parametrize("d", [2, 3, 4])
+def test_the_grid_edge_hint_counts_the_vertices_on_each_face(d):
+    """A level set that meets one face of the grid (each axis, each side, spacing and origin
+    of any size) is found and its vertices there counted; one that stays inside is not."""
+    n = 5
+    rng = np.random.default_rng(3144 + d)
+    spacing, origin = rng.uniform(0.1, 3.0, d), rng.uniform(-1e3, 1e3, d)
+    index = np.stack(np.meshgrid(*[np.arange(n)] * d, indexing="ij"), axis=-1)
+    for axis in range(d):
+        for side in (0, n - 1):
+            # a bump that crosses the level on the face index[axis] == side only
+            dist = np.linalg.norm(index - np.where(np.arange(d) == axis, side, (n - 1) / 2), axis=-1)
+            values = dist - 1.3
+            mesh = ao4d.extract(values, 0.0, spacing=spacing, origin=origin, progress=False)
+            face = origin[axis] + spacing[axis] * side
+            expected = int(np.count_nonzero(mesh.vertices[:, axis] == face))
+            assert expected > 0
+            assert mesh.cache[GRID_EDGE_KEY].startswith(f"{expected:,} vertices lie on the grid's boundary")
+    centred = np.linalg.norm(index - (n - 1) / 2, axis=-1) - 1.3
+    assert GRID_EDGE_KEY not in ao4d.extract(centred, 0.0, spacing=spacing, origin=origin, progress=False).cache

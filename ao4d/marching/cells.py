@@ -378,24 +378,27 @@ class Job:
     check_values: bool
     progress: Any = None
 
-    def slabs(self, layers: int | None = None, *, report: bool = True) -> Iterator[tuple[int, int, np.ndarray]]:
+    def slabs(
+        self, layers: int | None = None, *, report: bool = True, check: bool = True
+    ) -> Iterator[tuple[int, int, np.ndarray]]:
         """The slab loop of both engines: ``(z0, z1, values of layers z0..z1)`` for slabs of
         ``layers`` cell layers (default :attr:`layers_per_slab`) that share their boundary
-        layer, read and checked when asked for. ``report``: advance :attr:`progress` by each
-        slab's layers once the caller is done with it."""
+        layer, read and checked when asked for (:attr:`check_values`; ``check=False``: the
+        caller checks them itself, as the device engine does in its first pass). ``report``:
+        advance :attr:`progress` by each slab's layers once the caller is done with it."""
         layers = self.layers_per_slab if layers is None else layers
         n0 = self.geom.shape[0]
         z0 = 0
         while z0 < n0 - 1:
             z1 = min(z0 + layers, n0 - 1)
-            yield z0, z1, self._read(z0, z1 + 1)  # no reference kept here while the caller works
+            yield z0, z1, self._read(z0, z1 + 1, check)  # no reference kept here while the caller works
             if report and self.progress is not None:
                 self.progress.update(z1 - z0)
             z0 = z1
 
-    def _read(self, a: int, b: int) -> np.ndarray:
+    def _read(self, a: int, b: int, check: bool = True) -> np.ndarray:
         slab = self.read(a, b)
-        if self.check_values:
+        if check and self.check_values:
             check_finite(slab, "values")
         return slab
 

@@ -3,13 +3,16 @@ whole march, from the values as stored to the final arrays.
 
 It gives the arrays the numpy engine gives, vertex for vertex and simplex for simplex, so
 :mod:`ao4d.marching.march` and :mod:`ao4d.marching.blockwise` take either engine. The numpy engine stays the
-reference and the backend where no OpenCL device works.
+reference and the backend where no OpenCL device works. It stays one module: the slab loop,
+the engine's buffers and the carry between slabs are one state that every step reads and writes.
 
 Per slab, the host uploads the values as they are stored (float16, float32, float64, 8- to
-64-bit integers; anything else as float64) and the device
+64-bit integers; anything else as float64; a CPU device reads an array aligned to 128 bytes in
+place, :mod:`ao4d._pages`) and the device
 
 1. compares every value with the level once (``sign``: one comparison in the values' own type
-   against :func:`ao4d.marching.cells.threshold`, which makes it equal to ``float64(v) >= level``),
+   against :func:`ao4d.marching.cells.threshold`, which makes it equal to ``float64(v) >= level``)
+   and flags NaN and infinities, so that the host need not read the values to check them,
 2. classifies every cell (its case) and finds the crossed edges starting at every point that
    are new in this slab (an edge of the layer shared with the slab below keeps the vertex that
    slab gave it: the *carry*, kept on the device);
@@ -28,7 +31,8 @@ Then the totals come back, and the simplices and vertices are read once, straigh
 final arrays; a CPU device writes them there in place (``CL_MEM_USE_HOST_PTR`` on page-aligned
 rows, no copy at all). For arrays in memory the slabs are counted first, so the final arrays
 are allocated once at their size; a grid in one device slab needs no count. The host touches
-neither the values (beyond the upload) nor the output. Memory: a device slab holds up to
+neither the values (beyond the upload, none for an aligned array on a CPU device) nor the
+output. Memory: a device slab holds up to
 :data:`_SLAB_POINTS` points (2^25; :data:`_FIELD_SLAB_POINTS` for fields), with about 13 bytes
 of scratch per point besides the values' copy.
 
@@ -63,6 +67,8 @@ from typing import Any
 
 import numpy as np
 
+from .._pages import aligned_empty, readable_in_place
+from .._validate import check_finite
 from ..opencl import cl
 from .cells import CellTable, Geometry, Job, Plan, SlabMesh, join, threshold
 
@@ -173,16 +179,6 @@ def release_buffers() -> None:
 _device_tables: dict[tuple[int, int, int], dict[str, Any]] = {}
 
 
-def _aligned_empty(shape: tuple[int, ...], dtype: Any) -> np.ndarray:
-    """``np.empty`` whose data starts on a 4096-byte page: a CPU device writes such an array in
-    place (``CL_MEM_USE_HOST_PTR`` without a copy)."""
-    dtype = np.dtype(dtype)
-    nbytes = int(np.prod(shape)) * dtype.itemsize
-    raw = np.empty(nbytes + 4096, dtype=np.uint8)
-    start = (-raw.ctypes.data) % 4096
-    return raw[start : start + nbytes].view(dtype).reshape(shape)
-
-
 def _kernel_value(dtype: np.dtype, fp64: bool) -> tuple[str, int] | None:
     """(stored OpenCL type, VKIND) for values of ``dtype``, or None: widen to float64 first."""
     code = f"{dtype.kind}{dtype.itemsize}"
@@ -265,6 +261,7 @@ class _Engine:
                     "SCAN_BLOCK": _SCAN_BLOCK,
                     "VTYPE": vtype,
                     "VKIND": vkind,
+                    "VFLOAT": int(vtype in ("float", "double")),
                     "FP64": int(self.fp64),
                 },
             )
@@ -311,8 +308,12 @@ class _Engine:
         want_cells: bool,
         take: Callable[[int, int], tuple[np.ndarray, np.ndarray]] | None,
         below: bool | None = None,
+        check: bool = False,
     ):
         """March one slab (its first layer ``z0`` in the grid), or None when it has no simplex.
+
+        ``check``: raise ``ValueError`` naming ``values`` when the slab holds NaN or infinities
+        (found by the first kernel, which reads every value anyway).
 
         With ``take=None`` only count: (new vertices, simplices) of the slab, ``below`` saying
         whether a slab lies below it (the engine's own state is left alone).
@@ -328,28 +329,36 @@ class _Engine:
         kv = _kernel_value(slab.dtype, self.fp64)
         if kv is None:
             slab, kv = slab.astype(np.float64), _kernel_value(np.dtype(np.float64), self.fp64)
+        fill = getattr(slab, "fill_device", None)  # a field sampled on the device: ao4d.marching.fields_device
         k = self.kernels(*kv)
         n = slab.size
         chunks = -(-n // _CHUNK)
         blocks = -(-chunks // _SCAN_BLOCK)
         n0 = slab.shape[0]
         scratch = self._scratch
-        values = scratch("values", slab.nbytes)
+        # an aligned array in memory is read in place by a CPU device (no upload: a copy of the
+        # whole slab, a sixth of a 256^3 march); others are copied into the scratch buffer
+        host_values = fill is None and self.in_place and readable_in_place(slab)
+        if host_values:
+            values = cl_.Buffer(self.ctx, self.mf.READ_ONLY | self.mf.USE_HOST_PTR, hostbuf=slab)
+        else:
+            values = scratch("values", slab.nbytes)
         sign = scratch("sign", n)
         cases = scratch("cases", chunks * _CHUNK * self.case_size)
         vmask = scratch("vmask", chunks * _CHUNK * self.mask_size)
         chunk_vi, chunk_va, chunk_s, chunk_a = (scratch(f"chunk {x}", chunks * 4) for x in ("vi", "va", "s", "a"))
         blk = scratch("blocks", 4 * blocks * 4)
         totals_buf = scratch("totals", 16)
+        bad_buf = scratch("bad", 4)
         t = time.perf_counter()
-        fill = getattr(slab, "fill_device", None)  # a field sampled on the device: ao4d.marching.fields_device
         if fill is not None:
             fill(self.runtime, values)
-        else:
+        elif not host_values:
             cl_.enqueue_copy(q, values, np.ascontiguousarray(slab), is_blocking=False)
         t = _stage("upload", q, t)
         thr, mode = self._threshold_arg(level, slab.dtype, inside, kv[1])
-        k["sign"](q, (n,), None, values, sign, thr, mode)
+        cl_.enqueue_fill_buffer(q, bad_buf, np.int32(0), 0, 4)
+        k["sign"](q, (n,), None, values, sign, thr, mode, bad_buf)
         t = _stage("sign", q, t)
         top_start = (n0 - 1) * self.layer
         cur, nxt = self.carry
@@ -382,7 +391,14 @@ class _Engine:
         k["scan_chunks"](q, (blocks,), None, chunk_vi, chunk_va, chunk_s, chunk_a, blk, i32(chunks), i32(blocks))
         k["scan_blocks"](q, (1,), None, blk, i32(blocks), totals_buf)
         totals = np.empty(4, dtype=np.int32)
+        bad = np.zeros(1, dtype=np.int32)
+        if check:
+            cl_.enqueue_copy(q, bad, bad_buf, is_blocking=False)
         cl_.enqueue_copy(q, totals, totals_buf)
+        if host_values:  # no kernel keeps the caller's array past this call
+            k["sign"].set_arg(0, scratch("placeholder", 64))
+        if bad[0]:
+            check_finite(slab, "values")  # counts them and raises
         t = _stage("count and scan", q, t)
         n_in, n_ax, n_simp, n_active = (int(x) for x in totals)
         n_new = n_in + n_ax
@@ -538,6 +554,8 @@ class _Engine:
             placeholder = scratch("placeholder", 64)
             k["emit64" if wide else "emit32"].set_arg(13, placeholder)
             k["interpolate"].set_arg(2, placeholder)
+        if host_values:
+            k["interpolate"].set_arg(0, scratch("placeholder", 64))
         for buf, view in mapped:
             view.base.release()
             buf.release()
@@ -599,7 +617,7 @@ def march_slabs(
     if take is None:
 
         def take(n_simp: int, n_new: int, done: float) -> tuple[np.ndarray, np.ndarray]:
-            return _aligned_empty((n_simp, d), np.int32), _aligned_empty((n_new, d), np.float64)
+            return aligned_empty((n_simp, d), np.int32), aligned_empty((n_new, d), np.float64)
 
     d = len(geom.shape)
     layers = device_layers(geom, layers_per_slab, job.table, slab_points) if grow else layers_per_slab
@@ -611,17 +629,25 @@ def march_slabs(
         n0 = geom.shape[0]
         if count_first is not None:
             total_simp = total_new = 0
-            for z0, _, slab in job.slabs(layers, report=False):
+            for z0, _, slab in job.slabs(layers, report=False, check=False):
                 with _lock:
-                    n_new, n_simp = engine.slab(slab, z0, level, inside, False, None, below=z0 > 0)
+                    n_new, n_simp = engine.slab(
+                        slab, z0, level, inside, False, None, below=z0 > 0, check=job.check_values
+                    )
                 total_simp += n_simp
                 total_new += n_new if n_simp else 0
             count_first(total_simp, total_new)
-        for z0, z1, slab in job.slabs(layers):
+        for z0, z1, slab in job.slabs(layers, check=False):
             done = z1 / (n0 - 1)
             with _lock:
                 found = engine.slab(
-                    slab, z0, level, inside, cells, lambda n_simp, n_new, done=done: take(n_simp, n_new, done)
+                    slab,
+                    z0,
+                    level,
+                    inside,
+                    cells,
+                    lambda n_simp, n_new, done=done: take(n_simp, n_new, done),
+                    check=job.check_values,
                 )
             del slab
             if found is not None:
@@ -637,6 +663,13 @@ def march_slabs(
     finally:
         with _lock:
             engine.release()
+
+
+def in_one_slab(geom: Geometry, layers_per_slab: int, table: CellTable, grow: bool = True) -> bool:
+    """Whether :func:`march` marches the whole grid as one device slab (arguments as for
+    :func:`march_slabs`)."""
+    layers = device_layers(geom, layers_per_slab, table) if grow else layers_per_slab
+    return layers >= geom.shape[0] - 1
 
 
 def march(
@@ -658,8 +691,7 @@ def march(
     geom, table = job.geom, job.table
     d = len(geom.shape)
     kwargs = dict(runtime=runtime, cells=False, grow=grow)
-    layers = device_layers(geom, job.layers_per_slab, table) if grow else job.layers_per_slab
-    one_slab = layers >= geom.shape[0] - 1
+    one_slab = in_one_slab(geom, job.layers_per_slab, table, grow)
     # several device slabs of an array in memory: count them all first and fill the output in
     # place where the output outweighs the input (4D Kuhn simplices: counting again costs less
     # than copying the output), else slab parts and one concatenation (measured: 384^3 and 96^4
@@ -697,7 +729,7 @@ class _Rows:
 
     def reserve(self, n: int) -> None:
         """Room for ``n`` rows in all (before any row is taken)."""
-        self.array = _aligned_empty((n, self.array.shape[1]), self.array.dtype)
+        self.array = aligned_empty((n, self.array.shape[1]), self.array.dtype)
 
     def take(self, k: int) -> np.ndarray:
         """The next ``k`` rows (a view)."""

@@ -11,6 +11,7 @@ How the core works, and the papers it follows, are described in :mod:`ao4d.march
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from typing import Any
@@ -75,9 +76,13 @@ def _run(
     itemsize: int,
     backend: str = "auto",
     reread: bool = False,
+    precheck: Callable[[], None] | None = None,
 ) -> SimplexMesh:
     """Check the slab memory, then march with a progress bar (on the OpenCL device when one
-    works, :mod:`ao4d.marching.cells_device`; the same arrays as the numpy engine); wrap the result."""
+    works, :mod:`ao4d.marching.cells_device`; the same arrays as the numpy engine); wrap the result.
+
+    ``precheck`` checks the whole input before any work, unless the device marches it as one
+    slab: its first kernel reads every value and flags NaN and infinities (``check_values``)."""
     runtime = cells_device.get_runtime(backend)
     layers = _layers_per_slab(chunk, geom, method)
     _check_slab_memory(geom, min(layers, geom.shape[0] - 1), method, itemsize)
@@ -87,8 +92,12 @@ def _run(
     if runtime is not None and cells_device.fits(geom, layers, table):
         # device slabs grow past the numpy engine's unless the user chose them (chunk=)
         engine, extra = cells_device.march, {"runtime": runtime, "reread": reread, "grow": chunk is None}
+        if precheck is not None and cells_device.in_one_slab(geom, layers, table, chunk is None):
+            precheck, check_values = None, True
     else:  # slabs of fields sampled on the device, as host arrays (ao4d.marching.fields_device)
         read = getattr(read, "host", read)
+    if precheck is not None:
+        precheck()
     bar = _progress_bar(progress, math.prod(n - 1 for n in geom.shape), geom.shape[0] - 1)
     try:
         vertices, simplices = engine(_Job(read, geom, level, table, inside, layers, check_values, bar), **extra)
@@ -254,8 +263,13 @@ def extract(
     layers = _layers_per_slab(chunk, geom, method)
     _check_slab_memory(geom, min(layers, geom.shape[0] - 1), method, 8 if closed else arr.dtype.itemsize)
     on_disk = isinstance(arr, np.memmap)
-    if not on_disk:
-        check_finite(arr, "values")  # in memory: one cheap pass before any work
+    # in memory: one pass before any work (on the device, when it marches the grid in one slab,
+    # its first kernel's instead)
+    precheck = None
+    if not on_disk and closed:
+        check_finite(arr, "values")  # the padding of closed=True holds infinities: check before it
+    elif not on_disk:
+        precheck = functools.partial(check_finite, arr, "values")
 
     def read(a: int, b: int) -> np.ndarray:
         slab = np.ascontiguousarray(engine[a:b])
@@ -280,6 +294,7 @@ def extract(
         arr.dtype.itemsize,
         backend,
         reread=not on_disk,
+        precheck=precheck,
     )
     if not closed:
         _mark_grid_edge(mesh, geom)
@@ -332,6 +347,11 @@ def _mark_grid_edge(mesh: SimplexMesh, geom: _Geometry) -> None:
     first = geom.origin + geom.spacing * np.zeros(len(shape))
     last = geom.origin + geom.spacing * (shape - 1).astype(np.float64)
     v = mesh.vertices
+    # every vertex lies in [first, last]: one lies on the boundary only where a coordinate's
+    # extreme reaches it (a column's min and max: 1 ms at 200,000 vertices, where the count
+    # below takes 9, as does min(axis=0) across the rows)
+    if all(v[:, j].min() > first[j] and v[:, j].max() < last[j] for j in range(v.shape[1])):
+        return
     on_edge = ((v == first) | (v == last)).any(axis=1)
     if on_edge.any():
         mesh.cache[GRID_EDGE_KEY] = (
