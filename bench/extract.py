@@ -2,7 +2,9 @@
 numpy engine (4D), in one run, cases taken in turn.
 
 3D: a sphere sampled on 256^3 and 384^3 grids: ao4d on the device (``backend="auto"``, what
-``ao4d.extract`` does), ao4d's numpy engine, and ``vtkFlyingEdges3D`` (no normals, gradients or
+``ao4d.extract`` does) on the grid as ``ao4d.sample`` returns it (page-aligned: a CPU device
+reads it in place) and on a copy 8 bytes past a page (as a numpy array may be: copied to the
+device), ao4d's numpy engine, and ``vtkFlyingEdges3D`` (no normals, gradients or
 scalars) on one thread (``vtkSMPTools`` backend ``Sequential``) and on all threads (the wheel's
 threaded backend, named in the output). 4D: a hypersphere on 64^4 and 96^4 grids, both methods,
 device against the numpy engine. Every case runs once untimed (table loading, kernel builds,
@@ -119,13 +121,24 @@ def vtk_threaded_backend() -> str:
 def _cases(sizes3, sizes4, threaded: str):
     import ao4d
     from ao4d import fields
+    from ao4d._pages import aligned_empty
 
     cases = []
     for n in sizes3:
         sphere = ao4d.sample(fields.hypersphere(1.0, dim=3), n, (-1.2, 1.2))
         group = f"3D sphere {n}^3"
+        # the same grid 8 bytes past a page, as an array numpy allocated may be: a CPU device
+        # copies it instead of reading it in place (ao4d._pages)
+        shifted = aligned_empty(sphere.size + 1, sphere.dtype)[1:].reshape(sphere.shape)
+        shifted[...] = sphere
         cases += [
             (group, "ao4d device", sphere, lambda v=sphere: ao4d.extract(v, 0.0, progress=False).n_simplices),
+            (
+                group,
+                "ao4d device, not aligned",
+                shifted,
+                lambda v=shifted: ao4d.extract(v, 0.0, progress=False).n_simplices,
+            ),
             (
                 group,
                 "ao4d numpy",
