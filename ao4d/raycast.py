@@ -265,36 +265,59 @@ def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar):
     """The kernels' answer per ray of ``rays`` (:class:`_Rays`), launch by launch: (N,) int32,
     ``lanes * leaf block + lane`` or -1 (:func:`_tree_order` maps it to tree-order simplices).
 
-    Each launch's rays are mapped and rounded on the host straight into the mapped device
-    buffers just before it (no float32 copy of all the rays, and none copied again on a CPU
-    device), into buffers of one launch's size that every launch reuses."""
+    Each launch's rays are mapped and rounded on the host straight into mapped device buffers
+    (no float32 copy of all the rays, and none copied again on a CPU device). Two sets of
+    buffers of one launch's size take turns: the host writes the next launch's rays through a
+    second queue while the device traces the last ones, so that the host's mapping (a sixth of
+    a call's time when it ran between the launches) hides behind the kernels."""
     import pyopencl as pcl
 
     n = rays.n
     size = min(n, RAYS_PER_LAUNCH)
-    cl.check_device_memory(runtime, {"the rays": size * 32, "the ray results": size * 8}, task="ray tracing")
+    sets = 1 if n <= RAYS_PER_LAUNCH else 2
+    cl.check_device_memory(
+        runtime, {"the rays": sets * size * 32, "the ray results": sets * size * 8}, task="ray tracing"
+    )
     ctx, queue = runtime.context, runtime.queue
+    feed = pcl.CommandQueue(ctx, runtime.device) if sets > 1 else queue  # maps while a launch runs
     mf = pcl.mem_flags
-    buf_o = pcl.Buffer(ctx, mf.READ_ONLY, size * 16)
-    buf_w = pcl.Buffer(ctx, mf.READ_ONLY, size * 16)
-    buf_t = pcl.Buffer(ctx, mf.WRITE_ONLY, size * 4)
-    buf_h = pcl.Buffer(ctx, mf.WRITE_ONLY, size * 4)
+    buffers = [
+        [
+            pcl.Buffer(ctx, flags, size * nbytes)
+            for flags, nbytes in ((mf.READ_ONLY, 16),) * 2 + ((mf.WRITE_ONLY, 4),) * 2
+        ]
+        for _ in range(sets)
+    ]
     hit = np.empty(n, dtype=np.int32)
     kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast", accel)
-    args = head + [buf_o, buf_w, np.float32(max_distance), np.int32(any_hit), buf_t, buf_h]
     write = pcl.map_flags.WRITE_INVALIDATE_REGION
-    for start in range(0, n, RAYS_PER_LAUNCH):
-        stop = min(n, start + RAYS_PER_LAUNCH)
-        count = stop - start
-        o, _ = pcl.enqueue_map_buffer(queue, buf_o, write, 0, (count, 4), np.float32)
-        w, _ = pcl.enqueue_map_buffer(queue, buf_w, write, 0, (count, 4), np.float32)
-        rays.chunk(start, stop, np.float32, 4, out=(o, w))
-        o.base.release(queue)
-        w.base.release(queue)
-        kernel(queue, (count,), None, *args).wait()
-        pcl.enqueue_copy(queue, hit[start:stop], buf_h, is_blocking=True)
-        bar.update(count)
-    queue.finish()
+    free: list[Any] = [None] * sets  # per set: the event after which its last launch is done with it
+    traced: list[tuple[Any, int]] = []  # (the read of a launch's answers, its rays) for the bar
+    try:
+        for index, start in enumerate(range(0, n, RAYS_PER_LAUNCH)):
+            stop = min(n, start + RAYS_PER_LAUNCH)
+            count = stop - start
+            buf_o, buf_w, buf_t, buf_h = buffers[index % sets]
+            wait = None if free[index % sets] is None else [free[index % sets]]
+            o, _ = pcl.enqueue_map_buffer(feed, buf_o, write, 0, (count, 4), np.float32, wait_for=wait)
+            w, _ = pcl.enqueue_map_buffer(feed, buf_w, write, 0, (count, 4), np.float32)
+            rays.chunk(start, stop, np.float32, 4, out=(o, w))
+            written = [o.base.release(feed), w.base.release(feed)]
+            feed.flush()
+            args = head + [buf_o, buf_w, np.float32(max_distance), np.int32(any_hit), buf_t, buf_h]
+            kernel(queue, (count,), None, *args, wait_for=written)
+            read = pcl.enqueue_copy(queue, hit[start:stop], buf_h, is_blocking=False)
+            queue.flush()
+            free[index % sets] = read
+            traced.append((read, count))
+            while len(traced) > 1 or (traced and stop == n):  # the bar follows the finished launches
+                event, done = traced.pop(0)
+                event.wait()
+                bar.update(done)
+    finally:
+        queue.finish()
+        if feed is not queue:
+            feed.finish()
     return hit
 
 

@@ -577,7 +577,7 @@ def test_ray_mapping_gives_the_plain_formulas_bits(d, in_dtype, shift, monkeypat
 @pytest.mark.parametrize("d", (3, 4))
 @pytest.mark.parametrize("shift", [0.0, 1000.0])
 def test_cast_rays_over_many_launches_equals_brute_force(d, shift, cl_runtime, monkeypatch):
-    # launches of 700 rays reuse one launch's mapped buffers: every ray's answer equals the
+    # launches of 700 rays take turns on two sets of mapped buffers: every ray's answer equals the
     # brute-force answer (and the numpy traversal's hits are those of one launch for all)
     mesh, o, w = _shifted_soup(2900 + d, d, shift)
     whole = raycast.cast_rays(mesh, o, w, closest=False, backend="opencl")
