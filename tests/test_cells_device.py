@@ -348,10 +348,14 @@ def test_values_read_in_place_or_copied_give_the_same_arrays(cl_runtime, monkeyp
         for values in (aligned, shifted):
             values[...] = rng.standard_normal(shape)
             before, refs = values.copy(), sys.getrefcount(values)
+            read_only = values.view()
+            read_only.flags.writeable = False  # np.load(..., mmap_mode="r") and frozen arrays
             for method in METHODS:
-                got = ao4d.extract(values, 0.1, method=method, progress=False, backend="opencl")
                 ref = ao4d.extract(values, 0.1, method=method, progress=False, backend="numpy")
-                _assert_same_mesh(ref, got)
+                for given in (values, read_only):
+                    got = ao4d.extract(given, 0.1, method=method, progress=False, backend="opencl")
+                    _assert_same_mesh(ref, got)
+            del read_only
             assert sys.getrefcount(values) == refs
             np.testing.assert_array_equal(values, before)
 
