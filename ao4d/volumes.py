@@ -32,7 +32,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
@@ -51,6 +50,26 @@ __all__ = [
     "pyvista_offscreen",
     "check_mhd_path",
 ]
+
+
+def _quoteattr(text: str) -> str:
+    """``xml.sax.saxutils.quoteattr``'s quoted XML attribute value, the same characters (that
+    module imports urllib and http: 40 ms of a first extraction's imports)."""
+    for plain, entity in (
+        ("&", "&amp;"),
+        (">", "&gt;"),
+        ("<", "&lt;"),
+        ("\n", "&#10;"),
+        ("\r", "&#13;"),
+        ("\t", "&#9;"),
+    ):
+        text = text.replace(plain, entity)
+    if '"' not in text:
+        return f'"{text}"'
+    if "'" not in text:
+        return f"'{text}'"
+    return '"' + text.replace('"', "&quot;") + '"'
+
 
 # numpy dtype -> MetaImage ElementType (the types both ITK and VTK's reader understand)
 _MET_TYPES = {
@@ -376,7 +395,7 @@ def write_vti(path: str | os.PathLike, arrays, *, spacing=1.0, origin=0.0) -> Pa
         components = arr.shape[3] if arr.ndim == 4 else 1
         block = _vtk_compressed(_vtk_point_bytes(arr))
         entries.append(
-            f'        <DataArray type="{vtk_type}" Name={quoteattr(name)} '
+            f'        <DataArray type="{vtk_type}" Name={_quoteattr(name)} '
             f'NumberOfComponents="{components}" format="appended" offset="{offset}"/>'
         )
         blocks.append(block)
@@ -389,7 +408,7 @@ def write_vti(path: str | os.PathLike, arrays, *, spacing=1.0, origin=0.0) -> Pa
             f'  <ImageData WholeExtent="{extent}" Origin="{fmt(origin3)}" Spacing="{fmt(spacing3)}" '
             'Direction="1 0 0 0 1 0 0 0 1">',
             f'    <Piece Extent="{extent}">',
-            f"      <PointData Scalars={quoteattr(next(iter(checked)))}>",
+            f"      <PointData Scalars={_quoteattr(next(iter(checked)))}>",
             *entries,
             "      </PointData>",
             "      <CellData>",
