@@ -115,6 +115,15 @@ def main() -> int:
                 f"{d}D extraction ({method}) equals the numpy engine",
                 np.array_equal(ref.vertices, got.vertices) and np.array_equal(ref.simplices, got.simplices),
             )
+        # a grid in one device slab: its NaN found by the classify kernel (an atomic flag)
+        damaged = values.copy()
+        damaged.flat[[3, -1]] = np.nan
+        try:
+            ao4d.extract(damaged, 0.1, backend="opencl")
+            found = False
+        except ValueError as error:
+            found = "contains 2 non-finite" in str(error)
+        check(f"{d}D extraction finds NaN on the device", found)
         # the shape library's fields sampled on the device (kernels/fields.cl): numpy's values
         field = ao4d.fields.spheritorus() if d == 4 else ao4d.fields.hypersphere(0.7, [0.1] * d)
         axes = ao4d.fields.grid_axes((5, 4, 6, 3)[:d], (-1.2, 1.1))
