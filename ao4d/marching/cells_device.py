@@ -235,8 +235,7 @@ class _Engine:
             runtime,
             {
                 "the slab's values": points * 8,
-                "the slab's values, cases, edge masks and vertex numbers": padded
-                * (8 + case_size + mask_size + 8),
+                "the slab's values, cases, edge masks and vertex numbers": padded * (8 + case_size + mask_size + 8),
                 "the shared layer's vertices (twice)": 2 * carry,
             },
             task=f"extracting a grid of shape {geom.shape} on the device",
