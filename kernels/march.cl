@@ -2,17 +2,18 @@
 // march, from the values as stored to the final vertex positions and simplices.
 //
 // The slab is a C-order engine grid of shape (n0, n1, ..., n_{DIM-1}); n0 = cell layers + 1.
-// classify and interpolate run one work-item per point (per new vertex); the chunk passes
+// sign, classify and interpolate run one work-item per point (per new vertex); the chunk passes
 // one work-item per chunk of CHUNK consecutive points, walked in order 16 points at a time (a
 // vector of 16 cases or masks that are all zero, most of the grid, is skipped at once).
 // Per-chunk counts plus an exclusive scan over chunks give each point and cell its place in the
 // output in the numpy engine's order (ao4d/marching/cells.py):
 //
-//   classify    per point: the cell's case (bit v = corner v positive: one comparison in the
-//               value's own type against a threshold that makes it exact, ao4d/marching/cells.py's
-//               threshold; 0 when no simplex), the bit mask of the crossed edges starting here
-//               that are new in this slab (not carried from the slab below), and a flag for NaN
-//               and infinities
+//   sign        per point: 1 where the value is positive (one comparison in the value's own
+//               type against a threshold that makes it exact: ao4d/marching/cells.py's threshold),
+//               and a flag for NaN and infinities
+//   classify    per point: the cell's case (bit v = corner v positive; 0 when no simplex) and
+//               the bit mask of the crossed edges starting here that are new in this slab (not
+//               carried from the slab below)
 //   count       per chunk: simplices, active cells and new vertices (in-plane and not)
 //   scan_chunks exclusive scan of the chunk counts in blocks of SCAN_BLOCK chunks
 //   scan_blocks exclusive scan of the block totals (one work-item; a few hundred blocks)
@@ -167,29 +168,9 @@ inline void count_vertices(__global const vmask_t *vmask, const int x0, const in
 #define DIR_MASK(j) ((j) + 1)
 #endif
 
-// FINITE(a, i): value i is neither NaN nor infinite (VFLOAT: the values are float or double)
-#if VKIND == 1
-#define FINITE(a, i) isfinite(vload_half((i), (a)))
-#elif VKIND == 2
-#define FINITE(a, i) (((a)[i] & 0x7ff0000000000000UL) != 0x7ff0000000000000UL)
-#elif VFLOAT
-#define FINITE(a, i) isfinite((a)[i])
-#else
-#define FINITE(a, i) 1
-#endif
-
-// 1 where value i lies on the level's positive side: mode 0 `v >= thr`, 1 `v <= thr`, 2 none (a
-// level beyond an integer type's range); thr and mode from the host's threshold
-#define SIGN_OF(a, i, thr, mode) \
-    ((mode) == 0 ? LOAD_CMP(a, i) >= (thr) : ((mode) == 1 ? LOAD_CMP(a, i) <= (thr) : 0))
-
-// The case and the new crossed directions of every point's cell, comparing the values with the
-// level as it goes (a separate pass writing the signs first was 10 % slower at 256^3). A 3D
-// range: (last engine axis, the one before, the others together); no division per point.
+// A 3D range: (last engine axis, the one before, the others together); no division per point.
 __kernel void classify(
-    __global const value_t *values,  // (P,) the slab's values, each compared with the level
-    cmp_t thr, int mode,             // (threshold, mode) of SIGN_OF
-    __global int *bad,               // bad[0] = 1 where a value is NaN or infinite
+    __global const uchar *sign,      // (P,) 1 where the value is positive
     __global case_t *cases,          // (P_pad,) out: case of the cell at its lowest corner, or 0
     __global vmask_t *vmask,         // (P_pad,) out: new crossed directions at this point
     __global const int *counts,      // (2^NCORNERS,) simplices per case
@@ -219,15 +200,12 @@ __kernel void classify(
     if (z - i0 * n1 == n1 - 1) f |= u1;
 #endif
     if (i0 == n0 - 1) f |= u0;
-    // each point is some work-item's p: every value is checked here rather than in a host pass
-    // (an atomic only where a value is bad: no race for Oclgrind to report)
-    if (!FINITE(values, p)) atomic_or(bad, 1);
     // corners beyond the slab's last index take corner 0's sign: no crossing towards them
-    const int v0 = SIGN_OF(values, p, thr, mode);
+    const int v0 = sign[p];
     int c = 0;
 #pragma unroll
     for (int v = 0; v < NCORNERS; ++v) {
-        c |= ((v & f) == 0 ? (int)SIGN_OF(values, p + corner_offset(v, s0, s1, s2, s3), thr, mode) : v0) << v;
+        c |= ((v & f) == 0 ? (int)sign[p + corner_offset(v, s0, s1, s2, s3)] : v0) << v;
     }
     int m = 0;
 #pragma unroll
@@ -238,6 +216,33 @@ __kernel void classify(
     if (f != 0 || counts[c] == 0) c = 0;  // no cell here, or no simplex in it
     cases[p] = (case_t)c;
     vmask[p] = (vmask_t)m;
+}
+
+// 1 where the value is positive: mode 0 `v >= thr`, 1 `v <= thr`, 2 none (a level beyond an
+// integer type's range).
+// FINITE(a, i): value i is neither NaN nor infinite (VFLOAT: the values are float or double)
+#if VKIND == 1
+#define FINITE(a, i) isfinite(vload_half((i), (a)))
+#elif VKIND == 2
+#define FINITE(a, i) (((a)[i] & 0x7ff0000000000000UL) != 0x7ff0000000000000UL)
+#elif VFLOAT
+#define FINITE(a, i) isfinite((a)[i])
+#else
+#define FINITE(a, i) 1
+#endif
+
+// which side of the level each value lies on; bad[0] = 1 where a value is NaN or infinite (the
+// host checks the values in this pass, not in one of its own; an atomic only where a value is
+// bad: no race for Oclgrind to report). Comparing in classify instead, which reads 2^DIM corners
+// per point, was no faster at 256^3 and slower in 4D, where the corners' values spread far
+// more bytes through the caches than their signs.
+__kernel void sign(__global const value_t *values, __global uchar *sign, cmp_t thr, int mode,
+                   __global int *bad)
+{
+    const int p = get_global_id(0);
+    const cmp_t v = LOAD_CMP(values, p);
+    sign[p] = (uchar)(mode == 0 ? v >= thr : (mode == 1 ? v <= thr : 0));
+    if (!FINITE(values, p)) atomic_or(bad, 1);
 }
 
 __kernel CHUNK_KERNEL void count(__global const case_t *cases, __global const vmask_t *vmask,

@@ -364,7 +364,7 @@ def test_values_read_in_place_or_copied_give_the_same_arrays(cl_runtime, monkeyp
 @pytest.mark.parametrize("dtype", [np.float64, np.float32, np.float16])
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 def test_the_device_finds_non_finite_values_in_its_first_pass(cl_runtime, monkeypatch, float32_path, dtype, bad):
-    """A grid in one device slab is checked by the classify kernel, not by a host pass; the error
+    """A grid in one device slab is checked by the sign kernel, not by a host pass; the error
     names `values` and counts the bad values, as the host check's does (float64 stored as
     ordered integers where the device lacks fp64: forced here)."""
     from ao4d.marching import march

@@ -10,20 +10,20 @@ Per slab, the host uploads the values as they are stored (float16, float32, floa
 64-bit integers; anything else as float64; a CPU device reads an array aligned to 128 bytes in
 place, :mod:`ao4d._pages`) and the device
 
-1. classifies every cell (its case), comparing the values with the level as it goes (one
-   comparison in the values' own type against :func:`ao4d.marching.cells.threshold`, which
-   makes it equal to ``float64(v) >= level``), flags NaN and infinities (so that the host need
-   not read the values to check them), and finds the crossed edges starting at every point that
+1. compares every value with the level once (``sign``: one comparison in the values' own type
+   against :func:`ao4d.marching.cells.threshold`, which makes it equal to ``float64(v) >= level``)
+   and flags NaN and infinities, so that the host need not read the values to check them,
+2. classifies every cell (its case) and finds the crossed edges starting at every point that
    are new in this slab (an edge of the layer shared with the slab below keeps the vertex that
    slab gave it: the *carry*, kept on the device);
-2. counts simplices, active cells and new vertices per chunk of 256 points and scans the counts
+3. counts simplices, active cells and new vertices per chunk of 256 points and scans the counts
    (chunks, then blocks of chunks);
-3. numbers the new vertices in the numpy engine's order, compacts their keys, remembers the top
+4. numbers the new vertices in the numpy engine's order, compacts their keys, remembers the top
    layer's in-plane vertices for the next slab, and compacts the active cells with their first
    simplex;
-4. emits each active cell's simplices (one work-item per active cell), table row by table row,
+5. emits each active cell's simplices (one work-item per active cell), table row by table row,
    as int32 or int64 (the type of the final array);
-5. interpolates every new vertex with the numpy engine's float64 operations in the same order
+6. interpolates every new vertex with the numpy engine's float64 operations in the same order
    (``#pragma OPENCL FP_CONTRACT OFF``: no fused multiply-add), so the positions are the
    reference's bit for bit.
 
@@ -33,7 +33,7 @@ rows, no copy at all). For arrays in memory the slabs are counted first, so the 
 are allocated once at their size; a grid in one device slab needs no count. The host touches
 neither the values (beyond the upload, none for an aligned array on a CPU device) nor the
 output. Memory: a device slab holds up to
-:data:`_SLAB_POINTS` points (2^25; :data:`_FIELD_SLAB_POINTS` for fields), with about 12 bytes
+:data:`_SLAB_POINTS` points (2^25; :data:`_FIELD_SLAB_POINTS` for fields), with about 13 bytes
 of scratch per point besides the values' copy.
 
 Device slabs are as large as memory allows, not the numpy engine's: the numpy engine's vertex
@@ -54,7 +54,7 @@ Why reading "used" off the signs is exact: every table case uses each of its cro
 slab lies in one of its cells; so the shared layer's crossed in-plane edges are exactly the
 carried ones.
 
-Kernels are int only apart from ``classify`` and ``interpolate``, with no local memory and
+Kernels are int only apart from ``sign`` and ``interpolate``, with no local memory and
 runtime-chosen work-group sizes, so the same code suits CPUs and GPUs.
 """
 
@@ -79,7 +79,7 @@ _SCAN_BLOCK = 256  # chunks per block of the two-level scan
 _INT_MAX = 2**31 - 1
 # Grid points per device slab: arrays in memory (a 256^3 or 64^4 grid in one slab, which needs
 # no counting pass), and fields sampled slab by slab on the host (whose evaluation holds several
-# float64 temporaries per point). About 12 bytes per point of device scratch plus the values.
+# float64 temporaries per point). About 13 bytes per point of device scratch plus the values.
 _SLAB_POINTS = 1 << 25
 _FIELD_SLAB_POINTS = 1 << 23
 _lock = threading.Lock()  # pyopencl kernels hold their arguments: one slab at a time per process
@@ -235,7 +235,8 @@ class _Engine:
             runtime,
             {
                 "the slab's values": points * 8,
-                "the slab's values, cases, edge masks and vertex numbers": padded * (8 + case_size + mask_size + 8),
+                "the slab's values, signs, cases, edge masks and vertex numbers": padded
+                * (8 + 1 + case_size + mask_size + 8),
                 "the shared layer's vertices (twice)": 2 * carry,
             },
             task=f"extracting a grid of shape {geom.shape} on the device",
@@ -282,7 +283,7 @@ class _Engine:
         return buf
 
     def _threshold_arg(self, level: float, dtype: np.dtype, inside: str, vkind: int):
-        """(thr, mode) kernel arguments of ``classify`` (``SIGN_OF`` in ``kernels/march.cl``)."""
+        """(thr, mode) kernel arguments of ``sign``."""
         thr = threshold(level, dtype, inside)
         if thr.value is None:
             mode, value = 2, dtype.type(0)
@@ -342,6 +343,7 @@ class _Engine:
             values = cl_.Buffer(self.ctx, self.mf.READ_ONLY | self.mf.USE_HOST_PTR, hostbuf=slab)
         else:
             values = scratch("values", slab.nbytes)
+        sign = scratch("sign", n)
         cases = scratch("cases", chunks * _CHUNK * self.case_size)
         vmask = scratch("vmask", chunks * _CHUNK * self.mask_size)
         chunk_vi, chunk_va, chunk_s, chunk_a = (scratch(f"chunk {x}", chunks * 4) for x in ("vi", "va", "s", "a"))
@@ -356,6 +358,8 @@ class _Engine:
         t = _stage("upload", q, t)
         thr, mode = self._threshold_arg(level, slab.dtype, inside, kv[1])
         cl_.enqueue_fill_buffer(q, bad_buf, np.int32(0), 0, 4)
+        k["sign"](q, (n,), None, values, sign, thr, mode, bad_buf)
+        t = _stage("sign", q, t)
         top_start = (n0 - 1) * self.layer
         cur, nxt = self.carry
         if chunks * _CHUNK > n:  # zero the last chunk's padding
@@ -369,10 +373,7 @@ class _Engine:
             q,
             grid,
             None,
-            values,
-            thr,
-            mode,
-            bad_buf,
+            sign,
             cases,
             vmask,
             self.tables["counts"],
@@ -395,7 +396,7 @@ class _Engine:
             cl_.enqueue_copy(q, bad, bad_buf, is_blocking=False)
         cl_.enqueue_copy(q, totals, totals_buf)
         if host_values:  # no kernel keeps the caller's array past this call
-            k["classify"].set_arg(0, scratch("placeholder", 64))
+            k["sign"].set_arg(0, scratch("placeholder", 64))
         if bad[0]:
             check_finite(slab, "values")  # counts them and raises
         t = _stage("count and scan", q, t)
