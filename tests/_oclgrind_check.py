@@ -115,7 +115,7 @@ def main() -> int:
                 f"{d}D extraction ({method}) equals the numpy engine",
                 np.array_equal(ref.vertices, got.vertices) and np.array_equal(ref.simplices, got.simplices),
             )
-        # a grid in one device slab: its NaN found by the sign kernel (an atomic flag)
+        # a grid in one device slab: its NaNs found by the sign kernel (work-items writing one flag)
         damaged = values.copy()
         damaged.flat[[3, -1]] = np.nan
         try:
