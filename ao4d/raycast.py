@@ -268,7 +268,7 @@ def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar):
     Each launch's rays are mapped and rounded on the host straight into mapped device buffers
     (no float32 copy of all the rays, and none copied again on a CPU device). Two sets of
     buffers of one launch's size take turns: the host writes the next launch's rays through a
-    second queue while the device traces the last ones, so that the host's mapping (a sixth of
+    second queue while the device traces the last ones, so that the host's mapping (an eighth of
     a call's time when it ran between the launches) hides behind the kernels."""
     import pyopencl as pcl
 
