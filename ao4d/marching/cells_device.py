@@ -67,7 +67,7 @@ from typing import Any
 
 import numpy as np
 
-from .._pages import aligned_empty, readable_in_place
+from .._pages import PAGE, aligned_empty, readable_in_place
 from .._validate import check_finite
 from ..opencl import cl
 from .cells import CellTable, Geometry, Job, Plan, SlabMesh, join, threshold
@@ -422,7 +422,7 @@ class _Engine:
         # the final rows themselves where the device can write them in place: a CPU device and
         # rows that start on a page (the first slab's; other slabs' would be copied)
         in_place = (
-            self.in_place and simplices.ctypes.data % 4096 == 0 and (n_new == 0 or vertices.ctypes.data % 4096 == 0)
+            self.in_place and simplices.ctypes.data % PAGE == 0 and (n_new == 0 or vertices.ctypes.data % PAGE == 0)
         )
         if in_place:
             flags = self.mf.WRITE_ONLY | self.mf.USE_HOST_PTR
@@ -550,12 +550,13 @@ class _Engine:
             cl_.enqueue_copy(q, cells, act_p, is_blocking=False)
             cl_.enqueue_copy(q, first[:n_active], act_s, is_blocking=False)
         q.finish()
-        if in_place:  # the rows hold the results now; no kernel keeps their buffers
-            placeholder = scratch("placeholder", 64)
+        # no kernel keeps the caller's rows (written in place) or values (read in place)
+        placeholder = scratch("placeholder", 64)
+        if in_place:
             k["emit64" if wide else "emit32"].set_arg(13, placeholder)
             k["interpolate"].set_arg(2, placeholder)
         if host_values:
-            k["interpolate"].set_arg(0, scratch("placeholder", 64))
+            k["interpolate"].set_arg(0, placeholder)
         for buf, view in mapped:
             view.base.release()
             buf.release()
