@@ -218,8 +218,6 @@ __kernel void classify(
     vmask[p] = (vmask_t)m;
 }
 
-// 1 where the value is positive: mode 0 `v >= thr`, 1 `v <= thr`, 2 none (a level beyond an
-// integer type's range).
 // FINITE(a, i): value i is neither NaN nor infinite (VFLOAT: the values are float or double)
 #if VKIND == 1
 #define FINITE(a, i) isfinite(vload_half((i), (a)))
@@ -231,19 +229,72 @@ __kernel void classify(
 #define FINITE(a, i) 1
 #endif
 
-// which side of the level each value lies on; bad[0] = 1 where a value is NaN or infinite (the
-// host checks the values in this pass, not in one of its own; every work-item that finds one
-// writes the same 1, which Oclgrind's race check accepts; an atomic made this pass about a
-// tenth slower on Intel's CPU runtime). Comparing in classify instead, which reads 2^DIM corners
-// per point, was no faster at 256^3 and slower in 4D, where the corners' values spread far
-// more bytes through the caches than their signs.
-__kernel void sign(__global const value_t *values, __global uchar *sign, cmp_t thr, int mode,
-                   __global int *bad)
+// 1 where the value is positive: mode 0 `v >= thr`, 1 `v <= thr`, 2 none (a level beyond an
+// integer type's range)
+inline uchar positive(const cmp_t v, const cmp_t thr, const int mode)
 {
-    const int p = get_global_id(0);
-    const cmp_t v = LOAD_CMP(values, p);
-    sign[p] = (uchar)(mode == 0 ? v >= thr : (mode == 1 ? v <= thr : 0));
-    if (!FINITE(values, p)) bad[0] = 1;
+    return (uchar)(mode == 0 ? v >= thr : (mode == 1 ? v <= thr : 0));
+}
+
+// The same for 16 consecutive values at once: LOAD16_CMP(a, i) loads values 16 i .. 16 i + 15 as
+// cmp16_t, BAD16(a, i) is a vector whose lanes have their top bit set where a value is NaN or
+// infinite.
+#define CAT_(a, b) a##b
+#define CAT(a, b) CAT_(a, b)
+#if VKIND == 1
+typedef float16 cmp16_t;
+#define LOAD16_CMP(a, i) vload_half16((i), (a))
+#define BAD16(a, i) (~isfinite(vload_half16((i), (a))))
+#elif VKIND == 2
+typedef long16 cmp16_t;
+inline long16 double_key16(const long16 b)
+{
+    return select(b ^ 0x7fffffffffffffffL, b, b >= (long16)(0));
+}
+#define LOAD16_CMP(a, i) double_key16(as_long16(vload16((i), (a))))
+#define BAD16(a, i) ((vload16((i), (a)) & 0x7ff0000000000000UL) == 0x7ff0000000000000UL)
+#else
+typedef CAT(VTYPE, 16) cmp16_t;
+#define LOAD16_CMP(a, i) vload16((i), (a))
+#if VFLOAT
+#define BAD16(a, i) (~isfinite(vload16((i), (a))))
+#else
+#define BAD16(a, i) ((int16)(0))
+#endif
+#endif
+
+// which side of the level each value lies on, 16 points per work-item (explicit vectors: one
+// point per work-item ran 3-6x slower on Intel's CPU runtime, whose implicit vectoriser left the
+// comparison and the byte stores scalar); the last work-item takes the n % 16 points left one at
+// a time. bad[0] = 1 where a value is NaN or infinite (the host checks the values in this pass,
+// not in one of its own; every work-item that finds one writes the same 1, which Oclgrind's race
+// check accepts; an atomic made this pass about a tenth slower on Intel's CPU runtime).
+// Comparing in classify instead, which reads 2^DIM corners per point, was no faster at 256^3 and
+// slower in 4D, where the corners' values spread far more bytes through the caches than their
+// signs.
+__kernel __attribute__((vec_type_hint(float16))) void sign(__global const value_t *values, __global uchar *sign,
+                                                           cmp_t thr, int mode, __global int *bad, int n)
+{
+    const int i = get_global_id(0);
+    const int p0 = 16 * i;
+    if (p0 + 16 <= n) {
+        const cmp16_t v = LOAD16_CMP(values, i);
+        const cmp16_t t = (cmp16_t)(thr);
+        if (mode == 0)
+            vstore16(convert_uchar16(-(v >= t)), i, sign);
+        else if (mode == 1)
+            vstore16(convert_uchar16(-(v <= t)), i, sign);
+        else
+            vstore16((uchar16)(0), i, sign);
+        if (any(BAD16(values, i))) bad[0] = 1;
+        return;
+    }
+    int b = 0;
+    for (int p = p0; p < n; ++p) {
+        sign[p] = positive(LOAD_CMP(values, p), thr, mode);
+        b |= !FINITE(values, p);
+    }
+    if (b) bad[0] = 1;
 }
 
 __kernel CHUNK_KERNEL void count(__global const case_t *cases, __global const vmask_t *vmask,

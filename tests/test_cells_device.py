@@ -382,6 +382,22 @@ def test_the_device_finds_non_finite_values_in_its_first_pass(cl_runtime, monkey
     ao4d.extract(values, 0.0, progress=False, backend="opencl")  # nothing flagged
 
 
+@pytest.mark.parametrize("float32_path", [False, True])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32, np.float16])
+def test_the_sign_pass_flags_a_bad_value_in_every_lane_and_in_the_tail(cl_runtime, monkeypatch, float32_path, dtype):
+    """The sign kernel reads 16 values per work-item and the n % 16 left one at a time: one NaN
+    at the first and last lane of a vector, and in the scalar tail (1716 = 107 * 16 + 4 points),
+    is found wherever it is."""
+    monkeypatch.setattr(cells_device, "FLOAT32", float32_path)
+    base = np.linspace(-1.0, 1.0, 11 * 12 * 13).astype(dtype)
+    assert base.size % 16 == 4
+    for at in (0, 15, 16, base.size - 5, base.size - 4, base.size - 1):
+        values = base.copy()
+        values[at] = np.nan
+        with pytest.raises(ValueError, match=r"`values` contains 1 non-finite value"):
+            ao4d.extract(values.reshape(11, 12, 13), 0.0, progress=False, backend="opencl")
+
+
 def test_a_grid_in_several_device_slabs_is_checked_before_any_marching(cl_runtime, monkeypatch):
     """Where the device would mark slab after slab (``chunk=`` fixes its slabs), the host checks
     the whole array first, so a bad value in the last layer fails before the first slab."""

@@ -358,7 +358,7 @@ class _Engine:
         t = _stage("upload", q, t)
         thr, mode = self._threshold_arg(level, slab.dtype, inside, kv[1])
         cl_.enqueue_fill_buffer(q, bad_buf, np.int32(0), 0, 4)
-        k["sign"](q, (n,), None, values, sign, thr, mode, bad_buf)
+        k["sign"](q, (-(-n // 16),), None, values, sign, thr, mode, bad_buf, i32(n))
         t = _stage("sign", q, t)
         top_start = (n0 - 1) * self.layer
         cur, nxt = self.carry
