@@ -168,38 +168,24 @@ inline void count_vertices(__global const vmask_t *vmask, const int x0, const in
 #define DIR_MASK(j) ((j) + 1)
 #endif
 
-// A 3D range: (last engine axis, the one before, the others together); no division per point.
-__kernel void classify(
-    __global const uchar *sign,      // (P,) 1 where the value is positive
-    __global case_t *cases,          // (P_pad,) out: case of the cell at its lowest corner, or 0
-    __global vmask_t *vmask,         // (P_pad,) out: new crossed directions at this point
-    __global const int *counts,      // (2^NCORNERS,) simplices per case
-    int shared,                      // bit j: direction j lies in the layer shared with the
-                                     // slab below (0 for the first slab)
-    int s0, int s1, int s2, int s3,  // linear stride of user axis k
-    int u0, int u1, int u2, int u3,  // user-axis bit of engine axis e
-    int n0, int n1)                  // engine axis lengths (n1 only for DIM 4)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    const int z = get_global_id(2);
-    const int nx = get_global_size(0), ny = get_global_size(1);
-    const int p = (z * ny + y) * nx + x;
-    int f = 0, i0;  // f: user axes along which this point is the last
-#if DIM == 2
-    i0 = y;
-    if (x == nx - 1) f |= u1;
-#elif DIM == 3
-    i0 = z;
-    if (x == nx - 1) f |= u2;
-    if (y == ny - 1) f |= u1;
+#if DIM == 4
+#define CONVERT_CASE16 convert_ushort16
 #else
-    i0 = z / n1;
-    if (x == nx - 1) f |= u3;
-    if (y == ny - 1) f |= u2;
-    if (z - i0 * n1 == n1 - 1) f |= u1;
+#define CONVERT_CASE16 convert_uchar16
 #endif
-    if (i0 == n0 - 1) f |= u0;
+#if NDIRS > 8
+#define CONVERT_VMASK16 convert_ushort16
+#else
+#define CONVERT_VMASK16 convert_uchar16
+#endif
+#define FULL_CASE ((1 << NCORNERS) - 1)
+
+// the case and new-edge mask of the point p of slab layer i0, f its user axes along which it is
+// the last point (the scalar form of classify's lanes)
+inline void classify_point(__global const uchar *sign, __global case_t *cases, __global vmask_t *vmask,
+                           __global const int *counts, const int shared, const int s0, const int s1,
+                           const int s2, const int s3, const int p, const int f, const int i0)
+{
     // corners beyond the slab's last index take corner 0's sign: no crossing towards them
     const int v0 = sign[p];
     int c = 0;
@@ -216,6 +202,81 @@ __kernel void classify(
     if (f != 0 || counts[c] == 0) c = 0;  // no cell here, or no simplex in it
     cases[p] = (case_t)c;
     vmask[p] = (vmask_t)m;
+}
+
+// 16 points of one row per work-item, as vectors (one point per work-item, as Intel's CPU
+// runtime vectorised it, took twice as long); a row's last n_last % 16 points go one at a time.
+// A 3D range: (16-point groups of the last engine axis, the one before, the others together);
+// no division per point. The sign buffer holds 16 bytes past its last point (read, unused, by
+// the last point's lane).
+__kernel __attribute__((vec_type_hint(int16))) void classify(
+    __global const uchar *sign,      // (P + 16,) 1 where the value is positive
+    __global case_t *cases,          // (P_pad,) out: case of the cell at its lowest corner, or 0
+    __global vmask_t *vmask,         // (P_pad,) out: new crossed directions at this point
+    __global const int *counts,      // (2^NCORNERS,) simplices per case
+    int shared,                      // bit j: direction j lies in the layer shared with the
+                                     // slab below (0 for the first slab)
+    int s0, int s1, int s2, int s3,  // linear stride of user axis k
+    int u0, int u1, int u2, int u3,  // user-axis bit of engine axis e
+    int n0, int n1,                  // engine axis lengths (n1 only for DIM 4)
+    int nx)                          // the last engine axis' length
+{
+    const int x0 = 16 * get_global_id(0);
+    const int y = get_global_id(1);
+    const int z = get_global_id(2);
+    const int ny = get_global_size(1);
+    const int p0 = (z * ny + y) * nx + x0;
+    int f = 0, i0, u_x;  // f: user axes (but the row's) along which these points are the last
+#if DIM == 2
+    i0 = y;
+    u_x = u1;
+#elif DIM == 3
+    i0 = z;
+    u_x = u2;
+    if (y == ny - 1) f |= u1;
+#else
+    i0 = z / n1;
+    u_x = u3;
+    if (y == ny - 1) f |= u2;
+    if (z - i0 * n1 == n1 - 1) f |= u1;
+#endif
+    if (i0 == n0 - 1) f |= u0;
+    if (x0 + 16 > nx) {
+        for (int x = x0; x < nx; ++x)
+            classify_point(sign, cases, vmask, counts, shared, s0, s1, s2, s3, p0 + x - x0,
+                           f | (x == nx - 1 ? u_x : 0), i0);
+        return;
+    }
+    // lane 15 is the row's last point when the row ends here
+    const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    const int16 fv = (int16)(f) | select((int16)(0), (int16)(u_x), (lane == 15) & (int16)(x0 + 16 == nx ? -1 : 0));
+    const int16 v0 = convert_int16(vload16(0, sign + p0));
+    int16 c = (int16)(0);
+#pragma unroll
+    for (int v = 0; v < NCORNERS; ++v) {
+        int16 s = v0;
+        if ((v & f) == 0) {
+            s = convert_int16(vload16(0, sign + p0 + corner_offset(v, s0, s1, s2, s3)));
+            if (v & u_x) s = select(s, v0, (fv & (int16)(v)) != 0);
+        }
+        c |= s << v;
+    }
+    int16 m = (int16)(0);
+#pragma unroll
+    for (int j = 0; j < NDIRS; ++j) m |= (((c >> DIR_MASK(j)) ^ c) & 1) << j;
+    if (i0 == 0) m &= (int16)(~shared);
+    // no cell here, or no simplex in it: every case but the empty and the full one has a table
+    // entry to look up, one lane at a time (rare: most points lie away from the surface)
+    if (any((c != 0) & (c != FULL_CASE))) {
+        int cs[16];
+        vstore16(c, 0, cs);
+        for (int l = 0; l < 16; ++l)
+            if (counts[cs[l]] == 0) cs[l] = 0;
+        c = vload16(0, cs);
+    }
+    c = select(c, (int16)(0), (fv != 0) | (c == FULL_CASE));
+    vstore16(CONVERT_CASE16(c), 0, cases + p0);
+    vstore16(CONVERT_VMASK16(m), 0, vmask + p0);
 }
 
 // FINITE(a, i): value i is neither NaN nor infinite (VFLOAT: the values are float or double)
@@ -237,14 +298,16 @@ inline uchar positive(const cmp_t v, const cmp_t thr, const int mode)
 }
 
 // The same for 16 consecutive values at once: LOAD16_CMP(a, i) loads values 16 i .. 16 i + 15 as
-// cmp16_t, BAD16(a, i) is a vector whose lanes have their top bit set where a value is NaN or
-// infinite.
+// cmp16_t, BAD16(a, i) is a comparison's vector, true (-1) where a value is NaN or infinite.
+// TRUTH16: a comparison's vector as bytes 1 / 0 (through char: Oclgrind's conversions of long
+// vectors to uchar give 255 for 1).
+#define TRUTH16(cmp) (as_uchar16(convert_char16(cmp)) & (uchar16)(1))
 #define CAT_(a, b) a##b
 #define CAT(a, b) CAT_(a, b)
 #if VKIND == 1
 typedef float16 cmp16_t;
 #define LOAD16_CMP(a, i) vload_half16((i), (a))
-#define BAD16(a, i) (~isfinite(vload_half16((i), (a))))
+#define BAD16(a, i) (isfinite(vload_half16((i), (a))) == 0)
 #elif VKIND == 2
 typedef long16 cmp16_t;
 inline long16 double_key16(const long16 b)
@@ -257,7 +320,7 @@ inline long16 double_key16(const long16 b)
 typedef CAT(VTYPE, 16) cmp16_t;
 #define LOAD16_CMP(a, i) vload16((i), (a))
 #if VFLOAT
-#define BAD16(a, i) (~isfinite(vload16((i), (a))))
+#define BAD16(a, i) (isfinite(vload16((i), (a))) == 0)
 #else
 #define BAD16(a, i) ((int16)(0))
 #endif
@@ -281,9 +344,9 @@ __kernel __attribute__((vec_type_hint(float16))) void sign(__global const value_
         const cmp16_t v = LOAD16_CMP(values, i);
         const cmp16_t t = (cmp16_t)(thr);
         if (mode == 0)
-            vstore16(convert_uchar16(-(v >= t)), i, sign);
+            vstore16(TRUTH16(v >= t), i, sign);
         else if (mode == 1)
-            vstore16(convert_uchar16(-(v <= t)), i, sign);
+            vstore16(TRUTH16(v <= t), i, sign);
         else
             vstore16((uchar16)(0), i, sign);
         if (any(BAD16(values, i))) bad[0] = 1;

@@ -108,13 +108,17 @@ def main() -> int:
         check(f"{d}D directions eight at a time", np.array_equal(eight, raycast.sample_directions(runtime, n, 11, 0)))
         # extraction (kernels/march.cl): both methods, thin slabs, the numpy engine's arrays
         values = rng.standard_normal((5, 4, 6, 3)[:d])
+        # rows of 35 points: classify's 16-point vectors (the last reading past the slab's
+        # last point) and its scalar row ends
+        wide = rng.standard_normal(((3, 35), (3, 2, 35), (2, 2, 2, 35))[d - 2])
         for method in ("cubes", "simplices"):
-            ref = ao4d.extract(values, 0.1, method=method, chunk=2, backend="numpy")
-            got = ao4d.extract(values, 0.1, method=method, chunk=2, backend="opencl")
-            check(
-                f"{d}D extraction ({method}) equals the numpy engine",
-                np.array_equal(ref.vertices, got.vertices) and np.array_equal(ref.simplices, got.simplices),
-            )
+            for grid, chunk in ((values, 2), (wide, None)):
+                ref = ao4d.extract(grid, 0.1, method=method, chunk=chunk, backend="numpy")
+                got = ao4d.extract(grid, 0.1, method=method, chunk=chunk, backend="opencl")
+                check(
+                    f"{d}D extraction ({method}, rows of {grid.shape[-1]}) equals the numpy engine",
+                    np.array_equal(ref.vertices, got.vertices) and np.array_equal(ref.simplices, got.simplices),
+                )
         # a grid in one device slab: its NaNs found by the sign kernel (work-items writing one flag)
         damaged = values.copy()
         damaged.flat[[3, -1]] = np.nan

@@ -75,6 +75,21 @@ def test_random_fields_give_the_numpy_engines_arrays(cl_runtime, d, method, insi
         _assert_same(ref, got)
 
 
+@pytest.mark.parametrize("method", METHODS)
+def test_rows_of_every_width_give_the_numpy_engines_arrays(cl_runtime, method):
+    """classify takes 16 points of a row at a time and a row's last width % 16 one at a time:
+    rows shorter than, as long as, and longer than one or more vectors, in 2D, 3D and 4D, in
+    one slab and in slabs that share layers."""
+    rng = np.random.default_rng(2290 + len(method))
+    shapes = [(5, w) for w in (16, 33)] + [(4, 3, w) for w in (15, 16, 17, 32, 47)] + [(3, 3, 2, w) for w in (16, 35)]
+    for shape in shapes:
+        values = rng.standard_normal(shape)
+        for layers in (None, 1, 2):
+            ref, got = _engines(values, 0.1, method, "below", layers, cl_runtime)
+            assert len(ref[1]) > 0
+            _assert_same(ref, got)
+
+
 @pytest.mark.parametrize("d", DIMS)
 @pytest.mark.parametrize("method", METHODS)
 def test_values_exactly_at_the_level_and_flat_regions(cl_runtime, d, method):
