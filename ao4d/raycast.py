@@ -30,6 +30,7 @@ others' private helpers.
 from __future__ import annotations
 
 import math
+import threading
 from typing import Any
 
 import numpy as np
@@ -55,6 +56,7 @@ __all__ = [
     "unit_rows",
     "progress_bar",
     "RAYS_PER_LAUNCH",
+    "release_buffers",
     "ACCELS",
     "BUILDERS",
 ]
@@ -280,14 +282,7 @@ def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar):
     )
     ctx, queue = runtime.context, runtime.queue
     feed = pcl.CommandQueue(ctx, runtime.device) if sets > 1 else queue  # maps while a launch runs
-    mf = pcl.mem_flags
-    buffers = [
-        [
-            pcl.Buffer(ctx, flags, size * nbytes)
-            for flags, nbytes in ((mf.READ_ONLY, 16),) * 2 + ((mf.WRITE_ONLY, 4),) * 2
-        ]
-        for _ in range(sets)
-    ]
+    capacity, buffers = _launch_buffers(ctx, size, sets)
     hit = np.empty(n, dtype=np.int32)
     kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast", accel)
     write = pcl.map_flags.WRITE_INVALIDATE_REGION
@@ -318,7 +313,52 @@ def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar):
         queue.finish()
         if feed is not queue:
             feed.finish()
+        _keep_launch_buffers(ctx, capacity, buffers)
     return hit
+
+
+# One call's launch buffers (two sets of origins, directions, t and hits: 80 bytes per ray of a
+# launch, 160 MiB at RAYS_PER_LAUNCH), kept for the next call on the same context: fresh ones
+# cost a page fault per page on first touch (65 ms of a 1 s call of 10 M rays on a 2-core VM,
+# measured). A call takes them out and puts them back, so concurrent calls never share them;
+# release_buffers() drops them.
+_launch_pool: dict[int, tuple[Any, int, list[list[Any]]]] = {}  # id -> (context: its id stays its own, ...)
+_launch_lock = threading.Lock()
+
+
+def _launch_buffers(ctx, size: int, sets: int) -> tuple[int, list[list[Any]]]:
+    """At least ``sets`` sets of launch buffers for at least ``size`` rays each, from the pool
+    when large enough: (rays they hold, the sets)."""
+    import pyopencl as pcl
+
+    with _launch_lock:
+        kept = _launch_pool.pop(id(ctx), None)
+    if kept is not None and kept[1] >= size and len(kept[2]) >= sets:
+        return kept[1], kept[2]
+    del kept  # freed before the new ones are allocated
+    mf = pcl.mem_flags
+    shapes = ((mf.READ_ONLY, 16),) * 2 + ((mf.WRITE_ONLY, 4),) * 2
+    return size, [[pcl.Buffer(ctx, flags, size * nbytes) for flags, nbytes in shapes] for _ in range(sets)]
+
+
+def _keep_launch_buffers(ctx, size: int, buffers: list[list[Any]]) -> None:
+    """Put a call's launch buffers (``size`` rays each) back in the pool (the larger wins)."""
+    with _launch_lock:
+        kept = _launch_pool.get(id(ctx))
+        if kept is None or (size, len(buffers)) >= (kept[1], len(kept[2])):
+            _launch_pool[id(ctx)] = (ctx, size, buffers)
+
+
+def release_buffers() -> None:
+    """Drop the ray buffers :func:`cast_rays` keeps between calls (device memory).
+
+    Examples
+    --------
+    >>> from ao4d import raycast
+    >>> raycast.release_buffers()
+    """
+    with _launch_lock:
+        _launch_pool.clear()
 
 
 def _tree_order(dev: dict, hit: np.ndarray) -> np.ndarray:

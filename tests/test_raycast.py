@@ -594,6 +594,28 @@ def test_cast_rays_over_many_launches_equals_brute_force(d, shift, cl_runtime, m
     np.testing.assert_array_equal(whole.hit, raycast.cast_rays(mesh, o, w, closest=False, backend="opencl").hit)
 
 
+def test_kept_launch_buffers_serve_later_and_concurrent_calls(cl_runtime, monkeypatch):
+    """cast_rays keeps its launch buffers for the next call: a smaller call reuses larger ones
+    (their old contents never leak into answers), and calls from several threads at once each
+    get buffers of their own (every answer equals the brute-force one)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    mesh, o, w = _shifted_soup(2911, 3, 0.0)
+    monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 500)
+    raycast.release_buffers()
+    parts = [slice(0, len(o)), slice(0, 300), slice(100, len(o)), slice(7, 611)]
+    want = [raycast.cast_rays(mesh, o[p], w[p], accel="brute", backend="opencl").hit for p in parts]
+    for p, expected in zip(parts, want):  # one after another: large, small, large again
+        np.testing.assert_array_equal(raycast.cast_rays(mesh, o[p], w[p], backend="opencl").hit, expected)
+    assert raycast._launch_pool, "no launch buffers were kept"
+    with ThreadPoolExecutor(4) as pool:
+        got = list(pool.map(lambda p: raycast.cast_rays(mesh, o[p], w[p], backend="opencl").hit, parts * 6))
+    for hit, expected in zip(got, want * 6):
+        np.testing.assert_array_equal(hit, expected)
+    raycast.release_buffers()
+    assert not raycast._launch_pool
+
+
 def test_hit_rays_are_kept_as_they_were_at_the_call(cl_runtime):
     # t is computed when first read, from the rays as they were when cast_rays was called
     mesh = ao4d.SimplexMesh([[0, 0, 1], [1, 0, 1], [0, 1, 1]], [[0, 1, 2]])
