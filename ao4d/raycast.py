@@ -322,7 +322,8 @@ def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar):
 # cost a page fault per page on first touch (65 ms of a 1 s call of 10 M rays on a 2-core VM,
 # measured). A call takes them out and puts them back, so concurrent calls never share them;
 # release_buffers() drops them.
-_launch_pool: dict[int, tuple[Any, int, list[list[Any]]]] = {}  # id -> (context: its id stays its own, ...)
+# id(context) -> (the context, kept so that its id is not reused; rays per launch; the sets)
+_launch_pool: dict[int, tuple[Any, int, list[list[Any]]]] = {}
 _launch_lock = threading.Lock()
 
 

@@ -205,7 +205,7 @@ inline void classify_point(__global const uchar *sign, __global case_t *cases, _
 }
 
 // 16 points of one row per work-item, as vectors (one point per work-item, as Intel's CPU
-// runtime vectorised it, took twice as long); a row's last n_last % 16 points go one at a time.
+// runtime vectorised it, took twice as long); a row's last nx % 16 points go one at a time.
 // A 3D range: (16-point groups of the last engine axis, the one before, the others together);
 // no division per point. The sign buffer holds 16 bytes past its last point (read, unused, by
 // the last point's lane).

@@ -80,7 +80,8 @@ _INT_MAX = 2**31 - 1
 # Grid points per device slab: arrays in memory (up to a 400^3 or 90^4 grid in one slab, which
 # needs neither a counting pass nor a host check of the values: 384^3 in two slabs took 1.8x as
 # long as in one; at most 0.9 GB of scratch), and fields sampled slab by slab on the host (whose
-# evaluation holds several float64 temporaries per point). About 13 bytes per point of device scratch plus the values.
+# evaluation holds several float64 temporaries per point). About 13 bytes per point of device
+# scratch plus the values.
 _SLAB_POINTS = 1 << 26
 _FIELD_SLAB_POINTS = 1 << 23
 _lock = threading.Lock()  # pyopencl kernels hold their arguments: one slab at a time per process
