@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 import threading
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -243,7 +243,7 @@ def _morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
     return np.argsort(code, kind="stable")
 
 
-def _kernels(runtime, dim: int, lanes: int, count_visits: bool = False) -> dict[str, Any]:
+def _kernels(runtime, dim: int, lanes: int, count_visits: bool = False, ray_type: str | None = None) -> dict[str, Any]:
     defines = {
         "DIM": dim,
         "BARY_EPS": f"{_bvh.BARY_EPS:.9g}f",
@@ -254,6 +254,8 @@ def _kernels(runtime, dim: int, lanes: int, count_visits: bool = False) -> dict[
     }
     if count_visits:  # the debug variant of traversal_counts
         defines["COUNT_VISITS"] = 1
+    if ray_type is not None:  # the cast_rows_* kernels, which map the caller's rows themselves
+        defines["RAY_T"] = ray_type
     return cl.build_kernels(runtime, "ao.cl", defines)
 
 
@@ -263,91 +265,159 @@ def _pad4(a: np.ndarray) -> np.ndarray:
     return out
 
 
+#: Let fp64 devices map cast_rays' rays into the tree's frame themselves (the ``cast_rows_*``
+#: kernels), reading the caller's rows as they are; tests clear it to take the host's mapping,
+#: the path of devices without ``cl_khr_fp64``. Read when a trace starts.
+MAP_ON_DEVICE = True
+
+
 def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar):
     """The kernels' answer per ray of ``rays`` (:class:`_Rays`), launch by launch: (N,) int32,
     ``lanes * leaf block + lane`` or -1 (:func:`_tree_order` maps it to tree-order simplices).
 
-    Each launch's rays are mapped and rounded on the host straight into mapped device buffers
-    (no float32 copy of all the rays, and none copied again on a CPU device). Two sets of
-    buffers of one launch's size take turns: the host writes the next launch's rays through a
-    second queue while the device traces the last ones, so that the host's mapping (an eighth of
-    a call's time when it ran between the launches) hides behind the kernels."""
+    On a device with ``cl_khr_fp64`` each launch's rows are copied as they are into device
+    buffers and the ``cast_rows_*`` kernels map them into the tree's frame in double, with the
+    host's operations (the same float32 bits: ``map_ray`` in kernels/ao.cl); a zero-length
+    direction comes back as -2 and is named here. That costs the host a copy of the rows
+    (17 GB/s) instead of the float64 mapping (65 ns a ray, a sixth of a 3D any-hit call).
+    Elsewhere the host maps and rounds each launch's rays straight into mapped device buffers.
+    """
     import pyopencl as pcl
 
-    n = rays.n
+    queue = runtime.queue
+    if not (MAP_ON_DEVICE and "cl_khr_fp64" in runtime.device.extensions):
+        kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast", accel)
+        write = pcl.map_flags.WRITE_INVALIDATE_REGION
+        rays.check()  # before any launch
+
+        def fill(feed, bufs, start, stop, wait):
+            o, _ = pcl.enqueue_map_buffer(feed, bufs[0], write, 0, (stop - start, 4), np.float32, wait_for=wait)
+            w, _ = pcl.enqueue_map_buffer(feed, bufs[1], write, 0, (stop - start, 4), np.float32)
+            rays.chunk(start, stop, np.float32, 4, out=(o, w))
+            return [o.base.release(feed), w.base.release(feed)]
+
+        def launch(bufs, count, written):
+            args = head + [bufs[0], bufs[1], np.float32(max_distance), np.int32(any_hit), bufs[2], bufs[3]]
+            return kernel(queue, (count,), None, *args, wait_for=written)
+
+        return _launches(runtime, rays.n, (16, 16, 4, 4), fill, launch, bar)
+
+    # float32 rows are read as float32; any float64 makes both double (exact for float32 values,
+    # and the same bits: _Rays.chunk promotes them alike)
+    both32 = rays.origins.dtype == rays.directions.dtype == np.float32
+    real = np.float32 if both32 else np.float64
+    origins, directions = (np.ascontiguousarray(a, dtype=real) for a in (rays.origins, rays.directions))
+    kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast_rows", accel, ray_type="float" if both32 else "double")
+    frame = np.append(np.asarray(rays.frame.centre, dtype=np.float64), np.float64(rays.frame.scale))
+    buf_frame = pcl.Buffer(runtime.context, pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR, hostbuf=frame)
+    row = rays.d * np.dtype(real).itemsize
+
+    def fill(feed, bufs, start, stop, wait):
+        return [
+            pcl.enqueue_copy(feed, buf, rows[start:stop], is_blocking=False, wait_for=wait)
+            for buf, rows in ((bufs[0], origins), (bufs[1], directions))
+        ]
+
+    def launch(bufs, count, written):
+        args = head + [bufs[0], bufs[1], buf_frame, np.float32(max_distance), np.int32(any_hit), bufs[2]]
+        return kernel(queue, (count,), None, *args, wait_for=written)
+
+    def check(answers):
+        if answers.min() == -2:  # a zero-length direction
+            rays.check()
+            raise RuntimeError("the ray kernel flagged a zero-length direction the host does not see")
+
+    return _launches(runtime, rays.n, (row, row, 4), fill, launch, bar, check)
+
+
+def _launches(runtime, n: int, widths: tuple[int, ...], fill, launch, bar, check=None) -> np.ndarray:
+    """Trace ``n`` rays in launches of at most ``RAYS_PER_LAUNCH``: the kernels' int32 answers.
+
+    A launch uses one set of buffers of ``widths`` bytes per ray (the rays in the first two, the
+    answers in the last; kept between calls: :func:`_launch_buffers`). Two sets take turns
+    when there is more than one launch: ``fill(feed, buffers, start, stop, wait)`` enqueues a
+    launch's rays on a second queue (after the ``wait`` events: the set's last launch) while the
+    device traces the previous launch, and returns the events that complete them;
+    ``launch(buffers, count, written)`` enqueues the kernel after those. ``check(answers)``, when
+    given, sees each launch's answers as they arrive (before the bar counts them)."""
+    import pyopencl as pcl
+
     size = min(n, RAYS_PER_LAUNCH)
     sets = 1 if n <= RAYS_PER_LAUNCH else 2
     cl.check_device_memory(
-        runtime, {"the rays": sets * size * 32, "the ray results": sets * size * 8}, task="ray tracing"
+        runtime,
+        {"the rays": sets * size * sum(widths[:2]), "the ray results": sets * size * sum(widths[2:])},
+        task="ray tracing",
     )
     ctx, queue = runtime.context, runtime.queue
-    feed = pcl.CommandQueue(ctx, runtime.device) if sets > 1 else queue  # maps while a launch runs
-    capacity, buffers = _launch_buffers(ctx, size, sets)
+    feed = pcl.CommandQueue(ctx, runtime.device) if sets > 1 else queue  # fills while a launch runs
+    capacity, kept_widths, buffers = _launch_buffers(ctx, size, sets, widths)
     hit = np.empty(n, dtype=np.int32)
-    kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast", accel)
-    write = pcl.map_flags.WRITE_INVALIDATE_REGION
     free: list[Any] = [None] * sets  # per set: the event after which its last launch is done with it
-    traced: list[tuple[Any, int]] = []  # (the read of a launch's answers, its rays) for the bar
+    traced: list[tuple[Any, int, int]] = []  # (the read of a launch's answers, its rays) for the bar
     try:
         for index, start in enumerate(range(0, n, RAYS_PER_LAUNCH)):
             stop = min(n, start + RAYS_PER_LAUNCH)
-            count = stop - start
-            buf_o, buf_w, buf_t, buf_h = buffers[index % sets]
+            bufs = buffers[index % sets]
             wait = None if free[index % sets] is None else [free[index % sets]]
-            o, _ = pcl.enqueue_map_buffer(feed, buf_o, write, 0, (count, 4), np.float32, wait_for=wait)
-            w, _ = pcl.enqueue_map_buffer(feed, buf_w, write, 0, (count, 4), np.float32)
-            rays.chunk(start, stop, np.float32, 4, out=(o, w))
-            written = [o.base.release(feed), w.base.release(feed)]
+            written = fill(feed, bufs, start, stop, wait)
             feed.flush()
-            args = head + [buf_o, buf_w, np.float32(max_distance), np.int32(any_hit), buf_t, buf_h]
-            kernel(queue, (count,), None, *args, wait_for=written)
-            read = pcl.enqueue_copy(queue, hit[start:stop], buf_h, is_blocking=False)
+            launch(bufs, stop - start, written)
+            read = pcl.enqueue_copy(queue, hit[start:stop], bufs[-1], is_blocking=False)
             queue.flush()
             free[index % sets] = read
-            traced.append((read, count))
+            traced.append((read, start, stop))
             while len(traced) > 1 or (traced and stop == n):  # the bar follows the finished launches
-                event, done = traced.pop(0)
+                event, a, b = traced.pop(0)
                 event.wait()
-                bar.update(done)
+                if check is not None:
+                    check(hit[a:b])
+                bar.update(b - a)
     finally:
         queue.finish()
         if feed is not queue:
             feed.finish()
-        _keep_launch_buffers(ctx, capacity, buffers)
+        _keep_launch_buffers(ctx, capacity, kept_widths, buffers)
     return hit
 
 
-# One call's launch buffers (two sets of origins, directions, t and hits: 80 bytes per ray of a
-# launch, 160 MiB at RAYS_PER_LAUNCH), kept for the next call on the same context: fresh ones
-# cost a page fault per page on first touch (a fresh 32 MiB buffer took 13 ms to write once and
-# 1.2 ms after that on a 2-core VM: about 65 ms of a 1 s call of 10 M rays, estimated). A call takes them out and puts them back, so concurrent calls never share them;
-# release_buffers() drops them.
-# id(context) -> (the context, kept so that its id is not reused; rays per launch; the sets)
-_launch_pool: dict[int, tuple[Any, int, list[list[Any]]]] = {}
+# One call's launch buffers (up to two sets of rays in and answers out, 24-80 bytes per ray of a
+# launch), kept for the next call on the same context: fresh ones cost a page fault per page on
+# first touch (a fresh 32 MiB buffer took 13 ms to write once and 1.2 ms after that on a 2-core
+# VM: about 65 ms of a 1 s call of 10 M rays, estimated). A call takes them out and puts them
+# back, so concurrent calls never share them; release_buffers() drops them.
+# id(context) -> (the context, kept so that its id is not reused; rays per launch; bytes per ray
+# of each buffer of a set; the sets)
+_launch_pool: dict[int, tuple[Any, int, tuple[int, ...], list[list[Any]]]] = {}
 _launch_lock = threading.Lock()
 
 
-def _launch_buffers(ctx, size: int, sets: int) -> tuple[int, list[list[Any]]]:
-    """At least ``sets`` sets of launch buffers for at least ``size`` rays each, from the pool
-    when large enough: (rays they hold, the sets)."""
+def _launch_buffers(ctx, size: int, sets: int, widths: tuple[int, ...]) -> tuple[int, tuple[int, ...], list[list[Any]]]:
+    """At least ``sets`` sets of launch buffers for at least ``size`` rays each, one buffer of at
+    least ``widths[k]`` bytes per ray for each k, from the pool when large enough: (rays they
+    hold, their bytes per ray, the sets)."""
     import pyopencl as pcl
 
     with _launch_lock:
         kept = _launch_pool.pop(id(ctx), None)
-    if kept is not None and kept[1] >= size and len(kept[2]) >= sets:
-        return kept[1], kept[2]
+    if (
+        kept is not None
+        and kept[1] >= size
+        and len(kept[3]) >= sets
+        and len(kept[2]) == len(widths)
+        and all(have >= want for have, want in zip(kept[2], widths))
+    ):
+        return kept[1], kept[2], kept[3]
     del kept  # freed before the new ones are allocated
-    mf = pcl.mem_flags
-    shapes = ((mf.READ_ONLY, 16),) * 2 + ((mf.WRITE_ONLY, 4),) * 2
-    return size, [[pcl.Buffer(ctx, flags, size * nbytes) for flags, nbytes in shapes] for _ in range(sets)]
+    return size, widths, [[pcl.Buffer(ctx, pcl.mem_flags.READ_WRITE, size * w) for w in widths] for _ in range(sets)]
 
 
-def _keep_launch_buffers(ctx, size: int, buffers: list[list[Any]]) -> None:
+def _keep_launch_buffers(ctx, size: int, widths: tuple[int, ...], buffers: list[list[Any]]) -> None:
     """Put a call's launch buffers (``size`` rays each) back in the pool (the larger wins)."""
     with _launch_lock:
         kept = _launch_pool.get(id(ctx))
-        if kept is None or (size, len(buffers)) >= (kept[1], len(kept[2])):
-            _launch_pool[id(ctx)] = (ctx, size, buffers)
+        if kept is None or (size * sum(widths), len(buffers)) >= (kept[1] * sum(kept[2]), len(kept[3])):
+            _launch_pool[id(ctx)] = (ctx, size, widths, buffers)
 
 
 def release_buffers() -> None:
@@ -369,10 +439,18 @@ def _tree_order(dev: dict, hit: np.ndarray) -> np.ndarray:
 
 
 def _traversal_kernel(
-    runtime, dim: int, dev: dict, name: str, accel: str, count_visits: bool = False, suffix: str = ""
+    runtime,
+    dim: int,
+    dev: dict,
+    name: str,
+    accel: str,
+    count_visits: bool = False,
+    suffix: str = "",
+    ray_type: str | None = None,
 ):
-    """The ``{name}_bvh{suffix}`` or ``{name}_brute`` kernel and its leading scene arguments."""
-    kernels = _kernels(runtime, dim, dev["lanes"], count_visits)
+    """The ``{name}_bvh{suffix}`` or ``{name}_brute`` kernel and its leading scene arguments
+    (``ray_type``: the build of the ``cast_rows_*`` kernels for rows of that C type)."""
+    kernels = _kernels(runtime, dim, dev["lanes"], count_visits, ray_type)
     if accel == "bvh":
         return kernels[f"{name}_bvh{suffix}"], [dev["boxes"], dev["children"], dev["blocks"]]
     return kernels[f"{name}_brute"], [dev["blocks"], dev["n_blocks"]]
@@ -772,13 +850,13 @@ def trace(
     simplex[rows] = tree.prim[p]
     # the hit rays as they are now (the caller may change the arrays); mapped when t is read
     o, w = np.take(rays.origins, rows, axis=0), np.take(rays.directions, rows, axis=0)  # faster than [rows]
-    inv_length = rays.inv_length[rows]
+    inv_length = rays.inv_length_of(rows, w)
     return RayHits(
         None,
         simplex,
         None,
         pending=lambda: _refine_hits(
-            tree, n, rows, p, tree.frame.points(o), w.astype(np.float64) * inv_length[:, None]
+            tree, n, rows, p, tree.frame.points(o), w.astype(np.float64) * inv_length()[:, None]
         ),
     )
 
@@ -791,6 +869,19 @@ def _float_rows(value: Any, name: str, d: int) -> np.ndarray:
 
 
 _ROW_BLOCK = 1 << 14  # rows per step of the host's ray mapping: its float64 temporaries stay in L2
+
+
+def _inverse_lengths(directions: np.ndarray) -> np.ndarray:
+    """``1 / sqrt(w0^2 + w1^2 + ...)`` per row in float64, the squares summed in column order
+    (the order ``map_ray`` in kernels/ao.cl follows); ``inf`` for a zero-length row."""
+    square = directions.astype(np.float64)
+    square *= square
+    length2 = square[:, 0].copy()
+    for k in range(1, square.shape[1]):  # column by column: the same bits as one column at a time
+        length2 += square[:, k]
+    np.sqrt(length2, out=length2)
+    with np.errstate(divide="ignore"):
+        return np.divide(1.0, length2, out=length2)
 
 
 class _Rays:
@@ -806,20 +897,35 @@ class _Rays:
     def __init__(self, frame, origins: np.ndarray, directions: np.ndarray) -> None:
         self.frame, self.origins, self.directions = frame, origins, directions
         self.n, self.d = origins.shape
-        self.inv_length = np.empty(self.n)
-        for start in range(0, self.n, _ROW_BLOCK):
-            stop = min(self.n, start + _ROW_BLOCK)
-            square = directions[start:stop].astype(np.float64)
-            square *= square
-            length2 = square[:, 0].copy()
-            for k in range(1, self.d):  # summed in column order: the same bits as one column at a time
-                length2 += square[:, k]
-            self.inv_length[start:stop] = length2
-        bad = np.flatnonzero(~(self.inv_length > 0))
-        if bad.size:
-            raise ValueError(f"`directions` has {bad.size} zero-length row(s), first at index {bad[0]}")
-        np.sqrt(self.inv_length, out=self.inv_length)
-        np.divide(1.0, self.inv_length, out=self.inv_length)
+        self._inv_length: np.ndarray | None = None
+
+    @property
+    def inv_length(self) -> np.ndarray:
+        """(N,) float64 ``1 / |w|`` of every ray, computed on first use (:meth:`check`)."""
+        if self._inv_length is None:
+            inv_length = np.empty(self.n)
+            for start in range(0, self.n, _ROW_BLOCK):
+                stop = min(self.n, start + _ROW_BLOCK)
+                inv_length[start:stop] = _inverse_lengths(self.directions[start:stop])
+            bad = np.flatnonzero(~(inv_length < np.inf))
+            if bad.size:
+                raise ValueError(f"`directions` has {bad.size} zero-length row(s), first at index {bad[0]}")
+            self._inv_length = inv_length
+        return self._inv_length
+
+    def check(self) -> None:
+        """Raise ``ValueError`` naming ``directions`` if a row has zero length."""
+        self.inv_length  # noqa: B018 (computed for its check)
+
+    def inv_length_of(self, rows: np.ndarray, directions: np.ndarray) -> Callable[[], np.ndarray]:
+        """A function giving ``inv_length[rows]`` (``directions``: those rows, as they were when
+        the call began), the same bits: taken now when the whole array is known, else computed
+        from those rows when called (for the kernels that map rays themselves: only when a hit's
+        ``t`` is read)."""
+        if self._inv_length is not None:
+            known = self._inv_length[rows]
+            return lambda: known
+        return lambda: _inverse_lengths(directions)
 
     def chunk(
         self,

@@ -139,6 +139,81 @@ __kernel __attribute__((vec_type_hint(float4))) void cast_brute(__global const f
     t_out[i] = t;
 }
 
+// -- cast_rays' rays as the caller gave them (-D RAY_T=float|double; cl_khr_fp64) -------------
+// Rows of DIM RAY_T values, mapped into the tree's frame here, in double, with the operations
+// and in the order of ao4d.raycast._Rays.chunk on the host, so that the kernels trace the same
+// float32 bits: origins float((o - centre) * scale), directions
+// float(w * (double)float(1 / sqrt(w0^2 + w1^2 + ...))), the squares summed in column order.
+// OpenCL C rounds double +, -, *, /, sqrt and the conversion to float correctly, as numpy does.
+#ifdef RAY_T
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+
+// ray i of origins / directions in the frame (frame[0 .. DIM): centre, frame[DIM]: scale);
+// 0 for a zero-length direction (the host names it), else 1
+inline int map_ray(__global const RAY_T *origins, __global const RAY_T *directions,
+                   __global const double *frame, const size_t i, float4 *o4, float4 *w4)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    double length2 = 0.0;
+    for (int k = 0; k < DIM; ++k) {
+        const double x = directions[i * DIM + k];
+        length2 += x * x;
+    }
+    if (!(length2 > 0.0)) return 0;
+    const double inv_length = (double)(float)(1.0 / sqrt(length2));
+    float o[4] = {0.0f, 0.0f, 0.0f, 0.0f}, w[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+    for (int k = 0; k < DIM; ++k) {
+        o[k] = (float)(((double)origins[i * DIM + k] - frame[k]) * frame[DIM]);
+        w[k] = (float)((double)directions[i * DIM + k] * inv_length);
+    }
+    *o4 = vload4(0, o);
+    *w4 = vload4(0, w);
+    return 1;
+}
+
+#define CAST_ROWS_PARAMS                                                                            \
+    __global const RAY_T *origins, __global const RAY_T *directions,                               \
+    __global const double *frame, const float max_distance, const int any_hit, __global int *hit_out
+
+// cast_bvh on the caller's rows (launch-sized copies of them): hit_out as cast_bvh's, or -2 for a zero-length direction
+__kernel __attribute__((vec_type_hint(float4))) void cast_rows_bvh(
+    __global const floatW *boxes, __global const int *children, __global const floatL *blocks,
+    CAST_ROWS_PARAMS)
+{
+    const size_t i = get_global_id(0);
+    VISITS_DECL
+    float4 o, w;
+    float t;
+    hit_out[i] = map_ray(origins, directions, frame, i, &o, &w)
+                     ? trace_bvh(boxes, children, blocks, o, w, max_distance, any_hit, &t VISITS_ARG)
+                     : -2;
+}
+
+// cast_brute on the caller's rows (as cast_rows_bvh)
+__kernel __attribute__((vec_type_hint(float4))) void cast_rows_brute(
+    __global const floatL *blocks, const int n_blocks, CAST_ROWS_PARAMS)
+{
+    const size_t i = get_global_id(0);
+    float4 o, w;
+    float t;
+    hit_out[i] = map_ray(origins, directions, frame, i, &o, &w)
+                     ? trace_brute(blocks, n_blocks, o, w, max_distance, any_hit, &t)
+                     : -2;
+}
+
+// the float4 rays cast_rows_bvh traces (for tests: the bits of _Rays.chunk); w = 0 for a
+// zero-length direction
+__kernel void map_rays(__global const RAY_T *origins, __global const RAY_T *directions,
+                       __global const double *frame, __global float4 *o_out, __global float4 *w_out)
+{
+    const size_t i = get_global_id(0);
+    float4 o = (float4)(0.0f), w = (float4)(0.0f);
+    map_ray(origins, directions, frame, i, &o, &w);
+    o_out[i] = o;
+    w_out[i] = w;
+}
+#endif
+
 // the parameters of the two direction kernels below (tests call them alike)
 #define DIRECTIONS_PARAMS                                                                           \
     __global const float4 *normals, __global const uint *index, __global const uint *table,        \

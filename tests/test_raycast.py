@@ -500,9 +500,9 @@ def test_ao_uses_the_packet_kernel_on_cpus(cl_runtime, monkeypatch):
     used = []
     real = raycast._traversal_kernel
 
-    def spy(runtime, dim, dev, name, accel, count_visits=False, suffix=""):
+    def spy(runtime, dim, dev, name, accel, count_visits=False, suffix="", ray_type=None):
         used.append(suffix)
-        return real(runtime, dim, dev, name, accel, count_visits, suffix)
+        return real(runtime, dim, dev, name, accel, count_visits, suffix, ray_type)
 
     monkeypatch.setattr(raycast, "_traversal_kernel", spy)
     rng = np.random.default_rng(1800)
@@ -572,6 +572,80 @@ def test_ray_mapping_gives_the_plain_formulas_bits(d, in_dtype, shift, monkeypat
             for a, b in zip(got, want):
                 assert a.dtype == dtype
                 np.testing.assert_array_equal(a.view(np.uint8), b.view(np.uint8))
+
+
+def _device_mapping(runtime, frame, origins, directions, ray_type):
+    """The float4 rays the cast_rows_* kernels trace for these rows (the map_rays kernel)."""
+    import pyopencl as pcl
+
+    n, d = origins.shape
+    ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
+    real = np.float32 if ray_type == "float" else np.float64
+    ins = [pcl.Buffer(runtime.context, ro, hostbuf=np.ascontiguousarray(a, dtype=real)) for a in (origins, directions)]
+    frame_buf = pcl.Buffer(runtime.context, ro, hostbuf=np.append(frame.centre, frame.scale).astype(np.float64))
+    out = [np.empty((n, 4), dtype=np.float32) for _ in range(2)]
+    bufs = [pcl.Buffer(runtime.context, pcl.mem_flags.WRITE_ONLY, a.nbytes) for a in out]
+    kernel = raycast._kernels(runtime, d, bvh.block_lanes(runtime), ray_type=ray_type)["map_rays"]
+    kernel(runtime.queue, (n,), None, *ins, frame_buf, *bufs)
+    for a, b in zip(out, bufs):
+        pcl.enqueue_copy(runtime.queue, a, b)
+    return out
+
+
+def _needs_fp64(runtime):
+    if "cl_khr_fp64" not in runtime.device.extensions:
+        pytest.skip("the device maps rays itself only with cl_khr_fp64")
+
+
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("in_dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shift", [0.0, 1e6, -3e9])
+def test_device_ray_mapping_gives_the_hosts_bits(d, in_dtype, shift, cl_runtime):
+    # the cast_rows_* kernels map the caller's rows in double: the same float32 bits as the host's
+    # mapping, for directions short and long and origins far out, next to the frame's centre
+    # (subnormal results) and on it
+    _needs_fp64(cl_runtime)
+    rng = np.random.default_rng(3100 + d)
+    n = 3000
+    origins = rng.normal(size=(n, d)) * 3 + shift
+    # lengths from 1e-30 to 1e30: float32 holds their inverses (both mappings round 1 / |w| to it)
+    directions = rng.normal(size=(n, d)) * np.exp(rng.uniform(np.log(1e-30), np.log(1e30), (n, 1)))
+    directions[:50, 1:] = 0.0  # axis-aligned
+    frame = bvh.Frame.fit(origins[:50] * 0.5 + shift * 0.5)
+    origins[50:60] = frame.centre  # exactly on the centre: zeros
+    origins[60:70] = frame.centre + rng.normal(size=(10, d)) * 1e-39 / frame.scale  # subnormal float32
+    origins, directions = origins.astype(in_dtype), directions.astype(in_dtype)
+    want = _reference_chunk(frame, origins, directions, np.float32, 4)
+    for ray_type in ("float", "double") if in_dtype == np.float32 else ("double",):
+        got = _device_mapping(cl_runtime, frame, origins, directions, ray_type)
+        for a, b in zip(got, want):
+            np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))
+
+
+@pytest.mark.parametrize("d", (3, 4))
+def test_rays_mapped_on_the_device_or_the_host_hit_alike(d, cl_runtime, monkeypatch):
+    # the same answers through the cast_rows_* kernels and through the host's mapping (the path
+    # of devices without fp64), over several launches, float32, float64 and mixed rows; a
+    # zero-length direction in a later launch is named as on the host
+    _needs_fp64(cl_runtime)
+    mesh, o, w = _shifted_soup(3200 + d, d, 500.0)
+    monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 600)
+    for oo, ww in ((o, w), (o.astype(np.float32), w.astype(np.float32)), (o.astype(np.float32), w)):
+        got = {}
+        for on_device in (True, False):
+            monkeypatch.setattr(raycast, "MAP_ON_DEVICE", on_device)
+            for closest in (False, True):
+                hits = raycast.cast_rays(mesh, oo, ww, closest=closest, backend="opencl", max_distance=3.0)
+                got[on_device, closest] = (hits.simplex, hits.t, hits.barycentric)
+        for closest in (False, True):
+            for a, b in zip(got[True, closest], got[False, closest]):
+                np.testing.assert_array_equal(a, b)
+        assert (got[True, True][0] >= 0).mean() > 0.03  # 90 hits of 3000 rays at least
+    monkeypatch.setattr(raycast, "MAP_ON_DEVICE", True)
+    bad = w.copy()
+    bad[[1500, 1700]] = 0.0
+    with pytest.raises(ValueError, match=r"`directions` has 2 zero-length row\(s\), first at index 1500"):
+        raycast.cast_rays(mesh, o, bad, backend="opencl")
 
 
 @pytest.mark.parametrize("d", (3, 4))
