@@ -30,7 +30,6 @@ others' private helpers.
 from __future__ import annotations
 
 import math
-import threading
 from typing import Any, Callable
 
 import numpy as np
@@ -41,6 +40,7 @@ from ._validate import as_array, as_real, check_bool, check_choice, check_memory
 from .bvh import BUILDERS, get_bvh
 from .mesh import as_mesh
 from .opencl import cl
+from .opencl.pool import BufferPool
 from .sampling import cosine_hemisphere, sobol_table
 
 __all__ = [
@@ -307,7 +307,9 @@ def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar):
     both32 = rays.origins.dtype == rays.directions.dtype == np.float32
     real = np.float32 if both32 else np.float64
     origins, directions = (np.ascontiguousarray(a, dtype=real) for a in (rays.origins, rays.directions))
-    kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast_rows", accel, ray_type="float" if both32 else "double")
+    kernel, head = _traversal_kernel(
+        runtime, tree.dim, dev, "cast_rows", accel, ray_type="float" if both32 else "double"
+    )
     frame = np.append(np.asarray(rays.frame.centre, dtype=np.float64), np.float64(rays.frame.scale))
     buf_frame = pcl.Buffer(runtime.context, pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR, hostbuf=frame)
     row = rays.d * np.dtype(real).itemsize
@@ -334,8 +336,8 @@ def _launches(runtime, n: int, widths: tuple[int, ...], fill, launch, bar, check
     """Trace ``n`` rays in launches of at most ``RAYS_PER_LAUNCH``: the kernels' int32 answers.
 
     A launch uses one set of buffers of ``widths`` bytes per ray (the rays in the first two, the
-    answers in the last; kept between calls: :func:`_launch_buffers`). Two sets take turns
-    when there is more than one launch: ``fill(feed, buffers, start, stop, wait)`` enqueues a
+    answers in the last; kept between calls in ``_launch_pool``). Two sets take turns when
+    there is more than one launch: ``fill(feed, buffers, start, stop, wait)`` enqueues a
     launch's rays on a second queue (after the ``wait`` events: the set's last launch) while the
     device traces the previous launch, and returns the events that complete them;
     ``launch(buffers, count, written)`` enqueues the kernel after those. ``check(answers)``, when
@@ -351,73 +353,41 @@ def _launches(runtime, n: int, widths: tuple[int, ...], fill, launch, bar, check
     )
     ctx, queue = runtime.context, runtime.queue
     feed = pcl.CommandQueue(ctx, runtime.device) if sets > 1 else queue  # fills while a launch runs
-    capacity, kept_widths, buffers = _launch_buffers(ctx, size, sets, widths)
-    hit = np.empty(n, dtype=np.int32)
-    free: list[Any] = [None] * sets  # per set: the event after which its last launch is done with it
-    traced: list[tuple[Any, int, int]] = []  # (the read of a launch's answers, its rays) for the bar
-    try:
-        for index, start in enumerate(range(0, n, RAYS_PER_LAUNCH)):
-            stop = min(n, start + RAYS_PER_LAUNCH)
-            bufs = buffers[index % sets]
-            wait = None if free[index % sets] is None else [free[index % sets]]
-            written = fill(feed, bufs, start, stop, wait)
-            feed.flush()
-            launch(bufs, stop - start, written)
-            read = pcl.enqueue_copy(queue, hit[start:stop], bufs[-1], is_blocking=False)
-            queue.flush()
-            free[index % sets] = read
-            traced.append((read, start, stop))
-            while len(traced) > 1 or (traced and stop == n):  # the bar follows the finished launches
-                event, a, b = traced.pop(0)
-                event.wait()
-                if check is not None:
-                    check(hit[a:b])
-                bar.update(b - a)
-    finally:
-        queue.finish()
-        if feed is not queue:
-            feed.finish()
-        _keep_launch_buffers(ctx, capacity, kept_widths, buffers)
+    with _launch_pool.take(ctx) as pooled:
+        buffers = [[pooled.get(f"set {i} buffer {k}", size * w) for k, w in enumerate(widths)] for i in range(sets)]
+        hit = np.empty(n, dtype=np.int32)
+        free: list[Any] = [None] * sets  # per set: the event after which its last launch is done with it
+        traced: list[tuple[Any, int, int]] = []  # (the read of a launch's answers, its rays) for the bar
+        try:
+            for index, start in enumerate(range(0, n, RAYS_PER_LAUNCH)):
+                stop = min(n, start + RAYS_PER_LAUNCH)
+                bufs = buffers[index % sets]
+                wait = None if free[index % sets] is None else [free[index % sets]]
+                written = fill(feed, bufs, start, stop, wait)
+                feed.flush()
+                launch(bufs, stop - start, written)
+                read = pcl.enqueue_copy(queue, hit[start:stop], bufs[-1], is_blocking=False)
+                queue.flush()
+                free[index % sets] = read
+                traced.append((read, start, stop))
+                while len(traced) > 1 or (traced and stop == n):  # the bar follows the finished launches
+                    event, a, b = traced.pop(0)
+                    event.wait()
+                    if check is not None:
+                        check(hit[a:b])
+                    bar.update(b - a)
+        finally:
+            queue.finish()
+            if feed is not queue:
+                feed.finish()
     return hit
 
 
 # One call's launch buffers (up to two sets of rays in and answers out, 24-80 bytes per ray of a
-# launch), kept for the next call on the same context: fresh ones cost a page fault per page on
-# first touch (a fresh 32 MiB buffer took 13 ms to write once and 1.2 ms after that on a 2-core
-# VM: about 65 ms of a 1 s call of 10 M rays, estimated). A call takes them out and puts them
-# back, so concurrent calls never share them; release_buffers() drops them.
-# id(context) -> (the context, kept so that its id is not reused; rays per launch; bytes per ray
-# of each buffer of a set; the sets)
-_launch_pool: dict[int, tuple[Any, int, tuple[int, ...], list[list[Any]]]] = {}
-_launch_lock = threading.Lock()
-
-
-def _launch_buffers(ctx, size: int, sets: int, widths: tuple[int, ...]) -> tuple[int, tuple[int, ...], list[list[Any]]]:
-    """At least ``sets`` sets of launch buffers for at least ``size`` rays each, one buffer of at
-    least ``widths[k]`` bytes per ray for each k, from the pool when large enough: (rays they
-    hold, their bytes per ray, the sets)."""
-    import pyopencl as pcl
-
-    with _launch_lock:
-        kept = _launch_pool.pop(id(ctx), None)
-    if (
-        kept is not None
-        and kept[1] >= size
-        and len(kept[3]) >= sets
-        and len(kept[2]) == len(widths)
-        and all(have >= want for have, want in zip(kept[2], widths))
-    ):
-        return kept[1], kept[2], kept[3]
-    del kept  # freed before the new ones are allocated
-    return size, widths, [[pcl.Buffer(ctx, pcl.mem_flags.READ_WRITE, size * w) for w in widths] for _ in range(sets)]
-
-
-def _keep_launch_buffers(ctx, size: int, widths: tuple[int, ...], buffers: list[list[Any]]) -> None:
-    """Put a call's launch buffers (``size`` rays each) back in the pool (the larger wins)."""
-    with _launch_lock:
-        kept = _launch_pool.get(id(ctx))
-        if kept is None or (size * sum(widths), len(buffers)) >= (kept[1] * sum(kept[2]), len(kept[3])):
-            _launch_pool[id(ctx)] = (ctx, size, widths, buffers)
+# launch), kept for the next call on the same context (ao4d.opencl.pool: a fresh buffer costs a
+# page fault per page on its first write, about 65 ms of a 1 s call of 10 M rays, estimated
+# from 13 ms per fresh 32 MiB buffer on a 2-core VM); release_buffers() drops them.
+_launch_pool = BufferPool()
 
 
 def release_buffers() -> None:
@@ -428,8 +398,7 @@ def release_buffers() -> None:
     >>> from ao4d import raycast
     >>> raycast.release_buffers()
     """
-    with _launch_lock:
-        _launch_pool.clear()
+    _launch_pool.clear()
 
 
 def _tree_order(dev: dict, hit: np.ndarray) -> np.ndarray:

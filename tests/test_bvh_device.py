@@ -279,6 +279,37 @@ def test_single_precision_devices(d, cl_runtime, monkeypatch):
     assert np.mean(a == b) >= 0.97 and np.nanmax(np.abs(a - b)) <= 2 / 32
 
 
+@pytest.mark.parametrize("d", (3, 4))
+def test_kept_build_scratch_gives_the_trees_of_fresh_buffers(d, cl_runtime):
+    """Builds keep their scratch for the next build (ao4d.opencl.pool): a small mesh built after
+    a large one (its records, bins and nodes left in the buffers), and meshes built by four
+    threads at once, give the trees of builds on fresh buffers."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    rng = np.random.default_rng(2150 + d)
+    meshes = [soup_scene(rng, d, n=n) for n in (3000, 200, 1200)]
+
+    def tree_of(mesh):
+        t = device.build(mesh.vertices, mesh.simplices, runtime=cl_runtime)
+        return t.meta, t.lo, t.hi, t.prim
+
+    fresh = []
+    for mesh in meshes:
+        device.release_buffers()
+        fresh.append(tree_of(mesh))
+    assert device._scratch.nbytes() > 0  # the last build kept its scratch
+    for mesh, want in zip(meshes, fresh):  # large, small, middle: each reuses the last's
+        for a, b in zip(tree_of(mesh), want):
+            np.testing.assert_array_equal(a, b)
+    with ThreadPoolExecutor(4) as pool:
+        got = list(pool.map(tree_of, meshes * 4))
+    for tree, want in zip(got, fresh * 4):
+        for a, b in zip(tree, want):
+            np.testing.assert_array_equal(a, b)
+    device.release_buffers()
+    assert device._scratch.nbytes() == 0
+
+
 def test_build_copies_are_freed_once_the_traversed_tree_exists(cl_runtime):
     # the build's device copies of the mesh (1.4 GB at 55 M tets) stayed for the mesh's lifetime
     rng = np.random.default_rng(2100)

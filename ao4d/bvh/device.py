@@ -44,15 +44,32 @@ import numpy as np
 
 from .._validate import check_positive_int
 from ..opencl import cl
+from ..opencl.pool import BufferPool
 from . import host
 from .blocks import device_wide_tree, release_source
 from .layout import _BOX_FMA_MARGIN, _BOX_MARGIN, BARY_EPS, BVH
 
-__all__ = ["build", "DeviceBVH"]
+__all__ = ["build", "DeviceBVH", "release_buffers"]
 
 _SCAN_CHUNK = 4096  # simplices per work-item of the per-simplex passes
 _BINS = 32  # kernels' MAX_BINS
 _SUBTREE_MAX = 1 << 15  # largest subtree one work-item builds (its stack holds 40 + 16 levels)
+
+# The build's scratch (records, node arrays, bins: about 190 bytes per simplex), kept for the
+# next build on the context: a 1.2 M-tetrahedron build faulted in 330 MB of fresh pages and spent
+# 0.7 s of system time on it, as much as its own work (ao4d.opencl.pool).
+_scratch = BufferPool()
+
+
+def release_buffers() -> None:
+    """Drop the scratch buffers :func:`build` keeps between builds (device memory).
+
+    Examples
+    --------
+    >>> from ao4d.bvh import device
+    >>> device.release_buffers()
+    """
+    _scratch.clear()
 
 
 class _LazyFrames:
@@ -230,14 +247,16 @@ def build(
             "the BVH build": n * (2 * 52 + 2 * 40 + 6 + 4 * (d + 1) * d + 8 * d * d) + vertices.nbytes,
         },
     )
-    job = _Job(runtime, vertices, simplices)
-    scan = _scan(job)
-    nodes = _Nodes(job, scan.n_prims)
-    c_lo, c_hi = _records(job, scan, nodes)
-    subtree_size, chunk_size = _sizes(scan.n_prims, int(runtime.device.max_compute_units), subtree, chunk)
-    subtree_size = max(subtree_size, 2 * leaf_size)
-    big, tasks = _split_large_nodes(job, nodes, scan.n_prims, c_lo, c_hi, subtree_size, chunk_size)
-    meta, lo, hi, order = _build_subtrees(job, nodes, tasks, big, leaf_size, scan.n_prims)
+    with _scratch.take(runtime.context) as pooled:
+        job = _Job(runtime, vertices, simplices, pooled)
+        scan = _scan(job)
+        nodes = _Nodes(job, scan.n_prims)
+        c_lo, c_hi = _records(job, scan, nodes)
+        subtree_size, chunk_size = _sizes(scan.n_prims, int(runtime.device.max_compute_units), subtree, chunk)
+        subtree_size = max(subtree_size, 2 * leaf_size)
+        big, tasks = _split_large_nodes(job, nodes, scan.n_prims, c_lo, c_hi, subtree_size, chunk_size)
+        meta, lo, hi, order = _build_subtrees(job, nodes, tasks, big, leaf_size, scan.n_prims)
+        job.queue.finish()  # no kernel uses the scratch any more
     meta, lo, hi, depth = _breadth_first(meta, lo, hi)
     lo[:, d:] = 0.0
     hi[:, d:] = 0.0
@@ -284,10 +303,11 @@ def _check_build_options(subtree, chunk, runtime, leaf_size: int):
 class _Job:
     """One build's device, kernels and mesh buffers (float64 where the device has doubles)."""
 
-    def __init__(self, runtime, vertices: np.ndarray, simplices: np.ndarray) -> None:
+    def __init__(self, runtime, vertices: np.ndarray, simplices: np.ndarray, pooled=None) -> None:
         import pyopencl as cl_
 
         self.cl = cl_
+        self.pooled = pooled  # the kept scratch (ao4d.opencl.pool.Taken) or None
         self.d, self.n = vertices.shape[1], len(simplices)
         use_double = _has_double(runtime.device)
         self.real = np.float64 if use_double else np.float32
@@ -304,8 +324,12 @@ class _Job:
         """A read-only device copy of ``array``."""
         return self.cl.Buffer(self.ctx, self.mf.READ_ONLY | self.mf.COPY_HOST_PTR, hostbuf=array)
 
-    def scratch(self, nbytes: int, flags=None):
-        """A device buffer of ``nbytes`` (read-write unless ``flags`` say otherwise)."""
+    def scratch(self, nbytes: int, flags=None, *, kept: str | None = None):
+        """A device buffer of ``nbytes`` (read-write unless ``flags`` say otherwise); with a
+        name ``kept``, the build's kept scratch of that name (read-write, old contents: the
+        kernels write it before they read it)."""
+        if kept is not None and self.pooled is not None:
+            return self.pooled.get(kept, nbytes)
         return self.cl.Buffer(self.ctx, self.mf.READ_WRITE if flags is None else flags, max(int(nbytes), 1))
 
     def read(self, *pairs) -> None:
@@ -337,7 +361,7 @@ def _scan(job: _Job) -> _Scan:
     part_abs = np.empty(n_chunks, dtype=real)
     host = (kept, part_lo, part_hi, part_abs)
     bufs = [job.scratch(a.nbytes, job.mf.WRITE_ONLY) for a in host]
-    keep = job.scratch(n) if job.keep is None else job.input(job.keep)
+    keep = job.scratch(n, kept="keep") if job.keep is None else job.input(job.keep)
     job.k["scan_simplices"](
         job.queue, (n_chunks,), None, job.vertices, job.simplices, np.int32(n), np.int32(_SCAN_CHUNK), keep, *bufs
     )
@@ -358,12 +382,13 @@ class _Nodes:
     """The records (two buffers, ping-pong), node arrays (at most 2 P nodes) and the order."""
 
     def __init__(self, job: _Job, n_prims: int) -> None:
-        self.rec = [job.scratch(48 * n_prims) for _ in range(2)]
-        self.ids = [job.scratch(4 * n_prims) for _ in range(2)]
-        self.bin_of = job.scratch(n_prims)
+        self.rec = [job.scratch(48 * n_prims, kept=f"records {k}") for k in range(2)]
+        self.ids = [job.scratch(4 * n_prims, kept=f"ids {k}") for k in range(2)]
+        self.bin_of = job.scratch(n_prims, kept="bin of")
         cap = 2 * n_prims
-        self.meta, self.lo, self.hi = job.scratch(8 * cap), job.scratch(16 * cap), job.scratch(16 * cap)
-        self.order = job.scratch(4 * n_prims)
+        self.meta = job.scratch(8 * cap, kept="meta")
+        self.lo, self.hi = job.scratch(16 * cap, kept="lo"), job.scratch(16 * cap, kept="hi")
+        self.order = job.scratch(4 * n_prims)  # not kept: the tree's device_source holds it
 
 
 def _records(job: _Job, scan: _Scan, nodes: _Nodes) -> tuple[np.ndarray, np.ndarray]:
@@ -452,7 +477,8 @@ def _split_level(job: _Job, nodes: _Nodes, level_nodes: np.ndarray, level_c: np.
     n_ch = int(first[-1])
     b_chunk, b_node_i, b_node_f = job.input(chunk_i), job.input(node_i), job.input(node_f)
     b_node_c, b_first = job.input(np.ascontiguousarray(level_c)), job.input(first)
-    b_pn, b_pb, b_off = job.scratch(4 * _BINS * n_ch), job.scratch(64 * _BINS * n_ch), job.scratch(8 * n_ch)
+    b_pn, b_pb = job.scratch(4 * _BINS * n_ch, kept="bin counts"), job.scratch(64 * _BINS * n_ch, kept="bin boxes")
+    b_off = job.scratch(8 * n_ch, kept="chunk offsets")
     res_i = np.empty((m, 4), dtype=np.int32)
     res_f = np.empty((m, 6, 4), dtype=np.float32)
     b_ri, b_rf = job.scratch(res_i.nbytes), job.scratch(res_f.nbytes, job.mf.WRITE_ONLY)

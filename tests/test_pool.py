@@ -1,0 +1,63 @@
+"""ao4d.opencl.pool: device buffers kept between calls, one set per context."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from ao4d.opencl.pool import BufferPool
+
+
+def test_buffers_are_kept_grown_and_never_shared(cl_runtime):
+    import pyopencl as pcl
+
+    ctx = cl_runtime.context
+    pool = BufferPool()
+    with pool.take(ctx) as bufs:
+        a = bufs.get("a", 1000)
+        assert a.size >= 1000
+        assert bufs.get("a", 900) is a  # large enough: the same buffer
+        b = bufs.get("b", 10)
+    assert pool.nbytes() == a.size + b.size
+    with pool.take(ctx) as bufs:
+        assert bufs.get("a", 1000) is a  # kept for the next call
+        # a call that holds them leaves none for a concurrent one
+        with pool.take(ctx) as other:
+            assert other.get("a", 1000) is not a
+        grown = bufs.get("a", 5000)  # too small now: replaced by a larger one
+        assert grown is not a and grown.size >= 5000
+    # the set holding more bytes is the one kept
+    with pool.take(ctx) as bufs:
+        assert bufs.get("a", 10) is grown
+    # a kept buffer works as any other
+    data = np.arange(100, dtype=np.float32)
+    with pool.take(ctx) as bufs:
+        buf = bufs.get("a", data.nbytes)
+        pcl.enqueue_copy(cl_runtime.queue, buf, data)
+        back = np.empty_like(data)
+        pcl.enqueue_copy(cl_runtime.queue, back, buf)
+    np.testing.assert_array_equal(back, data)
+    pool.clear()
+    assert pool.nbytes() == 0
+
+
+def test_calls_that_overlap_in_time_never_share_a_buffer(cl_runtime):
+    import threading
+
+    ctx = cl_runtime.context
+    pool = BufferPool()
+    with pool.take(ctx) as bufs:
+        bufs.get("x", 64)  # one set kept before the threads start
+    held = threading.Barrier(4)
+
+    def call(_):
+        with pool.take(ctx) as bufs:
+            buf = bufs.get("x", 64)
+            held.wait(timeout=30)  # all four hold their buffers at once
+            return buf.int_ptr
+
+    with ThreadPoolExecutor(4) as ex:
+        pointers = list(ex.map(call, range(4)))
+    assert len(set(pointers)) == 4
+    assert pool.nbytes() > 0
