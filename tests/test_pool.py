@@ -61,3 +61,14 @@ def test_calls_that_overlap_in_time_never_share_a_buffer(cl_runtime):
         pointers = list(ex.map(call, range(4)))
     assert len(set(pointers)) == 4
     assert pool.nbytes() > 0
+
+
+def test_sets_above_max_bytes_are_not_kept(cl_runtime):
+    ctx = cl_runtime.context
+    pool = BufferPool(max_bytes=4096)
+    with pool.take(ctx) as bufs:
+        small = bufs.get("a", 1000)
+    assert pool.nbytes() == small.size
+    with pool.take(ctx) as bufs:
+        bufs.get("a", 100_000)  # grows past the limit: dropped when given back
+    assert pool.nbytes() == 0

@@ -57,8 +57,9 @@ _SUBTREE_MAX = 1 << 15  # largest subtree one work-item builds (its stack holds 
 
 # The build's scratch (records, node arrays, bins: about 190 bytes per simplex), kept for the
 # next build on the context: a 1.2 M-tetrahedron build faulted in 330 MB of fresh pages and spent
-# 0.7 s of system time on it, as much as its own work (ao4d.opencl.pool).
-_scratch = BufferPool()
+# 0.7 s of system time on it, as much as its own work (ao4d.opencl.pool). Up to 1 GiB (builds
+# of up to about 5 M simplices): a 55 M-tet build's 10 GB are not held while its AO is traced.
+_scratch = BufferPool(max_bytes=1 << 30)
 
 
 def release_buffers() -> None:

@@ -6,7 +6,8 @@ project's 2-core VM a fresh 32 MiB buffer took 13 ms to write once and 1.2 ms af
 Work that runs again and again in one process (``cast_rays`` launches, BVH builds for every item
 of a dataset) therefore keeps its scratch here. A call takes the whole set of one context out,
 so concurrent calls never share buffers (the second one allocates its own), and puts it back
-when done; the set holding more bytes is the one kept. :meth:`BufferPool.clear` drops them.
+when done; the set holding more bytes is the one kept, up to the pool's ``max_bytes``.
+:meth:`BufferPool.clear` drops them.
 """
 
 from __future__ import annotations
@@ -46,6 +47,11 @@ class Taken:
 class BufferPool:
     """Named device buffers per OpenCL context, kept between calls.
 
+    Parameters
+    ----------
+    max_bytes : int, optional
+        Keep no set of more bytes than this (the memory a pool may hold while its owner is idle).
+
     Examples
     --------
     >>> pool = BufferPool()
@@ -53,7 +59,9 @@ class BufferPool:
     ...     scratch = bufs.get("records", 48 * n)
     """
 
-    def __init__(self) -> None:
+    def __init__(self, max_bytes: int | None = None) -> None:
+        #: a set holding more bytes than this is dropped when given back, not kept
+        self.max_bytes = max_bytes
         # id(context) -> (the context, kept so that its id is not reused; name -> buffer)
         self._kept: dict[int, tuple[Any, dict[str, Any]]] = {}
         self._lock = threading.Lock()
@@ -76,6 +84,8 @@ class BufferPool:
         return Taken(self, ctx, {} if kept is None else kept[1])
 
     def _give(self, ctx: Any, buffers: dict[str, Any]) -> None:
+        if self.max_bytes is not None and _nbytes(buffers) > self.max_bytes:
+            return  # too large to hold on to between calls
         with self._lock:
             kept = self._kept.get(id(ctx))
             if kept is None or _nbytes(buffers) >= _nbytes(kept[1]):
