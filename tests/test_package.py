@@ -254,11 +254,16 @@ def test_moved_modules_have_no_files_at_their_old_paths():
         assert new.partition(".")[0] in ao4d._MODULES, new  # moved into a reachable subpackage
 
 
+# modules made inside the subpackages after the move: they never had a top-level path
+_BORN_INSIDE = {"ao4d.opencl.pool"}
+
+
 def test_every_module_of_the_issues_subpackages_keeps_its_old_path():
     moved = {f"ao4d.{new}" for new in ao4d._MOVED.values()}
+    assert not moved & _BORN_INSIDE
     for package in ("ao4d.marching", "ao4d.browser", "ao4d.opencl"):
         inside = {m for m in MODULES if m.startswith(package + ".") and not m.endswith(".__init__")}
-        assert inside <= moved, sorted(inside - moved)
+        assert inside <= moved | _BORN_INSIDE, sorted(inside - moved - _BORN_INSIDE)
 
 
 _OLD_PATHS = """
