@@ -87,6 +87,31 @@ def main() -> int:
                 np.array_equal(fast.hit, slow.hit) and (not closest or np.array_equal(fast.t, slow.t)),
             )
             check(f"{d}D cast closest={closest}: near numpy", np.mean(fast.hit == ref.hit) >= 0.95)
+            # the other ray mapping (cast_rows_* map on fp64 devices, cast_* take the host's rays)
+            raycast.MAP_ON_DEVICE = not raycast.MAP_ON_DEVICE
+            for accel, want in (("bvh", fast), ("brute", slow)):
+                other = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel=accel)
+                check(
+                    f"{d}D cast closest={closest} {accel}: both ray mappings hit alike",
+                    np.array_equal(other.simplex, want.simplex),
+                )
+            raycast.MAP_ON_DEVICE = not raycast.MAP_ON_DEVICE
+        if "cl_khr_fp64" in runtime.device.extensions:  # the device's ray mapping: the host's bits
+            frame = bvh.Frame.fit(mesh.vertices)
+            ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
+            ins = [pcl.Buffer(runtime.context, ro, hostbuf=np.ascontiguousarray(a)) for a in (o, w)]
+            frame_buf = pcl.Buffer(runtime.context, ro, hostbuf=np.append(frame.centre, frame.scale).astype(np.float64))
+            got = [np.empty((len(o), 4), dtype=np.float32) for _ in range(2)]
+            outs = [pcl.Buffer(runtime.context, pcl.mem_flags.WRITE_ONLY, a.nbytes) for a in got]
+            kernels = raycast._kernels(runtime, d, bvh.block_lanes(runtime), ray_type="double")
+            kernels["map_rays"](runtime.queue, (len(o),), None, *ins, frame_buf, *outs)
+            for a, b in zip(got, outs):
+                pcl.enqueue_copy(runtime.queue, a, b)
+            want = raycast._Rays(frame, o, w).chunk(0, len(o), np.float32, 4)
+            check(
+                f"{d}D map_rays: the host's bits",
+                all(np.array_equal(a.view(np.uint32), b.view(np.uint32)) for a, b in zip(got, want)),
+            )
         p, n = o[:6], w[:6] / np.linalg.norm(w[:6], axis=1, keepdims=True)
         a = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=8, backend="opencl")
         b = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=8, backend="opencl", accel="brute")
