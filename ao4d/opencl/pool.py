@@ -19,15 +19,40 @@ __all__ = ["BufferPool", "Taken"]
 
 
 class Taken:
-    """One call's buffers from a :class:`BufferPool`, by name (see :meth:`BufferPool.take`)."""
+    """One call's buffers from a :class:`BufferPool`, by name (see :meth:`BufferPool.take`).
+
+    Parameters
+    ----------
+    pool : BufferPool
+        The pool they go back to.
+    ctx : pyopencl.Context
+        Their context.
+    kept : dict of str to pyopencl.Buffer
+        The buffers taken out of the pool (empty when it held none).
+    """
 
     def __init__(self, pool: BufferPool, ctx: Any, kept: dict[str, Any]) -> None:
         self._pool, self._ctx, self._buffers = pool, ctx, kept
 
     def get(self, name: str, nbytes: int) -> Any:
-        """A read-write buffer of at least ``nbytes`` under ``name``: the kept one when large
-        enough, else a new one a quarter larger (so that slowly growing calls reallocate
-        seldom). Its contents are whatever an earlier call left: write before reading."""
+        """A read-write buffer of at least ``nbytes`` under ``name``.
+
+        The kept one when large enough, else a new one a quarter larger (so that slowly
+        growing calls reallocate seldom). Its contents are whatever an earlier call left:
+        write before reading.
+
+        Parameters
+        ----------
+        name : str
+            The buffer's name within the call.
+        nbytes : int
+            Bytes it must hold.
+
+        Returns
+        -------
+        pyopencl.Buffer
+            The buffer.
+        """
         import pyopencl as pcl
 
         nbytes = max(int(nbytes), 1)
@@ -60,8 +85,7 @@ class BufferPool:
     """
 
     def __init__(self, max_bytes: int | None = None) -> None:
-        #: a set holding more bytes than this is dropped when given back, not kept
-        self.max_bytes = max_bytes
+        self.max_bytes = max_bytes  # a larger set is dropped when given back, not kept
         # id(context) -> (the context, kept so that its id is not reused; name -> buffer)
         self._kept: dict[int, tuple[Any, dict[str, Any]]] = {}
         self._lock = threading.Lock()
@@ -97,7 +121,13 @@ class BufferPool:
             self._kept.clear()
 
     def nbytes(self) -> int:
-        """Bytes of device memory the pool keeps."""
+        """Bytes of device memory the pool keeps.
+
+        Returns
+        -------
+        int
+            The sizes of every kept buffer, summed.
+        """
         with self._lock:
             return sum(_nbytes(b) for _, b in self._kept.values())
 
