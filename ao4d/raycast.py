@@ -243,11 +243,13 @@ def _morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
     return np.argsort(code, kind="stable")
 
 
-def _kernels(runtime, dim: int, lanes: int, count_visits: bool = False, ray_type: str | None = None) -> dict[str, Any]:
+def _kernels(
+    runtime, dim: int, lanes: int, count_visits: bool = False, ray_type: str | None = None, width: int | None = None
+) -> dict[str, Any]:
     defines = {
         "DIM": dim,
         "BARY_EPS": f"{_bvh.BARY_EPS:.9g}f",
-        "WIDTH": _bvh.WIDTH,
+        "WIDTH": _bvh.node_width(runtime) if width is None else width,  # the trees' (bvh.device_tree)
         "LANES": lanes,
         "STACK_SIZE": _bvh.layout.STACK_SIZE,
         "PACKET": AO_PACKET,
@@ -420,7 +422,7 @@ def _traversal_kernel(
 ):
     """The ``{name}_bvh{suffix}`` or ``{name}_brute`` kernel and its leading scene arguments
     (``ray_type``: the build of the ``cast_rows_*`` kernels for rows of that C type)."""
-    kernels = _kernels(runtime, dim, dev["lanes"], count_visits, ray_type)
+    kernels = _kernels(runtime, dim, dev["lanes"], count_visits, ray_type, dev["width"])
     if accel == "bvh":
         return kernels[f"{name}_bvh{suffix}"], [dev["boxes"], dev["children"], dev["blocks"]]
     return kernels[f"{name}_brute"], [dev["blocks"], dev["n_blocks"]]

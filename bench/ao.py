@@ -26,7 +26,7 @@ is flagged loudly (``bench/_protocol.py``).
   Embree from one Python thread) and ``--host-tree`` ao4d with the numpy-built tree.
 * Traversal work per AO ray on ``--quality-points`` vertices (``ao4d.raycast.traversal_counts``,
   deterministic, unlike the timings): wide nodes fetched and leaf blocks fetched, per-ray kernel
-  (before) and packet kernel (after); SAH cost and the 8-wide tree's nodes, slot use and depth.
+  (before) and packet kernel (after); SAH cost and the wide tree's nodes, slot use and depth.
 * Bytes per tetrahedron of the traversed tree: wide nodes and leaf blocks, beside L2 and L3.
 * The numpy backend on a smaller 4D mesh, and the BVH kernel against the brute-force kernel.
 
@@ -344,7 +344,7 @@ def quality(vertices, simplices, runtime, samples, n_points, rng) -> dict:
                 detail=True,
                 max_distance=reach * tree.world_diagonal if reach else math.inf,
             )
-    _, children, _, _, wide_depth = bvh.widen_topology(tree)
+    _, children, _, _, wide_depth = bvh.widen_topology(tree, bvh.block_lanes(runtime), bvh.node_width(runtime))
     return {
         "counts": out,
         "sah": bvh.sah_cost(tree),
@@ -369,18 +369,18 @@ def med(runs, key, k=0):
 
 
 def tree_bytes(vertices, simplices, runtime) -> dict:
-    """Bytes of the traversed tree (the 8-wide nodes and the leaf blocks the kernels fetch) of
+    """Bytes of the traversed tree (the wide nodes and the leaf blocks the kernels fetch) of
     the mesh, in all and per tetrahedron, and the leaf blocks' lane occupancy."""
     import ao4d
     from ao4d import bvh, raycast
 
     mesh = ao4d.SimplexMesh(vertices, simplices)
     tree = raycast.get_bvh(mesh, builder="device", runtime=runtime)
-    lanes = bvh.block_lanes(runtime)
+    lanes, width = bvh.block_lanes(runtime), bvh.node_width(runtime)
     d = tree.dim
-    _, children, _, _, _ = bvh.widen_topology(tree, lanes)
+    _, children, _, _, _ = bvh.widen_topology(tree, lanes, width)
     n_blocks = len(bvh.block_ranges(tree, lanes)[0])
-    nodes = len(children) * (2 * d * bvh.WIDTH * 4 + bvh.WIDTH * 4)
+    nodes = len(children) * (2 * d * width * 4 + width * 4)
     blocks = n_blocks * (d + 1) * d * lanes * 4
     tets = len(simplices)
     return {
@@ -459,7 +459,7 @@ def main(argv=None) -> int:
         points[name] = int((np.linalg.norm(mesh.vertex_normals, axis=1) > 0.5).sum())
         print(f"{name}: {mesh.n_simplices:,} tetrahedra, {mesh.n_vertices:,} vertices", flush=True)
     print(
-        f"\nbytes the traversal reads (8-wide nodes and leaf blocks), against L2 {protocol.format_bytes(cpu['l2'])}"
+        f"\nbytes the traversal reads (wide nodes and leaf blocks), against L2 {protocol.format_bytes(cpu['l2'])}"
         f" and L3 {protocol.format_bytes(cpu['l3'])}:"
     )
     for name in shapes:
@@ -517,8 +517,8 @@ def main(argv=None) -> int:
 
     from ao4d import bvh
 
-    lanes = bvh.block_lanes(runtime)
-    node_bytes, block_bytes = 2 * 4 * bvh.WIDTH * 4 + bvh.WIDTH * 4, 5 * 4 * lanes * 4  # 4D
+    lanes, width = bvh.block_lanes(runtime), bvh.node_width(runtime)
+    node_bytes, block_bytes = 2 * 4 * width * 4 + width * 4, 5 * 4 * lanes * 4  # 4D
     print(
         f"\ntraversal work per AO ray ({args.quality_points:,} random vertices, deterministic): "
         "wide nodes fetched, leaf blocks fetched, and the bytes they hold "

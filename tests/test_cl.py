@@ -489,6 +489,18 @@ def test_kernel_binaries_are_reused_across_processes(cl_runtime, tmp_path):
     assert (damaged["compiled"], damaged["from_cache"]) == (2, 0)
 
 
+def test_runtime_settings_are_part_of_the_binary_key(cl_runtime, tmp_path):
+    # Intel's runtime compiles for CL_CONFIG_CPU_TARGET_ARCH; a binary built under one setting
+    # (corei7-avx traced AO 350x slower) must not be loaded by a process without it
+    env = {"XDG_CACHE_HOME": str(tmp_path)}
+    plain = _build_in_fresh_process(3, **env)
+    assert plain["compiled"] == 2
+    other = _build_in_fresh_process(3, CL_CONFIG_AO4D_TEST_SETTING="1", **env)
+    assert (other["compiled"], other["from_cache"]) == (2, 0)
+    again = _build_in_fresh_process(3, **env)
+    assert (again["compiled"], again["from_cache"]) == (0, 2)
+
+
 def test_unwritable_cache_home_falls_back(cl_runtime, tmp_path):
     blocker = tmp_path / "a-file"
     blocker.write_text("")

@@ -262,9 +262,10 @@ def test_traversal_stack_size_comes_from_python(cl_runtime, monkeypatch):
     rng = np.random.default_rng(1500)
     mesh = soup_scene(rng, 3, n=2000)
     o, w = random_rays(rng, 3, 3000)
-    depth = bvh.wide(raycast.get_bvh(mesh, runtime=cl_runtime), bvh.block_lanes(cl_runtime)).depth
+    width = bvh.node_width(cl_runtime)
+    depth = bvh.wide(raycast.get_bvh(mesh, runtime=cl_runtime), bvh.block_lanes(cl_runtime), width).depth
     assert depth >= 3
-    needed = depth * (bvh.WIDTH - 1) + 1
+    needed = depth * (width - 1) + 1
     brute = raycast.cast_rays(mesh, o, w, backend="opencl", accel="brute")
     sizes = {}
     for stack in (needed, 4 * needed):

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from . import layout
 from .blocks import block_ranges, wide, widen, widen_topology
-from .cache import BUILDERS, block_lanes, device_tree, get_bvh
+from .cache import BUILDERS, block_lanes, device_tree, get_bvh, node_width
 from .host import build, check_mesh_arrays
 from .layout import *  # noqa: F403  (the names of layout.__all__, listed there once)
 
@@ -34,5 +34,6 @@ __all__ = [
     "get_bvh",
     "device_tree",
     "block_lanes",
+    "node_width",
     "BUILDERS",
 ]

@@ -1,5 +1,5 @@
-"""Leaf blocks and the kernels' 8-wide tree: the binary tree collapsed (SAH-optimal:
-:mod:`ao4d.bvh.collapse`), every leaf split into blocks of ``lanes`` simplices stored as
+"""Leaf blocks and the kernels' wide tree (8 or 16 children a node: :func:`ao4d.bvh.node_width`):
+the binary tree collapsed (SAH-optimal: :mod:`ao4d.bvh.collapse`), every leaf split into blocks of ``lanes`` simplices stored as
 structure of arrays, filled on the host (:func:`widen`) or on the device that built the tree
 (:func:`device_wide_tree`).
 
@@ -20,9 +20,9 @@ from .layout import BVH, LANES, LEAF_BLOCKS, MAX_LEAF_BLOCKS, WIDTH, WideBVH, bo
 __all__ = ["wide", "widen", "widen_topology", "block_ranges", "device_wide_tree", "release_source"]
 
 
-def wide(tree: BVH, lanes: int | None = None) -> WideBVH:
-    """The 8-wide, structure-of-arrays form the OpenCL kernels traverse, built once per
-    ``lanes`` (simplices per leaf block, default ``LANES``) and kept on the tree.
+def wide(tree: BVH, lanes: int | None = None, width: int = WIDTH) -> WideBVH:
+    """The wide, structure-of-arrays form the OpenCL kernels traverse, built once per
+    ``lanes`` (simplices per leaf block, default ``LANES``) and ``width`` and kept on the tree.
 
     Parameters
     ----------
@@ -30,6 +30,8 @@ def wide(tree: BVH, lanes: int | None = None) -> WideBVH:
         A binary tree.
     lanes : {4, 8, 16}, optional
         Simplices per leaf block (default ``LANES``).
+    width : {8, 16}, optional
+        Children per wide node (default ``WIDTH``; :func:`ao4d.bvh.node_width` gives a device's).
 
     Returns
     -------
@@ -37,13 +39,13 @@ def wide(tree: BVH, lanes: int | None = None) -> WideBVH:
         The tree's wide form (the same object on later calls).
     """
     lanes = LANES if lanes is None else lanes
-    if lanes not in tree._wide:
-        tree._wide[lanes] = widen(tree, lanes)
-    return tree._wide[lanes]
+    if (lanes, width) not in tree._wide:
+        tree._wide[lanes, width] = widen(tree, lanes, width)
+    return tree._wide[lanes, width]
 
 
-def widen(tree: BVH, lanes: int = LANES) -> WideBVH:
-    """Collapse the binary tree into 8-wide nodes (SAH-optimal: :func:`ao4d.bvh.collapse.collapse`).
+def widen(tree: BVH, lanes: int = LANES, width: int = WIDTH) -> WideBVH:
+    """Collapse the binary tree into wide nodes (SAH-optimal: :func:`ao4d.bvh.collapse.collapse`).
 
     Each binary leaf becomes ``ceil(count / lanes)`` consecutive leaf blocks of ``lanes``
     (4, 8 or 16) simplices. :mod:`ao4d.ao` asks for 16 on CPUs (one AVX-512 register per row of
@@ -56,20 +58,22 @@ def widen(tree: BVH, lanes: int = LANES) -> WideBVH:
         A binary tree.
     lanes : {4, 8, 16}, optional
         Simplices per leaf block.
+    width : {8, 16}, optional
+        Children per wide node.
 
     Returns
     -------
     WideBVH
-        A new wide tree (:func:`wide` keeps one per ``lanes`` on the tree).
+        A new wide tree (:func:`wide` keeps one per ``lanes`` and ``width`` on the tree).
 
     Raises
     ------
     ValueError
-        If ``lanes`` is not 4, 8 or 16.
+        If ``lanes`` is not 4, 8 or 16, or ``width`` not 8 or 16.
     RuntimeError
         If the tree is deeper than the kernels' traversal stack holds.
     """
-    boxes, children, block_first, block_count, depth = widen_topology(tree, lanes)
+    boxes, children, block_first, block_count, depth = widen_topology(tree, lanes, width)
     lane = np.arange(lanes)
     block_prim = np.where(lane < block_count[:, None], block_first[:, None] + lane, -1)
     d = tree.dim
@@ -133,7 +137,9 @@ def _leaf_blocks(tree: BVH, lanes: int) -> tuple[np.ndarray, np.ndarray, np.ndar
     return leaves, per_leaf, np.cumsum(per_leaf) - per_leaf
 
 
-def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+def widen_topology(
+    tree: BVH, lanes: int = LANES, width: int = WIDTH
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     """The wide form of :func:`widen` without the leaf blocks' contents.
 
     :func:`widen` fills the blocks on the host, :mod:`ao4d.bvh.device` on the device.
@@ -144,12 +150,14 @@ def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarra
         The binary tree to collapse.
     lanes : {4, 8, 16}, optional
         Simplices per leaf block, which sets how many blocks each leaf needs.
+    width : {8, 16}, optional
+        Children per wide node (W).
 
     Returns
     -------
-    boxes : (K, 2, d, 8) float32
+    boxes : (K, 2, d, W) float32
         The wide nodes' child boxes (see :class:`WideBVH`).
-    children : (K, 8) int32
+    children : (K, W) int32
         The wide nodes' children (see :class:`WideBVH`).
     block_first : (B,) int32
         Per leaf block, its first tree-order simplex (lane l holds simplex first + l).
@@ -161,27 +169,29 @@ def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarra
     Raises
     ------
     ValueError
-        If ``lanes`` is not 4, 8 or 16.
+        If ``lanes`` is not 4, 8 or 16, or ``width`` not 8 or 16.
     RuntimeError
         If the tree is deeper than the kernels' traversal stack (``STACK_SIZE`` entries) holds.
     """
     if lanes not in (4, 8, 16):
         raise ValueError(f"`lanes` must be 4, 8 or 16, got {lanes!r}")
+    if width not in (8, 16):
+        raise ValueError(f"`width` must be 8 or 16, got {width!r}")
     d = tree.dim
     left = np.where(tree.meta[:, 0] >= 0, tree.meta[:, 0], -1).astype(np.int64)
     right = np.where(tree.meta[:, 0] >= 0, tree.meta[:, 1], -1).astype(np.int64)
     levels = _levels(tree.meta)
     n_blocks, first_block, max_blocks = _subtree_blocks(tree, lanes, left, right, levels)
-    # wide nodes level by level; each holds up to 8 binary nodes (its slots), chosen by the
+    # wide nodes level by level; each holds up to `width` binary nodes (its slots), chosen by the
     # SAH-optimal collapse
     area = box_area(tree.lo[:, :d].astype(np.float64), tree.hi[:, :d].astype(np.float64))
-    plan = collapse(left, right, area, levels, n_blocks, n_blocks <= max_blocks, WIDTH)
+    plan = collapse(left, right, area, levels, n_blocks, n_blocks <= max_blocks, width)
     slots, depth = _wide_slots(plan)
-    # a node visit pushes at most WIDTH - 1 more entries than it pops
-    if depth * (WIDTH - 1) + 1 > layout.STACK_SIZE:  # read at call time: tests vary it
+    # a node visit pushes at most width - 1 more entries than it pops
+    if depth * (width - 1) + 1 > layout.STACK_SIZE:  # read at call time: tests vary it
         raise RuntimeError(
             f"BVH too deep for the kernels' traversal stack: {depth} wide levels need "
-            f"{depth * (WIDTH - 1) + 1} entries, STACK_SIZE is {layout.STACK_SIZE}"
+            f"{depth * (width - 1) + 1} entries, STACK_SIZE is {layout.STACK_SIZE}"
         )
     valid = slots >= 0
     safe = np.where(valid, slots, 0)
@@ -192,7 +202,7 @@ def widen_topology(tree: BVH, lanes: int = LANES) -> tuple[np.ndarray, np.ndarra
     leafy = valid & plan.leaf[safe]
     leaf_nodes = slots[leafy]
     children[leafy] = -(1 + 4 * first_block[leaf_nodes] + (n_blocks[leaf_nodes] - 1))
-    boxes = np.zeros((len(slots), 2, d, WIDTH), dtype=np.float32)
+    boxes = np.zeros((len(slots), 2, d, width), dtype=np.float32)
     boxes[:, 0] = tree.lo[safe][..., :d].transpose(0, 2, 1)
     boxes[:, 1] = tree.hi[safe][..., :d].transpose(0, 2, 1)
     boxes[~np.broadcast_to(valid[:, None, None, :], boxes.shape)] = 0.0
@@ -222,9 +232,9 @@ def _subtree_blocks(tree: BVH, lanes: int, left, right, levels):
 
 
 def _wide_slots(plan) -> tuple[np.ndarray, int]:
-    """The binary nodes in each wide node's slots (K, WIDTH), -1 for none, and the wide depth."""
+    """The binary nodes in each wide node's slots (K, width), -1 for none, and the wide depth."""
     if plan.leaf[0]:  # the whole tree is one leaf: a root with a single leaf child
-        return np.concatenate([[0], np.full(WIDTH - 1, -1)])[None], 1
+        return np.concatenate([[0], np.full(plan.width - 1, -1)])[None], 1
     level, all_slots = np.array([0]), []
     while level.size:
         slots = plan.slots(level)
@@ -234,16 +244,17 @@ def _wide_slots(plan) -> tuple[np.ndarray, int]:
     return np.concatenate(all_slots), len(all_slots)
 
 
-def device_wide_tree(tree: BVH, runtime, lanes: int) -> dict[str, Any] | None:
+def device_wide_tree(tree: BVH, runtime, lanes: int, width: int = WIDTH) -> dict[str, Any] | None:
     """Device buffers of ``tree``'s wide form with the leaf blocks filled on the device.
 
     Returns ``None`` when ``tree`` was not built on ``runtime``'s context (then the host widens
-    it). The dict holds ``boxes``, ``children``, ``blocks`` (buffers), ``n_blocks``, ``lanes``
-    and ``block_first`` (the tree-order simplex in lane 0 of each block; lane l holds the next).
+    it). The dict holds ``boxes``, ``children``, ``blocks`` (buffers), ``n_blocks``, ``lanes``,
+    ``width`` and ``block_first`` (the tree-order simplex in lane 0 of each block; lane l holds
+    the next).
     """
     import pyopencl as cl_
 
-    done = tree.device_wide.get(lanes) if hasattr(tree, "device_wide") else None
+    done = tree.device_wide.get((lanes, width)) if hasattr(tree, "device_wide") else None
     if done is not None and done["context"] is runtime.context:
         return done  # filled at the build, whose device copies of the mesh may be freed since
     source = getattr(tree, "device_source", None)
@@ -268,18 +279,19 @@ def device_wide_tree(tree: BVH, runtime, lanes: int) -> dict[str, Any] | None:
         blocks,
     )
     queue.flush()  # the device fills the blocks while the host collapses the tree
-    boxes, children, _, _, _ = widen_topology(tree, lanes)
+    boxes, children, _, _, _ = widen_topology(tree, lanes, width)
     out = {
         "boxes": cl_.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(boxes)),
         "children": cl_.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(children)),
         "blocks": blocks,
         "n_blocks": np.int32(n_blocks),
         "lanes": lanes,
+        "width": width,
         "block_first": first,
         "context": ctx,
     }
     queue.finish()
-    tree.device_wide[lanes] = out
+    tree.device_wide[lanes, width] = out
     return out
 
 

@@ -108,7 +108,7 @@ class DeviceBVH(BVH):
         self._source = (vertices, simplices)
         self._inverse = self._origin = None
         self.device_source: dict[str, Any] | None = None  # the build's device buffers
-        self.device_wide: dict[int, dict[str, Any]] = {}  # lanes -> device_wide_tree(...)
+        self.device_wide: dict[tuple[int, int], dict[str, Any]] = {}  # (lanes, width) -> device_wide_tree(...)
         super().__init__(inverse=None, origin=None, **fields)
 
     def frames(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -194,6 +194,7 @@ def build(
     subtree: int | None = None,
     chunk: int | None = None,
     lanes: int | None = None,
+    width: int = 8,
 ) -> DeviceBVH:
     """Build the BVH of a simplex mesh with OpenCL kernels.
 
@@ -215,6 +216,8 @@ def build(
         Also fill the wide form with leaf blocks of ``lanes`` simplices on the device (see
         :func:`device_wide_tree`; the ray-casting module asks for the one it traverses), then
         free the build's device copies of the mesh (:func:`release_source`).
+    width : {8, 16}, optional
+        Children per wide node of that form (:func:`ao4d.bvh.node_width`).
 
     Returns
     -------
@@ -281,7 +284,7 @@ def build(
         "kernels": job.k,
     }
     if lanes is not None:
-        device_wide_tree(tree, runtime, lanes)  # the form the device traverses
+        device_wide_tree(tree, runtime, lanes, width)  # the form the device traverses
         release_source(tree)
     return tree
 

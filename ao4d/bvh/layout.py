@@ -47,7 +47,8 @@ _BOX_MARGIN = 1e-5  # of the scene diagonal: covers float32 error of slab tests
 # covers fma slab tests of rays from up to 16 times the scene's farthest point
 _BOX_FMA_MARGIN = 0.1
 
-WIDTH = 8  # children per node of the kernels' tree: one float8 per box coordinate (16 is no faster)
+WIDTH = 8  # children per node of the kernels' tree by default: one float8 per box coordinate (16 on
+# AVX-512 CPUs: cache.node_width)
 LANES = 16  # simplices per leaf block: one float16 per simplex coordinate (kernels' LANES)
 STACK_SIZE = 256  # traversal stack entries, passed to kernels/bvh.h as -D STACK_SIZE (1 KiB of ints)
 LEAF_BLOCKS = 1  # most leaf blocks per leaf slot of a wide node (the encoding allows 4)
@@ -200,7 +201,7 @@ class BVH:
     depth: int
     diagonal: float
     frame: Frame | None = None  # None: the identity (set in __post_init__)
-    _wide: dict = field(default_factory=dict, repr=False, compare=False)  # lanes -> WideBVH (blocks.wide)
+    _wide: dict = field(default_factory=dict, repr=False, compare=False)  # (lanes, width) -> WideBVH (blocks.wide)
 
     def __post_init__(self) -> None:
         if self.frame is None:

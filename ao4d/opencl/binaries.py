@@ -2,8 +2,9 @@
 
 One file per program and device: ``<key>.bin`` in :func:`kernel_cache_dir`, written atomically
 (``ao4d/_atomic.py``). The key hashes the source, the text of every kernel header, the build
-options (``-D`` defines included), the platform, device and driver names and versions, and
-pyopencl's version (it adds its own ``-I`` to every build). A damaged or stale entry is dropped
+options (``-D`` defines included), the platform, device and driver names and versions,
+pyopencl's version (it adds its own ``-I`` to every build) and the runtime's ``CL_CONFIG_*``
+environment variables (they change its code generation). A damaged or stale entry is dropped
 and rebuilt. On the project's machine Intel's CPU runtime compiles ``ao.cl`` in 0.5-0.65 s and
 loads its binary in 8-10 ms.
 
@@ -68,6 +69,13 @@ def kernel_build_stats() -> dict[str, int]:
         return dict(_stats)
 
 
+def _runtime_settings() -> str:
+    """The environment variables that change what a runtime compiles (Intel's ``CL_CONFIG_*``,
+    such as ``CL_CONFIG_CPU_TARGET_ARCH``): a binary built under ``corei7-avx`` traced AO 350x
+    slower, and without them in the key later processes loaded it."""
+    return "\0".join(f"{k}={v}" for k, v in sorted(os.environ.items()) if k.startswith("CL_CONFIG_"))
+
+
 def cache_key(device, depends: str, text: str, options: list[str]) -> str:
     """The file name (32 hex digits) of the program ``text`` built with ``options`` for ``device``."""
     from pyopencl import VERSION_TEXT as cl_version
@@ -86,6 +94,7 @@ def cache_key(device, depends: str, text: str, options: list[str]) -> str:
         device.version,
         device.driver_version,
         cl_version,  # pyopencl adds its own -I and defines to every build
+        _runtime_settings(),
     )
     h = hashlib.sha256()
     for part in parts:
