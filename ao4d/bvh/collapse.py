@@ -1,4 +1,4 @@
-"""SAH-optimal collapse of a binary BVH into wide nodes (the kernels' 8-wide tree).
+"""SAH-optimal collapse of a binary BVH into wide nodes (the kernels' tree of 8 or 16 children a node).
 
 The dynamic programme of Ylitie, Karras & Laine (*Efficient incoherent ray traversal on GPUs
 through compressed wide BVHs*, HPG 2017): bottom up, ``cost[n, i]`` is the least expected cost
