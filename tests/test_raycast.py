@@ -84,6 +84,32 @@ def test_gpu_block_layout_gives_the_same_answers(d, cl_runtime, monkeypatch):
 
 
 @pytest.mark.parametrize("d", DIMS)
+def test_node_widths_give_the_same_answers(d, cl_runtime, monkeypatch):
+    # wide nodes of 16 children (AVX-512 CPUs: bvh.node_width) or 8 (elsewhere): the boxes are
+    # conservative either way and the leaf test the same, so hits, distances and AO counts of
+    # both traversals agree exactly, far from the origin too
+    import pyopencl as pcl
+
+    device = cl_runtime.device
+    cpu16 = bool(device.type & pcl.device_type.CPU) and device.native_vector_width_float >= 16
+    assert bvh.node_width(cl_runtime) == (16 if cpu16 else 8)
+    mesh, o, w = _shifted_soup(1250 + d, d, 700.0)
+    pts, nrm = o[:300], w[:300] / np.linalg.norm(w[:300], axis=1, keepdims=True)
+    results = {}
+    for width in (8, 16):
+        monkeypatch.setattr(bvh.cache, "node_width", lambda runtime, width=width: width)
+        closest = raycast.cast_rays(mesh, o, w, backend="opencl")
+        anyhit = raycast.cast_rays(mesh, o, w, backend="opencl", closest=False, max_distance=2.0)
+        occ = ao4d.ambient_occlusion(mesh, points=pts, normals=nrm, samples=40, backend="opencl")
+        results[width] = closest.simplex, closest.t, anyhit.simplex >= 0, occ
+        tree = raycast.get_bvh(mesh, runtime=cl_runtime)
+        assert bvh.device_tree(mesh, tree, cl_runtime)["width"] == width
+    for a, b in zip(results[8], results[16]):
+        np.testing.assert_array_equal(a, b)
+    assert 0.01 < (results[8][0] >= 0).mean() < 0.95 and 0 < results[8][3].mean() < 1
+
+
+@pytest.mark.parametrize("d", DIMS)
 def test_hits_are_consistent(d, backend):
     rng = np.random.default_rng(1000 + d)
     mesh = soup_scene(rng, d)
