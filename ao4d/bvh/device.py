@@ -47,7 +47,7 @@ from ..opencl import cl
 from ..opencl.pool import BufferPool
 from . import host
 from .blocks import device_wide_tree, release_source
-from .layout import _BOX_FMA_MARGIN, _BOX_MARGIN, BARY_EPS, BVH
+from .layout import _BOX_FMA_MARGIN, _BOX_MARGIN, BARY_EPS, BVH, WIDTH
 
 __all__ = ["build", "DeviceBVH", "release_buffers"]
 
@@ -194,7 +194,7 @@ def build(
     subtree: int | None = None,
     chunk: int | None = None,
     lanes: int | None = None,
-    width: int = 8,
+    width: int = WIDTH,
 ) -> DeviceBVH:
     """Build the BVH of a simplex mesh with OpenCL kernels.
 
@@ -307,11 +307,11 @@ def _check_build_options(subtree, chunk, runtime, leaf_size: int):
 class _Job:
     """One build's device, kernels and mesh buffers (float64 where the device has doubles)."""
 
-    def __init__(self, runtime, vertices: np.ndarray, simplices: np.ndarray, pooled=None) -> None:
+    def __init__(self, runtime, vertices: np.ndarray, simplices: np.ndarray, pooled) -> None:
         import pyopencl as cl_
 
         self.cl = cl_
-        self.pooled = pooled  # the kept scratch (ao4d.opencl.pool.Taken) or None
+        self.pooled = pooled  # the kept scratch (ao4d.opencl.pool.Taken)
         self.d, self.n = vertices.shape[1], len(simplices)
         use_double = _has_double(runtime.device)
         self.real = np.float64 if use_double else np.float32
@@ -332,7 +332,7 @@ class _Job:
         """A device buffer of ``nbytes`` (read-write unless ``flags`` say otherwise); with a
         name ``kept``, the build's kept scratch of that name (read-write, old contents: the
         kernels write it before they read it)."""
-        if kept is not None and self.pooled is not None:
+        if kept is not None:
             return self.pooled.get(kept, nbytes)
         return self.cl.Buffer(self.ctx, self.mf.READ_WRITE if flags is None else flags, max(int(nbytes), 1))
 
