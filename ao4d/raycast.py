@@ -49,6 +49,7 @@ __all__ = [
     "Tracer",
     "count_occluded",
     "sample_directions",
+    "device_ray_mapping",
     "traversal_counts",
     "get_bvh",
     "RayHits",
@@ -541,6 +542,46 @@ def sample_directions(runtime, normals: np.ndarray, samples: int, seed: int, *, 
     pcl.enqueue_copy(queue, out, buf)
     queue.finish()
     return out[:, :d].reshape(n, samples, d).astype(np.float64)
+
+
+def device_ray_mapping(runtime, frame, origins: np.ndarray, directions: np.ndarray, ray_type: str):
+    """The float4 rays the ``cast_rows_*`` kernels trace for these rows (the ``map_rays`` kernel).
+
+    For tests: they must be the bits of the host's mapping (``_Rays.chunk``). Needs ``cl_khr_fp64``.
+
+    Parameters
+    ----------
+    runtime : ao4d.opencl.cl.Runtime
+        The OpenCL device.
+    frame : ao4d.bvh.Frame
+        The tree's frame the rays are mapped into.
+    origins, directions : (N, d) float32 or float64
+        The rows, as the caller gives them to :func:`cast_rays`.
+    ray_type : {"float", "double"}
+        The C type the kernels read the rows as.
+
+    Returns
+    -------
+    origins, directions : (N, 4) float32 numpy.ndarray
+        The mapped rays (directions of zero-length rows are zeros).
+    """
+    import pyopencl as pcl
+
+    n, d = origins.shape
+    ctx, queue = runtime.context, runtime.queue
+    ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
+    real = np.float32 if ray_type == "float" else np.float64
+    ins = [pcl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(a, dtype=real)) for a in (origins, directions)]
+    frame_buf = pcl.Buffer(ctx, ro, hostbuf=np.append(frame.centre, frame.scale).astype(np.float64))
+    out = [np.empty((n, 4), dtype=np.float32) for _ in range(2)]
+    bufs = [pcl.Buffer(ctx, pcl.mem_flags.WRITE_ONLY, a.nbytes) for a in out]
+    _kernels(runtime, d, _bvh.block_lanes(runtime), ray_type=ray_type)["map_rays"](
+        queue, (n,), None, *ins, frame_buf, *bufs
+    )
+    for a, b in zip(out, bufs):
+        pcl.enqueue_copy(queue, a, b)
+    queue.finish()
+    return out[0], out[1]
 
 
 # -- numpy side -------------------------------------------------------------------------------

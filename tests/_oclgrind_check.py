@@ -98,15 +98,7 @@ def main() -> int:
             raycast.MAP_ON_DEVICE = not raycast.MAP_ON_DEVICE
         if "cl_khr_fp64" in runtime.device.extensions:  # the device's ray mapping: the host's bits
             frame = bvh.Frame.fit(mesh.vertices)
-            ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
-            ins = [pcl.Buffer(runtime.context, ro, hostbuf=np.ascontiguousarray(a)) for a in (o, w)]
-            frame_buf = pcl.Buffer(runtime.context, ro, hostbuf=np.append(frame.centre, frame.scale).astype(np.float64))
-            got = [np.empty((len(o), 4), dtype=np.float32) for _ in range(2)]
-            outs = [pcl.Buffer(runtime.context, pcl.mem_flags.WRITE_ONLY, a.nbytes) for a in got]
-            kernels = raycast._kernels(runtime, d, bvh.block_lanes(runtime), ray_type="double")
-            kernels["map_rays"](runtime.queue, (len(o),), None, *ins, frame_buf, *outs)
-            for a, b in zip(got, outs):
-                pcl.enqueue_copy(runtime.queue, a, b)
+            got = raycast.device_ray_mapping(runtime, frame, o, w, "double")
             want = raycast._Rays(frame, o, w).chunk(0, len(o), np.float32, 4)
             check(
                 f"{d}D map_rays: the host's bits",

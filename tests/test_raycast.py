@@ -601,24 +601,6 @@ def test_ray_mapping_gives_the_plain_formulas_bits(d, in_dtype, shift, monkeypat
                 np.testing.assert_array_equal(a.view(np.uint8), b.view(np.uint8))
 
 
-def _device_mapping(runtime, frame, origins, directions, ray_type):
-    """The float4 rays the cast_rows_* kernels trace for these rows (the map_rays kernel)."""
-    import pyopencl as pcl
-
-    n, d = origins.shape
-    ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
-    real = np.float32 if ray_type == "float" else np.float64
-    ins = [pcl.Buffer(runtime.context, ro, hostbuf=np.ascontiguousarray(a, dtype=real)) for a in (origins, directions)]
-    frame_buf = pcl.Buffer(runtime.context, ro, hostbuf=np.append(frame.centre, frame.scale).astype(np.float64))
-    out = [np.empty((n, 4), dtype=np.float32) for _ in range(2)]
-    bufs = [pcl.Buffer(runtime.context, pcl.mem_flags.WRITE_ONLY, a.nbytes) for a in out]
-    kernel = raycast._kernels(runtime, d, bvh.block_lanes(runtime), ray_type=ray_type)["map_rays"]
-    kernel(runtime.queue, (n,), None, *ins, frame_buf, *bufs)
-    for a, b in zip(out, bufs):
-        pcl.enqueue_copy(runtime.queue, a, b)
-    return out
-
-
 def _needs_fp64(runtime):
     if "cl_khr_fp64" not in runtime.device.extensions:
         pytest.skip("the device maps rays itself only with cl_khr_fp64")
@@ -644,7 +626,7 @@ def test_device_ray_mapping_gives_the_hosts_bits(d, in_dtype, shift, cl_runtime)
     origins, directions = origins.astype(in_dtype), directions.astype(in_dtype)
     want = _reference_chunk(frame, origins, directions, np.float32, 4)
     for ray_type in ("float", "double") if in_dtype == np.float32 else ("double",):
-        got = _device_mapping(cl_runtime, frame, origins, directions, ray_type)
+        got = raycast.device_ray_mapping(cl_runtime, frame, origins, directions, ray_type)
         for a, b in zip(got, want):
             np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))
 
