@@ -113,10 +113,15 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
 // -- shared-origin packets (ambient occlusion) ------------------------------------------------
 // trace_packet traces up to PACKET rays from one origin together: a node is fetched once per
 // packet and its child boxes tested for every ray still in its mask; a child is pushed with the
-// mask of the rays that hit its box; a ray that hits a leaf simplex retires from every mask. Each
-// ray meets exactly the boxes and blocks trace_any would test for it, with the same arithmetic,
-// so its hit / miss answer is the same (only the order of the tests differs). The nodes around the
-// origin, which every ray of a point visits, are fetched and walked once, not once per ray.
+// mask of the rays that hit its box; a ray that hits a leaf simplex retires from every mask. A
+// ray's tests are trace_any's, with the same arithmetic: a ray without a hit tests exactly the
+// boxes and blocks trace_any tests, and a ray retires only on a hit trace_any would accept, so
+// the hit / miss answer is the same; the visit order only changes which tests a ray makes before
+// its first hit. The nodes around the origin, which every ray of a point visits, are fetched and
+// walked once, not once per ray. The children a node pushes are sorted so that the box nearest
+// the shared origin is popped first: near boxes hold the occluders most rays hit, so rays retire
+// before the far subtrees are fetched (measured on the dense shapes: 11-15 % fewer node fetches,
+// about 10 % less trace time; on the tiger and the spheritorus no change beyond the noise).
 #ifndef PACKET
 #define PACKET 32
 #endif
@@ -186,6 +191,7 @@ inline pmask trace_packet(__global const floatW *boxes, __global const int *chil
     pmask alive = active;  // rays without a hit so far
     int stack[STACK_SIZE];
     pmask stack_mask[STACK_SIZE];
+    float stack_key[STACK_SIZE];  // squared distance from o to the pushed node's box
     int sp = 0;
     int node = 0;
     pmask mask = active;
@@ -204,12 +210,30 @@ inline pmask trace_packet(__global const floatW *boxes, __global const int *chil
         pmask masks[WIDTH];
         vstoreW(child_mask, 0, masks);
         __global const int *child = children + (size_t)node * WIDTH;
+        float key[WIDTH];  // squared distance from o to each child box: one vector op per axis
+        {
+            floatW d2 = (floatW)(0.0f);
+            for (int j = 0; j < DIM; ++j) {
+                const floatW gap = fmax(fmax(box[j] - o[j], o[j] - box[DIM + j]), (floatW)(0.0f));
+                d2 += gap * gap;
+            }
+            vstoreW(d2, 0, key);
+        }
+        const int base = sp;  // this node's children are sorted among themselves only
         for (int s = 0; s < WIDTH; ++s) {
             const int c = child[s];
             if (!masks[s] || c == 0) continue;
             if (c > 0) {
-                stack[sp] = c;
-                stack_mask[sp++] = masks[s];
+                int k = sp++;  // insertion: the nearest child ends on top of the stack
+                while (k > base && key[s] > stack_key[k - 1]) {
+                    stack_key[k] = stack_key[k - 1];
+                    stack[k] = stack[k - 1];
+                    stack_mask[k] = stack_mask[k - 1];
+                    --k;
+                }
+                stack_key[k] = key[s];
+                stack[k] = c;
+                stack_mask[k] = masks[s];
                 continue;
             }
             const int first = (-c - 1) >> 2;

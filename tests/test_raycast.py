@@ -478,8 +478,9 @@ def test_packet_traversal_on_an_extracted_4d_surface(cl_runtime):
 
 
 def test_packet_traversal_shares_node_visits(cl_runtime):
-    # the packet fetches a node once for all its rays: far fewer node fetches per ray than
-    # box tests per ray, which stay those of the per-ray traversal
+    # the packet fetches a node once for all its rays: far fewer node fetches per ray than box
+    # tests per ray. Its nearest-first order changes only which tests a ray makes before its
+    # first hit, so its box and block tests per ray stay close to the per-ray traversal's
     field = ao4d.fields.spheritorus(1.0, 0.4)
     mesh = ao4d.extract_field(field, (15, 15, 15, 7), ((-1.5, -1.5, -1.5, -0.5), (1.5, 1.5, 1.5, 0.5)))
     normals = mesh.vertex_normals
@@ -489,7 +490,8 @@ def test_packet_traversal_shares_node_visits(cl_runtime):
     per_ray = raycast.traversal_counts(mesh, mesh.vertices[keep], normals[keep], traversal="rays", **kw)
     packet = raycast.traversal_counts(mesh, mesh.vertices[keep], normals[keep], traversal="packet", **kw)
     assert per_ray[0] == per_ray[2] and per_ray[1] == per_ray[3]
-    assert packet[2] == per_ray[2] and packet[3] == per_ray[3]
+    assert 0.9 * per_ray[2] < packet[2] < 1.15 * per_ray[2]
+    assert 0.9 * per_ray[3] < packet[3] < 1.15 * per_ray[3]
     assert packet[0] < 0.3 * per_ray[0] and packet[1] < 0.5 * per_ray[1]
 
 
