@@ -541,7 +541,8 @@ def main(argv=None) -> int:
                 f"{label:<22} {before[0]:>12.2f} {after[0]:>7.2f} {before[0] / after[0]:>5.1f}x"
                 f" {before[1]:>14.2f} {after[1]:>7.2f} {before[1] / after[1]:>5.1f}x {moved:>11.0f}{tail}"
             )
-        assert qd["counts"]["packet", 0.0][2:] == qd["counts"]["rays", 0.0][2:]  # same tests per ray
+        # box and block tests per ray differ a little: the packets' nearest-first order changes which
+        # tests a ray makes before its first hit (tests/test_raycast.py bounds the difference)
     numpy_and_brute(args, runtime, rng)
     print(f"\n{protocol.machine_line(runtime, cpu)}")
     print(f"bench run time {time.perf_counter() - began:.0f} s; load average after: {protocol.load_average()}")
