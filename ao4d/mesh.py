@@ -51,17 +51,22 @@ DIMS = (2, 3, 4)
 
 
 class _DataDict(dict):
-    """A dict of arrays whose first axis must match the mesh's vertex or simplex count."""
+    """A dict of arrays whose first axis must match the mesh's vertex or simplex count.
 
-    def __init__(self, owner: SimplexMesh, kind: str, data: Mapping[str, Any] | None = None):
+    It holds the count, not the mesh (the mesh updates it when its arrays change): a reference
+    back would make every mesh a reference cycle, kept with its BVH and device buffers until
+    the garbage collector runs rather than freed when the last name goes.
+    """
+
+    def __init__(self, n: int, kind: str, data: Mapping[str, Any] | None = None):
         super().__init__()
-        self._owner = owner
+        self.n = int(n)
         self._kind = kind
         for key, value in (data or {}).items():
             self[key] = value
 
     def _expected(self) -> int:
-        return self._owner.n_vertices if self._kind == "point_data" else self._owner.n_simplices
+        return self.n
 
     def __setitem__(self, key: str, value: Any) -> None:
         if not isinstance(key, str) or not key:
@@ -157,8 +162,8 @@ class SimplexMesh:
         vertices = _as_vertices(vertices)
         self._vertices = vertices
         self._simplices = _as_simplices(simplices, vertices.shape[0], vertices.shape[1])
-        self._point_data = _DataDict(self, "point_data", point_data)
-        self._cell_data = _DataDict(self, "cell_data", cell_data)
+        self._point_data = _DataDict(len(vertices), "point_data", point_data)
+        self._cell_data = _DataDict(len(self._simplices), "cell_data", cell_data)
 
     @classmethod
     def _adopt(cls, vertices: np.ndarray, simplices: np.ndarray) -> SimplexMesh:
@@ -182,8 +187,8 @@ class SimplexMesh:
         vertices.flags.writeable = False
         simplices.flags.writeable = False
         mesh._vertices, mesh._simplices = vertices, simplices
-        mesh._point_data = _DataDict(mesh, "point_data", None)
-        mesh._cell_data = _DataDict(mesh, "cell_data", None)
+        mesh._point_data = _DataDict(len(vertices), "point_data", None)
+        mesh._cell_data = _DataDict(len(simplices), "cell_data", None)
         return mesh
 
     # ---------------------------------------------------------------- source arrays
@@ -205,6 +210,7 @@ class SimplexMesh:
                 )
             _check_indices(self._simplices, new.shape[0])
         self._vertices = new
+        self._point_data.n = len(new)
         self._invalidate()
 
     @property
@@ -221,6 +227,7 @@ class SimplexMesh:
                 "build a new SimplexMesh to change the simplex count"
             )
         self._simplices = new
+        self._cell_data.n = len(new)
         self._invalidate()
 
     @property

@@ -328,6 +328,57 @@ def test_build_copies_are_freed_once_the_traversed_tree_exists(cl_runtime):
     assert bvh.wide(tree, 4).blocks.shape[-1] == 4
 
 
+@pytest.mark.parametrize("d", (3, 4))
+def test_trees_on_recycled_buffers_trace_as_trees_on_fresh_ones(d, cl_runtime, monkeypatch):
+    """A tree's device buffers go back to ao4d.opencl.pool.TREES when nothing holds them, and
+    the next tree is built in them: its hits and AO equal a tree's on fresh buffers, and a tree
+    still held (by its mesh's cache) keeps its own."""
+    import gc
+
+    from ao4d.opencl import pool
+
+    monkeypatch.setattr(pool, "RECYCLE_MIN_BYTES", 1)  # these small trees' buffers too
+    rng = np.random.default_rng(2170 + d)
+    scenes = [soup_scene(rng, d, n=n) for n in (1500, 300, 900)]
+    o, w = random_rays(rng, d, 3000)
+
+    def traced(scene):
+        mesh = ao4d.SimplexMesh(scene.vertices, scene.simplices)  # no tree yet
+        hits = raycast.cast_rays(mesh, o, w, backend="opencl")
+        return mesh, hits.simplex, ao4d.ambient_occlusion(mesh, samples=16, backend="opencl")
+
+    device.release_buffers()
+    fresh = []
+    for scene in scenes:
+        _, simplex, ao = traced(scene)
+        fresh.append((simplex, ao))
+        device.release_buffers()  # each on fresh buffers
+    assert pool.TREES.nbytes() == 0
+    held, _, _ = traced(scenes[0])  # this mesh keeps its tree
+    (traversed,) = raycast.get_bvh(held).device_wide.values()
+    mine = {traversed[key].int_ptr for key in ("boxes", "children", "blocks")}
+
+    def recycled():
+        return {b.int_ptr for _, bufs in pool.TREES._held.values() for b in bufs}
+
+    gc.collect()
+    assert recycled() and not recycled() & mine  # the build's copies are back, not the tree
+    for scene, (simplex, ao) in zip(scenes[1:] * 2, fresh[1:] * 2):
+        mesh, got_simplex, got_ao = traced(scene)
+        np.testing.assert_array_equal(got_simplex, simplex)
+        np.testing.assert_array_equal(got_ao, ao)
+        (dev,) = raycast.get_bvh(mesh).device_wide.values()
+        theirs = {dev[key].int_ptr for key in ("boxes", "children", "blocks")}
+        del mesh, dev
+        gc.collect()
+        assert theirs <= recycled()  # back for the next tree once the mesh went
+        assert not recycled() & mine
+    # the held tree was never built over
+    np.testing.assert_array_equal(raycast.cast_rays(held, o, w, backend="opencl").simplex, fresh[0][0])
+    device.release_buffers()
+    assert pool.TREES.nbytes() == 0
+
+
 @pytest.mark.parametrize("lanes", [4, 16])  # 4: a GPU's blocks, accepted up to 64 and failing at the trace
 def test_leaf_size_beyond_the_leaf_encoding_is_refused_up_front(lanes, cl_runtime, monkeypatch):
     monkeypatch.setattr(cache, "block_lanes", lambda runtime: lanes)
@@ -406,3 +457,21 @@ def test_inverses_of_kept_slivers_are_finite():
     assert np.isfinite(inverse).all()
     _, _, exact = bvh.host.frames(mesh.vertices, mesh.simplices[1:])
     np.testing.assert_allclose(inverse[1], exact[0], atol=1e-12)
+
+
+def test_a_traced_mesh_and_its_tree_go_with_the_last_name(cl_runtime):
+    # no reference cycle through the mesh, its cache, the tree or the device buffers: the
+    # tree's buffers are back for the next one at once, not at the next collection
+    import gc
+    import weakref
+
+    mesh = sphere_over_ground(np.random.default_rng(2190), 4)
+    ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
+    mesh_ref, tree_ref = weakref.ref(mesh), weakref.ref(raycast.get_bvh(mesh))
+    gc.collect()
+    gc.disable()
+    try:
+        del mesh
+        assert mesh_ref() is None and tree_ref() is None
+    finally:
+        gc.enable()

@@ -305,3 +305,61 @@ def test_an_http_server_is_not_taken_for_a_scheduler(config, tmp_path, capsys):
 
 def test_a_real_scheduler_passes_the_probe(cluster):
     Dask(cluster.scheduler_address, probe_seconds=1.0).check()  # no error: it greets at once
+
+
+def _worker_state() -> dict:
+    """What a spawned worker's pools look like (runs in the worker)."""
+    import numpy  # noqa: F401  (its BLAS)
+    from threadpoolctl import threadpool_info
+
+    return {
+        "blas": sorted({lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}),
+        "env": {name: os.environ.get(name) for name in ("OPENBLAS_NUM_THREADS", "DPCPP_CPU_NUM_CUS")},
+        "mkl": os.environ.get("MKL_NUM_THREADS"),
+        "pid": os.getpid(),
+    }
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_spawned_workers_size_their_thread_pools_to_their_share_of_the_cores(threads, monkeypatch):
+    """With as many workers as cores, each worker's BLAS and (Intel's CPU) OpenCL runtime use
+    one thread: pools over every core spin against the other workers'. A variable the user set
+    is left as it is."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from datasets_gen.executors import _start_worker
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.delenv("DPCPP_CPU_NUM_CUS", raising=False)
+    monkeypatch.setenv("MKL_NUM_THREADS", "7")  # the user's: kept
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(1, mp_context=context, initializer=_start_worker, initargs=(threads,)) as pool:
+        state = pool.submit(_worker_state).result(timeout=300)
+    assert state["pid"] != os.getpid() and state["mkl"] == "7"
+    assert state["env"] == {"OPENBLAS_NUM_THREADS": str(threads), "DPCPP_CPU_NUM_CUS": str(threads)}
+    # numpy's OpenBLAS was loaded before the worker's set-up ran: limited by threadpoolctl
+    # (Intel's runtime takes DPCPP_CPU_NUM_CUS for its threads, not for the units it reports)
+    assert state["blas"] == [threads]
+
+
+def test_freed_memory_stays_in_the_worker():
+    """glibc keeps a worker's freed arrays for its next item (no mapping per large array,
+    returned at free and faulted in and zeroed again); elsewhere the call is a no-op."""
+    import platform
+
+    if platform.libc_ver()[0] != "glibc":
+        pytest.skip("not glibc: the workers' malloc is left as it is")
+    code = (
+        "import sys, numpy as np\n"
+        "from datasets_gen.executors import _keep_freed_memory\n"
+        "if sys.argv[1] == 'keep': assert _keep_freed_memory()\n"
+        "a = np.ones(1 << 25); del a  # 256 MiB\n"
+        "print(int(open('/proc/self/statm').read().split()[1]) * 4096 >> 20)"
+    )
+
+    def resident_mib(mode):
+        done = subprocess.run([sys.executable, "-c", code, mode], capture_output=True, text=True, check=True)
+        return int(done.stdout)
+
+    assert resident_mib("keep") - resident_mib("default") > 200  # still held for the next item

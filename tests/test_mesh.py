@@ -525,3 +525,33 @@ def test_adopt_takes_fresh_engine_arrays_without_copies():
         np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.array([[0, 2], [2, 1], [1, 0]], dtype=np.int32)
     )
     assert other.simplices.dtype == np.int64 and other.check().ok
+
+
+def test_a_mesh_is_freed_when_its_last_name_goes_without_the_garbage_collector():
+    # point_data once held its mesh: every mesh was a reference cycle, kept (with its BVH and
+    # device buffers) until a collection; a dataset run held several 3 M-tet meshes at once
+    import gc
+    import weakref
+
+    mesh = simplex_boundary(3)
+    mesh.point_data["ao"] = np.zeros(4)
+    mesh.cell_data["id"] = np.arange(4)
+    gone = weakref.ref(mesh)
+    gc.disable()
+    try:
+        del mesh
+        assert gone() is None
+    finally:
+        gc.enable()
+
+
+def test_data_lengths_follow_the_arrays_they_describe():
+    mesh = simplex_boundary(3)
+    mesh.vertices = np.vstack([mesh.vertices, [[5.0, 5.0, 5.0]]])  # no point_data yet: may grow
+    with pytest.raises(ValueError, match=r"`point_data\['ao'\]` must have first dimension 5"):
+        mesh.point_data["ao"] = np.zeros(4)
+    mesh.point_data["ao"] = np.zeros(5)
+    mesh.simplices = mesh.simplices[:2]
+    with pytest.raises(ValueError, match=r"`cell_data\['id'\]` must have first dimension 2"):
+        mesh.cell_data["id"] = np.arange(4)
+    mesh.cell_data["id"] = np.arange(2)

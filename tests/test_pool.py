@@ -5,6 +5,7 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import pytest
 
 from ao4d.opencl.pool import BufferPool
 
@@ -72,3 +73,63 @@ def test_sets_above_max_bytes_are_not_kept(cl_runtime):
     with pool.take(ctx) as bufs:
         bufs.get("a", 100_000)  # grows past the limit: dropped when given back
     assert pool.nbytes() == 0
+
+
+def test_recycler_hands_the_smallest_fitting_buffer_to_the_next_owner(cl_runtime, monkeypatch):
+    import gc
+
+    from ao4d.opencl import pool as pool_module
+    from ao4d.opencl.pool import Recycler
+
+    monkeypatch.setattr(pool_module, "RECYCLE_MIN_BYTES", 100)
+    ctx, queue = cl_runtime.context, cl_runtime.queue
+    rec = Recycler(max_bytes=1 << 20)
+    big = rec.get(ctx, 4000)
+    assert big.size == 5000  # a new one is a quarter larger than asked
+    small = rec.get(ctx, 1000)
+    rec.give(ctx, big, small)
+    assert rec.nbytes() == big.size + small.size
+    assert rec.get(ctx, 900) is small  # the smallest that fits, not the first held
+    assert rec.get(ctx, 900) is big
+    assert rec.get(ctx, 900) not in (big, small)  # none held: a new one
+    assert rec.nbytes() == 0
+    # buffers under RECYCLE_MIN_BYTES are not held (their faults cost nothing)
+    tiny = rec.get(ctx, 50)
+    assert tiny.size == 50
+    rec.give(ctx, tiny, None)
+    assert rec.nbytes() == 0
+
+    # given back when the owner is collected, not before; a held buffer's upload is exact
+    class Owner:
+        pass
+
+    owner = Owner()
+    data = np.arange(2000, dtype=np.float32)
+    buf = rec.upload(queue, data)
+    rec.give_when(owner, ctx, buf)
+    assert rec.nbytes() == 0
+    del owner
+    gc.collect()
+    assert rec.nbytes() == buf.size
+    again = rec.upload(queue, data[::-1].copy())
+    assert again is buf
+    back = np.empty_like(data)
+    pcl = pytest.importorskip("pyopencl")
+    pcl.enqueue_copy(queue, back, again)
+    np.testing.assert_array_equal(back, data[::-1])
+    rec.clear()
+    assert rec.nbytes() == 0
+
+
+def test_recycler_frees_the_smallest_held_buffers_beyond_max_bytes(cl_runtime, monkeypatch):
+    from ao4d.opencl import pool as pool_module
+    from ao4d.opencl.pool import Recycler
+
+    monkeypatch.setattr(pool_module, "RECYCLE_MIN_BYTES", 100)
+    ctx = cl_runtime.context
+    rec = Recycler(max_bytes=12_000)
+    a, b, c = (rec.get(ctx, n) for n in (1000, 3000, 6000))  # 1250, 3750, 7500 bytes
+    rec.give(ctx, a, b, c)
+    # 12 500 held > 12 000: the smallest goes first, the large ones (costly to fault in) stay
+    assert rec.nbytes() == b.size + c.size
+    assert rec.get(ctx, 5000) is c and rec.get(ctx, 100) is b

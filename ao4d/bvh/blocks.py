@@ -9,10 +9,12 @@ consecutive blocks.
 
 from __future__ import annotations
 
+import weakref
 from typing import Any
 
 import numpy as np
 
+from ..opencl.pool import TREES
 from . import layout
 from .collapse import collapse
 from .layout import BVH, LANES, LEAF_BLOCKS, MAX_LEAF_BLOCKS, WIDTH, WideBVH, box_area
@@ -252,7 +254,6 @@ def device_wide_tree(tree: BVH, runtime, lanes: int, width: int = WIDTH) -> dict
     ``width`` and ``block_first`` (the tree-order simplex in lane 0 of each block; lane l holds
     the next).
     """
-    import pyopencl as cl_
 
     done = tree.device_wide.get((lanes, width)) if hasattr(tree, "device_wide") else None
     if done is not None and done["context"] is runtime.context:
@@ -263,10 +264,10 @@ def device_wide_tree(tree: BVH, runtime, lanes: int, width: int = WIDTH) -> dict
     first, count = block_ranges(tree, lanes)
     d = tree.dim
     n_blocks = len(first)
-    block_range = np.stack([first, count], 1).astype(np.int32)
     ctx, queue = runtime.context, runtime.queue
-    ro = cl_.mem_flags.READ_ONLY | cl_.mem_flags.COPY_HOST_PTR
-    blocks = cl_.Buffer(ctx, cl_.mem_flags.READ_WRITE, 4 * n_blocks * (d + 1) * d * lanes)
+    block_range = TREES.upload(queue, np.stack([first, count], 1).astype(np.int32))
+    # the tree's buffers are the recycled ones of trees already collected (TREES)
+    blocks = TREES.get(ctx, 4 * n_blocks * (d + 1) * d * lanes)
     source["kernels"]["fill_blocks"](
         queue,
         (n_blocks * lanes,),
@@ -274,32 +275,57 @@ def device_wide_tree(tree: BVH, runtime, lanes: int, width: int = WIDTH) -> dict
         source["vertices"],
         source["simplices"],
         source["order"],
-        cl_.Buffer(ctx, ro, hostbuf=block_range),
+        block_range,
         np.int32(lanes),
         blocks,
     )
     queue.flush()  # the device fills the blocks while the host collapses the tree
     boxes, children, _, _, _ = widen_topology(tree, lanes, width)
-    out = {
-        "boxes": cl_.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(boxes)),
-        "children": cl_.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(children)),
-        "blocks": blocks,
-        "n_blocks": np.int32(n_blocks),
-        "lanes": lanes,
-        "width": width,
-        "block_first": first,
-        "context": ctx,
-    }
+    boxes_buf, children_buf = (TREES.upload(queue, np.ascontiguousarray(a)) for a in (boxes, children))
+    out = _DeviceTree(
+        {
+            "boxes": boxes_buf,
+            "children": children_buf,
+            "blocks": blocks,
+            "n_blocks": np.int32(n_blocks),
+            "lanes": lanes,
+            "width": width,
+            "block_first": first,
+            "context": ctx,
+        }
+    )
+    # back to TREES once nothing holds the dict (the tree, a mesh's cache): not when the tree
+    # goes, as a cache may keep the dict longer
+    TREES.give_when(out, ctx, blocks, boxes_buf, children_buf)
     queue.finish()
+    TREES.give(ctx, block_range)
     tree.device_wide[lanes, width] = out
     return out
 
 
+class _DeviceTree(dict):
+    """The dict :func:`device_wide_tree` returns (a subclass, so that it takes weak references)."""
+
+
+_SOURCE_BUFFERS = ("vertices", "simplices", "order")
+
+
+def give_source_when(tree: Any) -> None:
+    """Give the build's device copies of the mesh (``tree.device_source``) back to
+    :data:`~ao4d.opencl.pool.TREES` when ``tree`` is collected, unless :func:`release_source`
+    gave them back before."""
+    weakref.finalize(tree, _give_source, tree.device_source).atexit = False
+
+
+def _give_source(source: dict[str, Any]) -> None:
+    TREES.give(source["context"], *(source.pop(key, None) for key in _SOURCE_BUFFERS))
+
+
 def release_source(tree: Any) -> None:
-    """Free the build's device copies of the mesh (vertices, simplices, simplex order: about
-    1.4 GB at 55 M tetrahedra) once the traversed wide form exists; another leaf-block width
-    is then widened on the host."""
+    """Give back the build's device copies of the mesh (vertices, simplices, simplex order:
+    about 1.4 GB at 55 M tetrahedra, more than :data:`~ao4d.opencl.pool.TREES` holds: then
+    freed) once the traversed wide form exists; another leaf-block width is then widened on
+    the host."""
     source, tree.device_source = tree.device_source, None
-    for key in ("vertices", "simplices", "order"):
-        if source is not None:
-            source[key].release()
+    if source is not None:
+        _give_source(source)

@@ -44,9 +44,9 @@ import numpy as np
 
 from .._validate import check_positive_int
 from ..opencl import cl
-from ..opencl.pool import BufferPool
+from ..opencl.pool import TREES, BufferPool
 from . import host
-from .blocks import device_wide_tree, release_source
+from .blocks import device_wide_tree, give_source_when, release_source
 from .layout import _BOX_FMA_MARGIN, _BOX_MARGIN, BARY_EPS, BVH, WIDTH
 
 __all__ = ["build", "DeviceBVH", "release_buffers"]
@@ -63,7 +63,8 @@ _scratch = BufferPool(max_bytes=1 << 30)
 
 
 def release_buffers() -> None:
-    """Drop the scratch buffers :func:`build` keeps between builds (device memory).
+    """Drop the scratch buffers :func:`build` keeps between builds and the trees' buffers held
+    for the next tree (:data:`ao4d.opencl.pool.TREES`; device memory).
 
     Examples
     --------
@@ -71,6 +72,7 @@ def release_buffers() -> None:
     >>> device.release_buffers()
     """
     _scratch.clear()
+    TREES.clear()
 
 
 class _LazyFrames:
@@ -283,6 +285,7 @@ def build(
         "order": nodes.order,
         "kernels": job.k,
     }
+    give_source_when(tree)
     if lanes is not None:
         device_wide_tree(tree, runtime, lanes, width)  # the form the device traverses
         release_source(tree)
@@ -318,8 +321,9 @@ class _Job:
         self.k = _kernels(runtime, self.d, use_double)
         self.ctx, self.queue = runtime.context, runtime.queue
         self.mf = cl_.mem_flags
-        self.vertices = self.input(np.ascontiguousarray(vertices, dtype=self.real))
-        self.simplices = self.input(np.ascontiguousarray(simplices, dtype=np.int32))
+        # the mesh's copies outlive the build (the tree's device_source): recycled, not fresh
+        self.vertices = TREES.upload(self.queue, np.ascontiguousarray(vertices, dtype=self.real))
+        self.simplices = TREES.upload(self.queue, np.ascontiguousarray(simplices, dtype=np.int32))
         # without doubles a float test would keep other simplices than the host's float64 one
         # (slivers): the host decides, one byte per simplex
         self.keep = None if use_double else host.nondegenerate(vertices, simplices).view(np.uint8)
@@ -392,7 +396,7 @@ class _Nodes:
         cap = 2 * n_prims
         self.meta = job.scratch(8 * cap, kept="meta")
         self.lo, self.hi = job.scratch(16 * cap, kept="lo"), job.scratch(16 * cap, kept="hi")
-        self.order = job.scratch(4 * n_prims)  # not kept: the tree's device_source holds it
+        self.order = TREES.get(job.ctx, 4 * n_prims)  # the tree's device_source holds it
 
 
 def _records(job: _Job, scan: _Scan, nodes: _Nodes) -> tuple[np.ndarray, np.ndarray]:
