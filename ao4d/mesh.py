@@ -484,7 +484,8 @@ class SimplexMesh:
 
         Vectorised: one sort of packed 64-bit face words, label propagation and an edge sort
         for vertex stars and links (skipped on a mesh straight from marching extraction, whose
-        construction settles them: ``report.proved``), a sparse-graph search for components.
+        construction settles them: ``report.proved``; the face sort too on a mesh marched by
+        cubes clear of the grid's boundary), a sparse-graph search for components.
 
         Parameters
         ----------
@@ -501,13 +502,19 @@ class SimplexMesh:
         key = ("report", as_real(rtol, "rtol", ge=0, lt=1))
         if key in self._derived:
             return self._derived[key]
-        n_faces, n_boundary, n_nonmanifold, n_misoriented = self._face_counts
+        marks = self._derived.get("_proved", ())
+        if marks == topology.MARCHING_CLOSED_PROVED and self.n_simplices * self.dim % 2 == 0:
+            # closed and oriented by the table: every face in exactly two simplices (d faces each)
+            n_faces, n_boundary, n_nonmanifold, n_misoriented = self.n_simplices * self.dim // 2, 0, 0, 0
+            proved = marks
+        else:
+            n_faces, n_boundary, n_nonmanifold, n_misoriented = self._face_counts
+            # the guarantee on vertex stars counts only where the computed faces agree with it
+            marked = "n_singular_vertices" in marks
+            proved = ("n_singular_vertices",) if marked and not (n_nonmanifold or n_misoriented) else ()
         threshold = rtol * self.scale ** (self.dim - 1)
         uses = np.bincount(self._simplices.ravel(), minlength=self.n_vertices)
         n_unused = int(np.count_nonzero(uses == 0))
-        # the construction's guarantees count only where the computed faces agree with them
-        marked = "n_singular_vertices" in self._derived.get("_proved", ())
-        proved = ("n_singular_vertices",) if marked and not (n_nonmanifold or n_misoriented) else ()
         if proved:
             self._derived.setdefault("_singular_vertices", 0)
         n_singular = self._singular_vertices  # first: connected stars make the components cheaper

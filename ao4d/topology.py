@@ -378,6 +378,23 @@ def connected_labels(n_nodes: int, a: np.ndarray, b: np.ndarray) -> tuple[int, n
 # tests on random fields (both methods, exact level values, open and closed).
 MARCHING_PROVED = ("n_singular_vertices",)
 
+# What marching cubes on one grid also guarantees when no vertex lies on the grid's boundary:
+# every face is shared by exactly two simplices that orient it oppositely, so the face counts
+# need no sort (n_faces = d * n_simplices / 2). Each entry's patch pairs its inner faces with
+# opposite orientations and leaves its other faces each on one cube facet
+# (tests/test_lut.py::test_patch_faces_pair_up_inside_each_entry); the cut on a facet depends
+# only on the facet's signs and the two cubes sharing it orient it oppositely
+# (test_cube_patches_conform_across_facets); vertices are welded per grid edge, so the two
+# cubes' copies of a face are the same vertex indices; a face left on the grid's own boundary
+# would have its vertices there. tests/test_topology.py checks it against the full face sort.
+MARCHING_CLOSED_PROVED = (
+    "n_faces",
+    "n_boundary_faces",
+    "n_nonmanifold_faces",
+    "n_misoriented_faces",
+    "n_singular_vertices",
+)
+
 
 # SimplexMesh.cache key under which ao4d.extract records that the solid touches the grid's edge
 # (the text says where the mesh is cut open and what to pass to close it); the report prints it
@@ -416,7 +433,10 @@ class MeshReport:
         computed). A mesh straight from marching extraction has :data:`MARCHING_PROVED`: when
         its computed faces show no face shared by more than two simplices and no misoriented
         face, its vertex links are spheres (disks on an open border) by the table's
-        construction, so ``n_singular_vertices`` is 0 without the star and link tests.
+        construction, so ``n_singular_vertices`` is 0 without the star and link tests. A
+        mesh marched by cubes whose vertices all lie inside the grid's box has
+        :data:`MARCHING_CLOSED_PROVED`: closed, every face shared by two simplices with
+        opposite orientations, by the table's construction, without the face sort.
     closed, manifold, oriented : bool
         ``closed``: every face shared by exactly two simplices. ``manifold``: no face shared by
         more than two simplices and no singular vertex. ``oriented``: every face shared by two
@@ -487,14 +507,19 @@ class MeshReport:
             outward = f"NO (enclosed volume {self.volume:.6g} < 0: inside out, use mesh.flipped())"
         else:
             outward = f"yes (enclosed volume {self.volume:.6g})"
+
+        def by(field: str) -> str:
+            return " by construction" if field in self.proved else ""
+
         lines = [
             f"{self.dim}D simplex mesh: {self.n_vertices} vertices, {self.n_simplices} simplices, "
             f"{self.n_faces} faces, {self.n_components} component(s)",
-            f"  closed:   {flag(self.closed)} ({self.n_boundary_faces} boundary faces)",
+            f"  closed:   {flag(self.closed)} ({self.n_boundary_faces} boundary faces{by('n_boundary_faces')})",
             f"  manifold: {flag(self.manifold)} ({self.n_nonmanifold_faces} faces shared by >2 "
-            f"simplices, {self.n_singular_vertices} singular vertices"
-            f"{' by construction' if 'n_singular_vertices' in self.proved else ''})",
-            f"  oriented: {flag(self.oriented)} ({self.n_misoriented_faces} misoriented faces)",
+            f"simplices{by('n_nonmanifold_faces')}, {self.n_singular_vertices} singular vertices"
+            f"{by('n_singular_vertices')})",
+            f"  oriented: {flag(self.oriented)} ({self.n_misoriented_faces} misoriented faces"
+            f"{by('n_misoriented_faces')})",
             f"  outward:  {outward}",
             f"  degenerate simplices: {self.n_degenerate}; unused vertices: {self.n_unused_vertices}",
         ]

@@ -17,6 +17,17 @@ if os.environ.get("CI"):
     settings.load_profile("ci")
 
 
+@pytest.fixture(autouse=True)
+def _progress_switch():
+    """Every test starts with progress on: a command run with --no-progress (``main([...])``)
+    switches it off for the whole process, and a later test of the progress lines saw none."""
+    from ao4d import _progress
+
+    _progress.set_enabled(True)
+    yield
+    _progress.set_enabled(True)
+
+
 @pytest.fixture(params=["numpy", "opencl"])
 def backend(request):
     """Both ray-casting backends; the OpenCL case skips (saying why) without a device."""

@@ -3,6 +3,7 @@ through the store (record last), complete only when every hash matches."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -132,3 +133,24 @@ def test_lifted_family_from_a_mesh_file(tmp_path):
     # scaled to bounding radius 0.5: the mesh's 3D extent is within the ball of that radius
     assert np.max(np.abs(record["mesh"]["bounds"])) <= 1.0 + 1e-9
     assert not (tmp_path / "out" / "items" / "00000" / "ao.npz").exists()
+
+
+def test_records_name_what_the_marching_table_proves_and_it_holds(tiny_reference):
+    """An extracted item's check takes its face counts from the marching table
+    (record["mesh"]["check"]["proved"]); the full face sort of its saved mesh agrees with every
+    count. A lifted solid is not marched: every field of its check is computed."""
+    from ao4d import topology
+    from ao4d.mesh import SimplexMesh
+
+    kinds = set()
+    for folder in sorted((tiny_reference / "items").iterdir()):
+        record = json.loads((folder / "record.json").read_text())
+        check = record["mesh"]["check"]
+        marched = record["kind"] != "lifted"
+        kinds.add(marched)
+        assert tuple(check["proved"]) == (topology.MARCHING_CLOSED_PROVED if marched else ())
+        full = SimplexMesh.load(folder / "mesh.npz").check()  # a loaded mesh proves nothing
+        assert full.proved == ()
+        computed = {k: v for k, v in dataclasses.asdict(full).items() if k not in ("proved", "hint")}
+        assert {k: check[k] for k in computed} == computed, folder.name
+    assert kinds == {True, False}

@@ -304,6 +304,7 @@ def extract(
         inside,
         lambda: (float(np.min(arr)), float(np.max(arr))),
         lambda: outside_value(inside) if closed else float(arr[(0,) * d]),
+        _proved(mesh, geom, method),
     )
 
 
@@ -340,18 +341,10 @@ def _mark_grid_edge(mesh: SimplexMesh, geom: _Geometry) -> None:
     A vertex on an edge inside a boundary face of the grid has that coordinate exactly equal to
     the face's (the integer index is formed before scaling), so comparing is exact and cheap.
     """
-    if mesh.n_simplices == 0:
+    if mesh.n_simplices == 0 or _clear_of_grid_edge(mesh, geom):
         return
-    shape = np.empty(len(geom.shape), dtype=np.int64)
-    shape[list(geom.perm)] = geom.shape  # user axes
-    first = geom.origin + geom.spacing * np.zeros(len(shape))
-    last = geom.origin + geom.spacing * (shape - 1).astype(np.float64)
+    first, last = _grid_box(geom)
     v = mesh.vertices
-    # every vertex lies in [first, last]: one lies on the boundary only where a coordinate's
-    # extreme reaches it (a column's min and max: 1 ms at 200,000 vertices, where the count
-    # below takes 9, as does min(axis=0) across the rows)
-    if all(v[:, j].min() > first[j] and v[:, j].max() < last[j] for j in range(v.shape[1])):
-        return
     on_edge = ((v == first) | (v == last)).any(axis=1)
     if on_edge.any():
         mesh.cache[GRID_EDGE_KEY] = (
@@ -359,6 +352,39 @@ def _mark_grid_edge(mesh: SimplexMesh, geom: _Geometry) -> None:
             "the grid's edge and the mesh is cut open; extract with closed=True (command line: "
             "--closed) to close it there"
         )
+
+
+def _grid_box(geom: _Geometry) -> tuple[np.ndarray, np.ndarray]:
+    """The first and last grid points' coordinates (user axes)."""
+    shape = np.empty(len(geom.shape), dtype=np.int64)
+    shape[list(geom.perm)] = geom.shape  # user axes
+    first = geom.origin + geom.spacing * np.zeros(len(shape))
+    last = geom.origin + geom.spacing * (shape - 1).astype(np.float64)
+    return first, last
+
+
+def _clear_of_grid_edge(mesh: SimplexMesh, geom: _Geometry) -> bool:
+    """Whether no vertex of ``mesh`` (marched on ``geom``) lies on the grid's boundary.
+
+    Every vertex lies in [first, last] and one on the boundary has that coordinate exactly
+    equal to the boundary's (the integer index is formed before scaling): one lies there only
+    where a coordinate's extreme reaches it (a column's min and max: 1 ms at 200,000 vertices,
+    where testing every vertex takes 9, as does min(axis=0) across the rows).
+    """
+    first, last = _grid_box(geom)
+    v = mesh.vertices
+    return all(v[:, j].min() > first[j] and v[:, j].max() < last[j] for j in range(v.shape[1]))
+
+
+def _proved(mesh: SimplexMesh, geom: _Geometry, method: str) -> tuple[str, ...]:
+    """What the table guarantees for ``mesh``, marched by ``method`` on the one grid ``geom``:
+    closed and oriented as well (topology.MARCHING_CLOSED_PROVED) for cubes clear of the grid's
+    edge, where no face can be left open; otherwise the vertex stars only."""
+    from ..topology import MARCHING_CLOSED_PROVED, MARCHING_PROVED
+
+    if method == "cubes" and mesh.n_simplices and _clear_of_grid_edge(mesh, geom):
+        return MARCHING_CLOSED_PROVED
+    return MARCHING_PROVED
 
 
 def _affine(affine: Any, d: int, spacing: Any, origin: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -544,13 +570,8 @@ def extract_field(
     read = fields_device.reader(
         field, axes, backend, read, first=first, check=lambda slab, a: _check_field_values(slab, field, axes, a)
     )
-    return _checked(
-        _run(read, geom, level, method, inside, chunk, progress, False, 8, backend),
-        level,
-        inside,
-        None,
-        lambda: first[0],
-    )
+    mesh = _run(read, geom, level, method, inside, chunk, progress, False, 8, backend)
+    return _checked(mesh, level, inside, None, lambda: first[0], _proved(mesh, geom, method))
 
 
 def _check_field_values(slab: np.ndarray, field: Callable, axes: list, first: int) -> None:
@@ -589,7 +610,12 @@ class EmptyMeshWarning(UserWarning):
 
 
 def _checked(
-    mesh: SimplexMesh, level: float, inside: str, value_range: Callable | None, corner: Callable[[], float] | None
+    mesh: SimplexMesh,
+    level: float,
+    inside: str,
+    value_range: Callable | None,
+    corner: Callable[[], float] | None,
+    proved: tuple[str, ...] | None = None,
 ) -> SimplexMesh:
     """Warn about results that are almost always mistakes: empty, or closed and inside out.
 
@@ -602,7 +628,8 @@ def _checked(
     from ..mesh import InsideOutWarning
     from ..topology import MARCHING_PROVED
 
-    mesh._mark_constructed(MARCHING_PROVED)  # what the table guarantees: check() need not test it
+    # what the table guarantees (``proved``, else the vertex stars): check() need not test it
+    mesh._mark_constructed(MARCHING_PROVED if proved is None else proved)
     if mesh.n_simplices == 0:
         if value_range is not None:
             why = _empty_reason(level, inside, *value_range())
