@@ -435,7 +435,7 @@ class _Engine:
             out = scratch("simplices", n_simp * d * (8 if wide else 4))
             verts = scratch("vertices", n_new * d * 8)
         keys_buf = scratch("keys", n_new * 4)
-        vfirst, vax = scratch("vfirst", n * 4), scratch("vax", n * 4)
+        vblock = scratch("vertex blocks", chunks * _CHUNK // 16 * 8)  # (ki, ka) per block of 16 points
         layer_in, layer_ax = scratch("layer in", (n0 + 1) * 4), scratch("layer ax", (n0 + 1) * 4)
         act_p, act_s = scratch("active points", n_active * 4), scratch("active first", n_active * 4)
         act_b = scratch("active flags", n_active)
@@ -470,8 +470,7 @@ class _Engine:
             blk,
             layer_in,
             layer_ax,
-            vfirst,
-            vax,
+            vblock,
             keys_buf,
             nxt,
             act_p,
@@ -492,8 +491,9 @@ class _Engine:
             None,
             cases,
             vmask,
-            vfirst,
-            vax,
+            vblock,
+            layer_in,
+            layer_ax,
             cur,
             act_p,
             act_s,
@@ -503,6 +503,8 @@ class _Engine:
             self.edge_off,
             self.edge_dir,
             in_plane,
+            i32(self.layer),
+            i32(self.n_vertices),
             out,
         )
         t = _stage("emit", q, t)
@@ -556,7 +558,7 @@ class _Engine:
         # no kernel keeps the caller's rows (written in place) or values (read in place)
         placeholder = scratch("placeholder", 64)
         if in_place:
-            k["emit64" if wide else "emit32"].set_arg(13, placeholder)
+            k["emit64" if wide else "emit32"].set_arg(16, placeholder)
             k["interpolate"].set_arg(2, placeholder)
         if host_values:
             k["interpolate"].set_arg(0, placeholder)
