@@ -511,9 +511,12 @@ __kernel CHUNK_KERNEL void number(
     __global const int *chunk_s, __global const int *chunk_a,
     __global const int *blk,         // block prefixes of the four counts (scan_chunks)
     __global const int *layer_in, __global const int *layer_ax,  // layer_prefix
-    __global int2 *vblock,           // (P_pad / 16,) out, per block of 16 points holding new
-                                     // vertices: the slab's new in-plane and other vertices
-                                     // before the block (emit's vertex_index)
+    __global int2 *vblock,           // VERTEX_BLOCKS: (P_pad / 16,) out, per block of 16 points
+                                     // holding new vertices: the slab's new in-plane and other
+                                     // vertices before the block (new_vertex)
+    __global int *vfirst,            // else: (P,) out, index of the first new vertex at this
+                                     // point (at a boundary: of its first in-plane one)
+    __global int *vax,               // else: (P,) out, at a boundary: its first other one
     __global int *new_keys,          // (K,) out: point * NDIRS + direction, in index order
     __global int *carry_next,        // (layer * NDIRS,) out: the top layer's in-plane vertices
     __global int *act_p,             // (A,) out: point of each active cell
@@ -544,7 +547,9 @@ __kernel CHUNK_KERNEL void number(
             }
         }
         if (ZERO16(vmask, i)) continue;
+#if VERTEX_BLOCKS
         vblock[i / 16] = (int2)(ki, ka);
+#endif
         FOR_NONZERO(vmask, i, p) {
             const int m = vmask[p];
             TRACK(p, z, nz, fz);
@@ -555,6 +560,10 @@ __kernel CHUNK_KERNEL void number(
             } else {
                 bi = ba = ki + ka;
             }
+#if !VERTEX_BLOCKS
+            vfirst[p] = v_base + bi;
+            if (fz & 1) vax[p] = v_base + ba;
+#endif
             const int keep = p >= top_start ? in_plane : 0;
             for (int j = 0; j < NDIRS; ++j) {
                 if (!((m >> j) & 1)) continue;
@@ -603,6 +612,40 @@ inline int2 lanes_before(__global const vmask_t *vmask, const int q, const int i
     return (int2)(ni, na);
 }
 
+// The index of the new vertex on the crossed edge (q, direction j; m = vmask[q]) of the active
+// cell p, dir_step its edge_dir entry, bnd the cell's FLAGS. VERTEX_BLOCKS (2D and 3D): number's bi
+// / ba at q from its block's bases and the masks before it (lanes_before), once per corner of
+// the cell (kc, have); a per-point array of first indices made the 3D emit 1.3x slower (a
+// line of a 67 MB array fetched per lookup at 256^3) but is faster in 4D, whose many simplices per
+// cell reuse the lines and whose wider masks make lanes_before dearer (64^4: emit 108 against
+// 165 ms).
+inline int new_vertex(__global const vmask_t *vmask, __global const int2 *vblock,
+                      __global const int *vfirst, __global const int *vax,
+                      __global const int *layer_in, __global const int *layer_ax, const int p,
+                      const int q, const int j, const int m, const int dir_step, const int bnd,
+                      const int in_plane, const int layer, const int v_base, int2 *kc, uint *have)
+{
+    const int below = m & ((1 << j) - 1);
+    const int step = (dir_step >> 8) & 0xff;
+    const int boundary = (bnd >> step) & 1;
+#if VERTEX_BLOCKS
+    const int cn = dir_step >> 16;
+    if (!((*have >> cn) & 1)) {
+        kc[cn] = vblock[q >> 4] + lanes_before(vmask, q, in_plane);
+        *have |= 1u << cn;
+    }
+    const int2 kq = kc[cn];
+    if (!boundary) return v_base + kq.x + kq.y + popcount(below);
+    const int z = p / layer + step;
+    if ((in_plane >> j) & 1) return v_base + layer_ax[z] + kq.x + popcount(below & in_plane);
+    return v_base + layer_in[z + 1] + kq.y + popcount(below & ~in_plane);
+#else
+    if (!boundary) return vfirst[q] + popcount(below);
+    if ((in_plane >> j) & 1) return vfirst[q] + popcount(below & in_plane);
+    return vax[q] + popcount(below & ~in_plane);
+#endif
+}
+
 // One work-item per active cell: its simplices, table row by table row (out_t: int or long,
 // the type of the final array).
 #define EMIT_BODY(out)                                                                      \
@@ -612,45 +655,32 @@ inline int2 lanes_before(__global const vmask_t *vmask, const int q, const int i
     int s = act_s[i];                                                                       \
     const int c = cases[p];                                                                 \
     const int t1 = offsets[c + 1];                                                          \
+    int2 kc[NCORNERS];  /* number's bi / ba at each corner, once looked up */               \
+    uint have = 0;      /* bit v: kc[v] is set */                                           \
     for (int t = offsets[c]; t < t1; ++t, ++s) {                                            \
         for (int k = 0; k < DIM; ++k) {                                                     \
             const int e = table[t * DIM + k];                                               \
             const int q = p + edge_off[e];                                                  \
             const int j = edge_dir[e] & 0xff;                                               \
             const int m = vmask[q];                                                         \
-            const int below = m & ((1 << j) - 1);                                           \
-            int v;                                                                          \
-            if (!((m >> j) & 1)) {                                                          \
-                v = carry[q * NDIRS + j];                                                   \
-            } else {                                                                        \
-                /* number's bi / ba at q, then the directions below j */                    \
-                const int2 kq = vblock[q >> 4] + lanes_before(vmask, q, in_plane);          \
-                const int step = edge_dir[e] >> 8;                                          \
-                if (!((bnd >> step) & 1)) {                                                 \
-                    v = kq.x + kq.y + popcount(below);                                      \
-                } else {                                                                    \
-                    const int z = p / layer + step;                                         \
-                    if ((in_plane >> j) & 1)                                                \
-                        v = layer_ax[z] + kq.x + popcount(below & in_plane);                \
-                    else                                                                    \
-                        v = layer_in[z + 1] + kq.y + popcount(below & ~in_plane);           \
-                }                                                                           \
-                v += v_base;                                                                \
-            }                                                                               \
-            out[s * DIM + k] = v;                                                           \
+            /* an edge of the shared layer not new here carries the slab below's vertex */ \
+            out[s * DIM + k] = !((m >> j) & 1) ? carry[q * NDIRS + j]                       \
+                : new_vertex(vmask, vblock, vfirst, vax, layer_in, layer_ax, p, q, j, m,    \
+                             edge_dir[e], bnd, in_plane, layer, v_base, kc, &have);         \
         }                                                                                   \
     }
 
 #define EMIT_ARGS                                                                           \
     __global const case_t *cases, __global const vmask_t *vmask,                            \
-    __global const int2 *vblock,     /* number's block bases */                             \
+    __global const int2 *vblock,     /* number's block bases (VERTEX_BLOCKS) */             \
+    __global const int *vfirst, __global const int *vax,  /* number's (otherwise) */        \
     __global const int *layer_in, __global const int *layer_ax,  /* layer_prefix */         \
     __global const int *carry, __global const int *act_p,                                   \
     __global const int *act_s, __global const uchar *act_b,                                 \
     __global const int *offsets,     /* (2^NCORNERS + 1,) first table row of each case */   \
     __global const uchar *table,     /* (M, DIM) edge ids */                                \
     __global const int *edge_off,    /* (E,) linear offset of edge e's lower corner */      \
-    __global const int *edge_dir,    /* (E,) direction | (layer step of that corner) << 8 */ \
+    __global const int *edge_dir,    /* (E,) direction | layer step << 8 | corner << 16 */   \
     int in_plane, int layer, int v_base
 
 // One cell per work-item, each with its own number of rows and scattered reads: compilers that

@@ -224,7 +224,7 @@ class _Engine:
         self.user_bits = [np.int32(1 << axis) for axis in geom.perm] + [np.int32(0)] * (4 - d)
         self.edge_off = self._const(offs[table.corner].astype(np.int32))
         step = (table.corner >> geom.perm[0]) & 1  # the edge's lower corner is one layer up
-        self.edge_dir = self._const((dir_of[table.mask] | (step << 8)).astype(np.int32))
+        self.edge_dir = self._const((dir_of[table.mask] | (step << 8) | (table.corner << 16)).astype(np.int32))
         self.in_plane = int(sum(1 << j for j in range(plan.n_dirs) if plan.in_plane[j]))
         self.layer = geom.layer
         points = (min(layers, geom.shape[0] - 1) + 1) * geom.layer
@@ -238,13 +238,16 @@ class _Engine:
             {
                 "the slab's values": points * 8,
                 "the slab's values, signs, cases, edge masks and vertex numbers": padded
-                * (8 + 1 + case_size + mask_size + 8),
+                * (8 + 1 + case_size + mask_size + (8 if d == 4 else 1)),
                 "the shared layer's vertices (twice)": 2 * carry,
             },
             task=f"extracting a grid of shape {geom.shape} on the device",
             fallback="thinner slabs (`chunk=`)",
         )
         self.case_size, self.mask_size = case_size, mask_size
+        # new vertices found from per-block bases in 2D and 3D, from per-point first indices in
+        # 4D (kernels/march.cl's new_vertex says why)
+        self.vertex_blocks = d < 4
         # carry[key]: the vertex of a crossed in-plane edge of the shared layer (only those are
         # read, and each is written by the slab below: no fill needed)
         self.carry = [self._buf(carry), self._buf(carry)]
@@ -265,6 +268,7 @@ class _Engine:
                     "VKIND": vkind,
                     "VFLOAT": int(vtype in ("float", "double")),
                     "FP64": int(self.fp64),
+                    "VERTEX_BLOCKS": int(self.vertex_blocks),
                 },
             )
         return self._built[vtype]
@@ -435,7 +439,12 @@ class _Engine:
             out = scratch("simplices", n_simp * d * (8 if wide else 4))
             verts = scratch("vertices", n_new * d * 8)
         keys_buf = scratch("keys", n_new * 4)
-        vblock = scratch("vertex blocks", chunks * _CHUNK // 16 * 8)  # (ki, ka) per block of 16 points
+        if self.vertex_blocks:  # (ki, ka) per block of 16 points
+            vblock = scratch("vertex blocks", chunks * _CHUNK // 16 * 8)
+            vfirst = vax = scratch("placeholder", 64)
+        else:
+            vblock = scratch("placeholder", 64)
+            vfirst, vax = scratch("vfirst", n * 4), scratch("vax", n * 4)
         layer_in, layer_ax = scratch("layer in", (n0 + 1) * 4), scratch("layer ax", (n0 + 1) * 4)
         act_p, act_s = scratch("active points", n_active * 4), scratch("active first", n_active * 4)
         act_b = scratch("active flags", n_active)
@@ -471,6 +480,8 @@ class _Engine:
             layer_in,
             layer_ax,
             vblock,
+            vfirst,
+            vax,
             keys_buf,
             nxt,
             act_p,
@@ -492,6 +503,8 @@ class _Engine:
             cases,
             vmask,
             vblock,
+            vfirst,
+            vax,
             layer_in,
             layer_ax,
             cur,
@@ -558,7 +571,7 @@ class _Engine:
         # no kernel keeps the caller's rows (written in place) or values (read in place)
         placeholder = scratch("placeholder", 64)
         if in_place:
-            k["emit64" if wide else "emit32"].set_arg(16, placeholder)
+            k["emit64" if wide else "emit32"].set_arg(18, placeholder)
             k["interpolate"].set_arg(2, placeholder)
         if host_values:
             k["interpolate"].set_arg(0, placeholder)
