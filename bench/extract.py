@@ -9,7 +9,8 @@ scalars) on one thread (``vtkSMPTools`` backend ``Sequential``) and on all threa
 threaded backend, named in the output). 4D: a hypersphere on 64^4 and 96^4 grids, both methods,
 device against the numpy engine. Every case runs once untimed (table loading, kernel builds,
 first-touch pages), then ``--rounds`` times in turn, so that machine load falls on all cases
-alike; the table shows the median with the min-max spread, and ratios of medians. ao4d's times
+alike, each group's order rotated by one case every round (see ``_rotated``); the table shows
+the median with the min-max spread, and ratios of medians. ao4d's times
 are what the user waits for: ``ao4d.extract`` from the array to the SimplexMesh, checks
 included.
 
@@ -209,6 +210,23 @@ print(json.dumps({"time": t, "simplices": simplices, "peak_mib": int(hwm.split()
 """
 
 
+def _rotated(cases: list, r: int) -> list:
+    """The cases of round ``r``: the groups in order, each group's cases rotated by ``r``.
+
+    On this project's VM the case that runs first after another group's long run (the 96^4 numpy
+    engine's 11 s) ran 1.5-2x slower than in a loop (sign pass 8-14 ms against 4.5: memory reads
+    of a single-threaded numpy sum of the same array 4x slower, then normal again), while the
+    cases after it found the machine warm. A fixed order gave that penalty to the same case, ao4d's
+    device engine, every round; rotating spreads it over every case of a group alike.
+    """
+    out = []
+    for group in dict.fromkeys(g for g, *_ in cases):
+        members = [c for c in cases if c[0] == group]
+        k = r % len(members)
+        out += members[k:] + members[:k]
+    return out
+
+
 def _subprocess(code: str, *args: str, env: dict | None = None) -> dict:
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = {**os.environ, **(env or {})}
@@ -254,8 +272,8 @@ def main(argv: list[str] | None = None) -> int:
     for group, name, _, run in cases:  # warm-up: tables, kernel builds, first-touch pages
         gc.collect()
         outputs[(group, name)] = run()
-    for _ in range(args.rounds):  # in turn, so machine load affects all cases alike
-        for group, name, _, run in cases:
+    for r in range(args.rounds):  # in turn, so machine load affects all cases alike
+        for group, name, _, run in _rotated(cases, r):
             gc.collect()  # a mesh sits in a reference cycle: free the last one before timing
             t0 = time.perf_counter()
             outputs[(group, name)] = run()
