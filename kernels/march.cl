@@ -19,9 +19,15 @@
 //   scan_blocks exclusive scan of the block totals (one work-item; a few hundred blocks)
 //   layer_prefix  per layer: the new vertices before its first point (in-plane and not)
 //   number      new vertices numbered, their keys compacted, the top layer's in-plane vertices
-//               remembered for the next slab (carry)
+//               remembered for the next slab (carry); each block of 16 points with new vertices
+//               gets the counts before it (vblock; in 4D, each point its first index instead)
 //   emit        the simplices of every active cell, rows of the cell table in order, each edge
-//               replaced by its vertex index
+//               replaced by its vertex index (new_vertex)
+//
+// The chunk passes and emit skip what is empty 16 points at a time: classify tests a block's
+// corner signs as bytes before any lane arithmetic, count and number visit only a block's
+// nonzero lanes (FOR_NONZERO), emit counts a block's vertices below a point with popcounts
+// (lanes_before).
 //   interpolate every new vertex's position, with the numpy engine's float64 operations
 //
 // Vertex order: the numpy engine numbers the new vertices of each of its slabs (PERIOD layers)
