@@ -23,12 +23,12 @@
 //               gets the counts before it (vblock; in 4D, each point its first index instead)
 //   emit        the simplices of every active cell, rows of the cell table in order, each edge
 //               replaced by its vertex index (new_vertex)
+//   interpolate every new vertex's position, with the numpy engine's float64 operations
 //
 // The chunk passes and emit skip what is empty 16 points at a time: classify tests a block's
 // corner signs as bytes before any lane arithmetic, count and number visit only a block's
 // nonzero lanes (FOR_NONZERO), emit counts a block's vertices below a point with popcounts
 // (lanes_before).
-//   interpolate every new vertex's position, with the numpy engine's float64 operations
 //
 // Vertex order: the numpy engine numbers the new vertices of each of its slabs (PERIOD layers)
 // in (point, direction) order, and the in-plane vertices of the layer two of its slabs share
@@ -559,7 +559,7 @@ __kernel CHUNK_KERNEL void number(
         FOR_NONZERO(vmask, i, p) {
             const int m = vmask[p];
             TRACK(p, z, nz, fz);
-            int bi, ba;  // next index of an in-plane and of another vertex here (vertex_index)
+            int bi, ba;  // next index of an in-plane and of another vertex here (see new_vertex)
             if (fz & 1) {
                 bi = layer_ax[z] + ki;
                 ba = layer_in[z + 1] + ka;
@@ -586,8 +586,7 @@ __kernel CHUNK_KERNEL void number(
 // The slab's new in-plane (.x) and other (.y) vertices at the points of q's block of 16 that
 // come before q: the popcounts of the block's masks below q's lane, read as 64-bit words (little-
 // endian devices; others add lane by lane). With number's vblock this gives a vertex's index
-// from its block, a 4 MB array at 256^3 that stays in the caches, where a per-point array of
-// first indices (67 MB, a line fetched for every lookup) made emit twice as slow.
+// from its block, a 4 MB array at 256^3 that stays in the caches (new_vertex).
 inline int2 lanes_before(__global const vmask_t *vmask, const int q, const int in_plane)
 {
     const int b = q & ~15, l = q & 15;
