@@ -233,21 +233,21 @@ class _Engine:
         case_size = 2 if d == 4 else 1
         mask_size = 2 if plan.n_dirs > 8 else 1
         carry = geom.layer * plan.n_dirs * 4
+        # new vertices found from per-block bases in 2D and 3D (half a byte a point), from
+        # per-point first indices in 4D (8 bytes a point; kernels/march.cl's new_vertex says why)
+        self.vertex_blocks = d < 4
         cl.check_device_memory(
             runtime,
             {
                 "the slab's values": points * 8,
                 "the slab's values, signs, cases, edge masks and vertex numbers": padded
-                * (8 + 1 + case_size + mask_size + (8 if d == 4 else 1)),
+                * (8 + 1 + case_size + mask_size + (1 if self.vertex_blocks else 8)),
                 "the shared layer's vertices (twice)": 2 * carry,
             },
             task=f"extracting a grid of shape {geom.shape} on the device",
             fallback="thinner slabs (`chunk=`)",
         )
         self.case_size, self.mask_size = case_size, mask_size
-        # new vertices found from per-block bases in 2D and 3D, from per-point first indices in
-        # 4D (kernels/march.cl's new_vertex says why)
-        self.vertex_blocks = d < 4
         # carry[key]: the vertex of a crossed in-plane edge of the shared layer (only those are
         # read, and each is written by the slab below: no fill needed)
         self.carry = [self._buf(carry), self._buf(carry)]
