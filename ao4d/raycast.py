@@ -62,7 +62,8 @@ __all__ = [
     "BUILDERS",
 ]
 
-AO_PACKET = 32  # rays of a point traced together by the AO kernel (kernels/bvh.h trace_packet)
+AO_PACKET = 32  # rays of a point traced together by the AO kernel on GPUs (kernels/bvh.h trace_packet)
+AO_PACKET_CPU = 64  # on CPUs: a node fetched once serves twice the rays (5-6 % less trace time, measured)
 AO_TRAVERSALS = ("packet", "rays")  # kernels ao_bvh and ao_bvh_rays; same counts
 RAYS_PER_LAUNCH = 1 << 21  # ~0.5-2 s per launch on a 2-core CPU: responsive bar and Ctrl-C
 ACCELS = ("bvh", "brute")
@@ -253,13 +254,34 @@ def _kernels(
         "WIDTH": _bvh.node_width(runtime) if width is None else width,  # the trees' (bvh.device_tree)
         "LANES": lanes,
         "STACK_SIZE": _bvh.layout.STACK_SIZE,
-        "PACKET": AO_PACKET,
+        "PACKET": ao_packet(runtime),
     }
     if count_visits:  # the debug variant of traversal_counts
         defines["COUNT_VISITS"] = 1
     if ray_type is not None:  # the cast_rows_* kernels, which map the caller's rows themselves
         defines["RAY_T"] = ray_type
     return cl.build_kernels(runtime, "ao.cl", defines)
+
+
+def ao_packet(runtime) -> int:
+    """Rays of a point traced together by the AO kernel on ``runtime``'s device.
+
+    64 on CPUs, whose large stacks hold the packet's rays (80 bytes each in 4D) in cache; 32
+    on GPUs, where private memory is scarce per work-item.
+
+    Parameters
+    ----------
+    runtime : ao4d.opencl.cl.Runtime
+        The device that traces.
+
+    Returns
+    -------
+    int
+        32 or 64 (``PACKET`` of kernels/bvh.h).
+    """
+    import pyopencl as pcl
+
+    return AO_PACKET_CPU if runtime.device.type & pcl.device_type.CPU else AO_PACKET
 
 
 def _pad4(a: np.ndarray) -> np.ndarray:

@@ -220,9 +220,11 @@ inline pmask trace_packet(__global const floatW *boxes, __global const int *chil
             vstoreW(d2, 0, key);
         }
         const int base = sp;  // this node's children are sorted among themselves only
-        for (int s = 0; s < WIDTH; ++s) {
+        // the slots some ray hits, in slot order: a node has few such children of WIDTH
+        int slots = lane_bits(convert_intW(child_mask != (pmaskW)(0)) & (vloadW(0, child) != (intW)(0)));
+        for (; slots; slots &= slots - 1) {
+            const int s = 31 - (int)clz(slots & -slots);
             const int c = child[s];
-            if (!masks[s] || c == 0) continue;
             if (c > 0) {
                 int k = sp++;  // insertion: the nearest child ends on top of the stack
                 while (k > base && key[s] > stack_key[k - 1]) {

@@ -106,10 +106,16 @@ inline int hit_block(__global const floatL *blk, const float *o, const float *w,
 #define floatW float8
 #define intW int8
 #define vstoreW vstore8
+#define vloadW vload8
+#define convert_intW convert_int8
+#define LANE_BITS_W (int8)(1, 2, 4, 8, 16, 32, 64, 128)
 #elif WIDTH == 16
 #define floatW float16
 #define intW int16
 #define vstoreW vstore16
+#define vloadW vload16
+#define convert_intW convert_int16
+#define LANE_BITS_W (int16)(1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096, 8192, 16384, 32768)
 #else
 #error "WIDTH must be 8 or 16"
 #endif
@@ -122,6 +128,20 @@ inline int hit_block(__global const floatL *blk, const float *o, const float *w,
 // fma(box, inv_w, -o_inv) errs by up to |o| * 2^-24 in box coordinates: the boxes' margin
 // covers it (ao4d.bvh._BOX_FMA_MARGIN). inv_w is finite, so no 0 * inf = NaN arises and plain
 // min / max are exact (fmin / fmax need extra NaN handling: a third slower, measured).
+// bit s set where lane s of `lanes` is nonzero (true)
+inline int lane_bits(const intW lanes)
+{
+    const intW b = lanes & LANE_BITS_W;
+#if WIDTH == 16
+    const int8 b8 = b.lo | b.hi;
+#else
+    const int8 b8 = b;
+#endif
+    const int4 b4 = b8.lo | b8.hi;
+    const int2 b2 = b4.lo | b4.hi;
+    return b2.x | b2.y;
+}
+
 inline intW hit_boxes(__global const floatW *boxes, const int *near, const int *far,
                       const float *inv_w, const float *o_inv, const float t_max, floatW *t_near)
 {

@@ -441,11 +441,13 @@ def _surface_scene(rng, d, shift):
 @pytest.mark.parametrize("d", DIMS)
 @pytest.mark.parametrize("lanes", [16, 4])
 @pytest.mark.parametrize("shift", [0.0, 1000.0])  # far from the coordinate origin: float32 slabs
-def test_packet_traversal_gives_the_per_ray_and_brute_force_counts(d, lanes, shift, cl_runtime, monkeypatch):
+@pytest.mark.parametrize("packet_size", [32, 64])  # GPUs' and CPUs' (raycast.ao_packet)
+def test_packet_traversal_gives_the_per_ray_and_brute_force_counts(d, lanes, shift, packet_size, cl_runtime, monkeypatch):
     # the packet kernel tests, per ray, exactly the boxes and blocks of the per-ray kernel with
     # the same arithmetic: bit-identical counts, also for packets cut short (40 and 70 samples
-    # are not multiples of raycast.AO_PACKET) and with a finite reach
+    # are not multiples of raycast.ao_packet's 32 or 64) and with a finite reach
     monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime: lanes)
+    monkeypatch.setattr(raycast, "ao_packet", lambda runtime: packet_size)
     rng = np.random.default_rng(1600 + d)
     mesh, p, n = _surface_scene(rng, d, shift)
     tree = raycast.get_bvh(mesh, runtime=cl_runtime)
@@ -510,7 +512,7 @@ def test_directions_eight_at_a_time_are_the_same_bits(d, cl_runtime):
 
 
 def test_packet_kernel_private_memory_is_bounded(cl_runtime):
-    # GPU readiness: the packet's rays (32 x 20 words in 4D) and its stack of (node, ray mask)
+    # GPU readiness: the packet's rays (32 or 64 x 20 words in 4D) and its stack of (node, ray mask)
     # entries are fixed-size private arrays; no local memory
     import pyopencl as pcl
 
@@ -518,7 +520,8 @@ def test_packet_kernel_private_memory_is_bounded(cl_runtime):
         kernel = raycast._kernels(cl_runtime, d, bvh.block_lanes(cl_runtime))["ao_bvh"]
         assert kernel.get_work_group_info(pcl.kernel_work_group_info.LOCAL_MEM_SIZE, cl_runtime.device) == 0
         private = _private_bytes(cl_runtime, kernel)
-        needed = raycast.AO_PACKET * 5 * d * 4 + 2 * bvh.STACK_SIZE * 4
+        packet = raycast.ao_packet(cl_runtime)
+        needed = packet * 5 * d * 4 + bvh.STACK_SIZE * (8 + packet // 8)  # node, key, ray mask
         if private > 0:  # runtimes that report it: the packet and the stack, little more
             assert needed <= private <= needed + 4096
 
