@@ -442,7 +442,9 @@ def _surface_scene(rng, d, shift):
 @pytest.mark.parametrize("lanes", [16, 4])
 @pytest.mark.parametrize("shift", [0.0, 1000.0])  # far from the coordinate origin: float32 slabs
 @pytest.mark.parametrize("packet_size", [32, 64])  # GPUs' and CPUs' (raycast.ao_packet)
-def test_packet_traversal_gives_the_per_ray_and_brute_force_counts(d, lanes, shift, packet_size, cl_runtime, monkeypatch):
+def test_packet_traversal_gives_the_per_ray_and_brute_force_counts(
+    d, lanes, shift, packet_size, cl_runtime, monkeypatch
+):
     # the packet kernel tests, per ray, exactly the boxes and blocks of the per-ray kernel with
     # the same arithmetic: bit-identical counts, also for packets cut short (40 and 70 samples
     # are not multiples of raycast.ao_packet's 32 or 64) and with a finite reach
