@@ -453,9 +453,10 @@ def _traversal_kernel(
 
 def _ao_traversal(runtime) -> str:
     """The AO kernel for this device: packets on CPUs, where one work-item runs on one core and
-    a packet shares its node fetches and child loops among 32 rays (1.1-1.45x faster, measured);
-    one ray per work-item elsewhere: GPUs run neighbouring rays on SIMT lanes already and the
-    packet's 5.5 KiB of private memory per work-item would spill (not measured: no GPU lent)."""
+    a packet shares its node fetches and child loops among :func:`ao_packet` rays (64 on CPUs;
+    1.1-1.45x the per-ray kernel at 32, measured); one ray per work-item elsewhere: GPUs run
+    neighbouring rays on SIMT lanes already and the packet's 5.5-11 KiB of private memory per
+    work-item would spill (not measured: no GPU lent)."""
     import pyopencl as pcl
 
     return "packet" if runtime.device.type & pcl.device_type.CPU else "rays"

@@ -227,13 +227,24 @@ class Open3D:
             text=True,
             env=env,
         )
-        self.info = json.loads(self.proc.stdout.readline())
+        self.info = self._answer()
+
+    def _answer(self) -> dict:
+        """The worker's next line as JSON; a worker that died says so (its traceback is above,
+        on the shared stderr) instead of a JSON error on an empty line."""
+        line = self.proc.stdout.readline()
+        if not line:
+            raise RuntimeError(
+                f"the Open3D worker ({open3d_python()}) exited with {self.proc.wait()}: see its "
+                "error above (its Python needs open3d and trimesh: AO4D_BENCH_OPEN3D_PYTHON)"
+            )
+        return json.loads(line)
 
     def run(self, triangles: int, points: int, samples: int, reach: float = 0.0) -> dict:
         job = dict(triangles=triangles, points=points, samples=samples, reach=reach)
         self.proc.stdin.write(json.dumps(job) + "\n")
         self.proc.stdin.flush()
-        return json.loads(self.proc.stdout.readline())
+        return self._answer()
 
     def close(self) -> None:
         self.proc.stdin.close()

@@ -120,14 +120,6 @@ inline int hit_block(__global const floatL *blk, const float *o, const float *w,
 #error "WIDTH must be 8 or 16"
 #endif
 
-// slab test of the WIDTH child boxes of a wide node against the ray segment (0, t_max]:
-// boxes[j] / boxes[DIM + j] hold the low / high bound of coordinate j of the children. The ray
-// (load_ray) gives, per coordinate, the row of the entry bound (near: low bound when the
-// direction is positive) and of the exit bound (far), the finite inverse direction inv_w and
-// o_inv = o * inv_w, so that each slab costs one fma per bound and no min / max of the two.
-// fma(box, inv_w, -o_inv) errs by up to |o| * 2^-24 in box coordinates: the boxes' margin
-// covers it (ao4d.bvh._BOX_FMA_MARGIN). inv_w is finite, so no 0 * inf = NaN arises and plain
-// min / max are exact (fmin / fmax need extra NaN handling: a third slower, measured).
 // bit s set where lane s of `lanes` is nonzero (true)
 inline int lane_bits(const intW lanes)
 {
@@ -142,6 +134,14 @@ inline int lane_bits(const intW lanes)
     return b2.x | b2.y;
 }
 
+// slab test of the WIDTH child boxes of a wide node against the ray segment (0, t_max]:
+// boxes[j] / boxes[DIM + j] hold the low / high bound of coordinate j of the children. The ray
+// (load_ray) gives, per coordinate, the row of the entry bound (near: low bound when the
+// direction is positive) and of the exit bound (far), the finite inverse direction inv_w and
+// o_inv = o * inv_w, so that each slab costs one fma per bound and no min / max of the two.
+// fma(box, inv_w, -o_inv) errs by up to |o| * 2^-24 in box coordinates: the boxes' margin
+// covers it (ao4d.bvh._BOX_FMA_MARGIN). inv_w is finite, so no 0 * inf = NaN arises and plain
+// min / max are exact (fmin / fmax need extra NaN handling: a third slower, measured).
 inline intW hit_boxes(__global const floatW *boxes, const int *near, const int *far,
                       const float *inv_w, const float *o_inv, const float t_max, floatW *t_near)
 {
