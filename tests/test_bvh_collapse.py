@@ -133,3 +133,55 @@ def test_wide_nodes_are_fuller_than_half(build_bvh):
     leaf = -children[children < 0] - 1
     reached = np.concatenate([b + np.arange(m) for b, m in zip(leaf >> 2, (leaf & 3) + 1)])
     assert np.array_equal(np.sort(reached), np.arange(len(first)))
+
+
+def full_programme(left, right, area, levels, n_blocks, may_be_leaf, width):
+    """The dynamic programme run for every node up to ``width`` slots (collapse's earlier form,
+    before it stopped at a node's leaf count): (leaf, split, share)."""
+    n = len(left)
+    cost = np.full((n, width + 1), np.inf)
+    split = np.zeros((n, width + 1), dtype=np.int8)
+    share = np.zeros(n, dtype=np.int8)
+    leaf = left < 0
+    leaf_cost = np.where(may_be_leaf | (left < 0), area * n_blocks * COST_BLOCK, np.inf)
+    cost[left < 0, 1:] = leaf_cost[left < 0, None]
+    for ids in reversed(levels):
+        for k in ids[left[ids] >= 0]:
+            cl, cr = cost[left[k]], cost[right[k]]
+            both = np.full(width + 1, np.inf)
+            k_best = np.zeros(width + 1, dtype=np.int8)
+            for i in range(2, width + 1):
+                sums = [cl[a] + cr[i - a] for a in range(1, i)]
+                k_best[i] = 1 + int(np.argmin(sums))  # the first of equal sums
+                both[i] = sums[k_best[i] - 1]
+            wide = area[k] * COST_NODE + both[width]
+            share[k], leaf[k] = k_best[width], leaf_cost[k] <= wide
+            cost[k, 1] = min(leaf_cost[k], wide)
+            for i in range(2, width + 1):
+                use = both[i] < cost[k, i - 1]
+                cost[k, i] = both[i] if use else cost[k, i - 1]
+                split[k, i] = k_best[i] if use else split[k, i - 1]
+    return leaf, split, share
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n_leaves=st.integers(2, 70),
+    width=st.sampled_from([2, 3, 4, 5, 8, 16]),
+    leafy=st.booleans(),
+    coarse=st.booleans(),
+)
+def test_collapse_equals_the_programme_run_to_full_width(seed, n_leaves, width, leafy, coarse):
+    # collapse stops each node's programme at the bound above its leaf count; the choices,
+    # ties included (coarse areas make equal sums common), must be those of the full programme
+    rng = np.random.default_rng(seed)
+    left, right, area, levels, n_blocks = random_tree(rng, n_leaves)
+    if coarse:
+        area = np.round(area * 4) / 4 + 0.25
+    may_be_leaf = (n_blocks <= 3) if leafy else (left < 0)
+    plan = collapse(left, right, area, levels, n_blocks, may_be_leaf, width)
+    leaf, split, share = full_programme(left, right, area, levels, n_blocks, may_be_leaf, width)
+    assert np.array_equal(plan.leaf, leaf)
+    assert np.array_equal(plan.split, split)
+    assert np.array_equal(plan.share[left >= 0], share[left >= 0])

@@ -102,27 +102,59 @@ def collapse(
     bottom = left < 0
     cost[bottom, 1:] = leaf_cost[bottom, None]
     leaf[bottom] = True
+    leaves = np.ones(n, dtype=np.int64)  # binary leaves under each node
+    # A subtree of L binary leaves cannot use more than L slots: its costs (and split choices)
+    # for i >= L slots equal those for L (the sums below are monotone in each term, and the
+    # split k = L_left reaches the least one). Most nodes lie near the bottom, with few leaves,
+    # so each node's programme runs only up to a bound u >= min(L, width), the smallest of
+    # 2, 4, 8, ... that holds it, and the columns beyond u repeat column u: the same arrays as
+    # running every node to `width`, at a third of the time on 4 M tetrahedra.
+    bounds = sorted({min(1 << b, width) for b in range(1, width.bit_length() + 1)})
     for ids in reversed(levels):  # children before parents
         ids = ids[left[ids] >= 0]
         if ids.size == 0:
             continue
-        cl, cr = cost[left[ids]], cost[right[ids]]
-        both = np.full((ids.size, width + 1), np.inf)  # both children, i slots between them
-        k_best = np.zeros((ids.size, width + 1), dtype=np.int8)
-        for i in range(2, width + 1):
-            c = cl[:, 1:i] + cr[:, i - 1 : 0 : -1]  # k = 1 .. i-1 slots for the left child
-            k = np.argmin(c, axis=1)  # the first of equal costs, as a loop over k would keep
-            both[:, i] = c[np.arange(ids.size), k]
-            k_best[:, i] = k + 1
-        wide = area[ids] * COST_NODE + both[:, width]
-        share[ids] = k_best[:, width]
-        leaf[ids] = leaf_cost[ids] <= wide
-        c_n = np.full((ids.size, width + 1), np.inf)
-        s_n = np.zeros((ids.size, width + 1), dtype=np.int8)
-        c_n[:, 1] = np.minimum(leaf_cost[ids], wide)
-        for i in range(2, width + 1):
-            use = both[:, i] < c_n[:, i - 1]
-            c_n[:, i] = np.where(use, both[:, i], c_n[:, i - 1])
-            s_n[:, i] = np.where(use, k_best[:, i], s_n[:, i - 1])
-        cost[ids], split[ids] = c_n, s_n
+        leaves[ids] = leaves[left[ids]] + leaves[right[ids]]
+        cap = np.minimum(leaves[ids], width)
+        below = 1
+        for u in bounds:
+            group = ids[(cap > below) & (cap <= u)]
+            below = u
+            if group.size:
+                _programme(group, u, width, left, right, area, leaf_cost, cost, split, share, leaf)
     return Collapse(left=left, right=right, leaf=leaf, split=split, share=share, width=width)
+
+
+def _programme(ids, u, width, left, right, area, leaf_cost, cost, split, share, leaf) -> None:
+    """The dynamic programme's step for the nodes ``ids`` (children done), whose subtrees have
+    at most ``u`` leaves or ``u = width``: columns 1..u computed, the rest copies of column u."""
+    m = ids.size
+    cl, cr = cost[left[ids], : u + 1], cost[right[ids], : u + 1]
+    both = np.full((m, u + 1), np.inf)  # both children, i slots between them
+    k_best = np.zeros((m, u + 1), dtype=np.int8)
+    rows = np.arange(m)
+    for i in range(2, u + 1):
+        c = cl[:, 1:i] + cr[:, i - 1 : 0 : -1]  # k = 1 .. i-1 slots for the left child
+        k = np.argmin(c, axis=1)  # the first of equal costs, as a loop over k would keep
+        both[:, i] = c[rows, k]
+        k_best[:, i] = k + 1
+    if u == width:
+        share[ids] = k_best[:, width]
+    else:
+        # the first k of 1 .. width-1 with the least cl[k] + cr[width - k]: the least is
+        # cl[L_left] + cr[L_right], and for k < L_left the right term is cr[u] (constant), so
+        # the first such k lies in 1 .. u-1 (L_left <= u - 1)
+        share[ids] = np.argmin(cl[:, 1:u] + cr[:, u : u + 1], axis=1) + 1
+    wide = area[ids] * COST_NODE + both[:, u]
+    leaf[ids] = leaf_cost[ids] <= wide
+    c_n = np.empty((m, width + 1))
+    s_n = np.zeros((m, width + 1), dtype=np.int8)
+    c_n[:, 0] = np.inf
+    c_n[:, 1] = np.minimum(leaf_cost[ids], wide)
+    for i in range(2, u + 1):
+        use = both[:, i] < c_n[:, i - 1]
+        c_n[:, i] = np.where(use, both[:, i], c_n[:, i - 1])
+        s_n[:, i] = np.where(use, k_best[:, i], s_n[:, i - 1])
+    c_n[:, u + 1 :] = c_n[:, u : u + 1]
+    s_n[:, u + 1 :] = s_n[:, u : u + 1]
+    cost[ids], split[ids] = c_n, s_n
