@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 
 from ._validate import as_array, check_choice, check_int, check_memory, check_positive_int
-from .bvh.host import measured_normals
+from .bvh.host import nondegenerate_given
+from .geometry import vertex_sums
 from .mesh import as_mesh, warn_if_inside_out
 from .opencl import cl
 from .raycast import ACCELS, check_distance, check_rays, count_occluded, get_bvh, mesh_arrays, progress_bar, unit_rows
@@ -72,13 +73,18 @@ def _query_points(mesh, at, points, normals, d):
     if cached is not None:
         return cached
     vertices, simplices = mesh_arrays(mesh)
-    vertices = np.asarray(vertices, dtype=np.float64)
-    # zero where the BVH's degeneracy test (relative to the simplex's size) finds no measure: an
-    # exact zero test would depend on the scene's scale, as scaling rounds the corners of a flat
-    # simplex off its hyperplane and its normal becomes rounding noise pointing anywhere
-    raw = measured_normals(vertices, np.asarray(simplices))
+    vertices, simplices = np.asarray(vertices, dtype=np.float64), np.asarray(simplices)
+    # the mesh's own normals (shared with its volume, measures and vertex normals), zero where
+    # the BVH's degeneracy test (relative to the simplex's size) finds no measure: an exact zero
+    # test would depend on the scene's scale, as scaling rounds the corners of a flat simplex
+    # off its hyperplane and its normal becomes rounding noise pointing anywhere
+    raw = mesh._raw_normals
+    keep = nondegenerate_given(vertices, simplices, raw)
+    if not keep.all():
+        raw = np.where(keep[:, None], raw, 0.0)
     if at == "vertices":
-        points, normals = vertices, _unit(_vertex_sums(raw, simplices, len(vertices)))
+        sums = mesh._vertex_normal_sums if keep.all() else vertex_sums(raw, simplices, len(vertices))
+        points, normals = vertices, _unit(sums)
     else:
         points, normals = vertices[simplices].mean(1), _unit(raw)
     length = np.linalg.norm(normals, axis=1)
@@ -89,16 +95,6 @@ def _query_points(mesh, at, points, normals, d):
             array.flags.writeable = False
         mesh.cache[key] = query
     return query
-
-
-def _vertex_sums(raw: np.ndarray, simplices: np.ndarray, n: int) -> np.ndarray:
-    """(n, d) sums of the normals ``raw`` of the simplices around each vertex (area weighting)."""
-    total = np.zeros((n, raw.shape[1]))
-    for k in range(simplices.shape[1]):
-        ids = np.ascontiguousarray(simplices[:, k])
-        for j in range(raw.shape[1]):
-            total[:, j] += np.bincount(ids, raw[:, j], n)
-    return total
 
 
 def _unit(normals: np.ndarray) -> np.ndarray:

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["cross", "cross_components", "edge_blocks", "simplex_normals"]
+__all__ = ["cross", "cross_components", "edge_blocks", "simplex_normals", "vertex_sums"]
 
 # Simplices per block when gathering corners: the block's temporaries (about 30 arrays) stay in
 # a core's L2 cache, which larger blocks overflow (figures in the benchmarks guide)
@@ -120,6 +120,43 @@ def simplex_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
     for rows, edges in edge_blocks(vertices, simplices):
         out[rows] = cross_components(edges).T
     return out
+
+
+def vertex_sums(values: np.ndarray, simplices: np.ndarray, n: int) -> np.ndarray:
+    """Per vertex, the sum of the rows of ``values`` over the simplices around it.
+
+    One bincount per (coordinate, corner), the corners in order: every caller gets the same
+    bits (the vertex normals and AO's query normals start from these sums). Contiguous columns
+    spare the copy of the weights per corner that one bincount over the raveled simplices needs.
+
+    Parameters
+    ----------
+    values : (S, k) float64
+        One row per simplex (for normals: the raw normals, whose length weights by measure).
+    simplices : (S, d) int
+        Vertex indices of each simplex.
+    n : int
+        Number of vertices.
+
+    Returns
+    -------
+    (n, k) float64
+        The sums; zero rows for vertices in no simplex.
+
+    Examples
+    --------
+    >>> vertex_sums(np.array([[1.0], [2.0]]), np.array([[0, 1], [1, 2]]), 3)
+    array([[1.],
+           [3.],
+           [2.]])
+    """
+    total = np.zeros((n, values.shape[1]))
+    corners = [np.ascontiguousarray(simplices[:, i]) for i in range(simplices.shape[1])]
+    for j in range(values.shape[1]):
+        weights = np.ascontiguousarray(values[:, j])
+        for ids in corners:
+            total[:, j] += np.bincount(ids, weights, n)
+    return total
 
 
 def edge_blocks(vertices: np.ndarray, simplices: np.ndarray, block: int = _BLOCK) -> Iterator[tuple[slice, list]]:

@@ -542,7 +542,8 @@ class InsideOutWarning(UserWarning):
 def warn_if_inside_out(mesh: Any, consequence: str, *, stacklevel: int = 3) -> None:
     """Warn when ``mesh`` is closed but encloses a negative volume (normals point inwards).
 
-    The volume is cheap and cached; the closedness check runs only when it is negative.
+    The volume's sign comes from the vertex normal sums (the volume itself only where they
+    leave it in doubt); the closedness check runs only when it is negative.
 
     Parameters
     ----------
@@ -553,7 +554,7 @@ def warn_if_inside_out(mesh: Any, consequence: str, *, stacklevel: int = 3) -> N
     stacklevel : int
         Passed to :func:`warnings.warn`.
     """
-    if getattr(mesh, "check", None) is None or mesh.n_simplices == 0 or mesh.volume >= 0:
+    if getattr(mesh, "check", None) is None or mesh.n_simplices == 0 or mesh._volume_not_negative():
         return
     if mesh.check().closed:
         import warnings

@@ -230,6 +230,48 @@ def test_the_query_points_kept_on_the_mesh_follow_its_changes(at):
     assert not np.array_equal(again, first, equal_nan=True)
 
 
+def one_pass_query_normals(v, s, at):
+    """The query normals as AO computed them before it shared the mesh's normals: normals of
+    the kept simplices (the degenerate ones zero), summed per vertex corner by corner."""
+    from ao4d.bvh.host import nondegenerate
+    from ao4d.geometry import simplex_normals
+
+    raw = simplex_normals(v, s)
+    raw[~nondegenerate(v, s)] = 0.0
+    if at == "simplices":
+        return ao._unit(raw)
+    total = np.zeros(v.shape)
+    for k in range(s.shape[1]):
+        ids = np.ascontiguousarray(s[:, k])
+        for j in range(v.shape[1]):
+            total[:, j] += np.bincount(ids, raw[:, j], len(v))
+    return ao._unit(total)
+
+
+@pytest.mark.parametrize("d", (2, 3, 4))
+@pytest.mark.parametrize("at", ("vertices", "simplices"))
+@pytest.mark.parametrize("degenerate", (False, True))
+@pytest.mark.parametrize("shift", (0.0, 3e6))
+def test_query_normals_are_the_bits_of_the_kept_simplices_normals(d, at, degenerate, shift):
+    # AO takes the mesh's own normals and vertex sums (shared with its volume and vertex
+    # normals) and tests degeneracy from a bound: the rays, and so the counts, must not change
+    scene = sphere_over_ground(np.random.default_rng(1470 + d), d)
+    v, s = scene.vertices + shift, scene.simplices
+    if degenerate:  # zero-measure simplices and slivers at the threshold, which the bound leaves to the full test
+        s = s.copy()
+        s[:5, -1] = s[:5, 0]
+        v = v.copy()
+        v[s[5:9, -1]] = v[s[5:9, 0]] + 1e-12 * np.abs(v).max() * np.random.default_rng(d).normal(size=(4, d))
+    mesh = ao4d.SimplexMesh(v, s)
+    if d == 3:
+        mesh.vertex_normals  # noqa: B018 - the sums cached first, as a caller's own use leaves them
+    points, normals, defined = ao._query_points(mesh, at, None, None, d)
+    expected = one_pass_query_normals(mesh.vertices, mesh.simplices, at)
+    length = np.linalg.norm(expected, axis=1)
+    assert normals.tobytes() == np.where((length > 0.5)[:, None], expected, 0.0).tobytes()
+    np.testing.assert_array_equal(defined, np.isfinite(length) & (length > 0.5))
+
+
 def test_launch_size_does_not_change_results(monkeypatch, cl_runtime):
     rng = np.random.default_rng(1500)
     mesh = sphere_over_ground(rng, 4)

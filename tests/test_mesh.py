@@ -555,3 +555,42 @@ def test_data_lengths_follow_the_arrays_they_describe():
     with pytest.raises(ValueError, match=r"`cell_data\['id'\]` must have first dimension 2"):
         mesh.cell_data["id"] = np.arange(4)
     mesh.cell_data["id"] = np.arange(2)
+
+
+# -- the volume's sign from the vertex normal sums (warn_if_inside_out) -----------------------
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    d=st.sampled_from((2, 3, 4)),
+    seed=st.integers(0, 2**16),
+    shift=st.sampled_from((0.0, 1e4, 3e7)),
+    flip=st.booleans(),
+    closed=st.booleans(),
+)
+def test_volume_sign_from_the_vertex_sums_is_the_volumes(d, seed, shift, flip, closed):
+    # open random meshes have volumes of either sign and any size; the closed ones, both
+    # orientations; far from the origin the terms cancel to many digits
+    rng = np.random.default_rng(seed)
+    if closed:
+        base = ball_polytope(d, 4)
+        v, s = base.vertices * rng.uniform(0.01, 10) + shift, base.simplices
+    else:
+        v, s = rng.normal(size=(30, d)) + shift, rng.integers(0, 30, (rng.integers(1, 60), d))
+    if flip:  # two corners swapped: the orientation reversed
+        s = s[:, [1, 0, *range(2, d)]]
+    mesh = SimplexMesh(v, s)
+    assert mesh._volume_not_negative() == (SimplexMesh(v, s).volume >= 0)
+    if closed:
+        assert mesh._volume_not_negative() != flip
+
+
+def test_volume_sign_of_a_zero_volume_mesh_comes_from_the_volume():
+    # a closed mesh glued to its own mirror image encloses nothing: the sums leave the sign in
+    # doubt and the volume decides, whatever its rounding
+    base = ball_polytope(4, 4)
+    both = concatenate([base, SimplexMesh(base.vertices, base.simplices[:, [1, 0, 2, 3]])])
+    assert abs(both.volume) < 1e-12
+    fresh = SimplexMesh(both.vertices, both.simplices)
+    assert fresh._volume_not_negative() == (both.volume >= 0)
+    assert "_volume" in fresh._derived  # decided by the volume itself
