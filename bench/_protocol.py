@@ -5,6 +5,11 @@ is not worth much for a traversal bound by memory traffic: the machine line name
 widest SIMD registers, its L2 and L3 (from ``lscpu``, else sysfs) and the OpenCL device and
 driver. Every ratio is printed as the median over rounds with its minimum and maximum.
 
+The load a neighbour puts on a shared host's memory does not show in this VM's load: the memory
+latency line (:func:`memory_latency`, one work-item chasing a random cycle through 256 MiB, before
+and after the rounds) does. On this project's VM it moved with ao4d's AO trace rate, which fetches
+about 1.5 KB of leaf blocks and nodes per ray, more than Embree's rate moved.
+
 The 1-minute load average counts the benchmark's own work (the meshes it extracts, its previous
 round: it runs on every core), so it is printed, but before each round :func:`others_load`
 pauses and measures how many CPUs other processes keep busy (``/proc/stat`` less this process
@@ -20,6 +25,7 @@ import statistics
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Iterable
 
@@ -200,6 +206,56 @@ def check_round(index: int, rounds: int, limit: float = LOAD_LIMIT, pause: float
             flush=True,
         )
     return not loud
+
+
+_CHASE = """
+__kernel void chase(__global const int *next, const int steps, __global int *out)
+{
+    int i = 0;
+    for (int k = 0; k < steps; ++k) i = next[i];
+    out[0] = i;
+}
+"""
+_LINE_INTS = 16  # one read per 64-byte cache line
+
+
+def chase_cycle(lines: int, seed: int = 0):
+    """(lines * 16,) int32 array whose entries at multiples of 16 form one random cycle through
+    every line: ``next[16 i]`` is the start of the line after line ``i`` (a dependent chain of
+    reads the prefetchers cannot guess)."""
+    import numpy as np
+
+    order = np.random.default_rng(seed).permutation(lines).astype(np.int32)
+    nxt = np.zeros(lines * _LINE_INTS, dtype=np.int32)
+    nxt[order * _LINE_INTS] = np.roll(order, -1) * _LINE_INTS
+    return nxt
+
+
+def memory_latency(runtime, mib: int = 256, steps: int = 1 << 19) -> float:
+    """Nanoseconds per read of one OpenCL work-item following :func:`chase_cycle` through
+    ``mib`` MiB (median of three runs): the latency of a read that misses every cache."""
+    import numpy as np
+    import pyopencl as cl
+
+    nxt = chase_cycle(mib * (1 << 20) // (4 * _LINE_INTS))
+    ctx, queue = runtime.context, runtime.queue
+    with warnings.catch_warnings():  # the runtime's build log ("Compilation started ...")
+        warnings.simplefilter("ignore", cl.CompilerWarning)
+        kernel = cl.Kernel(cl.Program(ctx, _CHASE).build(), "chase")
+    flags = cl.mem_flags
+    buf = cl.Buffer(ctx, flags.READ_ONLY | flags.COPY_HOST_PTR, hostbuf=nxt)
+    out = cl.Buffer(ctx, flags.WRITE_ONLY, 4)
+    times = []
+    for _ in range(4):  # the first run pages the buffer in
+        start = time.perf_counter()
+        kernel(queue, (1,), None, buf, np.int32(steps), out).wait()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times[1:]) / steps * 1e9
+
+
+def memory_line(runtime) -> str:
+    """``memory latency: N ns a read (...)`` for the machine line's neighbour."""
+    return f"memory latency: {memory_latency(runtime):.0f} ns a read (one work-item, random 64-byte lines of 256 MiB)"
 
 
 def spread(values: Iterable[float]) -> tuple[float, float, float]:

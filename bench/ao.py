@@ -463,6 +463,7 @@ def main(argv=None) -> int:
     cpu = protocol.cpu_info()
     print(protocol.machine_line(runtime, cpu))
     print(f"device: {cl.describe(runtime)}; load average before: {protocol.load_average()}")
+    print(f"before the rounds, {protocol.memory_line(runtime)}", flush=True)
     meshes, points = {}, {}
     for name in shapes:
         mesh = shape_mesh(name, args.tets)
@@ -556,6 +557,7 @@ def main(argv=None) -> int:
         # tests a ray makes before its first hit (tests/test_raycast.py bounds the difference)
     numpy_and_brute(args, runtime, rng)
     print(f"\n{protocol.machine_line(runtime, cpu)}")
+    print(f"after the rounds, {protocol.memory_line(runtime)}")
     print(f"bench run time {time.perf_counter() - began:.0f} s; load average after: {protocol.load_average()}")
     return 0
 

@@ -141,6 +141,7 @@ def main(argv=None) -> int:
         return 1
     print(protocol.machine_line(runtime))
     print(f"device: {runtime.name}; load average {protocol.load_average()}")
+    print(f"before the rounds, {protocol.memory_line(runtime)}", flush=True)
     tm, _, _, o3, w3 = ao_bench.torus_rays(int(args.triangles), args.points, args.samples)
     torus = ao4d.SimplexMesh(tm.vertices, tm.faces)
     raycast.get_bvh(torus, runtime=runtime)
@@ -169,6 +170,7 @@ def main(argv=None) -> int:
     if peer is not None:
         peer.close()
     print(f"load average after: {protocol.load_average()}")
+    print(f"after the rounds, {protocol.memory_line(runtime)}")
     noisy = [i + 1 for i, q in enumerate(quiet) if not q]
     if noisy:
         print(f"!!! WARNING: rounds {noisy} started on a busy machine: these are not quiet figures !!!")

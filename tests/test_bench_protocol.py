@@ -89,3 +89,19 @@ def test_a_busy_round_is_flagged_loudly(capsys):
 def test_others_load_is_a_cpu_count():
     load = protocol.others_load(0.05)
     assert load is None or 0.0 <= load <= 64
+
+
+@pytest.mark.parametrize("lines", [1, 2, 7, 1000])
+def test_the_chase_visits_every_line_once_then_returns(lines):
+    nxt = protocol.chase_cycle(lines, seed=lines)
+    seen, i = [], 0
+    for _ in range(lines):
+        seen.append(i)
+        i = int(nxt[i])
+    assert i == 0 and sorted(seen) == [16 * k for k in range(lines)]
+
+
+def test_memory_latency_is_a_positive_time(cl_runtime):
+    latency = protocol.memory_latency(cl_runtime, mib=1, steps=1000)
+    assert 0 < latency < 1e6
+    assert protocol.memory_line(cl_runtime).startswith("memory latency: ")
