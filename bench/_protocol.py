@@ -8,7 +8,7 @@ driver. Every ratio is printed as the median over rounds with its minimum and ma
 The load a neighbour puts on a shared host's memory does not show in this VM's load. The memory
 latency line (:func:`memory_latency`, one work-item chasing a random cycle through 256 MiB, before
 and after the rounds) is there to compare runs by: on this project's VM ao4d's AO trace rate,
-which fetches 1.5-1.9 KB of leaf blocks and nodes per ray, once fell 20-25 % between two runs of
+which fetches 0.6-1.9 KB of leaf blocks and nodes per ray, once fell 20-25 % between two runs of
 the same code while Embree's fell 7 %, with nothing else running inside the VM.
 
 The 1-minute load average counts the benchmark's own work (the meshes it extracts, its previous
