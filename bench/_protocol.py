@@ -5,11 +5,11 @@ is not worth much for a traversal bound by memory traffic: the machine line name
 widest SIMD registers, its L2 and L3 (from ``lscpu``, else sysfs) and the OpenCL device and
 driver. Every ratio is printed as the median over rounds with its minimum and maximum.
 
-The load a neighbour puts on a shared host's memory does not show in this VM's load. The memory
-latency line (:func:`memory_latency`, one work-item chasing a random cycle through 256 MiB, before
-and after the rounds) is there to compare runs by: on this project's VM ao4d's AO trace rate,
-which fetches 0.6-1.9 KB of leaf blocks and nodes per ray, once fell 20-25 % between two runs of
-the same code while Embree's fell 7 %, with nothing else running inside the VM.
+The memory latency line (:func:`memory_latency`: one work-item chasing a random cycle through
+256 MiB, before and after the rounds) describes the machine at the time of a run, beside the
+machine line. It is not an explanation: on this project's VM ao4d's AO trace rate once fell 20-25 %
+for an hour on the same code (Embree's 7 %) while the line read 177-200 ns, and recovered while it
+read 254-267 ns.
 
 The 1-minute load average counts the benchmark's own work (the meshes it extracts, its previous
 round: it runs on every core), so it is printed, but before each round :func:`others_load`
