@@ -60,46 +60,41 @@ inline void load_ray(const float4 o4, const float4 w4, Ray *r)
     }
 }
 
-// any hit with 0 < t <= t_max (occlusion rays): the children of a node are pushed in slot
-// order, not nearest first; a ray that hits nothing must visit every box it meets anyway, and
-// AO rays mostly escape. No distances on the stack: t_max never shrinks before the return.
-inline int trace_any(__global const floatW *boxes, __global const int *children,
-                     __global const floatL *blocks, const float4 o4, const float4 w4,
-                     const float t_max, float *t_out VISITS_PARAM)
+// any hit with 0 < t <= t_max (occlusion rays) in the subtree of `node`, for the ray from o with
+// direction w and box-test constants near / far / inv_w / o_inv (load_ray's): LANES * block +
+// lane, or -1 (t_out: its t, else t_max). The children of a node are pushed in slot order, not
+// nearest first; a ray that hits nothing must visit every box it meets anyway, and AO rays
+// mostly escape. No distances on the stack: t_max never shrinks before the return.
+inline int walk_any(__global const floatW *boxes, __global const int *children,
+                    __global const floatL *blocks, const float *o, const float *w, const int *near,
+                    const int *far, const float *inv_w, const float *o_inv, int node,
+                    const float t_max, float *t_out VISITS_PARAM)
 {
-    Ray ray;
-    load_ray(o4, w4, &ray);
     int stack[STACK_SIZE];
     int sp = 0;
-    int node = 0;
     for (;;) {
         COUNT_VISIT(0);
         COUNT_VISIT(2);
         __global const int *child = children + (size_t)node * WIDTH;
         floatW tnw;
-        const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, ray.near, ray.far, ray.inv_w,
-                                    ray.o_inv, t_max, &tnw);
-        if (any(hitw)) {
-            int hits[WIDTH];
-            vstoreW(hitw, 0, hits);
-            for (int s = 0; s < WIDTH; ++s) {
-                const int c = child[s];
-                if (!hits[s] || c == 0) continue;
-                if (c > 0) {
-                    stack[sp++] = c;
-                    continue;
-                }
-                const int first = (-c - 1) >> 2;
-                const int end = first + ((-c - 1) & 3) + 1;
-                for (int b = first; b < end; ++b) {
-                    float t;
-                    COUNT_VISIT(1);
-                    COUNT_VISIT(3);
-                    const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, ray.o, ray.w, t_max, &t);
-                    if (lane >= 0) {
-                        *t_out = t;
-                        return LANES * b + lane;
-                    }
+        const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, near, far, inv_w, o_inv, t_max, &tnw);
+        // the slots the ray's box test hit that hold a child, in slot order
+        for (int slots = lane_bits(hitw & (vloadW(0, child) != (intW)(0))); slots; slots &= slots - 1) {
+            const int c = child[31 - (int)clz(slots & -slots)];
+            if (c > 0) {
+                stack[sp++] = c;
+                continue;
+            }
+            const int first = (-c - 1) >> 2;
+            const int end = first + ((-c - 1) & 3) + 1;
+            for (int b = first; b < end; ++b) {
+                float t;
+                COUNT_VISIT(1);
+                COUNT_VISIT(3);
+                const int lane = hit_block(blocks + (size_t)b * BLOCK_ROWS, o, w, t_max, &t);
+                if (lane >= 0) {
+                    *t_out = t;
+                    return LANES * b + lane;
                 }
             }
         }
@@ -108,6 +103,17 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
     }
     *t_out = t_max;
     return -1;
+}
+
+// walk_any from the root for one ray
+inline int trace_any(__global const floatW *boxes, __global const int *children,
+                     __global const floatL *blocks, const float4 o4, const float4 w4,
+                     const float t_max, float *t_out VISITS_PARAM)
+{
+    Ray ray;
+    load_ray(o4, w4, &ray);
+    return walk_any(boxes, children, blocks, ray.o, ray.w, ray.near, ray.far, ray.inv_w, ray.o_inv, 0,
+                    t_max, t_out VISITS_ARG);
 }
 
 // -- shared-origin packets (ambient occlusion) ------------------------------------------------
@@ -123,7 +129,7 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
 // before the far subtrees are fetched (measured on the dense shapes: 11-15 % fewer node fetches,
 // about 10 % less trace time; on the tiger and the spheritorus no change beyond the noise).
 // A popped node that at most PACKET_SPLIT rays still need is walked by each of them alone
-// (trace_ray_subtree): deep in the tree the packet's masks, sorted pushes and shared block
+// (walk_any from that node): deep in the tree the packet's masks, sorted pushes and shared block
 // origins cost more than they share (metaballs, one core, interleaved with the packet-only
 // kernel: 0.95x the trace time at 2, 0.93-0.98x at 4, 0.99x at 8, 1.07x at 32; the same counts).
 #ifndef PACKET
@@ -190,41 +196,6 @@ inline int lowest_ray(const pmask m)
     return (int)(8 * sizeof(pmask) - 1) - (int)clz(m & (~m + 1));
 }
 
-
-// whether the packet ray `ray` from o hits something with 0 < t <= t_max in the subtree of
-// `node`: trace_any's walk (slot order, its own stack) with the packet's tests, the same bits
-inline int trace_ray_subtree(__global const floatW *boxes, __global const int *children,
-                             __global const floatL *blocks, const float *o, const PacketRay *ray,
-                             int node, const float t_max VISITS_PARAM)
-{
-    int stack[STACK_SIZE];
-    int sp = 0;
-    for (;;) {
-        COUNT_VISIT(0);
-        COUNT_VISIT(2);
-        __global const int *child = children + (size_t)node * WIDTH;
-        floatW tnw;
-        const intW hitw = hit_boxes(boxes + (size_t)node * 2 * DIM, ray->near, ray->far, ray->inv_w,
-                                    ray->o_inv, t_max, &tnw);
-        for (int slots = lane_bits(hitw & (vloadW(0, child) != (intW)(0))); slots; slots &= slots - 1) {
-            const int c = child[31 - (int)clz(slots & -slots)];
-            if (c > 0) {
-                stack[sp++] = c;
-                continue;
-            }
-            const int first = (-c - 1) >> 2;
-            const int end = first + ((-c - 1) & 3) + 1;
-            for (int b = first; b < end; ++b) {
-                float t;
-                COUNT_VISIT(1);
-                COUNT_VISIT(3);
-                if (hit_block(blocks + (size_t)b * BLOCK_ROWS, o, ray->w, t_max, &t) >= 0) return 1;
-            }
-        }
-        if (sp == 0) return 0;
-        node = stack[--sp];
-    }
-}
 
 // the rays of `active` (bit r: rays[r]) that hit something with 0 < t <= t_max from origin o
 inline pmask trace_packet(__global const floatW *boxes, __global const int *children,
@@ -307,7 +278,9 @@ inline pmask trace_packet(__global const floatW *boxes, __global const int *chil
             if (mask && popcount(mask) <= PACKET_SPLIT) {  // a few rays: each on its own
                 for (pmask left = mask; left; left &= left - 1) {
                     const int r = lowest_ray(left);
-                    if (trace_ray_subtree(boxes, children, blocks, o, rays + r, stack[sp], t_max VISITS_ARG))
+                    float t;
+                    if (walk_any(boxes, children, blocks, o, rays[r].w, rays[r].near, rays[r].far,
+                                 rays[r].inv_w, rays[r].o_inv, stack[sp], t_max, &t VISITS_ARG) >= 0)
                         alive &= ~((pmask)1 << r);
                 }
                 if (!alive) return active;
