@@ -13,8 +13,9 @@ starts on a busy machine is flagged loudly (``bench/_protocol.py``).
   are timed too.
 * 4D: the same kind of rays from the vertices of a spheritorus, through ``cast_rays``.
 * Host share: the part of a ``cast_rays`` call's wall time when no kernel launch runs (input
-  checks, the float64 mapping into the tree's frame, float32 copies, hit refinement), from each
-  launch's enqueue and completion times (an OpenCL event callback).
+  checks, the float64 mapping into the tree's frame, float32 copies, the result arrays, hit
+  refinement where the host does it), from each launch's enqueue and completion times (an
+  OpenCL event callback); on fp64 devices the closest hits' refinement is a launch too.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ class KernelClock:
     def __init__(self, raycast):
         self._raycast = raycast
         self._original = raycast._traversal_kernel
+        self._original_refine = raycast._refine_kernel
         self._launches: list[list[float]] = []  # [enqueued, completed]
 
     @property
@@ -77,10 +79,13 @@ class KernelClock:
             return Timed(kernel), head
 
         self._raycast._traversal_kernel = wrapped
+        # the closest hits' refinement runs on fp64 devices as a kernel too
+        self._raycast._refine_kernel = lambda *args, **kwargs: Timed(self._original_refine(*args, **kwargs))
         return self
 
     def __exit__(self, *exc):
         self._raycast._traversal_kernel = self._original
+        self._raycast._refine_kernel = self._original_refine
 
 
 def ao4d_cast(mesh, o, w, closest: bool) -> dict:

@@ -664,6 +664,55 @@ def test_rays_mapped_on_the_device_or_the_host_hit_alike(d, cl_runtime, monkeypa
         raycast.cast_rays(mesh, o, bad, backend="opencl")
 
 
+@pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("shift", [0.0, 2e4])
+def test_hits_refined_on_the_device_or_the_host_alike(d, shift, cl_runtime, monkeypatch):
+    # kernels/refine.cl repeats the host's float64 operations in order: the same bits of t and
+    # the barycentrics for float32, float64 and mixed rows, far from the origin too; and the
+    # refined hit lies on its simplex (the weights rebuild the hit point, sum to one, and are
+    # within the kernels' tolerance of the simplex)
+    _needs_fp64(cl_runtime)
+    mesh, o, w = _shifted_soup(3300 + d, d, shift)
+    w = w * np.exp(np.random.default_rng(d).uniform(-20, 20, (len(w), 1)))  # lengths 1e-9 to 1e9
+    for oo, ww in ((o, w), (o.astype(np.float32), w.astype(np.float32)), (o, w.astype(np.float32))):
+        got = {}
+        for on_device in (True, False):
+            monkeypatch.setattr(raycast, "REFINE_ON_DEVICE", on_device)
+            hits = raycast.cast_rays(mesh, oo, ww, backend="opencl")
+            got[on_device] = hits
+        assert (got[True].simplex >= 0).mean() > 0.03
+        for name in ("simplex", "t", "barycentric"):
+            np.testing.assert_array_equal(getattr(got[True], name), getattr(got[False], name), err_msg=name)
+        hits = got[True]
+        h = hits.hit
+        assert np.isinf(hits.t[~h]).all() and not hits.barycentric[~h].any()
+        corners = np.asarray(mesh.vertices)[np.asarray(mesh.simplices)[hits.simplex[h]]]
+        unit = ww[h] / np.linalg.norm(ww[h].astype(np.float64), axis=1, keepdims=True)
+        point = oo[h] + hits.t[h, None] * unit
+        np.testing.assert_allclose(
+            np.einsum("ki,kij->kj", hits.barycentric[h], corners), point, atol=1e-9 * (1 + shift)
+        )
+        np.testing.assert_allclose(hits.barycentric[h].sum(1), 1.0, atol=1e-12)
+        assert hits.barycentric[h].min() > -1e-4 and (hits.t[h] > 0).all()
+
+
+def test_refinement_of_no_hits_and_of_a_host_tree_on_the_device(cl_runtime):
+    # no hit: nothing to refine on the device; a tree built on the host (no device vertices)
+    # is refined on the host, with the device-built tree's bits
+    mesh, o, w = _shifted_soup(3400, 4, 10.0)
+    away = raycast.cast_rays(mesh, o + 1e3, np.abs(w), backend="opencl")
+    assert not away.hit.any() and np.isinf(away.t).all() and not away.barycentric.any()
+    device_tree = raycast.cast_rays(mesh, o, w, backend="opencl")
+    host_mesh = ao4d.SimplexMesh(mesh.vertices, mesh.simplices)
+    bvh.device_tree(host_mesh, raycast.get_bvh(host_mesh, builder="host"), cl_runtime)
+    host_tree = raycast.cast_rays(host_mesh, o, w, backend="opencl")
+    assert type(raycast.get_bvh(host_mesh)).__name__ == "BVH" and device_tree.hit.mean() > 0.03
+    np.testing.assert_array_equal(host_tree.hit, device_tree.hit)
+    same = host_tree.simplex == device_tree.simplex  # another simplex only on exact ties
+    np.testing.assert_array_equal(host_tree.t, device_tree.t)
+    np.testing.assert_array_equal(host_tree.barycentric[same], device_tree.barycentric[same])
+
+
 @pytest.mark.parametrize("d", (3, 4))
 @pytest.mark.parametrize("shift", [0.0, 1000.0])
 def test_cast_rays_over_many_launches_equals_brute_force(d, shift, cl_runtime, monkeypatch):
