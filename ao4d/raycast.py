@@ -551,7 +551,7 @@ def sample_directions(runtime, normals: np.ndarray, samples: int, seed: int, *, 
     ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
     out = np.empty((n * samples, 4), dtype=np.float32)
     buf = pcl.Buffer(ctx, pcl.mem_flags.WRITE_ONLY, out.nbytes)
-    _kernels(runtime, d, _bvh.block_lanes(runtime))["sample_directions8" if eight else "sample_directions"](
+    _kernels(runtime, d, _bvh.block_lanes(runtime, d))["sample_directions8" if eight else "sample_directions"](
         queue,
         (n,),
         None,
@@ -598,7 +598,7 @@ def device_ray_mapping(runtime, frame, origins: np.ndarray, directions: np.ndarr
     frame_buf = pcl.Buffer(ctx, ro, hostbuf=np.append(frame.centre, frame.scale).astype(np.float64))
     out = [np.empty((n, 4), dtype=np.float32) for _ in range(2)]
     bufs = [pcl.Buffer(ctx, pcl.mem_flags.WRITE_ONLY, a.nbytes) for a in out]
-    _kernels(runtime, d, _bvh.block_lanes(runtime), ray_type=ray_type)["map_rays"](
+    _kernels(runtime, d, _bvh.block_lanes(runtime, d), ray_type=ray_type)["map_rays"](
         queue, (n,), None, *ins, frame_buf, *bufs
     )
     for a, b in zip(out, bufs):

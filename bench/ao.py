@@ -355,7 +355,7 @@ def quality(vertices, simplices, runtime, samples, n_points, rng) -> dict:
                 detail=True,
                 max_distance=reach * tree.world_diagonal if reach else math.inf,
             )
-    _, children, _, _, wide_depth = bvh.widen_topology(tree, bvh.block_lanes(runtime), bvh.node_width(runtime))
+    _, children, _, _, wide_depth = bvh.widen_topology(tree, bvh.block_lanes(runtime, 4), bvh.node_width(runtime))
     return {
         "counts": out,
         "sah": bvh.sah_cost(tree),
@@ -387,7 +387,7 @@ def tree_bytes(vertices, simplices, runtime) -> dict:
 
     mesh = ao4d.SimplexMesh(vertices, simplices)
     tree = raycast.get_bvh(mesh, builder="device", runtime=runtime)
-    lanes, width = bvh.block_lanes(runtime), bvh.node_width(runtime)
+    lanes, width = bvh.block_lanes(runtime, 4), bvh.node_width(runtime)
     d = tree.dim
     _, children, _, _, _ = bvh.widen_topology(tree, lanes, width)
     n_blocks = len(bvh.block_ranges(tree, lanes)[0])
@@ -529,7 +529,7 @@ def main(argv=None) -> int:
 
     from ao4d import bvh
 
-    lanes, width = bvh.block_lanes(runtime), bvh.node_width(runtime)
+    lanes, width = bvh.block_lanes(runtime, 4), bvh.node_width(runtime)
     node_bytes, block_bytes = 2 * 4 * width * 4 + width * 4, 5 * 4 * lanes * 4  # 4D
     print(
         f"\ntraversal work per AO ray ({args.quality_points:,} random vertices, deterministic): "

@@ -72,7 +72,7 @@ def test_gpu_block_layout_gives_the_same_answers(d, cl_runtime, monkeypatch):
     pts, nrm = o[:200], w[:200]
     results = {}
     for lanes in (16, 4):
-        monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime, lanes=lanes: lanes)
+        monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime, dim=None, lanes=lanes: lanes)
         hits = raycast.cast_rays(mesh, o, w, backend="opencl")
         occ = ao4d.ambient_occlusion(mesh, points=pts, normals=nrm, samples=32, backend="opencl")
         results[lanes] = hits, occ
@@ -289,7 +289,7 @@ def test_traversal_stack_size_comes_from_python(cl_runtime, monkeypatch):
     mesh = soup_scene(rng, 3, n=2000)
     o, w = random_rays(rng, 3, 3000)
     width = bvh.node_width(cl_runtime)
-    depth = bvh.wide(raycast.get_bvh(mesh, runtime=cl_runtime), bvh.block_lanes(cl_runtime), width).depth
+    depth = bvh.wide(raycast.get_bvh(mesh, runtime=cl_runtime), bvh.block_lanes(cl_runtime, 3), width).depth
     assert depth >= 3
     needed = depth * (width - 1) + 1
     brute = raycast.cast_rays(mesh, o, w, backend="opencl", accel="brute")
@@ -300,7 +300,7 @@ def test_traversal_stack_size_comes_from_python(cl_runtime, monkeypatch):
         hits = raycast.cast_rays(fresh, o, w, backend="opencl")
         np.testing.assert_array_equal(hits.simplex >= 0, brute.simplex >= 0)
         np.testing.assert_array_equal(hits.t, brute.t)
-        kernel = raycast._kernels(cl_runtime, 3, bvh.block_lanes(cl_runtime))["cast_bvh"]
+        kernel = raycast._kernels(cl_runtime, 3, bvh.block_lanes(cl_runtime, 3))["cast_bvh"]
         sizes[stack] = _private_bytes(cl_runtime, kernel)
     if sizes[needed] > 0:  # runtimes that report private memory: it follows the stack
         assert sizes[4 * needed] >= sizes[needed] + 3 * needed * 4
@@ -448,7 +448,7 @@ def test_packet_traversal_gives_the_per_ray_and_brute_force_counts(
     # the packet kernel tests, per ray, exactly the boxes and blocks of the per-ray kernel with
     # the same arithmetic: bit-identical counts, also for packets cut short (40 and 70 samples
     # are not multiples of raycast.ao_packet's 32 or 64) and with a finite reach
-    monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime: lanes)
+    monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime, dim=None: lanes)
     monkeypatch.setattr(raycast, "ao_packet", lambda runtime: packet_size)
     rng = np.random.default_rng(1600 + d)
     mesh, p, n = _surface_scene(rng, d, shift)
@@ -519,7 +519,7 @@ def test_packet_kernel_private_memory_is_bounded(cl_runtime):
     import pyopencl as pcl
 
     for d in (2, 3, 4):
-        kernel = raycast._kernels(cl_runtime, d, bvh.block_lanes(cl_runtime))["ao_bvh"]
+        kernel = raycast._kernels(cl_runtime, d, bvh.block_lanes(cl_runtime, d))["ao_bvh"]
         assert kernel.get_work_group_info(pcl.kernel_work_group_info.LOCAL_MEM_SIZE, cl_runtime.device) == 0
         private = _private_bytes(cl_runtime, kernel)
         packet = raycast.ao_packet(cl_runtime)
@@ -790,7 +790,7 @@ def _dense_4d_surfaces():
 def test_ao_counts_on_dense_shapes_equal_brute_force(lanes, shift, cl_runtime, monkeypatch):
     # every AO ray's answer, both traversals, equals the any-hit answer over every simplex, with
     # unlimited reach and a quarter of the diagonal: the counts cannot change while this holds
-    monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime: lanes)
+    monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime, dim=None: lanes)
     for name, base in _dense_4d_surfaces().items():
         mesh = ao4d.SimplexMesh(base.vertices + shift, base.simplices)
         p, n, tree, offset = _surface_points(mesh, cl_runtime, every=7)
