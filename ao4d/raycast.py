@@ -1005,7 +1005,7 @@ def _refines_on_device(tree, runtime) -> bool:
         REFINE_ON_DEVICE
         and runtime is not None
         and "cl_khr_fp64" in runtime.device.extensions
-        and getattr(tree, "_source", None) is not None
+        and hasattr(tree, "mesh_arrays")
     )
 
 
@@ -1082,7 +1082,7 @@ def _refine_on_device(tracer: Tracer, n: int, rows: np.ndarray, simplex: np.ndar
     cl.check_device_memory(runtime, {"the refined hits": t.nbytes + bary.nbytes}, task="the hits' refinement")
     mesh = dev.get("refine mesh")
     if mesh is None:
-        vertices, simplices = tree._source
+        vertices, simplices = tree.mesh_arrays
         mesh = dev["refine mesh"] = tuple(
             pcl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a, dtype=dtype))
             for a, dtype in ((vertices, np.float64), (simplices, np.int32))

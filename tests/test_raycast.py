@@ -674,12 +674,17 @@ def test_hits_refined_on_the_device_or_the_host_alike(d, shift, cl_runtime, monk
     _needs_fp64(cl_runtime)
     mesh, o, w = _shifted_soup(3300 + d, d, shift)
     w = w * np.exp(np.random.default_rng(d).uniform(-20, 20, (len(w), 1)))  # lengths 1e-9 to 1e9
+    built, original = [], raycast._refine_kernel
+    monkeypatch.setattr(raycast, "_refine_kernel", lambda *args: built.append(args) or original(*args))
     for oo, ww in ((o, w), (o.astype(np.float32), w.astype(np.float32)), (o, w.astype(np.float32))):
         got = {}
         for on_device in (True, False):
             monkeypatch.setattr(raycast, "REFINE_ON_DEVICE", on_device)
+            before = len(built)
             hits = raycast.cast_rays(mesh, oo, ww, backend="opencl")
             got[on_device] = hits
+            hits.t  # noqa: B018 (refined now)
+            assert len(built) - before == int(on_device)  # the kernel refined, or the host
         assert (got[True].simplex >= 0).mean() > 0.03
         for name in ("simplex", "t", "barycentric"):
             np.testing.assert_array_equal(getattr(got[True], name), getattr(got[False], name), err_msg=name)

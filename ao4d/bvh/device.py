@@ -113,6 +113,12 @@ class DeviceBVH(BVH):
         self.device_wide: dict[tuple[int, int], dict[str, Any]] = {}  # (lanes, width) -> device_wide_tree(...)
         super().__init__(inverse=None, origin=None, **fields)
 
+    @property
+    def mesh_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """The vertices (V, d) float64, in the tree's frame, and the simplices (S, d) it was built
+        from (the closest hits' refinement on the device reads them)."""
+        return self._source
+
     def frames(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Inverse matrices (k, d, d) and vertex 0 (k, d), float64, of tree-order simplices ``p``."""
         if self._inverse is not None:
