@@ -260,7 +260,10 @@ def _kernels(
         defines["COUNT_VISITS"] = 1
     if ray_type is not None:  # the cast_rows_* kernels, which map the caller's rows themselves
         defines["RAY_T"] = ray_type
-    return cl.build_kernels(runtime, "ao.cl", defines)
+    kernels = cl.build_kernels(runtime, "ao.cl", defines)
+    if ray_type is not None and not count_visits:  # and cast_packets_bvh, for rows sharing origins
+        kernels = {**kernels, **cl.build_kernels(runtime, "cast_packets.cl", defines)}
+    return kernels
 
 
 def ao_packet(runtime) -> int:
@@ -333,20 +336,31 @@ def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar):
     both32 = rays.origins.dtype == rays.directions.dtype == np.float32
     real = np.float32 if both32 else np.float64
     origins, directions = (np.ascontiguousarray(a, dtype=real) for a in (rays.origins, rays.directions))
-    kernel, head = _traversal_kernel(
-        runtime, tree.dim, dev, "cast_rows", accel, ray_type="float" if both32 else "double"
-    )
+    ray_type = "float" if both32 else "double"
+    kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast_rows", accel, ray_type=ray_type)
     frame = np.append(np.asarray(rays.frame.centre, dtype=np.float64), np.float64(rays.frame.scale))
-    buf_frame = pcl.Buffer(runtime.context, pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR, hostbuf=frame)
+    ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
+    buf_frame = pcl.Buffer(runtime.context, ro, hostbuf=frame)
     row = rays.d * np.dtype(real).itemsize
+    packed = any_hit and accel == "bvh" and _casts_packets(runtime)
+    if packed:
+        packet_kernel, _ = _traversal_kernel(runtime, tree.dim, dev, "cast_packets", accel, ray_type=ray_type)
+    packets: dict[int, np.ndarray | None] = {}  # per buffer set: the launch's packets, if any
 
     def fill(feed, bufs, start, stop, wait):
+        if packed:
+            packets[id(bufs)] = shared_origin_packets(origins[start:stop], ao_packet(runtime))
         return [
             pcl.enqueue_copy(feed, buf, rows[start:stop], is_blocking=False, wait_for=wait)
             for buf, rows in ((bufs[0], origins), (bufs[1], directions))
         ]
 
     def launch(bufs, count, written):
+        found = packets.pop(id(bufs), None)
+        if found is not None:
+            args = head + [bufs[0], bufs[1], buf_frame, pcl.Buffer(runtime.context, ro, hostbuf=found)]
+            args += [np.float32(max_distance), bufs[2]]
+            return packet_kernel(queue, (len(found),), None, *args, wait_for=written)
         args = head + [bufs[0], bufs[1], buf_frame, np.float32(max_distance), np.int32(any_hit), bufs[2]]
         return kernel(queue, (count,), None, *args, wait_for=written)
 
@@ -460,6 +474,60 @@ def _ao_traversal(runtime) -> str:
     import pyopencl as pcl
 
     return "packet" if runtime.device.type & pcl.device_type.CPU else "rays"
+
+
+#: cast_rays' any-hit rays that share an origin go as packets (kernels/cast_packets.cl):
+#: "auto" on CPUs, like the AO kernel (:func:`_ao_traversal`); True or False always or never
+#: (tests). Read when a trace starts.
+CAST_PACKETS: bool | str = "auto"
+_PACKET_MIN_RUN = 4  # rows per origin, on average, below which a launch keeps one ray per work-item
+
+
+def _casts_packets(runtime) -> bool:
+    """Whether :data:`CAST_PACKETS` sends shared-origin any-hit rays on ``runtime`` as packets."""
+    return _ao_traversal(runtime) == "packet" if CAST_PACKETS == "auto" else bool(CAST_PACKETS)
+
+
+def shared_origin_packets(origins: np.ndarray, size: int) -> np.ndarray | None:
+    """Packets of rows with bit-identical origins, for ``cast_packets_bvh``.
+
+    Parameters
+    ----------
+    origins : (N, d) float32 or float64 numpy.ndarray
+        Contiguous rows, as a launch copies them to the device.
+    size : int
+        Most rays per packet (:func:`ao_packet`).
+
+    Returns
+    -------
+    (P, 2) int32 numpy.ndarray or None
+        Per packet its first row and its number of rows: the runs of consecutive rows whose
+        origins have the same bits, cut into pieces of at most ``size``. None when the runs
+        average fewer than 4 rows, where a work-item per ray pays better.
+
+    Examples
+    --------
+    >>> o = np.array([[0.0, 1.0]] * 5 + [[2.0, 0.0]] * 4)
+    >>> shared_origin_packets(o, 4).tolist()
+    [[0, 4], [4, 1], [5, 4]]
+    """
+    n = len(origins)
+    if n == 0:
+        return None
+    bits = origins.view(np.uint32 if origins.dtype == np.float32 else np.uint64)
+    new = np.ones(n, dtype=bool)
+    np.any(bits[1:] != bits[:-1], axis=1, out=new[1:])
+    first = np.flatnonzero(new)
+    if n < _PACKET_MIN_RUN * len(first):
+        return None
+    length = np.diff(np.append(first, n))
+    pieces = -(-length // size)
+    run = np.repeat(np.arange(len(first)), pieces)
+    k = np.arange(len(run)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+    out = np.empty((len(run), 2), dtype=np.int32)
+    out[:, 0] = first[run] + k * size
+    out[:, 1] = np.minimum(size, length[run] - k * size)
+    return out
 
 
 def _ao_opencl(

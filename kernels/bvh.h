@@ -135,6 +135,15 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
 #ifndef PACKET
 #define PACKET 32
 #endif
+// -D PACKET_HITS (kernels/cast_packets.cl): trace_packet also records, per ray, the hit that
+// retired it (LANES * block + lane, the answer trace_any gives for some hit) in hit_of[r]
+#ifdef PACKET_HITS
+#define HITS_PARAM , int *hit_of
+#define RECORD_HIT(r, h) (hit_of[r] = (h))
+#else
+#define HITS_PARAM
+#define RECORD_HIT(r, h)
+#endif
 #ifndef PACKET_SPLIT
 #define PACKET_SPLIT 2
 #endif
@@ -200,7 +209,7 @@ inline int lowest_ray(const pmask m)
 // the rays of `active` (bit r: rays[r]) that hit something with 0 < t <= t_max from origin o
 inline pmask trace_packet(__global const floatW *boxes, __global const int *children,
                           __global const floatL *blocks, const float *o, const PacketRay *rays,
-                          const pmask active, const float t_max VISITS_PARAM)
+                          const pmask active, const float t_max HITS_PARAM VISITS_PARAM)
 {
     pmask alive = active;  // rays without a hit so far
     int stack[STACK_SIZE];
@@ -265,7 +274,11 @@ inline pmask trace_packet(__global const floatW *boxes, __global const int *chil
                     const int r = lowest_ray(left);
                     float t;
                     COUNT_VISIT(3);
-                    if (hit_block_at(blk, rel, q, rays[r].w, t_max, &t) >= 0) alive &= ~((pmask)1 << r);
+                    const int lane = hit_block_at(blk, rel, q, rays[r].w, t_max, &t);
+                    if (lane >= 0) {
+                        alive &= ~((pmask)1 << r);
+                        RECORD_HIT(r, LANES * b + lane);
+                    }
                 }
             }
             if (!alive) return active;
@@ -279,9 +292,13 @@ inline pmask trace_packet(__global const floatW *boxes, __global const int *chil
                 for (pmask left = mask; left; left &= left - 1) {
                     const int r = lowest_ray(left);
                     float t;
-                    if (walk_any(boxes, children, blocks, o, rays[r].w, rays[r].near, rays[r].far,
-                                 rays[r].inv_w, rays[r].o_inv, stack[sp], t_max, &t VISITS_ARG) >= 0)
+                    const int h = walk_any(boxes, children, blocks, o, rays[r].w, rays[r].near,
+                                           rays[r].far, rays[r].inv_w, rays[r].o_inv, stack[sp],
+                                           t_max, &t VISITS_ARG);
+                    if (h >= 0) {
                         alive &= ~((pmask)1 << r);
+                        RECORD_HIT(r, h);
+                    }
                 }
                 if (!alive) return active;
                 continue;

@@ -96,6 +96,13 @@ def main() -> int:
                     np.array_equal(other.simplex, want.simplex),
                 )
             raycast.MAP_ON_DEVICE = not raycast.MAP_ON_DEVICE
+        if "cl_khr_fp64" in runtime.device.extensions:  # any-hit rays sharing origins as packets
+            shared = np.repeat(o[:6], 8, axis=0)  # runs of 8 rows, a zero component among them
+            raycast.CAST_PACKETS = True
+            packets = raycast.cast_rays(mesh, shared, w, closest=False, backend="opencl")
+            raycast.CAST_PACKETS = "auto"
+            slow = raycast.cast_rays(mesh, shared, w, closest=False, backend="opencl", accel="brute")
+            check(f"{d}D cast packets: brute force's hits", np.array_equal(packets.hit, slow.hit))
         if "cl_khr_fp64" in runtime.device.extensions:  # the device's ray mapping: the host's bits
             frame = bvh.Frame.fit(mesh.vertices)
             got = raycast.device_ray_mapping(runtime, frame, o, w, "double")

@@ -665,6 +665,60 @@ def test_rays_mapped_on_the_device_or_the_host_hit_alike(d, cl_runtime, monkeypa
 
 
 @pytest.mark.parametrize("d", DIMS)
+@pytest.mark.parametrize("shift", [0.0, 1e4])
+def test_any_hit_rays_sharing_origins_go_as_packets_with_the_same_answers(d, shift, cl_runtime, monkeypatch):
+    # runs of rows with one origin (1, 3, 64, 130 and 7 rows: packets cut at 64, runs too short
+    # for packets in a launch of their own) hit exactly what the per-ray kernel and brute force
+    # hit, float32 and float64 rows, over several launches; each reported simplex is hit (its
+    # refined t is positive and its weights within the kernels' tolerance)
+    _needs_fp64(cl_runtime)
+    mesh, o, w = _shifted_soup(3500 + d, d, shift)
+    runs = [1, 3, 64, 130, 7] * 12
+    o = np.repeat(o[: len(runs)], runs, axis=0)
+    w = np.random.default_rng(d).normal(size=(len(o), d))
+    built, original = [], raycast._traversal_kernel
+    monkeypatch.setattr(raycast, "_traversal_kernel", lambda *a, **k: built.append(a[3]) or original(*a, **k))
+    for oo, ww in ((o, w), (o.astype(np.float32), w.astype(np.float32))):
+        got = {}
+        for packets, launch in ((True, raycast.RAYS_PER_LAUNCH), (True, 1000), (False, raycast.RAYS_PER_LAUNCH)):
+            monkeypatch.setattr(raycast, "CAST_PACKETS", packets)
+            monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", launch)
+            got[packets, launch] = raycast.cast_rays(mesh, oo, ww, closest=False, backend="opencl")
+        brute = raycast.cast_rays(mesh, oo, ww, closest=False, backend="opencl", accel="brute")
+        assert 0.02 < brute.hit.mean() < 0.95  # 90 hits of 2460 rays at least
+        for hits in got.values():
+            np.testing.assert_array_equal(hits.hit, brute.hit)
+            h = hits.hit
+            assert (hits.t[h] > 0).all() and hits.barycentric[h].min() > -1e-3
+    assert "cast_packets" in built and "cast_rows" in built
+    bad = w.copy()
+    bad[[70, 300]] = 0.0  # zero-length directions inside packets
+    monkeypatch.setattr(raycast, "CAST_PACKETS", True)
+    with pytest.raises(ValueError, match=r"`directions` has 2 zero-length row\(s\), first at index 70"):
+        raycast.cast_rays(mesh, o, bad, closest=False, backend="opencl")
+
+
+@given(runs=st.lists(st.integers(1, 200), min_size=1, max_size=30), size=st.sampled_from([32, 64]), f32=st.booleans())
+@settings(max_examples=60, deadline=None)
+def test_shared_origin_packets_cover_the_runs(runs, size, f32):
+    # the packets partition the rows in order, each within one run of identical origins and at
+    # most `size` long; None exactly when the runs average fewer than 4 rows
+    dtype = np.float32 if f32 else np.float64
+    starts = np.arange(len(runs), dtype=dtype)
+    origins = np.repeat(np.stack([starts, -starts, starts * 0.5], axis=1), runs, axis=0)
+    packets = raycast.shared_origin_packets(origins, size)
+    if sum(runs) < 4 * len(runs):
+        assert packets is None
+        return
+    first, count = packets[:, 0], packets[:, 1]
+    np.testing.assert_array_equal(first, np.concatenate([[0], np.cumsum(count)[:-1]]))
+    assert count.sum() == len(origins) and count.max() <= size and count.min() >= 1
+    run_of = np.repeat(np.arange(len(runs)), runs)
+    assert all(run_of[a] == run_of[a + c - 1] for a, c in packets)
+    assert len(packets) == sum(-(-r // size) for r in runs)
+
+
+@pytest.mark.parametrize("d", DIMS)
 @pytest.mark.parametrize("shift", [0.0, 2e4])
 def test_hits_refined_on_the_device_or_the_host_alike(d, shift, cl_runtime, monkeypatch):
     # kernels/refine.cl repeats the host's float64 operations in order: the same bits of t and
