@@ -831,6 +831,12 @@ def cast_rays(
         ``t`` (N,) float64, ``simplex`` (N,) int64 (-1 on a miss), ``barycentric`` (N, d) float64.
         Distances and weights of hits are recomputed in float64 on the hit simplex.
 
+    Notes
+    -----
+    On CPUs, any-hit rays in consecutive rows with the same origin (shadow and AO rays from
+    shared points, a pinhole camera's rays) are traced together, up to 64 at a time, as the AO
+    kernel traces a point's rays: put such rays next to each other.
+
     Examples
     --------
     >>> import ao4d
