@@ -246,7 +246,13 @@ def _morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
 
 
 def _kernels(
-    runtime, dim: int, lanes: int, count_visits: bool = False, ray_type: str | None = None, width: int | None = None
+    runtime,
+    dim: int,
+    lanes: int,
+    count_visits: bool = False,
+    ray_type: str | None = None,
+    width: int | None = None,
+    source: str = "ao.cl",
 ) -> dict[str, Any]:
     defines = {
         "DIM": dim,
@@ -260,10 +266,7 @@ def _kernels(
         defines["COUNT_VISITS"] = 1
     if ray_type is not None:  # the cast_rows_* kernels, which map the caller's rows themselves
         defines["RAY_T"] = ray_type
-    kernels = cl.build_kernels(runtime, "ao.cl", defines)
-    if ray_type is not None and not count_visits:  # and cast_packets_bvh, for rows sharing origins
-        kernels = {**kernels, **cl.build_kernels(runtime, "cast_packets.cl", defines)}
-    return kernels
+    return cl.build_kernels(runtime, source, defines)
 
 
 def ao_packet(runtime) -> int:
@@ -458,8 +461,10 @@ def _traversal_kernel(
     ray_type: str | None = None,
 ):
     """The ``{name}_bvh{suffix}`` or ``{name}_brute`` kernel and its leading scene arguments
-    (``ray_type``: the build of the ``cast_rows_*`` kernels for rows of that C type)."""
-    kernels = _kernels(runtime, dim, dev["lanes"], count_visits, ray_type, dev["width"])
+    (``ray_type``: the build of the ``cast_rows_*`` kernels for rows of that C type; the
+    ``cast_packets`` kernel comes from kernels/cast_packets.cl, the others from ao.cl)."""
+    source = "cast_packets.cl" if name == "cast_packets" else "ao.cl"
+    kernels = _kernels(runtime, dim, dev["lanes"], count_visits, ray_type, dev["width"], source)
     if accel == "bvh":
         return kernels[f"{name}_bvh{suffix}"], [dev["boxes"], dev["children"], dev["blocks"]]
     return kernels[f"{name}_brute"], [dev["blocks"], dev["n_blocks"]]

@@ -205,7 +205,6 @@ inline int lowest_ray(const pmask m)
     return (int)(8 * sizeof(pmask) - 1) - (int)clz(m & (~m + 1));
 }
 
-
 // the rays of `active` (bit r: rays[r]) that hit something with 0 < t <= t_max from origin o
 inline pmask trace_packet(__global const floatW *boxes, __global const int *children,
                           __global const floatL *blocks, const float *o, const PacketRay *rays,

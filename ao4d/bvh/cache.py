@@ -97,8 +97,8 @@ def get_bvh(mesh: Any, *, leaf_size: int = 16, builder: str = "auto", runtime: A
         from ..mesh import as_mesh
 
         mesh = as_mesh(mesh)
-    if runtime is not None and leaf_size > MAX_LEAF_BLOCKS * block_lanes(runtime, np.shape(mesh.vertices)[1]):
-        lanes = block_lanes(runtime, np.shape(mesh.vertices)[1])
+    lanes = None if runtime is None else block_lanes(runtime, np.shape(mesh.vertices)[1])
+    if lanes is not None and leaf_size > MAX_LEAF_BLOCKS * lanes:
         raise ValueError(
             f"`leaf_size` must be at most {MAX_LEAF_BLOCKS * lanes} on this device "
             f"(leaf blocks of {lanes} simplices, at most {MAX_LEAF_BLOCKS} per leaf), "
