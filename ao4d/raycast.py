@@ -85,7 +85,9 @@ class RayHits:
         summing to 1; zeros on a miss.
 
     ``t`` and ``barycentric`` are recomputed in float64 on the hit simplices when first read:
-    callers that only ask whether rays hit (shadow and occlusion rays) never pay for them.
+    callers that only ask whether rays hit (shadow and occlusion rays) never pay for them. For
+    closest hits their arrays are made during the trace, with the misses' values, while the
+    device works; any-hit calls make them only when they are read.
     """
 
     __slots__ = ("simplex", "_t", "_barycentric", "_pending")

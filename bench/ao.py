@@ -21,7 +21,11 @@ is flagged loudly (``bench/_protocol.py``).
   many triangles as the shape has tetrahedra and as many AO rays of the same kind (64 per point,
   ao4d's directions, from as many points spread evenly over the torus), once with unlimited
   reach and once with ``tfar`` a quarter of the torus's bounding-box diagonal. Build is the scene
-  construction and the first query. The worker runs under ``AO4D_BENCH_OPEN3D_PYTHON`` when set
+  construction and the first query. For the two dense shapes Open3D also traces their 3D
+  analogues (``dense3d_trimesh``: three tori around a ball, 40 metaballs; as many triangles and
+  rays per point; ``--no-dense-3d`` leaves them out), which says how Embree fares with dense
+  mutual occlusion in its own dimension: context printed beside the ratios, whose peer stays
+  the torus. The worker runs under ``AO4D_BENCH_OPEN3D_PYTHON`` when set
   (a virtual environment with Open3D, made with ``--system-site-packages``), else this Python. ``--embreex`` adds trimesh's ``intersects_any`` (embreex:
   Embree from one Python thread) and ``--host-tree`` ao4d with the numpy-built tree.
 * Traversal work per AO ray on ``--quality-points`` vertices (``ao4d.raycast.traversal_counts``,
@@ -54,6 +58,7 @@ import _protocol as protocol  # noqa: E402  (bench/_protocol.py)
 protocol.use_checkout(_BENCH)  # the ao4d of this checkout, not another one installed
 
 SHAPES = ("spheritorus", "tiger", "ditorus", "csg", "tori", "metaballs")
+DENSE = ("tori", "metaballs")  # dense mutual occlusion: Embree also traces their 3D analogues
 
 
 def csg_field():
@@ -135,13 +140,68 @@ def torus_trimesh(triangles: int):
     return trimesh.creation.torus(major_radius=1.0, minor_radius=0.4, major_sections=major, minor_sections=minor)
 
 
-def torus_rays(triangles: int, n_points: int, samples: int):
-    """The torus, the AO points (Morton order) and their rays: (mesh, points, normals, o, w)."""
+def dense3d_field(kind: str):
+    """A 3D analogue of a dense 4D shape, negative inside, on (N, 3) points: ``"tori"``, three
+    tori (core circles of radius 0.9 in the xy plane, the yz plane and the xz plane turned by 45
+    degrees about z; tubes of radius 0.28) around a ball of radius 0.6; ``"metaballs"``, 40
+    metaballs of radius 0.3 and sharpness 8 (:func:`ao4d.fields.metaballs`' formula) at random
+    centres in [-0.8, 0.8]^3 (seed 3)."""
+    if kind == "tori":
+
+        def torus(p):  # core circle in the plane of the first two columns
+            return np.hypot(np.hypot(p[:, 0], p[:, 1]) - 0.9, p[:, 2]) - 0.28
+
+        c = math.sqrt(0.5)
+        turn = np.array([[c, -c, 0.0], [c, c, 0.0], [0.0, 0.0, 1.0]])
+        return lambda p: np.minimum.reduce(
+            [np.linalg.norm(p, axis=1) - 0.6, torus(p), torus(p[:, [1, 2, 0]]), torus((p @ turn)[:, [0, 2, 1]])]
+        )
+    if kind == "metaballs":
+        centres = np.random.default_rng(3).uniform(-0.8, 0.8, size=(40, 3))
+
+        def blobs(p):
+            total = np.zeros(len(p))
+            for c in centres:
+                total += np.exp(-8.0 * (((p - c) ** 2).sum(axis=1) / 0.09 - 1.0))
+            return 1.0 - total
+
+        return blobs
+    raise ValueError(f"no dense 3D analogue of {kind!r}")
+
+
+def dense3d_trimesh(kind: str, triangles: int):
+    """:func:`dense3d_field`'s surface with about ``triangles`` triangles (scikit-image's
+    marching cubes on [-1.5, 1.5]^3, evaluated a slab at a time), facing outwards."""
+    import trimesh
+    from skimage.measure import marching_cubes
+
+    field = dense3d_field(kind)
+
+    def extract(n: int):
+        axis = np.linspace(-1.5, 1.5, n)
+        yz = np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2)
+        values = np.empty((n, n, n))
+        for i, x in enumerate(axis):
+            values[i] = field(np.column_stack([np.full(len(yz), x), yz])).reshape(n, n)
+        v, f, _, _ = marching_cubes(values, 0.0, spacing=(axis[1] - axis[0],) * 3)
+        return trimesh.Trimesh(v - 1.5, f, process=False)
+
+    probe = extract(48)  # the triangle count grows like n^2 (a surface)
+    tm = extract(max(16, round(48 * math.sqrt(triangles / len(probe.faces)))))
+    if tm.volume < 0:
+        tm.invert()
+    return tm
+
+
+def torus_rays(triangles: int, n_points: int, samples: int, kind: str = "torus"):
+    """The torus (or the :func:`dense3d_trimesh` of ``kind``), the AO points (Morton order) and
+    their rays: (mesh, points, normals, o, w)."""
     from ao4d import ao, raycast, sampling
 
-    tm = torus_trimesh(triangles)
+    tm = torus_trimesh(triangles) if kind == "torus" else dense3d_trimesh(kind, triangles)
     # as many points as the 4D mesh has, evenly spread over the vertex list (trimesh's torus
-    # lists its vertices ring by ring), in the Morton order ao4d sorts its points by
+    # lists its vertices ring by ring, marching cubes slab by slab), in the Morton order ao4d
+    # sorts its points by
     idx = np.linspace(0, len(tm.vertices) - 1, n_points).round().astype(np.int64)
     q, m = tm.vertices[idx], tm.vertex_normals[idx]
     order = raycast._morton_order(q)
@@ -175,15 +235,17 @@ def load() -> str:
 
 def open3d_worker() -> int:
     """Serve Open3D measurements over stdin/stdout: a JSON line ``{"triangles", "points",
-    "samples", "reach"}`` (reach: tfar as a fraction of the torus's diagonal, 0 for unlimited)
-    -> one JSON line. The torus and its rays are made once per size (not timed)."""
+    "samples", "reach", "kind"}`` (reach: tfar as a fraction of the mesh's diagonal, 0 for
+    unlimited; kind: the torus, or a :func:`dense3d_trimesh`) -> one JSON line. The mesh and
+    its rays are made once per kind and size (not timed)."""
     import open3d as o3d  # first: its bundled TBB before anything else
 
     workloads = {}
+    scene = hit = None
     print(json.dumps({"ready": True}), flush=True)
     for line in sys.stdin:
         job = json.loads(line)
-        size = (job["triangles"], job["points"], job["samples"])
+        size = (job["triangles"], job["points"], job["samples"], job.get("kind", "torus"))
         if size not in workloads:
             tm, _, _, o, w = torus_rays(*size)
             workloads[size] = (
@@ -194,6 +256,11 @@ def open3d_worker() -> int:
             )
         rays, vertices, faces, diagonal = workloads[size]
         tfar = job["reach"] * diagonal if job["reach"] else math.inf
+        # the last scene goes before the clock starts: its teardown is not in this build's time
+        # (nor beside the other side's runs), and its memory is free just before the build, as
+        # when a new scene replaces it (on the project's VM, memory freed before ao4d's runs
+        # came back as fresh pages that made Embree's builds 0.2-0.35 s slower)
+        scene = hit = None
         clock = Clock()
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(vertices, faces)
@@ -201,9 +268,6 @@ def open3d_worker() -> int:
         build = clock.lap()
         hit = scene.test_occlusions(rays, tfar=tfar).numpy()
         trace = clock.lap()
-        # the scene goes before the answer: its teardown neither runs beside the next
-        # measurement nor lands in the next build's time (when `scene` is rebound after Clock())
-        del scene
         first = [b + t for b, t in zip(build, trace)]
         print(
             json.dumps(dict(build=build, trace=trace, first=first, hit=float(hit.mean()), rays=int(len(hit)))),
@@ -243,8 +307,8 @@ class Open3D:
             )
         return json.loads(line)
 
-    def run(self, triangles: int, points: int, samples: int, reach: float = 0.0) -> dict:
-        job = dict(triangles=triangles, points=points, samples=samples, reach=reach)
+    def run(self, triangles: int, points: int, samples: int, reach: float = 0.0, kind: str = "torus") -> dict:
+        job = dict(triangles=triangles, points=points, samples=samples, reach=reach, kind=kind)
         self.proc.stdin.write(json.dumps(job) + "\n")
         self.proc.stdin.flush()
         return self._answer()
@@ -435,6 +499,12 @@ def main(argv=None) -> int:
         help="leave out the per-ray kernel (the packets' reference)",
     )
     parser.add_argument("--host-tree", action="store_true", help="also ao4d with the numpy-built tree")
+    parser.add_argument(
+        "--no-dense-3d",
+        dest="dense_3d",
+        action="store_false",
+        help="leave out Embree on the 3D analogues of the dense shapes (context for their ratios)",
+    )
     parser.add_argument("--embreex", action="store_true", help="also trimesh + embreex (one thread)")
     parser.add_argument("--open3d-worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -522,6 +592,9 @@ def main(argv=None) -> int:
             if worker is not None:
                 todo["Open3D"] = lambda: worker.run(len(s), points[name], args.samples)
                 todo["Open3D d/4"] = lambda: worker.run(len(s), points[name], args.samples, 0.25)
+                if name in DENSE and args.dense_3d:
+                    todo["Open3D dense 3D"] = lambda: worker.run(len(s), points[name], args.samples, 0.0, name)
+                    todo["Open3D dense 3D d/4"] = lambda: worker.run(len(s), points[name], args.samples, 0.25, name)
             if embree is not None:
                 todo["embreex"] = lambda: embree_run(embree[name][0], *embree[name][3:])
             for label, fn in todo.items():
@@ -621,6 +694,32 @@ def report(runs, shapes, rounds, quiet=None) -> None:
                 f"  {name + reach + ':':<18} {protocol.format_ratio(ratio['trace']):>20} "
                 f"{protocol.format_ratio(ratio['trace cpu']):>20} {protocol.format_ratio(ratio['first']):>20} "
                 f"{packets:>20}  {verdict}"
+            )
+    dense_report(runs, shapes)
+
+
+def dense_report(runs, shapes) -> None:
+    """The dense shapes' ratios against Embree on their 3D analogues (context: the targets'
+    peer is the torus), with the share of rays that hit on each side."""
+    dense = [name for name in shapes if (name, "Open3D dense 3D") in runs]
+    if not dense:
+        return
+    print(
+        "\nthe dense shapes against Embree on their dense 3D analogues (as many triangles and rays per "
+        "point; context for the ratios above, whose peer is the torus), median (min–max):"
+    )
+    for name in dense:
+        for reach in ("", " d/4"):
+            ours, peer = runs[name, "ao4d" + reach], runs[name, "Open3D dense 3D" + reach]
+            ratio = {
+                part: [_rates(a, a["rays"])[part][0] / _rates(b, b["rays"])[part][0] for a, b in zip(ours, peer)]
+                for part in ("trace", "first")
+            }
+            hits = {label: runs[name, label + reach][0]["hit"] for label in ("ao4d", "Open3D dense 3D", "Open3D")}
+            print(
+                f"  {name + reach + ':':<18} trace {protocol.format_ratio(ratio['trace'])}, first call "
+                f"{protocol.format_ratio(ratio['first'])}; rays that hit: ao4d {hits['ao4d']:.3f}, the 3D analogue "
+                f"{hits['Open3D dense 3D']:.3f}, the torus {hits['Open3D']:.3f}"
             )
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
@@ -105,3 +106,24 @@ def test_memory_latency_is_a_positive_time(cl_runtime):
     latency = protocol.memory_latency(cl_runtime, mib=1, steps=1000)
     assert 0 < latency < 1e6
     assert protocol.memory_line(cl_runtime).startswith("memory latency: ")
+
+
+@pytest.mark.parametrize("kind", ["tori", "metaballs"])
+def test_dense_3d_analogues_are_closed_outward_level_sets_of_their_fields(kind):
+    # bench/ao.py's 3D analogues of the dense 4D shapes (Embree's dense workload): a closed
+    # surface of about the asked size, facing outwards, on its field's zero level: half a cell's
+    # step along each vertex normal leaves the solid, a step against it enters it
+    import ao as ao_bench
+
+    tm = ao_bench.dense3d_trimesh(kind, 20_000)
+    assert tm.is_watertight and tm.volume > 0
+    assert 10_000 < len(tm.faces) < 40_000
+    field = ao_bench.dense3d_field(kind)
+    step = 0.5 * float(tm.edges_unique_length.mean())  # about half a cell of the extraction's grid
+    out = field(tm.vertices + step * tm.vertex_normals) > 0
+    inside = field(tm.vertices - step * tm.vertex_normals) < 0
+    assert out.mean() > 0.95 and inside.mean() > 0.95  # not where tubes cross (creases)
+    assert field(np.full((1, 3), 1.45))[0] > 0  # the corners of the grid are outside
+    if kind == "tori":  # the ball and a point on each core circle (inside that torus only) are inside
+        a = np.sqrt((0.81 - 0.36) / 2)  # the turned circle at z = 0.6
+        assert (field(np.array([[0, 0, 0], [0.9, 0, 0], [0, 0, 0.9], [a, a, 0.6]])) < 0).all()

@@ -658,10 +658,15 @@ def test_rays_mapped_on_the_device_or_the_host_hit_alike(d, cl_runtime, monkeypa
                 np.testing.assert_array_equal(a, b)
         assert (got[True, True][0] >= 0).mean() > 0.03  # 90 hits of 3000 rays at least
     monkeypatch.setattr(raycast, "MAP_ON_DEVICE", True)
+    before = raycast.cast_rays(mesh, o, w, backend="opencl", max_distance=3.0)
     bad = w.copy()
     bad[[1500, 1700]] = 0.0
     with pytest.raises(ValueError, match=r"`directions` has 2 zero-length row\(s\), first at index 1500"):
         raycast.cast_rays(mesh, o, bad, backend="opencl")
+    # the error left no launch buffer mapped or busy: the next call answers as before
+    after = raycast.cast_rays(mesh, o, w, backend="opencl", max_distance=3.0)
+    for a, b in ((after.simplex, before.simplex), (after.t, before.t), (after.barycentric, before.barycentric)):
+        np.testing.assert_array_equal(a, b)
 
 
 @pytest.mark.parametrize("d", DIMS)
@@ -775,10 +780,14 @@ def test_refinement_of_no_hits_and_of_a_host_tree_on_the_device(cl_runtime):
 @pytest.mark.parametrize("d", (3, 4))
 @pytest.mark.parametrize("shift", [0.0, 1000.0])
 def test_cast_rays_over_many_launches_equals_brute_force(d, shift, cl_runtime, monkeypatch):
-    # launches of 700 rays take turns on two sets of mapped buffers: every ray's answer equals the
-    # brute-force answer (and the numpy traversal's hits are those of one launch for all)
+    # launches of 700 rays take turns on two sets of mapped buffers, and the results are written
+    # launch by launch: every ray's answer equals the brute-force answer, and the closest hits'
+    # simplices, t and barycentrics those of one launch for all, misses included (-1, inf, 0)
     mesh, o, w = _shifted_soup(2900 + d, d, shift)
-    whole = raycast.cast_rays(mesh, o, w, closest=False, backend="opencl")
+    whole = {
+        closest: raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", max_distance=0.7)
+        for closest in (False, True)
+    }
     monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 700)
     for closest in (False, True):
         for max_distance in (np.inf, 0.7):
@@ -789,7 +798,16 @@ def test_cast_rays_over_many_launches_equals_brute_force(d, shift, cl_runtime, m
             np.testing.assert_array_equal(fast.hit, slow.hit)
             if closest:
                 np.testing.assert_array_equal(fast.t, slow.t)
-    np.testing.assert_array_equal(whole.hit, raycast.cast_rays(mesh, o, w, closest=False, backend="opencl").hit)
+            if max_distance == 0.7:
+                one = whole[closest]
+                assert 0.02 < one.hit.mean() < 0.98  # hits and misses in every launch's share
+                np.testing.assert_array_equal(fast.hit, one.hit)
+                if closest:
+                    for a, b in ((fast.simplex, one.simplex), (fast.t, one.t), (fast.barycentric, one.barycentric)):
+                        np.testing.assert_array_equal(a, b)
+                    miss = ~fast.hit
+                    assert (fast.simplex[miss] == -1).all() and np.isinf(fast.t[miss]).all()
+                    assert (fast.barycentric[miss] == 0.0).all()
 
 
 def test_kept_launch_buffers_serve_later_and_concurrent_calls(cl_runtime, monkeypatch):
