@@ -1179,7 +1179,16 @@ def _miss_values(n: int, d: int) -> tuple[np.ndarray, np.ndarray]:
     return np.full(n, np.inf), np.zeros((n, d))
 
 
-def _refine_hits(tree, n: int, rows, p, o, w, inv_length, out=None):
+def _refine_hits(
+    tree,
+    n: int,
+    rows: np.ndarray,
+    p: np.ndarray,
+    o: np.ndarray,
+    w: np.ndarray,
+    inv_length: np.ndarray,
+    out: tuple[np.ndarray, np.ndarray] | None = None,
+):
     """``t`` (world units) and barycentrics of the hits, recomputed in float64 on the host on the
     hit simplices (tree-order ``p``) of rays ``rows`` (world origins ``o``, directions ``w`` and
     their ``1 / |w|``), written into ``out`` (``t`` and barycentrics holding the misses' inf and
@@ -1199,7 +1208,15 @@ def _refine_hits(tree, n: int, rows, p, o, w, inv_length, out=None):
     return t, bary
 
 
-def _refine_on_device(tracer: Tracer, n: int, rows, simplex, o, w, out=None):
+def _refine_on_device(
+    tracer: Tracer,
+    n: int,
+    rows: np.ndarray,
+    simplex: np.ndarray,
+    o: np.ndarray,
+    w: np.ndarray,
+    out: tuple[np.ndarray, np.ndarray] | None = None,
+):
     """:func:`_refine_hits`' answer (the same bits) from ``kernels/refine.cl``: one work-item per
     hit (mesh simplex ``simplex``, ray rows ``o``, ``w`` as the caller gave them) writes its row
     of ``t`` and the barycentrics (into ``out`` when given, as :func:`_refine_hits`), in place
