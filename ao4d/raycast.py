@@ -339,14 +339,11 @@ def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar, r
 
     # float32 rows are read as float32; any float64 makes both double (exact for float32 values,
     # and the same bits: _Rays.chunk promotes them alike)
-    both32 = rays.origins.dtype == rays.directions.dtype == np.float32
-    real = np.float32 if both32 else np.float64
+    real, ray_type = _row_types(rays.origins, rays.directions)
     origins, directions = (np.ascontiguousarray(a, dtype=real) for a in (rays.origins, rays.directions))
-    ray_type = "float" if both32 else "double"
     kernel, head = _traversal_kernel(runtime, tree.dim, dev, "cast_rows", accel, ray_type=ray_type)
-    frame = np.append(np.asarray(rays.frame.centre, dtype=np.float64), np.float64(rays.frame.scale))
     ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
-    buf_frame = pcl.Buffer(runtime.context, ro, hostbuf=frame)
+    buf_frame = pcl.Buffer(runtime.context, ro, hostbuf=_frame_values(rays.frame))
     row = rays.d * np.dtype(real).itemsize
     packed = any_hit and accel == "bvh" and _casts_packets(runtime)
     if packed:
@@ -376,6 +373,18 @@ def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar, r
             raise RuntimeError("the ray kernel flagged a zero-length direction the host does not see")
 
     return _launches(runtime, rays.n, (row, row, 4), fill, launch, bar, results, check)
+
+
+def _row_types(origins: np.ndarray, directions: np.ndarray) -> tuple[type, str]:
+    """The type the kernels read rays' rows in, as numpy and C name it: float32 when both arrays
+    are float32, else float64 (exact for float32 values)."""
+    return (np.float32, "float") if origins.dtype == directions.dtype == np.float32 else (np.float64, "double")
+
+
+def _frame_values(frame) -> np.ndarray:
+    """A tree frame as the kernels read it (``map_ray`` in kernels/rows.h, kernels/refine.cl):
+    its centre's coordinates, then its scale, in float64."""
+    return np.append(np.asarray(frame.centre, dtype=np.float64), np.float64(frame.scale))
 
 
 def _launches(runtime, n: int, widths: tuple[int, ...], fill, launch, bar, results, check=None) -> None:
@@ -682,7 +691,7 @@ def device_ray_mapping(runtime, frame, origins: np.ndarray, directions: np.ndarr
     ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
     real = np.float32 if ray_type == "float" else np.float64
     ins = [pcl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(a, dtype=real)) for a in (origins, directions)]
-    frame_buf = pcl.Buffer(ctx, ro, hostbuf=np.append(frame.centre, frame.scale).astype(np.float64))
+    frame_buf = pcl.Buffer(ctx, ro, hostbuf=_frame_values(frame))
     out = [np.empty((n, 4), dtype=np.float32) for _ in range(2)]
     bufs = [pcl.Buffer(ctx, pcl.mem_flags.WRITE_ONLY, a.nbytes) for a in out]
     _kernels(runtime, d, _bvh.block_lanes(runtime, d), ray_type=ray_type)["map_rays"](
@@ -1020,9 +1029,7 @@ class _Results:
         self._found.append((at + start, p))
 
     def hits(self) -> tuple[np.ndarray, np.ndarray]:
-        """Rows that hit, in order, and their tree-order simplices."""
-        if not self._found:
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        """Rows that hit, in order, and their tree-order simplices (after at least one answer)."""
         return np.concatenate([at for at, _ in self._found]), np.concatenate([p for _, p in self._found])
 
 
@@ -1239,15 +1246,20 @@ def _refine_on_device(
             pcl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a, dtype=dtype))
             for a, dtype in ((vertices, np.float64), (simplices, np.int32))
         )
-    real = np.float32 if o.dtype == w.dtype == np.float32 else np.float64  # float32 rows stay float32
-    frame = np.append(np.asarray(tree.frame.centre, dtype=np.float64), np.float64(tree.frame.scale))
+    real, ray_type = _row_types(o, w)  # float32 rows stay float32
     ro = mf.READ_ONLY | mf.COPY_HOST_PTR
     inputs = [
         pcl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(a, dtype=dtype))
-        for a, dtype in ((o, real), (w, real), (frame, np.float64), (simplex, np.int32), (rows, np.int64))
+        for a, dtype in (
+            (o, real),
+            (w, real),
+            (_frame_values(tree.frame), np.float64),
+            (simplex, np.int32),
+            (rows, np.int64),
+        )
     ]
     outputs = [pcl.Buffer(ctx, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=a) for a in (t, bary)]
-    kernel = _refine_kernel(runtime, d, "float" if real == np.float32 else "double")
+    kernel = _refine_kernel(runtime, d, ray_type)
     kernel(queue, (len(rows),), None, *inputs, *mesh, *outputs)
     for buf, a in zip(outputs, (t, bary)):  # the device's writes, seen by the host (no copy on CPUs)
         mapped, _ = pcl.enqueue_map_buffer(queue, buf, pcl.map_flags.READ, 0, a.shape, a.dtype)
