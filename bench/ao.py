@@ -241,7 +241,6 @@ def open3d_worker() -> int:
     import open3d as o3d  # first: its bundled TBB before anything else
 
     workloads = {}
-    scene = hit = None
     print(json.dumps({"ready": True}), flush=True)
     for line in sys.stdin:
         job = json.loads(line)
@@ -643,6 +642,12 @@ def _rates(run: dict, rays: int) -> dict:
     return {key: (rays / run[key][0], rays / run[key][1]) for key in ("trace", "first")}
 
 
+def _ratios(ours: list, peer: list, part: str, k: int = 0) -> list[float]:
+    """Per round, ao4d's rate over the peer's for ``part`` ("trace" or "first"; ``k``: 0 wall
+    clock, 1 CPU time)."""
+    return [_rates(a, a["rays"])[part][k] / _rates(b, b["rays"])[part][k] for a, b in zip(ours, peer)]
+
+
 def report(runs, shapes, rounds, quiet=None) -> None:
     """The speed table (medians) and, per shape, every ratio against Open3D as its median and
     min–max over the rounds."""
@@ -676,17 +681,10 @@ def report(runs, shapes, rounds, quiet=None) -> None:
         for reach in ("", " d/4"):
             ours, peer = runs[name, "ao4d" + reach], runs[name, "Open3D" + reach]
             per_ray = runs.get((name, "per-ray" + reach))
-            ratio = {}
-            for key, k in (("trace", 0), ("trace cpu", 1), ("first", 0)):
-                part = key.split()[0]
-                ratio[key] = [_rates(a, a["rays"])[part][k] / _rates(b, b["rays"])[part][k] for a, b in zip(ours, peer)]
-            packets = (
-                "–"
-                if per_ray is None
-                else protocol.format_ratio(
-                    _rates(a, a["rays"])["trace"][0] / _rates(b, b["rays"])["trace"][0] for a, b in zip(ours, per_ray)
-                )
-            )
+            ratio = {
+                key: _ratios(ours, peer, key.split()[0], k) for key, k in (("trace", 0), ("trace cpu", 1), ("first", 0))
+            }
+            packets = "–" if per_ray is None else protocol.format_ratio(_ratios(ours, per_ray, "trace"))
             verdict = (
                 "met" if min(statistics.median(ratio["trace"]), statistics.median(ratio["first"])) >= 1.0 else "missed"
             )
@@ -711,10 +709,7 @@ def dense_report(runs, shapes) -> None:
     for name in dense:
         for reach in ("", " d/4"):
             ours, peer = runs[name, "ao4d" + reach], runs[name, "Open3D dense 3D" + reach]
-            ratio = {
-                part: [_rates(a, a["rays"])[part][0] / _rates(b, b["rays"])[part][0] for a, b in zip(ours, peer)]
-                for part in ("trace", "first")
-            }
+            ratio = {part: _ratios(ours, peer, part) for part in ("trace", "first")}
             hits = {label: runs[name, label + reach][0]["hit"] for label in ("ao4d", "Open3D dense 3D", "Open3D")}
             print(
                 f"  {name + reach + ':':<18} trace {protocol.format_ratio(ratio['trace'])}, first call "
