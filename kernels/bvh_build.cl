@@ -198,57 +198,55 @@ inline float box_area(const float4 lo, const float4 hi)
 #endif
 }
 
+// per-bin primitive counts and box bounds: all the SAH needs (the subtree builder's bins)
 typedef struct {
     int n[MAX_BINS];
-    float4 lo[MAX_BINS], hi[MAX_BINS], c_lo[MAX_BINS], c_hi[MAX_BINS];
-} Bins;
+    float4 lo[MAX_BINS], hi[MAX_BINS];
+} BoxBins;
 
-// bin k takes n primitives with box [lo, hi] and centroids in [c_lo, c_hi]
-inline void bins_add(Bins *b, const int k, const int n, const float4 lo, const float4 hi,
-                     const float4 c_lo, const float4 c_hi)
+// empty the first `bins` bins
+inline void bins_clear(BoxBins *b, const int bins)
+{
+    for (int k = 0; k < bins; ++k) {
+        b->n[k] = 0;
+        b->lo[k] = (float4)(INFINITY);
+        b->hi[k] = (float4)(-INFINITY);
+    }
+}
+
+// bin k takes n primitives whose boxes span [lo, hi]
+inline void bins_add(BoxBins *b, const int k, const int n, const float4 lo, const float4 hi)
 {
     b->n[k] += n;
     b->lo[k] = fmin(b->lo[k], lo);
     b->hi[k] = fmax(b->hi[k], hi);
-    b->c_lo[k] = fmin(b->c_lo[k], c_lo);
-    b->c_hi[k] = fmax(b->c_hi[k], c_hi);
 }
 
-// empty the first `bins` bins
-inline void bins_clear(Bins *b, const int bins)
-{
-    for (int k = 0; k < bins; ++k) {
-        b->n[k] = 0;
-        b->lo[k] = b->c_lo[k] = (float4)(INFINITY);
-        b->hi[k] = b->c_hi[k] = (float4)(-INFINITY);
-    }
-}
-
-// the SAH split of binned primitives: returns the first bin of the right side (0: none) and
-// the node's box; left/right centroid bounds of that split
-inline int sah_split(const Bins *b, const int bins, float4 *box_lo, float4 *box_hi,
-                     float4 cb[4])
+// the SAH split of binned primitives (n, lo, hi per bin): returns the first bin of the right
+// side (0: none) and the node's box
+inline int sah_split(const int *n, const float4 *b_lo, const float4 *b_hi, const int bins,
+                     float4 *box_lo, float4 *box_hi)
 {
     float4 run_lo[MAX_BINS], run_hi[MAX_BINS];  // suffix unions of the boxes
     float4 lo = (float4)(INFINITY), hi = (float4)(-INFINITY);
     for (int k = bins - 1; k >= 0; --k) {
-        lo = fmin(lo, b->lo[k]);
-        hi = fmax(hi, b->hi[k]);
+        lo = fmin(lo, b_lo[k]);
+        hi = fmax(hi, b_hi[k]);
         run_lo[k] = lo;
         run_hi[k] = hi;
     }
     *box_lo = lo;
     *box_hi = hi;
     int total = 0;
-    for (int k = 0; k < bins; ++k) total += b->n[k];
+    for (int k = 0; k < bins; ++k) total += n[k];
     int best = 0, left_n = 0;
     float best_cost = INFINITY;
     lo = (float4)(INFINITY);
     hi = (float4)(-INFINITY);
     for (int k = 0; k < bins - 1; ++k) {
-        left_n += b->n[k];
-        lo = fmin(lo, b->lo[k]);
-        hi = fmax(hi, b->hi[k]);
+        left_n += n[k];
+        lo = fmin(lo, b_lo[k]);
+        hi = fmax(hi, b_hi[k]);
         const int right_n = total - left_n;
         if (left_n == 0 || right_n == 0) continue;
         const float cost = box_area(lo, hi) * (float)left_n + box_area(run_lo[k + 1], run_hi[k + 1]) * (float)right_n;
@@ -256,22 +254,6 @@ inline int sah_split(const Bins *b, const int bins, float4 *box_lo, float4 *box_
             best_cost = cost;
             best = k + 1;
         }
-    }
-    if (best > 0) {
-        float4 a = (float4)(INFINITY), z = (float4)(-INFINITY), p = a, q = z;
-        for (int k = 0; k < bins; ++k) {
-            if (k < best) {
-                a = fmin(a, b->c_lo[k]);
-                z = fmax(z, b->c_hi[k]);
-            } else {
-                p = fmin(p, b->c_lo[k]);
-                q = fmax(q, b->c_hi[k]);
-            }
-        }
-        cb[0] = a;
-        cb[1] = z;
-        cb[2] = p;
-        cb[3] = q;
     }
     return best;
 }
@@ -305,27 +287,25 @@ __kernel __attribute__((vec_type_hint(float4))) void bin_chunks(
     const int4 ch = chunk_i[c];
     const int4 ni = node_i[ch.x];
     const float4 nf = node_f[ch.x];
-    Bins b;
+    BoxBins b;
     bins_clear(&b, MAX_BINS);
     for (int i = ch.y; i < ch.z; ++i) {
-        const float4 cen = rec[3 * (size_t)i + 2];
-        const int k = bin_of_value(component(cen, ni.x), nf.x, nf.y, ni.y);
+        const int k = bin_of_value(component(rec[3 * (size_t)i + 2], ni.x), nf.x, nf.y, ni.y);
         bin_of[i] = (uchar)k;
-        bins_add(&b, k, 1, rec[3 * (size_t)i], rec[3 * (size_t)i + 1], cen, cen);
+        bins_add(&b, k, 1, rec[3 * (size_t)i], rec[3 * (size_t)i + 1]);
     }
     for (int k = 0; k < MAX_BINS; ++k) {
         const size_t at = (size_t)c * MAX_BINS + k;
         part_n[at] = b.n[k];
-        part_b[4 * at] = b.lo[k];
-        part_b[4 * at + 1] = b.hi[k];
-        part_b[4 * at + 2] = b.c_lo[k];
-        part_b[4 * at + 3] = b.c_hi[k];
+        part_b[2 * at] = b.lo[k];
+        part_b[2 * at + 1] = b.hi[k];
     }
 }
 
 // one work-item per node: reduce the chunks' bins, choose the split, give each chunk its left
 // and right write positions. res_i[n] = (first right bin or -1 for "first half / second half",
-// left count, 0, 0); res_f[6 n ..] = box low, high, left centroid bounds, right centroid bounds.
+// left count, 0, 0); res_f[6 n ..] = box low, high and, for halves only, the children's
+// centroid bounds (the parent's); after an SAH split scatter_chunks gives them per chunk.
 __kernel void split_nodes(__global const int4 *node_i, __global const float4 *node_c,
                           __global const int *node_chunk, __global const int4 *chunk_i,
                           __global const int *part_n, __global const float4 *part_b,
@@ -335,18 +315,18 @@ __kernel void split_nodes(__global const int4 *node_i, __global const float4 *no
     const int n = get_global_id(0);
     const int4 ni = node_i[n];
     const int c0 = node_chunk[n], c1 = node_chunk[n + 1];
-    Bins b;
+    BoxBins b;
     bins_clear(&b, MAX_BINS);
     for (int c = c0; c < c1; ++c)
         for (int k = 0; k < ni.y; ++k) {
             const size_t at = (size_t)c * MAX_BINS + k;
-            bins_add(&b, k, part_n[at], part_b[4 * at], part_b[4 * at + 1], part_b[4 * at + 2],
-                     part_b[4 * at + 3]);
+            bins_add(&b, k, part_n[at], part_b[2 * at], part_b[2 * at + 1]);
         }
-    float4 lo, hi, cb[4];
-    int split = sah_split(&b, ni.y, &lo, &hi, cb);
+    float4 lo, hi;
+    int split = sah_split(b.n, b.lo, b.hi, ni.y, &lo, &hi);
     if (level >= SAH_MAX_LEVEL) split = 0;
     int left = 0;
+    float4 c_lo = (float4)(INFINITY), c_hi = (float4)(-INFINITY);
     if (split > 0) {
         for (int k = 0; k < split; ++k) left += b.n[k];
         int l_at = ni.z, r_at = ni.z + left;
@@ -360,40 +340,53 @@ __kernel void split_nodes(__global const int4 *node_i, __global const float4 *no
     } else {  // no SAH split (flat centroids) or too deep: halves in the current order
         split = -1;
         left = ni.w / 2;
-        cb[0] = cb[2] = node_c[2 * n];
-        cb[1] = cb[3] = node_c[2 * n + 1];
+        c_lo = node_c[2 * n];
+        c_hi = node_c[2 * n + 1];
         for (int c = c0; c < c1; ++c) chunk_off[c] = (int2)(chunk_i[c].y, -1);
     }
     res_i[n] = (int4)(split, left, 0, 0);
     res_f[6 * n] = lo;
     res_f[6 * n + 1] = hi;
-    for (int k = 0; k < 4; ++k) res_f[6 * n + 2 + k] = cb[k];
+    res_f[6 * n + 2] = res_f[6 * n + 4] = c_lo;
+    res_f[6 * n + 3] = res_f[6 * n + 5] = c_hi;
 }
 
-// stable partition of each chunk: left primitives to their node's front, right ones after
+// stable partition of each chunk: left primitives to their node's front, right ones after;
+// part_c[4 c ..] = the chunk's left and right centroid bounds (low, high, low, high), which
+// the host reduces per node: the same min / max as bins of centroids, the same bits
 __kernel __attribute__((vec_type_hint(float4))) void scatter_chunks(
     __global const float4 *src, __global const int *src_ids, __global float4 *dst,
     __global int *dst_ids, __global const int4 *chunk_i, __global const int4 *res_i,
-    __global const uchar *bin_of, __global const int2 *chunk_off)
+    __global const uchar *bin_of, __global const int2 *chunk_off, __global float4 *part_c)
 {
     const int c = get_global_id(0);
     const int4 ch = chunk_i[c];
     const int split = res_i[ch.x].x;
     int2 at = chunk_off[c];
+    float4 l_lo = (float4)(INFINITY), l_hi = (float4)(-INFINITY), r_lo = l_lo, r_hi = l_hi;
     for (int i = ch.y; i < ch.z; ++i) {
+        const float4 cen = src[3 * (size_t)i + 2];
         int j;
         if (split < 0) {
             j = i;
         } else if (bin_of[i] < split) {
             j = at.x++;
+            l_lo = fmin(l_lo, cen);
+            l_hi = fmax(l_hi, cen);
         } else {
             j = at.y++;
+            r_lo = fmin(r_lo, cen);
+            r_hi = fmax(r_hi, cen);
         }
         dst[3 * (size_t)j] = src[3 * (size_t)i];
         dst[3 * (size_t)j + 1] = src[3 * (size_t)i + 1];
-        dst[3 * (size_t)j + 2] = src[3 * (size_t)i + 2];
+        dst[3 * (size_t)j + 2] = cen;
         dst_ids[j] = src_ids[i];
     }
+    part_c[4 * c] = l_lo;
+    part_c[4 * c + 1] = l_hi;
+    part_c[4 * c + 2] = r_lo;
+    part_c[4 * c + 3] = r_hi;
 }
 
 // -- small nodes: one work-item builds a whole subtree -------------------------------------------
@@ -441,7 +434,7 @@ __kernel __attribute__((vec_type_hint(float4))) void build_subtrees(
     stack_c[0] = task_c[2 * get_global_id(0)];
     stack_c[1] = task_c[2 * get_global_id(0) + 1];
     int sp = 1;
-    Bins b;
+    BoxBins b;
     while (sp > 0) {
         --sp;
         const int4 nd = stack[sp];
@@ -480,22 +473,38 @@ __kernel __attribute__((vec_type_hint(float4))) void build_subtrees(
             reduce_range(rec, start, left, 2, &cb[0], &cb[1]);
             reduce_range(rec, start + left, count - left, 2, &cb[2], &cb[3]);
         } else {
+            // bins hold counts and boxes only; the sides' centroid bounds come from the
+            // partition pass, which reads every centroid anyway (the same min / max, the same bits)
             const int bins = bins_for(count);
             bins_clear(&b, bins);
             for (int i = start; i < start + count; ++i) {
-                const float4 cen = rec[3 * (size_t)i + 2];
-                const int k = bin_of_value(component(cen, axis), origin, ext, bins);
+                const int k = bin_of_value(component(rec[3 * (size_t)i + 2], axis), origin, ext, bins);
                 bin_of[i] = (uchar)k;
-                bins_add(&b, k, 1, rec[3 * (size_t)i], rec[3 * (size_t)i + 1], cen, cen);
+                bins_add(&b, k, 1, rec[3 * (size_t)i], rec[3 * (size_t)i + 1]);
             }
-            int split = sah_split(&b, bins, &lo, &hi, cb);
+            int split = sah_split(b.n, b.lo, b.hi, bins, &lo, &hi);
             if (level >= SAH_MAX_LEVEL) split = 0;
             if (split > 0) {
                 left = 0;
                 for (int k = 0; k < split; ++k) left += b.n[k];
                 int l_at = start, r_at = start + left;
-                for (int i = start; i < start + count; ++i)
-                    move_record(rec, ids, i, tmp, tmp_ids, bin_of[i] < split ? l_at++ : r_at++);
+                float4 l_lo = (float4)(INFINITY), l_hi = (float4)(-INFINITY), r_lo = l_lo, r_hi = l_hi;
+                for (int i = start; i < start + count; ++i) {
+                    const float4 cen = rec[3 * (size_t)i + 2];
+                    if (bin_of[i] < split) {
+                        l_lo = fmin(l_lo, cen);
+                        l_hi = fmax(l_hi, cen);
+                        move_record(rec, ids, i, tmp, tmp_ids, l_at++);
+                    } else {
+                        r_lo = fmin(r_lo, cen);
+                        r_hi = fmax(r_hi, cen);
+                        move_record(rec, ids, i, tmp, tmp_ids, r_at++);
+                    }
+                }
+                cb[0] = l_lo;
+                cb[1] = l_hi;
+                cb[2] = r_lo;
+                cb[3] = r_hi;
                 moved = 1;
             } else {
                 left = count / 2;

@@ -491,8 +491,10 @@ def _split_level(job: _Job, nodes: _Nodes, level_nodes: np.ndarray, level_c: np.
     n_ch = int(first[-1])
     b_chunk, b_node_i, b_node_f = job.input(chunk_i), job.input(node_i), job.input(node_f)
     b_node_c, b_first = job.input(np.ascontiguousarray(level_c)), job.input(first)
-    b_pn, b_pb = job.scratch(4 * _BINS * n_ch, kept="bin counts"), job.scratch(64 * _BINS * n_ch, kept="bin boxes")
+    b_pn, b_pb = job.scratch(4 * _BINS * n_ch, kept="bin counts"), job.scratch(32 * _BINS * n_ch, kept="bin boxes")
     b_off = job.scratch(8 * n_ch, kept="chunk offsets")
+    part_c = np.empty((n_ch, 4, 4), dtype=np.float32)  # per chunk: its sides' centroid bounds
+    b_pc = job.scratch(part_c.nbytes, kept="chunk centroids")
     res_i = np.empty((m, 4), dtype=np.int32)
     res_f = np.empty((m, 6, 4), dtype=np.float32)
     b_ri, b_rf = job.scratch(res_i.nbytes), job.scratch(res_f.nbytes, job.mf.WRITE_ONLY)
@@ -503,9 +505,17 @@ def _split_level(job: _Job, nodes: _Nodes, level_nodes: np.ndarray, level_c: np.
         job.queue, (m,), None, b_node_i, b_node_c, b_first, b_chunk, b_pn, b_pb, np.int32(level), b_ri, b_rf, b_off
     )
     k["scatter_chunks"](
-        job.queue, (n_ch,), None, rec[src], ids[src], rec[dst], ids[dst], b_chunk, b_ri, nodes.bin_of, b_off
+        job.queue, (n_ch,), None, rec[src], ids[src], rec[dst], ids[dst], b_chunk, b_ri, nodes.bin_of, b_off, b_pc
     )
-    job.read((res_i, b_ri), (res_f, b_rf))
+    job.read((res_i, b_ri), (res_f, b_rf), (part_c, b_pc))
+    # after an SAH split the children's centroid bounds are the union of their chunks' (exact
+    # min / max: the bits bins of centroids gave); halves keep the parent's (split_nodes)
+    sah = res_i[:, 0] > 0
+    if sah.any():
+        lows = np.minimum.reduceat(part_c[:, 0::2], first[:-1], axis=0)
+        highs = np.maximum.reduceat(part_c[:, 1::2], first[:-1], axis=0)
+        res_f[sah, 2::2] = lows[sah]
+        res_f[sah, 3::2] = highs[sah]
     return res_i[:, 1].astype(np.int64), res_f[:, :2].reshape(m, 8), res_f[:, 2:].reshape(2 * m, 2, 4)
 
 
