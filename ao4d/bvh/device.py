@@ -18,7 +18,12 @@ bookkeeping per node:
    primitives partial bins, per node the reduction and the SAH choice, per chunk a stable
    partition (two buffers, ping-pong);
 3. every smaller node: one work-item builds its whole subtree (bins and partitions in its own
-   range), taking node ids from one atomic counter;
+   range), taking node ids from one atomic counter.
+
+   Bins hold counts and boxes only: the partitions read every centroid anyway and give the
+   children's centroid bounds (per chunk in step 2, reduced on the host), the same min / max
+   as bins of centroids at half the bins' updates (the whole build on one core: 0.77 of its
+   time on a 3.7 M-tet tiger, the trees bit for bit the same);
 4. the host renumbers the nodes breadth first (deterministic ids) and widens the tree
    (:func:`ao4d.bvh.blocks.widen`'s topology); the leaf blocks are filled on the device from the
    vertices, never copied through the host.
