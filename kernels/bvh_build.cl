@@ -198,7 +198,7 @@ inline float box_area(const float4 lo, const float4 hi)
 #endif
 }
 
-// per-bin primitive counts and box bounds: all the SAH needs (the subtree builder's bins)
+// per-bin primitive counts and box bounds: all the SAH needs (every binning kernel's bins)
 typedef struct {
     int n[MAX_BINS];
     float4 lo[MAX_BINS], hi[MAX_BINS];
