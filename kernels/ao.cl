@@ -90,6 +90,90 @@ __kernel __attribute__((vec_type_hint(float4))) void ao_bvh(AO_TREE_PARAMS)
     VISITS_STORE(i);
 }
 
+#ifdef INTERLEAVE
+#ifndef INTERLEAVE_POINTS
+#define INTERLEAVE_POINTS (8 * INTERLEAVE)
+#endif
+// a point's packet from s0 in st (occlusion_count_packet's set-up, the same bits)
+inline void packet_setup(PacketState *st, const float4 p, const float4 n, const uint index,
+                         __global const uint *table, const int samples, const uint seed,
+                         const float offset, const int s0)
+{
+    uint shift[DIM - 1];
+    float4 frame[DIM - 1];
+    point_sampling(n, index, seed, shift, frame);
+    const float4 o = p + offset * n;
+    vstore4(o, 0, st->o);
+    const int count = min(PACKET, samples - s0);
+    for (int k = 0; k < count; k += 8) {
+        float8 w[DIM];
+        cosine_directions8(n, frame, table, s0 + k, samples, shift, w);
+        load_packet_rays8(st->o, w, min(8, count - k), st->rays + k);
+    }
+    packet_start(st, count == PACKET ? ~(pmask)0 : (((pmask)1 << count) - 1));
+}
+
+// ao_bvh's counts, INTERLEAVE packets traced by turns (packet_turn). The work-item whose id,
+// counted from the launch's offset, is a multiple of INTERLEAVE_POINTS does the points from its
+// id on (the others return at once): a slot whose point is done takes the next one.
+#ifdef COUNT_VISITS
+#define SLOT_VISITS , counted[k]
+#else
+#define SLOT_VISITS
+#endif
+__kernel __attribute__((vec_type_hint(float4))) void ao_bvh_interleaved(AO_TREE_PARAMS)
+{
+    const size_t start = get_global_offset(0);
+    const size_t first = get_global_id(0);
+    if ((first - start) % INTERLEAVE_POINTS) return;
+    const size_t end = min(first + INTERLEAVE_POINTS, start + get_global_size(0));
+    PacketState st[INTERLEAVE];
+    size_t point[INTERLEAVE];
+    int s0[INTERLEAVE], hits[INTERLEAVE];
+#ifdef COUNT_VISITS
+    int counted[INTERLEAVE][4];
+#endif
+    size_t next = first;
+    int busy = 0;  // bit k: slot k traces a packet
+    for (int k = 0; k < INTERLEAVE; ++k) {
+        if (next == end) break;
+        point[k] = next++;
+        busy |= 1 << k;
+    }
+    for (int k = 0; k < INTERLEAVE; ++k) s0[k] = -PACKET;  // the first turn sets each slot up
+    while (busy) {
+        for (int k = 0; k < INTERLEAVE; ++k) {
+            if (!((busy >> k) & 1)) continue;
+            if (s0[k] >= 0) {
+                if (!packet_turn(boxes, children, blocks, &st[k], max_distance SLOT_VISITS)) continue;
+                hits[k] += (int)popcount(st[k].active & ~st[k].alive);
+            } else {
+                hits[k] = 0;
+#ifdef COUNT_VISITS
+                for (int j = 0; j < 4; ++j) counted[k][j] = 0;
+#endif
+            }
+            s0[k] += PACKET;
+            const size_t i = point[k];
+            if (s0[k] < samples) {  // the point's next packet
+                packet_setup(&st[k], points[i], normals[i], index[i], table, samples, seed, offset, s0[k]);
+                continue;
+            }
+            counts[i] = hits[k];
+#ifdef COUNT_VISITS
+            for (int j = 0; j < 4; ++j) visits_out[4 * i + j] = counted[k][j];
+#endif
+            if (next < end) {  // the slot's next point
+                point[k] = next++;
+                s0[k] = -PACKET;
+            } else {
+                busy &= ~(1 << k);
+            }
+        }
+    }
+}
+#endif
+
 // the same counts, one ray at a time (trace_any): the reference the packet kernel must equal
 __kernel __attribute__((vec_type_hint(float4))) void ao_bvh_rays(AO_TREE_PARAMS)
 {
