@@ -64,9 +64,7 @@ __all__ = [
 
 AO_PACKET = 32  # rays of a point traced together by the AO kernel on GPUs (kernels/bvh.h trace_packet)
 AO_PACKET_CPU = 64  # on CPUs: a node fetched once serves twice the rays (5-6 % less trace time, measured)
-AO_INTERLEAVE = 8  # packets one CPU work-item traces by turns (kernels/bvh.h packet_turn)
-# kernels ao_bvh_interleaved (CPUs only), ao_bvh and ao_bvh_rays; the same counts
-AO_TRAVERSALS = ("interleaved", "packet", "rays")
+AO_TRAVERSALS = ("packet", "rays")  # kernels ao_bvh and ao_bvh_rays; same counts
 RAYS_PER_LAUNCH = 1 << 21  # ~0.5-2 s per launch on a 2-core CPU: responsive bar and Ctrl-C
 ACCELS = ("bvh", "brute")
 _NUMPY_RAYS_PER_STEP = 1 << 14  # bounds the (ray, node) frontier of the numpy traversal
@@ -266,8 +264,6 @@ def _kernels(
         "STACK_SIZE": _bvh.layout.STACK_SIZE,
         "PACKET": ao_packet(runtime),
     }
-    if _is_cpu(runtime):  # ao_bvh_interleaved: its slots' private memory suits CPUs' stacks only
-        defines["INTERLEAVE"] = AO_INTERLEAVE
     if count_visits:  # the debug variant of traversal_counts
         defines["COUNT_VISITS"] = 1
     if ray_type is not None:  # the cast_rows_* kernels, which map the caller's rows themselves
@@ -291,13 +287,9 @@ def ao_packet(runtime) -> int:
     int
         32 or 64 (``PACKET`` of kernels/bvh.h).
     """
-    return AO_PACKET_CPU if _is_cpu(runtime) else AO_PACKET
-
-
-def _is_cpu(runtime) -> bool:
     import pyopencl as pcl
 
-    return bool(runtime.device.type & pcl.device_type.CPU)
+    return AO_PACKET_CPU if runtime.device.type & pcl.device_type.CPU else AO_PACKET
 
 
 def _pad4(a: np.ndarray) -> np.ndarray:
@@ -499,14 +491,14 @@ def _traversal_kernel(
 
 
 def _ao_traversal(runtime) -> str:
-    """The AO kernel for this device: on CPUs, packets, where one work-item runs on one core and
+    """The AO kernel for this device: packets on CPUs, where one work-item runs on one core and
     a packet shares its node fetches and child loops among :func:`ao_packet` rays (64 on CPUs;
-    1.1-1.45x the per-ray kernel at 32, measured), :data:`AO_INTERLEAVE` of them traced by
-    turns so that one packet's fetches overlap the others' work (0.83-0.95x the time of one
-    packet at a time, measured); one ray per work-item elsewhere: GPUs run neighbouring rays on
-    SIMT lanes already and a packet's 5.5-11 KiB of private memory per work-item would spill
-    (not measured: no GPU lent)."""
-    return "interleaved" if _is_cpu(runtime) else "rays"
+    1.1-1.45x the per-ray kernel at 32, measured); one ray per work-item elsewhere: GPUs run
+    neighbouring rays on SIMT lanes already and the packet's 5.5-11 KiB of private memory per
+    work-item would spill (not measured: no GPU lent)."""
+    import pyopencl as pcl
+
+    return "packet" if runtime.device.type & pcl.device_type.CPU else "rays"
 
 
 #: cast_rays' any-hit rays that share an origin go as packets (kernels/cast_packets.cl):
@@ -571,9 +563,8 @@ def _ao_opencl(
 ):
     """Occluded-ray counts per point on the device (points Morton-sorted for coherence); with
     ``visits`` ((N, 4) int64), the counting kernels fill it (see :func:`traversal_counts`).
-    ``traversal``: ``"interleaved"`` (``ao_bvh_interleaved``, CPUs only: packets of a point's
-    rays, several traced by turns), ``"packet"`` (``ao_bvh``, one packet at a time) or
-    ``"rays"`` (``ao_bvh_rays``, one ray at a time: the reference); same counts. Default:
+    ``traversal``: ``"packet"`` (``ao_bvh``, the rays of a point together) or ``"rays"``
+    (``ao_bvh_rays``, one ray at a time: the reference); same counts. Default:
     :func:`_ao_traversal`."""
     import pyopencl as pcl
 
@@ -594,9 +585,7 @@ def _ao_opencl(
     buf_counts = pcl.Buffer(ctx, mf.WRITE_ONLY, counts.nbytes)
     dev = _bvh.device_tree(mesh, tree, runtime)
     traversal = _ao_traversal(runtime) if traversal is None else check_choice(traversal, "traversal", AO_TRAVERSALS)
-    if traversal == "interleaved" and not _is_cpu(runtime):
-        raise ValueError("`traversal` 'interleaved' runs on CPU devices only; use 'packet' or 'rays'")
-    suffix = {"interleaved": "_interleaved", "packet": "", "rays": "_rays"}[traversal]
+    suffix = "_rays" if traversal == "rays" else ""
     kernel, head = _traversal_kernel(runtime, tree.dim, dev, "ao", accel, visits is not None, suffix)
     args = (
         head
@@ -1355,10 +1344,9 @@ def traversal_counts(
     ----------
     mesh, points, normals, samples, offset, runtime, seed, max_distance : see count_occluded
         As in :func:`count_occluded`.
-    traversal : {"rays", "packet", "interleaved"}
+    traversal : {"rays", "packet"}
         ``"rays"``: one ray at a time (every visit is one ray's); ``"packet"``: the rays of a
-        point together, where a node fetched once serves every ray of the packet;
-        ``"interleaved"`` (CPUs): packets traced by turns, as the default AO kernel on CPUs.
+        point together, where a node fetched once serves every ray of the packet.
     detail : bool
         Also return the box tests (ray, wide node) and block tests (ray, block) per ray:
         ``(nodes, blocks, node tests, block tests)``; for ``"rays"`` these equal the first two.

@@ -459,9 +459,7 @@ def test_packet_traversal_gives_the_per_ray_and_brute_force_counts(
             packet = _ao_counts(mesh, cl_runtime, p, n, samples, offset, max_distance)
             rays = _ao_counts(mesh, cl_runtime, p, n, samples, offset, max_distance, traversal="rays")
             brute = _ao_counts(mesh, cl_runtime, p, n, samples, offset, max_distance, accel="brute")
-            turns = _ao_counts(mesh, cl_runtime, p, n, samples, offset, max_distance, traversal="interleaved")
             np.testing.assert_array_equal(packet, rays)
-            np.testing.assert_array_equal(turns, rays)
             np.testing.assert_array_equal(rays, brute)
             share = packet.sum() / (len(p) * samples)
             assert 0.02 < share < 0.9  # occlusion is neither absent nor total
@@ -481,32 +479,6 @@ def test_packet_traversal_on_an_extracted_4d_surface(cl_runtime):
     sub = slice(0, None, 25)
     brute = _ao_counts(mesh, cl_runtime, p[sub], n[sub], 64, offset, np.inf, accel="brute")
     np.testing.assert_array_equal(_ao_counts(mesh, cl_runtime, p[sub], n[sub], 64, offset, np.inf), brute)
-
-
-@pytest.mark.parametrize("per_launch", [1, 5, 37, 10_000])
-def test_interleaved_packets_count_every_point_of_every_launch(per_launch, cl_runtime, monkeypatch):
-    # ao_bvh_interleaved: one work-item in INTERLEAVE_POINTS traces the points from its id on,
-    # counted from each launch's offset; launches of 1, 5 and 37 points (fewer than a slot set,
-    # not a multiple of it, at offsets that are not either) and one launch of all. Every
-    # point's count must equal the per-ray kernel's: one left out or counted twice would not
-    field = ao4d.fields.spheritorus(1.0, 0.4)
-    mesh = ao4d.extract_field(field, (11, 11, 11, 5), ((-1.5, -1.5, -1.5, -0.5), (1.5, 1.5, 1.5, 0.5)))
-    p, n, tree, offset = _surface_points(mesh, cl_runtime, every=3)
-    rays = _ao_counts(mesh, cl_runtime, p, n, 70, offset, np.inf, traversal="rays")
-    monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 70 * per_launch)
-    turns = _ao_counts(mesh, cl_runtime, p, n, 70, offset, np.inf, traversal="interleaved")
-    np.testing.assert_array_equal(turns, rays)
-    assert 0 < rays.sum() < 70 * len(p) and len(p) > 2 * raycast.AO_INTERLEAVE * 8
-
-
-def test_interleaved_traversal_is_for_cpus_only(cl_runtime, monkeypatch):
-    monkeypatch.setattr(raycast, "_is_cpu", lambda runtime: False)
-    field = ao4d.fields.spheritorus(1.0, 0.4)
-    mesh = ao4d.extract_field(field, (7, 7, 7, 5), ((-1.5, -1.5, -1.5, -0.5), (1.5, 1.5, 1.5, 0.5)))
-    p, n, tree, offset = _surface_points(mesh, cl_runtime)
-    with pytest.raises(ValueError, match="'interleaved' runs on CPU devices only"):
-        _ao_counts(mesh, cl_runtime, p, n, 8, offset, np.inf, traversal="interleaved")
-    assert raycast._ao_traversal(cl_runtime) == "rays"
 
 
 def test_packet_traversal_shares_node_visits(cl_runtime):
@@ -556,23 +528,7 @@ def test_packet_kernel_private_memory_is_bounded(cl_runtime):
             assert needed <= private <= needed + 4096
 
 
-def test_interleaved_kernel_private_memory_is_its_slots(cl_runtime):
-    # ao_bvh_interleaved holds AO_INTERLEAVE packets' states (rays, stack, the leaves of the last
-    # visit): fixed-size private arrays, no local memory, nothing beyond the slots
-    import pyopencl as pcl
-
-    packet, width = raycast.ao_packet(cl_runtime), bvh.node_width(cl_runtime)
-    for d in (2, 3, 4):
-        kernel = raycast._kernels(cl_runtime, d, bvh.block_lanes(cl_runtime, d))["ao_bvh_interleaved"]
-        assert kernel.get_work_group_info(pcl.kernel_work_group_info.LOCAL_MEM_SIZE, cl_runtime.device) == 0
-        private = _private_bytes(cl_runtime, kernel)
-        slot = packet * 5 * d * 4 + bvh.STACK_SIZE * (8 + packet // 8) + width * (4 + packet // 8)
-        needed = raycast.AO_INTERLEAVE * slot
-        if private > 0:
-            assert needed <= private <= needed + 4096
-
-
-def test_ao_uses_the_interleaved_packet_kernel_on_cpus(cl_runtime, monkeypatch):
+def test_ao_uses_the_packet_kernel_on_cpus(cl_runtime, monkeypatch):
     import pyopencl as pcl
 
     used = []
@@ -587,8 +543,7 @@ def test_ao_uses_the_interleaved_packet_kernel_on_cpus(cl_runtime, monkeypatch):
     mesh = soup_scene(rng, 3, n=50)
     ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
     cpu = bool(cl_runtime.device.type & pcl.device_type.CPU)
-    # ao_bvh_interleaved (packets by turns) on CPUs, ao_bvh_rays elsewhere
-    assert used == ["_interleaved" if cpu else "_rays"]
+    assert used == ["" if cpu else "_rays"]  # ao_bvh (packets) on CPUs, ao_bvh_rays elsewhere
     with pytest.raises(ValueError, match="`traversal` must be one of"):
         raycast.traversal_counts(
             mesh, mesh.vertices[:3], np.eye(3)[[0, 1, 2]], samples=4, offset=0.0, runtime=cl_runtime, traversal="wide"
