@@ -222,31 +222,30 @@ inline void bins_add(BoxBins *b, const int k, const int n, const float4 lo, cons
     b->hi[k] = fmax(b->hi[k], hi);
 }
 
-// the SAH split of binned primitives (n, lo, hi per bin): returns the first bin of the right
-// side (0: none) and the node's box
-inline int sah_split(const int *n, const float4 *b_lo, const float4 *b_hi, const int bins,
-                     float4 *box_lo, float4 *box_hi)
+// the SAH split of the first `bins` bins: returns the first bin of the right side (0: none) and
+// the node's box
+inline int sah_split(const BoxBins *b, const int bins, float4 *box_lo, float4 *box_hi)
 {
     float4 run_lo[MAX_BINS], run_hi[MAX_BINS];  // suffix unions of the boxes
     float4 lo = (float4)(INFINITY), hi = (float4)(-INFINITY);
     for (int k = bins - 1; k >= 0; --k) {
-        lo = fmin(lo, b_lo[k]);
-        hi = fmax(hi, b_hi[k]);
+        lo = fmin(lo, b->lo[k]);
+        hi = fmax(hi, b->hi[k]);
         run_lo[k] = lo;
         run_hi[k] = hi;
     }
     *box_lo = lo;
     *box_hi = hi;
     int total = 0;
-    for (int k = 0; k < bins; ++k) total += n[k];
+    for (int k = 0; k < bins; ++k) total += b->n[k];
     int best = 0, left_n = 0;
     float best_cost = INFINITY;
     lo = (float4)(INFINITY);
     hi = (float4)(-INFINITY);
     for (int k = 0; k < bins - 1; ++k) {
-        left_n += n[k];
-        lo = fmin(lo, b_lo[k]);
-        hi = fmax(hi, b_hi[k]);
+        left_n += b->n[k];
+        lo = fmin(lo, b->lo[k]);
+        hi = fmax(hi, b->hi[k]);
         const int right_n = total - left_n;
         if (left_n == 0 || right_n == 0) continue;
         const float cost = box_area(lo, hi) * (float)left_n + box_area(run_lo[k + 1], run_hi[k + 1]) * (float)right_n;
@@ -323,7 +322,7 @@ __kernel void split_nodes(__global const int4 *node_i, __global const float4 *no
             bins_add(&b, k, part_n[at], part_b[2 * at], part_b[2 * at + 1]);
         }
     float4 lo, hi;
-    int split = sah_split(b.n, b.lo, b.hi, ni.y, &lo, &hi);
+    int split = sah_split(&b, ni.y, &lo, &hi);
     if (level >= SAH_MAX_LEVEL) split = 0;
     int left = 0;
     float4 c_lo = (float4)(INFINITY), c_hi = (float4)(-INFINITY);
@@ -482,7 +481,7 @@ __kernel __attribute__((vec_type_hint(float4))) void build_subtrees(
                 bin_of[i] = (uchar)k;
                 bins_add(&b, k, 1, rec[3 * (size_t)i], rec[3 * (size_t)i + 1]);
             }
-            int split = sah_split(b.n, b.lo, b.hi, bins, &lo, &hi);
+            int split = sah_split(&b, bins, &lo, &hi);
             if (level >= SAH_MAX_LEVEL) split = 0;
             if (split > 0) {
                 left = 0;
