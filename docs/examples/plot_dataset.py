@@ -11,6 +11,7 @@ This example writes a configuration of four tiny items, makes the dataset, and r
 """
 
 import json
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -74,3 +75,5 @@ ax.set_ylabel("vertices")
 ax.legend()
 fig.tight_layout()
 plt.show()
+
+shutil.rmtree(folder)  # the files written above, no longer needed

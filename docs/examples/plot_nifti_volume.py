@@ -15,6 +15,7 @@ This example writes a small synthetic scan (a bright ball that moves and grows o
 frames) with nibabel, reads it back and extracts it both ways.
 """
 
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -74,3 +75,5 @@ for n, frame in enumerate((1, 4, 6)):
     ax.set_zlim(0, 30)
 fig.tight_layout()
 plt.show()
+
+shutil.rmtree(folder)  # the files written above, no longer needed

@@ -9,6 +9,7 @@ whole sweep as PLY and VTP files plus a ParaView ``series.pvd``, so the sweep pl
 ParaView's time slider.
 """
 
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -61,3 +62,5 @@ for n, w in enumerate(np.linspace(-0.3, 0.3, 5)):
     ax.set_axis_off()
 fig.tight_layout()
 plt.show()
+
+shutil.rmtree(folder)  # the files written above, no longer needed
