@@ -205,13 +205,14 @@ def read_grid(
 
     Examples
     --------
-    >>> import numpy as np, tempfile, os
+    >>> import numpy as np, os, shutil, tempfile
     >>> folder = tempfile.mkdtemp()
     >>> for k in range(3):
     ...     np.save(os.path.join(folder, f"frame_{k}.npy"), np.full((4, 5, 6), float(k)))
     >>> grid = read_grid(os.path.join(folder, "frame_*.npy"), spacing=0.5)
     >>> grid.shape, grid.spacing.tolist(), float(grid.values[0, 0, 0, 2].compute())
     ((4, 5, 6, 3), [0.5, 0.5, 0.5, 0.5], 2.0)
+    >>> shutil.rmtree(folder)
     """
     text = os.fspath(path)
     if not isinstance(text, str) or not text:

@@ -153,11 +153,12 @@ def write_mhd(path: str | os.PathLike, data, *, spacing=1.0, origin=0.0) -> Path
 
     Examples
     --------
-    >>> import tempfile, pathlib
+    >>> import pathlib, shutil, tempfile
     >>> p = pathlib.Path(tempfile.mkdtemp()) / "v.mhd"
     >>> _ = write_mhd(p, np.arange(24, dtype=np.float32).reshape(2, 3, 4), spacing=0.5)
     >>> float(read_mhd(p).data[1, 2, 3])
     23.0
+    >>> shutil.rmtree(p.parent)
     """
     path = check_mhd_path(path)
     arr = volume_array(data)
@@ -367,10 +368,11 @@ def write_vti(path: str | os.PathLike, arrays, *, spacing=1.0, origin=0.0) -> Pa
 
     Examples
     --------
-    >>> import tempfile, pathlib
+    >>> import pathlib, shutil, tempfile
     >>> p = write_vti(pathlib.Path(tempfile.mkdtemp()) / "v.vti", {"a": np.ones((2, 3, 4))})
     >>> read_vti(p).data.shape
     (2, 3, 4)
+    >>> shutil.rmtree(p.parent)
     """
     path = Path(path)
     if path.suffix.lower() != ".vti":
