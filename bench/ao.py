@@ -32,6 +32,14 @@ is flagged loudly (``bench/_protocol.py``).
   deterministic, unlike the timings): wide nodes fetched and leaf blocks fetched, per-ray kernel
   (before) and packet kernel (after); SAH cost and the wide tree's nodes, slot use and depth.
 * Bytes per tetrahedron of the traversed tree: wide nodes and leaf blocks, beside L2 and L3.
+* What a tree that fits in cache would give (``--no-cache-ceiling`` leaves it out): each shape
+  also extracted with ``--tets`` / 16 tetrahedra (its tree a sixteenth of the bytes, within L3),
+  traced in the same rounds. The trace time per ray of the full mesh over the small one's, per
+  round, bounds what any lever that cuts memory traffic (smaller nodes or leaves, another order)
+  can gain: the small tree is also shallower, so the bound is generous (the box and block tests
+  per ray of both, from ``traversal_counts``, and the time per test are printed beside it). Times
+  the round's trace ratio against Open3D, it is the ratio such a lever could reach at most. The
+  small meshes' traces are short, so each round takes the median of five.
 * The numpy backend on a smaller 4D mesh, and the BVH kernel against the brute-force kernel.
 
 Rates count rays per wall-clock second; the machine's load average is printed before and after.
@@ -58,6 +66,7 @@ import _protocol as protocol  # noqa: E402  (bench/_protocol.py)
 protocol.use_checkout(_BENCH)  # the ao4d of this checkout, not another one installed
 
 SHAPES = ("spheritorus", "tiger", "ditorus", "csg", "tori", "metaballs")
+CEILING_SHRINK = 16  # the cache ceiling's small meshes: --tets / 16 tetrahedra (a 1 M-tet tree's 114 MB -> 7 MB)
 DENSE = ("tori", "metaballs")  # dense mutual occlusion: Embree also traces their 3D analogues
 
 
@@ -350,9 +359,10 @@ def embree_run(tm, o, w) -> dict:
 # -- ao4d ---------------------------------------------------------------------------------------
 
 
-def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, reach: float = 0.0) -> dict:
+def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, reach: float = 0.0, traces: int = 1) -> dict:
     """A fresh mesh: first call (build + trace), then a second call on it (trace); with
-    reach > 0 both with ``max_distance`` = reach times the bounding box's diagonal."""
+    reach > 0 both with ``max_distance`` = reach times the bounding box's diagonal. With
+    ``traces`` > 1 the trace is the median of that many calls (short calls on small meshes)."""
     import ao4d
     from ao4d import bvh, raycast
 
@@ -368,8 +378,11 @@ def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, reach: fl
     first = clock.lap()
     tree = raycast.get_bvh(mesh)
     assert (builder == "device") == (type(tree).__name__ == "DeviceBVH")
-    occlusion = ao4d.ambient_occlusion(mesh, **kwargs)
-    trace = clock.lap()
+    laps = []
+    for _ in range(traces):
+        occlusion = ao4d.ambient_occlusion(mesh, **kwargs)
+        laps.append(clock.lap())
+    trace = tuple(statistics.median(lap[k] for lap in laps) for k in (0, 1))
     return {
         "first": first,
         "trace": trace,
@@ -504,6 +517,12 @@ def main(argv=None) -> int:
         action="store_false",
         help="leave out Embree on the 3D analogues of the dense shapes (context for their ratios)",
     )
+    parser.add_argument(
+        "--no-cache-ceiling",
+        dest="cache_ceiling",
+        action="store_false",
+        help="leave out the small meshes (--tets / 16) that bound what memory levers can gain",
+    )
     parser.add_argument("--embreex", action="store_true", help="also trimesh + embreex (one thread)")
     parser.add_argument("--open3d-worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -542,14 +561,20 @@ def main(argv=None) -> int:
         meshes[name] = (np.asarray(mesh.vertices), np.asarray(mesh.simplices))
         points[name] = int((np.linalg.norm(mesh.vertex_normals, axis=1) > 0.5).sum())
         print(f"{name}: {mesh.n_simplices:,} tetrahedra, {mesh.n_vertices:,} vertices", flush=True)
+    ceiling = {}  # the cache ceiling's small meshes
+    if args.cache_ceiling:
+        for name in shapes:
+            mesh = shape_mesh(name, args.tets / CEILING_SHRINK)
+            ceiling[name] = (np.asarray(mesh.vertices), np.asarray(mesh.simplices))
+            print(f"{name}, small: {mesh.n_simplices:,} tetrahedra (the cache ceiling's mesh)", flush=True)
     print(
         f"\nbytes the traversal reads (wide nodes and leaf blocks), against L2 {protocol.format_bytes(cpu['l2'])}"
         f" and L3 {protocol.format_bytes(cpu['l3'])}:"
     )
-    for name in shapes:
-        b = tree_bytes(*meshes[name], runtime)
+    for name, mesh in [*meshes.items(), *((n + ", small", m) for n, m in ceiling.items())]:
+        b = tree_bytes(*mesh, runtime)
         print(
-            f"  {name:<12} wide nodes {b['node_per_tet']:5.1f} B/tet ({protocol.format_bytes(b['nodes'])}), "
+            f"  {name:<19} wide nodes {b['node_per_tet']:5.1f} B/tet ({protocol.format_bytes(b['nodes'])}), "
             f"leaf blocks {b['block_per_tet']:5.1f} B/tet ({protocol.format_bytes(b['blocks'])}, lanes "
             f"{b['occupancy']:.0%} used); {b['tets']:,} tets: {protocol.format_bytes(b['nodes'] + b['blocks'])}"
         )
@@ -586,6 +611,8 @@ def main(argv=None) -> int:
             if args.per_ray:
                 todo["per-ray"] = lambda: per_ray_run(v, s, runtime, args.samples)
                 todo["per-ray d/4"] = lambda: per_ray_run(v, s, runtime, args.samples, 0.25)
+            if name in ceiling:
+                todo["ao4d small"] = lambda: ao4d_run(*ceiling[name], "device", runtime, args.samples, traces=5)
             if args.host_tree:
                 todo["ao4d host tree"] = lambda: ao4d_run(v, s, "host", runtime, args.samples)
             if worker is not None:
@@ -615,6 +642,7 @@ def main(argv=None) -> int:
         f"{'':<22} {'nodes before':>12} {'after':>7} {'ratio':>6} {'blocks before':>14} {'after':>7} {'ratio':>6}"
         f" {'B/ray after':>11} {'SAH':>6} {'wide nodes':>11} {'slots used':>11} {'wide depth':>11}"
     )
+    tests = {}  # box and block tests per ray, packet kernel, unlimited reach
     for name in shapes:
         qd = quality(*meshes[name], runtime, args.samples, args.quality_points, rng)
         for reach in (0.0, 0.25):
@@ -628,8 +656,13 @@ def main(argv=None) -> int:
                 f"{label:<22} {before[0]:>12.2f} {after[0]:>7.2f} {before[0] / after[0]:>5.1f}x"
                 f" {before[1]:>14.2f} {after[1]:>7.2f} {before[1] / after[1]:>5.1f}x {moved:>11.0f}{tail}"
             )
+        tests[name] = sum(qd["counts"]["packet", 0.0][2:])
         # box and block tests per ray differ a little: the packets' nearest-first order changes which
         # tests a ray makes before its first hit (tests/test_raycast.py bounds the difference)
+    small_tests = {
+        name: tests_per_ray(*mesh, runtime, args.samples, args.quality_points, rng) for name, mesh in ceiling.items()
+    }
+    ceiling_report(runs, shapes, {name: (tests[name], small_tests[name]) for name in ceiling})
     numpy_and_brute(args, runtime, rng)
     print(f"\n{protocol.machine_line(runtime, cpu)}")
     print(f"after the rounds, {protocol.memory_line(runtime)}")
@@ -716,6 +749,73 @@ def dense_report(runs, shapes) -> None:
                 f"{protocol.format_ratio(ratio['first'])}; rays that hit: ao4d {hits['ao4d']:.3f}, the 3D analogue "
                 f"{hits['Open3D dense 3D']:.3f}, the torus {hits['Open3D']:.3f}"
             )
+
+
+def cache_gains(full: list, small: list) -> list[float]:
+    """Per round, the full mesh's trace time per ray over the small mesh's: how much faster a
+    ray would be traced if the tree fitted in cache as the small one's does (an upper bound: the
+    small tree is also shallower, so its rays make fewer tests)."""
+    return [(f["trace"][0] / f["rays"]) / (s["trace"][0] / s["rays"]) for f, s in zip(full, small)]
+
+
+def tests_per_ray(vertices, simplices, runtime, samples, n_points, rng) -> float:
+    """Box tests plus block tests per AO ray of the packet kernel (unlimited reach) on
+    ``n_points`` random vertices."""
+    import ao4d
+    from ao4d import ao, raycast
+
+    mesh = ao4d.SimplexMesh(vertices, simplices)
+    tree = raycast.get_bvh(mesh, builder="device", runtime=runtime)
+    normals = mesh.vertex_normals
+    ok = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)
+    idx = np.sort(rng.choice(ok, size=min(n_points, ok.size), replace=False))
+    counts = raycast.traversal_counts(
+        mesh,
+        mesh.vertices[idx],
+        normals[idx],
+        samples=samples,
+        runtime=runtime,
+        offset=ao.ORIGIN_OFFSET * tree.world_diagonal,
+        traversal="packet",
+        detail=True,
+    )
+    return counts[2] + counts[3]
+
+
+def ceiling_report(runs, shapes, tests=None) -> None:
+    """Per shape, the trace time per ray of the full and the small mesh (and per box or block
+    test, given ``tests``: name -> (tests per ray of the full mesh, of the small one)), the gain
+    a tree that fits in cache would give at most, and the trace ratio against Open3D that gain
+    would reach."""
+    have = [name for name in shapes if (name, "ao4d small") in runs]
+    if not have:
+        return
+    tests = tests or {}
+    print(
+        "\nthe cache ceiling: trace time per ray (one core's share: wall time x cores / rays) of the mesh "
+        f"and of the same shape with 1/{CEILING_SHRINK} of the tetrahedra, whose tree fits in L3, and per "
+        "box or block test; the ratio of the times per ray bounds what any lever that cuts memory "
+        "traffic can gain (the small tree's rays make fewer tests); median (min–max) over rounds"
+    )
+    cores = os.cpu_count() or 1
+    print(
+        f"  {'shape':<18} {'ns/ray':>7} {'small':>6} {'tests/ray':>10} {'small':>6} {'ns/test':>8} {'small':>6}"
+        f" {'gain at most':>20} {'trace ratio at most':>22}"
+    )
+    for name in have:
+        full, small = runs[name, "ao4d"], runs[name, "ao4d small"]
+        gains = cache_gains(full, small)
+        per_ray = [statistics.median(x["trace"][0] / x["rays"] for x in rs) * cores * 1e9 for rs in (full, small)]
+        counts = tests.get(name, (math.nan, math.nan))
+        peer = runs.get((name, "Open3D"))
+        reach = "–"
+        if peer is not None:
+            reach = protocol.format_ratio([g * r for g, r in zip(gains, _ratios(full, peer, "trace"))])
+        print(
+            f"  {name + ':':<18} {per_ray[0]:>7.0f} {per_ray[1]:>6.0f} {counts[0]:>10.1f} {counts[1]:>6.1f}"
+            f" {per_ray[0] / counts[0]:>8.1f} {per_ray[1] / counts[1]:>6.1f}"
+            f" {protocol.format_ratio(gains):>20} {reach:>22}"
+        )
 
 
 def numpy_and_brute(args, runtime, rng) -> None:

@@ -3,6 +3,7 @@ the spreads over rounds and the loud warning of a busy round."""
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -127,3 +128,28 @@ def test_dense_3d_analogues_are_closed_outward_level_sets_of_their_fields(kind):
     if kind == "tori":  # the ball and a point on each core circle (inside that torus only) are inside
         a = np.sqrt((0.81 - 0.36) / 2)  # the turned circle at z = 0.6
         assert (field(np.array([[0, 0, 0], [0.9, 0, 0], [0, 0, 0.9], [a, a, 0.6]])) < 0).all()
+
+
+def test_cache_ceiling_is_the_trace_ratio_times_the_gain_of_a_tree_in_cache(capsys):
+    # bench/ao.py's cache ceiling: per round, seconds per ray of the full mesh over the small
+    # mesh's, times that round's trace ratio against Open3D; rounds stay apart
+    import ao as ao_bench
+
+    full = [{"trace": (3.0, 5.8), "first": (4.0, 7.0), "rays": 1000}] * 3
+    small = [{"trace": (t, 2 * t), "first": (t, t), "rays": 50} for t in (0.1, 0.15, 0.12)]  # gains 1.5, 1.0, 1.25
+    assert ao_bench.cache_gains(full, small) == pytest.approx([1.5, 1.0, 1.25])
+    peer = [
+        {"trace": (t, 2 * t), "first": (t, t), "rays": 1000} for t in (1.5, 1.5, 2.4)
+    ]  # ao4d at 0.5x, 0.5x, 0.8x: at most 0.75x, 0.5x, 1.0x
+    runs = {("metaballs", "ao4d"): full, ("metaballs", "ao4d small"): small, ("metaballs", "Open3D"): peer}
+    ao_bench.ceiling_report(runs, ["metaballs", "tiger"], {"metaballs": (15.0, 10.0)})  # no small tiger: no row
+    out = capsys.readouterr().out
+    assert "tiger" not in out
+    rows = [line.split() for line in out.splitlines() if line.strip().startswith("metaballs")]
+    # ns a ray on one core: 3 s / 1000 rays x cores; the small mesh's median 0.12 s / 50 rays x cores;
+    # and per test: 15 tests a ray on the full mesh, 10 on the small one
+    c = os.cpu_count() or 1
+    assert rows == [
+        ["metaballs:", f"{3e6 * c:.0f}", f"{2.4e6 * c:.0f}", "15.0", "10.0", f"{2e5 * c:.1f}", f"{2.4e5 * c:.1f}"]
+        + ["1.25x", "(1.00–1.50)", "0.75x", "(0.50–1.00)"]
+    ]
