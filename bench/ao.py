@@ -34,12 +34,12 @@ is flagged loudly (``bench/_protocol.py``).
 * Bytes per tetrahedron of the traversed tree: wide nodes and leaf blocks, beside L2 and L3.
 * What a tree that fits in cache would give (``--no-cache-ceiling`` leaves it out): each shape
   also extracted with ``--tets`` / 16 tetrahedra (its tree a sixteenth of the bytes, within L3),
-  traced in the same rounds. The trace time per ray of the full mesh over the small one's, per
-  round, bounds what any lever that cuts memory traffic (smaller nodes or leaves, another order)
-  can gain: the small tree is also shallower, so the bound is generous (the box and block tests
-  per ray of both, from ``traversal_counts``, and the time per test are printed beside it). Times
-  the round's trace ratio against Open3D, it is the ratio such a lever could reach at most. The
-  small meshes' traces are short, so each round takes the median of five.
+  traced in the same rounds (the median of five traces a round: they are short). The full mesh's
+  trace time per ray over the small one's, per round, estimates what a lever that cuts memory
+  traffic (smaller nodes or leaves, another order) could gain at best; times the round's trace
+  ratio against Open3D, the ratio such a lever could reach. It is an estimate, not a bound: the
+  small tree's rays make fewer box and block tests (printed beside it, from
+  ``traversal_counts``, with the time per test), but a coarser shape is not the same workload.
 * The numpy backend on a smaller 4D mesh, and the BVH kernel against the brute-force kernel.
 
 Rates count rays per wall-clock second; the machine's load average is printed before and after.
@@ -521,7 +521,7 @@ def main(argv=None) -> int:
         "--no-cache-ceiling",
         dest="cache_ceiling",
         action="store_false",
-        help="leave out the small meshes (--tets / 16) that bound what memory levers can gain",
+        help="leave out the small meshes (--tets / 16) that estimate what memory levers can gain",
     )
     parser.add_argument("--embreex", action="store_true", help="also trimesh + embreex (one thread)")
     parser.add_argument("--open3d-worker", action="store_true", help=argparse.SUPPRESS)
@@ -752,40 +752,22 @@ def dense_report(runs, shapes) -> None:
 
 
 def cache_gains(full: list, small: list) -> list[float]:
-    """Per round, the full mesh's trace time per ray over the small mesh's: how much faster a
-    ray would be traced if the tree fitted in cache as the small one's does (an upper bound: the
-    small tree is also shallower, so its rays make fewer tests)."""
+    """Per round, the full mesh's trace time per ray over the small mesh's: about how much faster
+    a ray would be traced if the tree fitted in cache as the small one's does (the small tree is
+    also shallower, so its rays make fewer tests)."""
     return [(f["trace"][0] / f["rays"]) / (s["trace"][0] / s["rays"]) for f, s in zip(full, small)]
 
 
 def tests_per_ray(vertices, simplices, runtime, samples, n_points, rng) -> float:
     """Box tests plus block tests per AO ray of the packet kernel (unlimited reach) on
-    ``n_points`` random vertices."""
-    import ao4d
-    from ao4d import ao, raycast
-
-    mesh = ao4d.SimplexMesh(vertices, simplices)
-    tree = raycast.get_bvh(mesh, builder="device", runtime=runtime)
-    normals = mesh.vertex_normals
-    ok = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)
-    idx = np.sort(rng.choice(ok, size=min(n_points, ok.size), replace=False))
-    counts = raycast.traversal_counts(
-        mesh,
-        mesh.vertices[idx],
-        normals[idx],
-        samples=samples,
-        runtime=runtime,
-        offset=ao.ORIGIN_OFFSET * tree.world_diagonal,
-        traversal="packet",
-        detail=True,
-    )
-    return counts[2] + counts[3]
+    ``n_points`` random vertices (:func:`quality`'s counts)."""
+    return sum(quality(vertices, simplices, runtime, samples, n_points, rng)["counts"]["packet", 0.0][2:])
 
 
 def ceiling_report(runs, shapes, tests=None) -> None:
     """Per shape, the trace time per ray of the full and the small mesh (and per box or block
     test, given ``tests``: name -> (tests per ray of the full mesh, of the small one)), the gain
-    a tree that fits in cache would give at most, and the trace ratio against Open3D that gain
+    a tree that fits in cache would give, and the trace ratio against Open3D that gain
     would reach."""
     have = [name for name in shapes if (name, "ao4d small") in runs]
     if not have:
@@ -794,13 +776,13 @@ def ceiling_report(runs, shapes, tests=None) -> None:
     print(
         "\nthe cache ceiling: trace time per ray (one core's share: wall time x cores / rays) of the mesh "
         f"and of the same shape with 1/{CEILING_SHRINK} of the tetrahedra, whose tree fits in L3, and per "
-        "box or block test; the ratio of the times per ray bounds what any lever that cuts memory "
-        "traffic can gain (the small tree's rays make fewer tests); median (min–max) over rounds"
+        "box or block test; the ratio of the times per ray estimates what a lever that cuts memory "
+        "traffic could gain at best (the small tree's rays make fewer tests); median (min–max) over rounds"
     )
     cores = os.cpu_count() or 1
     print(
         f"  {'shape':<18} {'ns/ray':>7} {'small':>6} {'tests/ray':>10} {'small':>6} {'ns/test':>8} {'small':>6}"
-        f" {'gain at most':>20} {'trace ratio at most':>22}"
+        f" {'gain in L3':>20} {'trace ratio in L3':>22}"
     )
     for name in have:
         full, small = runs[name, "ao4d"], runs[name, "ao4d small"]
