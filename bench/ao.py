@@ -764,15 +764,13 @@ def tests_per_ray(vertices, simplices, runtime, samples, n_points, rng) -> float
     return sum(quality(vertices, simplices, runtime, samples, n_points, rng)["counts"]["packet", 0.0][2:])
 
 
-def ceiling_report(runs, shapes, tests=None) -> None:
-    """Per shape, the trace time per ray of the full and the small mesh (and per box or block
-    test, given ``tests``: name -> (tests per ray of the full mesh, of the small one)), the gain
-    a tree that fits in cache would give, and the trace ratio against Open3D that gain
-    would reach."""
+def ceiling_report(runs, shapes, tests) -> None:
+    """Per shape, the trace time per ray of the full and the small mesh and per box or block
+    test (``tests``: name -> (tests per ray of the full mesh, of the small one)), the gain a
+    tree that fits in cache would give, and the trace ratio against Open3D that gain would reach."""
     have = [name for name in shapes if (name, "ao4d small") in runs]
     if not have:
         return
-    tests = tests or {}
     print(
         "\nthe cache ceiling: trace time per ray (one core's share: wall time x cores / rays) of the mesh "
         f"and of the same shape with 1/{CEILING_SHRINK} of the tetrahedra, whose tree fits in L3, and per "
@@ -788,7 +786,7 @@ def ceiling_report(runs, shapes, tests=None) -> None:
         full, small = runs[name, "ao4d"], runs[name, "ao4d small"]
         gains = cache_gains(full, small)
         per_ray = [statistics.median(x["trace"][0] / x["rays"] for x in rs) * cores * 1e9 for rs in (full, small)]
-        counts = tests.get(name, (math.nan, math.nan))
+        counts = tests[name]
         peer = runs.get((name, "Open3D"))
         reach = "–"
         if peer is not None:
