@@ -11,9 +11,11 @@ and any process that can reach the URL can write its own items.
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import os
 import re
+import stat
 import uuid
 from pathlib import Path
 from typing import Any
@@ -66,6 +68,8 @@ def open_store(out: str | os.PathLike, name: str = "out") -> Store:
         whose filesystem package is missing (``s3fs`` for ``s3://``, ``gcsfs`` for
         ``gs://``), naming ``name``.
     """
+    if isinstance(out, str) and not out.strip():
+        raise ValueError(f"`{name}` is empty; give a folder path or a URL")
     if is_url(out):
         return FsspecStore(check_url(out, name), name)
     return LocalStore(Path(out))
@@ -144,7 +148,11 @@ class LocalStore(Store):
         return self.root / rel if rel else self.root
 
     def read_bytes(self, rel: str) -> bytes:
-        return self._path(rel).read_bytes()
+        path = self._path(rel)
+        # a FIFO or a device would block or never end: only regular files are read
+        if not stat.S_ISREG(path.stat().st_mode):
+            raise OSError(errno.EINVAL, "not a regular file (a folder, FIFO or device)", str(path))
+        return path.read_bytes()
 
     def write_bytes(self, rel: str, data: bytes) -> None:
         path = self._path(rel)

@@ -1,23 +1,16 @@
 """Shards for streaming: ``python -m datasets_gen export DIR --format webdataset|parquet --out OUT``.
 
-One record per item, items in index order, shards of at most ``--shard-size`` bytes (default
-1 GB; an item larger than that alone gets a shard of its own, flagged ``oversize`` in the
-manifest). The arrays are those of :func:`datasets_gen.load` (``dataset[i]`` without
-normalisation) plus the item's ``sequence.npz`` arrays as ``sequence.<name>``:
+One record per item, shards of one split each named for it (``train-000000.tar``; formats in
+:mod:`datasets_gen.shards`), items in index order within a split, splits in the config's order;
+shards of at most ``--shard-size`` bytes (default 1 GB; an item larger than that alone gets a
+shard of its own, flagged ``oversize`` in the manifest). The arrays are those of
+:func:`datasets_gen.load` (``dataset[i]``; normalised with ``--normalize``, the record keeping
+``loc`` and ``scale``) plus the item's ``sequence.npz`` arrays as ``sequence.<name>``.
+``datasets_gen.load(OUT)`` reads an export back as the same :class:`~datasets_gen.Dataset`.
 
-webdataset
-    ``shard-000000.tar`` ...: POSIX tar files (fixed dates, owners and modes, so the same data
-    give the same bytes) with members ``<index>.<array>.npy`` and ``<index>.record.json``;
-    ``webdataset.WebDataset(urls).decode()`` yields ``{"__key__": "00003", "points.npy":
-    array, ..., "record.json": dict}``.
-parquet
-    ``shard-000000.parquet`` ...: one row per item, columns ``index``, ``split``, ``record``
-    (the JSON text) and one per array: scalars as they are, 1D arrays as ``list<T>``, 2D arrays
-    ``(n, k)`` as ``list<fixed_size_list<T, k>>`` (null where an item has no such array);
-    ``pyarrow.parquet.read_table`` reads them.
-
-``OUT/manifest.json`` (written last) lists every shard's name, sha256, size and items. Each
-shard is written atomically, so an interrupted export leaves only whole shards and a marker
+``OUT/manifest.json`` (written last) lists every shard's name, split, sha256, size and items,
+the dataset's split names (empty ones too) and whether points are normalised. Each shard is
+written atomically, so an interrupted export leaves only whole shards and a marker
 (``.export.json``); rerunning the same command resumes (shards are made again in the same
 order, and only missing ones are written). Any other non-empty ``OUT`` is refused before work.
 """
@@ -25,8 +18,8 @@ order, and only missing ones are written). Any other non-empty ``OUT`` is refuse
 from __future__ import annotations
 
 import hashlib
-import io
 import json
+import math
 import os
 import sys
 import tarfile
@@ -34,99 +27,52 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ao4d._atomic import atomic_open
 
 from ._files import json_bytes
-from .loader import Dataset, load
+from ._store import is_url
+from .loader import Dataset, load, normalized
+from .shards import FORMATS, parquet_bytes, shard_name, tar_bytes, webdataset_members
 
-__all__ = ["export", "FORMATS", "DEFAULT_SHARD_SIZE", "item_arrays", "main"]
+__all__ = ["export", "FORMATS", "DEFAULT_SHARD_SIZE", "item_arrays", "main", "parse_size"]
 
-FORMATS = ("webdataset", "parquet")
 DEFAULT_SHARD_SIZE = 10**9
 _MARKER = ".export.json"
-_SUFFIX = {"webdataset": ".tar", "parquet": ".parquet"}
 
 
 def item_arrays(ds: Dataset, i: int) -> dict[str, Any]:
-    """Item ``i``'s arrays as exported: ``ds.raw(i)`` plus ``sequence.<name>`` arrays."""
+    """Item ``i``'s arrays as exported: ``ds.raw(i)`` (normalised when ``ds.normalize``) plus
+    ``sequence.<name>`` arrays."""
     item = ds.raw(i)
-    if "sequence.npz" in item["record"].get("files", {}):
-        index = ds.indices[i]
-        item.update({f"sequence.{k}": v for k, v in ds._npz(index, "sequence.npz").items()})
+    index = ds.indices[i]
+    if ds.normalize and not ds._manifest.get("normalized"):
+        item = normalized(item, ds._normalization(index))
+    if "sequence.npz" in item["record"]["files"]:
+        item.update({f"sequence.{k}": v for k, v in ds._sequence(i).items()})
     return item
-
-
-def _npy(array: np.ndarray) -> bytes:
-    buffer = io.BytesIO()
-    np.lib.format.write_array(buffer, np.asarray(array, order="C"), allow_pickle=False)
-    return buffer.getvalue()
 
 
 def _tar_member_bytes(size: int) -> int:
     return 512 + -(-size // 512) * 512
 
 
-def _webdataset_members(item: dict[str, Any]) -> list[tuple[str, bytes]]:
-    key = f"{item['record']['index']:05d}"
-    members = [(f"{key}.{name}.npy", _npy(value)) for name, value in item.items() if name != "record"]
-    members.append((f"{key}.record.json", json_bytes(item["record"])))
-    return members
-
-
-def _tar_bytes(samples: list[list[tuple[str, bytes]]]) -> bytes:
-    buffer = io.BytesIO()
-    with tarfile.open(fileobj=buffer, mode="w", format=tarfile.USTAR_FORMAT) as tar:
-        for members in samples:
-            for name, data in members:
-                info = tarfile.TarInfo(name)
-                info.size, info.mtime, info.mode = len(data), 0, 0o644
-                info.uid = info.gid = 0
-                info.uname = info.gname = ""
-                tar.addfile(info, io.BytesIO(data))
-    return buffer.getvalue()
-
-
-def _arrow_column(values: list[Any]):
-    """A pyarrow array of one column: each entry a numpy array (or None)."""
-    import pyarrow as pa
-
-    sample = next(v for v in values if v is not None)
-    if sample.ndim == 0:
-        return pa.array([None if v is None else v.item() for v in values], type=pa.from_numpy_dtype(sample.dtype))
-    if sample.ndim == 1:
-        typ = pa.list_(pa.from_numpy_dtype(sample.dtype))
-        return pa.array([None if v is None else v for v in values], type=typ)
-    k = sample.shape[1]
-    inner = pa.from_numpy_dtype(sample.dtype)
-    offsets, flat, valid = [0], [], []
-    for v in values:
-        valid.append(v is not None)
-        if v is not None:
-            flat.append(np.ascontiguousarray(v).reshape(-1))
-        offsets.append(offsets[-1] + (0 if v is None else len(v)))
-    data = pa.array(np.concatenate(flat) if flat else np.zeros(0, sample.dtype), type=inner)
-    rows = pa.FixedSizeListArray.from_arrays(data, k)
-    mask = pa.array([not ok for ok in valid])
-    return pa.ListArray.from_arrays(pa.array(offsets, pa.int32()), rows, mask=mask)
-
-
-def _parquet_bytes(items: list[dict[str, Any]]) -> bytes:
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    names = sorted({n for it in items for n in it if n != "record"})
-    columns = {
-        "index": pa.array([it["record"]["index"] for it in items], pa.int64()),
-        "split": pa.array([it["record"].get("split") for it in items], pa.string()),
-        "record": pa.array([json_bytes(it["record"]).decode() for it in items], pa.string()),
-    }
-    for name in names:
-        columns[name] = _arrow_column([it.get(name) for it in items])
-    buffer = io.BytesIO()
-    pq.write_table(pa.table(columns), buffer, compression="zstd", write_statistics=False)
-    return buffer.getvalue()
+def _local_out(out: str | os.PathLike | bytes) -> Path:
+    """``out`` as an absolute local folder; ``file://`` URLs are local folders, other URLs are
+    refused (shards are written here, then copied where they go)."""
+    text = os.fsdecode(out) if isinstance(out, (bytes, os.PathLike)) else out
+    if not isinstance(text, str):
+        raise TypeError(f"`out` must be a folder path, got {type(out).__name__}")
+    if not text.strip():
+        raise ValueError("`out` is empty; give a new or empty folder for the shards")
+    if is_url(text):
+        protocol, _, rest = text.partition("://")
+        if protocol != "file" or not rest.strip("/"):
+            raise ValueError(
+                f"`out` {text!r} is a URL; export writes its shards into a local folder: give one, "
+                "then copy the folder there (such as with fsspec's put or the storage's own tool)"
+            )
+        text = rest
+    return Path(os.path.abspath(text))
 
 
 def _check_out(out: Path, marker: dict) -> None:
@@ -168,6 +114,7 @@ def export(
     format: str = "webdataset",
     shard_size: int = DEFAULT_SHARD_SIZE,
     split: str | None = None,
+    normalize: bool = False,
     verify: bool = True,
     progress: bool | None = None,
 ) -> dict[str, Any]:
@@ -178,24 +125,35 @@ def export(
     dataset : path or URL
         A datasets_gen output folder (anything :func:`datasets_gen.load` opens).
     out : path
-        A new or empty folder (or the folder of an interrupted export of the same dataset,
-        format and shard size: the export resumes).
+        A new or empty local folder (or ``file://`` URL; or the folder of an interrupted export
+        of the same dataset, format, shard size, split and normalisation: the export resumes).
     format : {"webdataset", "parquet"}
     shard_size : int
         Largest shard in bytes (default 1 GB).
     split : str, optional
         Only this split's items.
+    normalize : bool
+        Store the normalised points (:func:`datasets_gen.load`'s ``normalize``); each record
+        keeps ``normalization`` (``loc``, ``scale``), and ``load(out)`` needs ``normalize=True``.
     verify : bool
         Check every item file against the dataset's manifest while reading (default).
     progress : bool, optional
         A bar over items (default: when stderr is a terminal).
 
+    Returns
+    -------
+    dict
+        The export's manifest (also written to ``out/manifest.json``).
+
     Raises
     ------
     ValueError
-        A bad ``format`` or ``shard_size``; ``out`` is a file.
+        A bad ``format``, ``shard_size`` or ``out`` (empty, a file, a URL other than
+        ``file://``); a damaged dataset (:class:`~datasets_gen.DatasetError`).
     FileExistsError
         ``out`` is not empty (and not an interrupted export of the same thing).
+    OSError
+        A shard cannot be written (a read-only folder, a full disk): whole shards are kept.
     """
     if format not in FORMATS:
         raise ValueError(f"`format` must be one of {', '.join(map(repr, FORMATS))}, got {format!r}")
@@ -206,14 +164,15 @@ def export(
             import pyarrow  # noqa: F401 - fail before any work when it is missing
         except ImportError:
             raise ImportError("`format` 'parquet' needs pyarrow: pip install pyarrow") from None
-    ds = load(dataset, split=split, verify=verify)
-    out = Path(out)
+    out = _local_out(out)
+    ds = load(dataset, split=split, verify=verify, normalize=normalize)
     marker = {
-        "dataset": str(dataset),
+        "dataset": ds.location,
         "manifest_sha256": hashlib.sha256(json_bytes(ds._manifest)).hexdigest(),
         "format": format,
         "shard_size": shard_size,
         "split": split,
+        "normalized": bool(normalize),
     }
     _check_out(out, marker)
     with atomic_open(out / _MARKER, "wb") as fh:
@@ -225,30 +184,33 @@ def export(
         len(ds), f"export {format}", unit="item", show=sys.stderr.isatty() if progress is None else bool(progress)
     )
     shards: list[dict[str, Any]] = []
-    for batch in _batches(ds, format, shard_size, bar):
-        name = f"shard-{len(shards):06d}{_SUFFIX[format]}"
-        data = batch["bytes"]
-        path = out / name
-        if not (
-            path.is_file() and path.stat().st_size == len(data) and _sha256(path) == hashlib.sha256(data).hexdigest()
-        ):
-            with atomic_open(path, "wb") as fh:
-                fh.write(data)
-        shards.append(
-            {
-                "name": name,
-                "sha256": hashlib.sha256(data).hexdigest(),
-                "bytes": len(data),
-                "items": batch["items"],
-                "oversize": len(data) > shard_size,
-            }
-        )
+    for name_of_split, positions in _by_split(ds):
+        for number, batch in enumerate(_batches(ds, positions, format, shard_size, bar)):
+            name = shard_name(format, name_of_split, number)
+            data = batch["bytes"]
+            digest = hashlib.sha256(data).hexdigest()
+            path = out / name
+            if not (path.is_file() and path.stat().st_size == len(data) and _sha256(path) == digest):
+                with atomic_open(path, "wb") as fh:
+                    fh.write(data)
+            shards.append(
+                {
+                    "name": name,
+                    "split": name_of_split,
+                    "sha256": digest,
+                    "bytes": len(data),
+                    "items": batch["items"],
+                    "oversize": len(data) > shard_size,
+                }
+            )
     bar.close()
     manifest = {
         "format": format,
-        "dataset": str(dataset),
+        "dataset": ds.location,
         "dataset_manifest_sha256": marker["manifest_sha256"],
         "split": split,
+        "splits": ds.splits,
+        "normalized": bool(normalize),
         "shard_size": shard_size,
         "n_items": len(ds),
         "shards": shards,
@@ -259,7 +221,17 @@ def export(
     return manifest
 
 
-def _batches(ds: Dataset, format: str, shard_size: int, bar) -> Iterator[dict[str, Any]]:
+def _by_split(ds: Dataset) -> list[tuple[str | None, list[int]]]:
+    """The dataset's positions grouped by split, splits in the config's order (items without
+    a split last, under ``None``)."""
+    groups: dict[str | None, list[int]] = {}
+    for position, index in enumerate(ds.indices):
+        groups.setdefault(ds._record(index).get("split") or None, []).append(position)
+    order = [s for s in ds.splits if s in groups] + [s for s in groups if s not in ds.splits]
+    return [(s, groups[s]) for s in order]
+
+
+def _batches(ds: Dataset, positions: list[int], format: str, shard_size: int, bar) -> Iterator[dict[str, Any]]:
     """Greedy shards in index order: an item joins the current shard while it stays within
     ``shard_size``. Tar sizes are exact; a Parquet shard is closed when the items' raw bytes
     would pass the limit, and if the written shard is still over, its last items move on."""
@@ -273,17 +245,17 @@ def _batches(ds: Dataset, format: str, shard_size: int, bar) -> Iterator[dict[st
         while parts:
             keep = len(parts)
             while True:
-                data = _tar_bytes(parts[:keep]) if format == "webdataset" else _parquet_bytes(parts[:keep])
+                data = tar_bytes(parts[:keep]) if format == "webdataset" else parquet_bytes(parts[:keep])
                 if len(data) <= shard_size or keep == 1:
                     break
                 keep -= 1
             yield {"bytes": data, "items": [index(p) for p in parts[:keep]]}
             parts = parts[keep:]
 
-    for i in range(len(ds)):
+    for i in positions:
         item = item_arrays(ds, i)
         if format == "webdataset":
-            part = _webdataset_members(item)
+            part = webdataset_members(item)
             cost = sum(_tar_member_bytes(len(d)) for _, d in part)
             total = -(-(size + cost) // tarfile.RECORDSIZE) * tarfile.RECORDSIZE
         else:
@@ -316,6 +288,9 @@ def main(argv: list[str] | None = None) -> int:
         help="largest shard: bytes, or with a suffix kB, MB, GB (default 1GB)",
     )
     parser.add_argument("--split", default=None, help="only this split's items")
+    parser.add_argument(
+        "--normalize", action="store_true", help="store normalised points (each record keeps loc and scale)"
+    )
     parser.add_argument("--no-verify", action="store_true", help="skip the item checksums")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
@@ -326,20 +301,29 @@ def main(argv: list[str] | None = None) -> int:
             format=args.format,
             shard_size=parse_size(args.shard_size),
             split=args.split,
+            normalize=args.normalize,
             verify=not args.no_verify,
             progress=False if args.no_progress else None,
         )
-    except (FileExistsError, ValueError, ImportError) as exc:
+    except (FileExistsError, ValueError, ImportError, TypeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a read-only folder, a full disk: whole shards are kept
+        where = f" {exc.filename}" if exc.filename else ""
+        print(f"error: cannot write the shards{where}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("\ninterrupted: whole shards are kept; rerun the same command to resume", file=sys.stderr)
         return 130
     total = sum(s["bytes"] for s in manifest["shards"])
-    print(
-        f"{args.out}: {manifest['n_items']} items in {len(manifest['shards'])} {args.format} "
-        f"shards, {total / 2**20:.2f} MiB"
-    )
+    try:
+        print(
+            f"{args.out}: {manifest['n_items']} items in {len(manifest['shards'])} {args.format} "
+            f"shards, {total / 2**20:.2f} MiB"
+        )
+        sys.stdout.flush()
+    except BrokenPipeError:  # `... | head -0`: the shards are written; nobody reads the line
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0
 
 
@@ -357,6 +341,8 @@ def parse_size(text: str) -> int:
         value = float(number) * factor
     except ValueError:
         raise ValueError(f"`--shard-size` must be bytes or a size like 1GB, got {text!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"`--shard-size` must be a finite size like 1GB, got {text!r}")
     if not value >= 1024:  # NaN fails this too
         raise ValueError(f"`--shard-size` must be at least 1024 bytes, got {text!r}")
     return int(value)

@@ -187,6 +187,6 @@ def test_dataset_labels_against_analytic_volumes(dataset):
 
 @pytest.mark.parametrize("url", ["nosuchprotocol://x/y", "://x"])
 def test_a_url_the_loader_cannot_open_names_its_parameter(url):
-    # the writer's store says `out`; a user of load() gave `path_or_url`
-    with pytest.raises((ValueError, DatasetError), match="`path_or_url`"):
+    # the writer's store says `out`; a user of load() gave `path`
+    with pytest.raises((ValueError, DatasetError), match="`path`"):
         load(url)[0]
