@@ -28,6 +28,12 @@ A parameter is a constant (number, string, bool, list) or one table naming a dis
 ``{uniform = [a, b]}``, ``{loguniform = [a, b]}``, ``{normal = [mean, std]}``,
 ``{integers = [lo, hi]}`` (both inclusive) or ``{choice = [v1, v2, ...]}``. Parameters are drawn
 in sorted name order from the item's own generator, so an item depends only on (seed, index).
+
+Limits, checked when the configuration is read, before anything is built: a run holds at most
+:data:`MAX_ITEMS` items (every family's ``count`` together); every number is finite (except
+``ao.max_distance``, which may be ``inf``) and never a bool (TOML's ``true`` is no number);
+a distribution's range must be finite; ``ao.samples`` and a render's ``samples`` are at most
+:data:`MAX_AO_SAMPLES`. A file must be UTF-8 (a byte-order mark is accepted).
 """
 
 from __future__ import annotations
@@ -67,7 +73,16 @@ __all__ = [
     "shipped_configs",
     "sample_params",
     "ConfigError",
+    "MAX_ITEMS",
+    "MAX_AO_SAMPLES",
 ]
+
+#: the most items one run may hold (all families together): a run's index, manifest and item
+#: list are built in memory, and a million items of even the smallest grid take days
+MAX_ITEMS = 10**6
+#: the most AO rays per point (``ao.samples``, a render's ``samples``): more only costs time
+#: (the estimate's noise falls as 1/sqrt(samples); 65536 rays leave well under 0.5 %)
+MAX_AO_SAMPLES = 1 << 16
 
 DISTRIBUTIONS = ("uniform", "loguniform", "normal", "integers", "choice")
 _TOP_KEYS = {"name", "description", "seed", "backend", "defaults", "family", "split"}
@@ -155,6 +170,11 @@ class Config:
         """Hash of the TOML text."""
         return hashlib.sha256(self.text.encode("utf-8")).hexdigest()
 
+    @property
+    def n_items(self) -> int:
+        """How many items the run holds (without building :meth:`items`)."""
+        return sum(fam.count for fam in self.families)
+
     def items(self) -> list[ItemSpec]:
         """Every item of the run, in index order.
 
@@ -190,7 +210,17 @@ def _toml_key(key: Any) -> str:
     return key if _BARE_KEY.fullmatch(key) else json.dumps(key, ensure_ascii=False)
 
 
+def _plain(value: Any) -> Any:
+    """numpy scalars and arrays as the Python values TOML can hold (``np.float64(0.1)`` -> 0.1)."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
 def _toml_value(value: Any, where: str) -> str:
+    value = _plain(value)
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, int):
@@ -204,7 +234,7 @@ def _toml_value(value: Any, where: str) -> str:
     if isinstance(value, Mapping):
         if not value:
             return "{}"
-        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(v, where)}" for k, v in value.items()) + " }"
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(v, f'{where}.{k}')}" for k, v in value.items()) + " }"
     raise ConfigError(f"{where}: a value of type {type(value).__name__} has no TOML form: {value!r}")
 
 
@@ -228,7 +258,8 @@ def config_text(data: Mapping[str, Any]) -> str:
     Raises
     ------
     ConfigError
-        A value that TOML cannot hold (None, an object), naming its key.
+        A value that TOML cannot hold (None, an object), naming its key. numpy scalars and
+        arrays are written as the Python numbers and lists they hold.
     """
     if not isinstance(data, Mapping):
         raise ConfigError(f"`config` must be a mapping, got {type(data).__name__}")
@@ -274,18 +305,32 @@ def load_config(config: str | Path | Mapping[str, Any]) -> Config:
     """
     if isinstance(config, Mapping):
         text = config_text(config)
-        return _parse(tomllib.loads(text), text, "<mapping>")
-    path = Path(config)
-    if path.is_file():
-        text, source = path.read_text(encoding="utf-8"), str(path)
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:  # a value TOML cannot hold, e.g. an integer past 2**63
+            raise ConfigError(f"<mapping>: a value has no TOML form ({exc}); the config text was:\n{text}") from None
+        return _parse(data, text, "<mapping>")
+    if not isinstance(config, (str, Path)):
+        raise ConfigError(
+            f"`config` must be a TOML file's path, a shipped configuration's name or a mapping, "
+            f"got {type(config).__name__}"
+        )
+    try:
+        path = Path(config)
+        is_file = path.is_file()
+    except (OSError, ValueError) as exc:  # a NUL byte, a name too long for the filesystem
+        raise FileNotFoundError(f"`config` {str(config)!r} cannot be a file ({exc})") from None
+    if is_file:
+        text, source = _read_text(path), str(path)
     else:
         name = str(config).removesuffix(".toml")
-        res = resources.files("datasets_gen").joinpath("configs", f"{name}.toml")
-        if "/" in name or not res.is_file():
+        if "/" in name or "\\" in name or not name or not _shipped(name):
+            hint = " (it is a folder)" if path.is_dir() else ""
             raise FileNotFoundError(
-                f"`config` {str(config)!r} is neither a file nor a shipped configuration "
+                f"`config` {str(config)!r} is neither a file{hint} nor a shipped configuration "
                 f"({', '.join(shipped_configs())})"
             )
+        res = resources.files("datasets_gen").joinpath("configs", f"{name}.toml")
         text, source = res.read_text(encoding="utf-8"), f"shipped:{name}"
     try:
         data = tomllib.loads(text)
@@ -294,10 +339,35 @@ def load_config(config: str | Path | Mapping[str, Any]) -> Config:
     return _parse(data, text, source)
 
 
+def _shipped(name: str) -> bool:
+    """Whether ``name`` is a shipped configuration (compared with the list: no path is built
+    from an odd name)."""
+    return name in shipped_configs()
+
+
+def _read_text(path: Path) -> str:
+    """The text of a configuration file: UTF-8, a byte-order mark (``utf-8-sig``) accepted."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the configuration file: {exc.strerror or exc}") from None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{path}: a configuration file must be UTF-8 text; byte {exc.start} "
+            f"({data[exc.start : exc.start + 1]!r}) is not UTF-8 (Latin-1 or another encoding?): "
+            "save it as UTF-8"
+        ) from None
+
+
 def _parse(data: dict, text: str, source: str) -> Config:
     from .families import KINDS
 
     _no_unknown(data, _TOP_KEYS, source, "top level")
+    for key in ("name", "description"):
+        if key in data and (not isinstance(data[key], str) or not data[key].strip()):
+            raise ConfigError(f"{source}: `{key}` must be a non-empty string, got {data[key]!r}")
     seed = data.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ConfigError(f"{source}: `seed` must be an integer >= 0, got {seed!r}")
@@ -318,15 +388,25 @@ def _parse(data: dict, text: str, source: str) -> Config:
     if not isinstance(families, list) or not families:
         raise ConfigError(f"{source}: needs at least one [[family]] table")
     parsed = []
+    total = 0
     for n, fam in enumerate(families):
         where = f"[[family]] #{n + 1}"
         _no_unknown(fam, _FAMILY_KEYS, source, where)
         kind = fam.get("kind")
         if kind not in KINDS:
             raise ConfigError(f"{source}: {where}: `kind` must be one of {', '.join(KINDS)}; got {kind!r}")
+        where = f"{where} ({kind})"
+        if "name" in fam and (not isinstance(fam["name"], str) or not fam["name"].strip()):
+            raise ConfigError(f"{source}: {where}: `name` must be a non-empty string, got {fam['name']!r}")
         count = fam.get("count", 1)
-        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
-            raise ConfigError(f"{source}: {where}: `count` must be an integer >= 1, got {count!r}")
+        if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= MAX_ITEMS:
+            raise ConfigError(f"{source}: {where}: `count` must be an integer in [1, {MAX_ITEMS}], got {count!r}")
+        total += count
+        if total > MAX_ITEMS:  # checked before any item is listed: 10**8 specs alone take minutes
+            raise ConfigError(
+                f"{source}: the families' `count`s add up to {sum(f.get('count', 1) for f in families)!r} items; "
+                f"a run holds at most {MAX_ITEMS} (datasets_gen.config.MAX_ITEMS): split it into several runs"
+            )
         params = fam.get("params", {})
         allowed = KINDS[kind].params
         _no_unknown(params, set(allowed), source, f"{where} params of kind {kind!r}")
@@ -348,18 +428,34 @@ def _no_unknown(table: Any, allowed: set[str], source: str, where: str) -> None:
         raise ConfigError(f"{source}: {exc}") from None
 
 
+def _is_number(value: Any) -> bool:
+    """An int or float, never a bool (``True`` is an int in Python, and no number in a config)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _is_finite(value: Any) -> bool:
+    """A finite number (:func:`_is_number`)."""
+    return _is_number(value) and math.isfinite(value)
+
+
 def _check_settings(s: dict[str, Any], where: str) -> None:
     grid = s["grid"]
     if isinstance(grid, bool) or not isinstance(grid, int) or not 4 <= grid <= 512:
         raise ConfigError(f"{where}: `grid` must be an integer in [4, 512], got {grid!r}")
     if s["method"] not in ("cubes", "simplices"):
         raise ConfigError(f"{where}: `method` must be 'cubes' or 'simplices', got {s['method']!r}")
-    if not isinstance(s["padding"], (int, float)) or not 0 <= s["padding"] <= 2:
+    if not _is_finite(s["padding"]) or not 0 <= s["padding"] <= 2:
         raise ConfigError(f"{where}: `padding` must be a number in [0, 2], got {s['padding']!r}")
     if s["bounds"] is not None:
         b = s["bounds"]
-        if not (isinstance(b, list) and len(b) == 2 and all(isinstance(v, (int, float)) for v in b) and b[0] < b[1]):
-            raise ConfigError(f"{where}: `bounds` must be [lo, hi] with lo < hi, got {b!r}")
+        if not (
+            isinstance(b, list)
+            and len(b) == 2
+            and all(map(_is_finite, b))
+            and b[0] < b[1]
+            and math.isfinite(b[1] - b[0])
+        ):
+            raise ConfigError(f"{where}: `bounds` must be [lo, hi], finite numbers with lo < hi, got {b!r}")
     if s["rotation"] not in ("none", "random"):
         raise ConfigError(f"{where}: `rotation` must be 'none' or 'random', got {s['rotation']!r}")
     if s["tetrahedra"] not in ("star", "auto", "tetwild"):
@@ -370,10 +466,16 @@ def _check_settings(s: dict[str, Any], where: str) -> None:
             ao = s["ao"] = copy.deepcopy(DEFAULTS["ao"])
         _no_unknown(ao, _AO_KEYS, where, "ao")
         ao = s["ao"] = {**DEFAULTS["ao"], **ao}
-        if isinstance(ao["samples"], bool) or not isinstance(ao["samples"], int) or ao["samples"] < 1:
-            raise ConfigError(f"{where}: `ao.samples` must be an integer >= 1, got {ao['samples']!r}")
-        if not isinstance(ao["max_distance"], (int, float)) or not ao["max_distance"] > 0:
-            raise ConfigError(f"{where}: `ao.max_distance` must be > 0, got {ao['max_distance']!r}")
+        if (
+            isinstance(ao["samples"], bool)
+            or not isinstance(ao["samples"], int)
+            or not 1 <= ao["samples"] <= MAX_AO_SAMPLES
+        ):
+            raise ConfigError(
+                f"{where}: `ao.samples` must be an integer in [1, {MAX_AO_SAMPLES}], got {ao['samples']!r}"
+            )
+        if not _is_number(ao["max_distance"]) or not ao["max_distance"] > 0:  # inf: no limit
+            raise ConfigError(f"{where}: `ao.max_distance` must be a number > 0 (or inf), got {ao['max_distance']!r}")
         if ao["at"] not in ("vertices", "simplices"):
             raise ConfigError(f"{where}: `ao.at` must be 'vertices' or 'simplices', got {ao['at']!r}")
     try:
@@ -383,7 +485,7 @@ def _check_settings(s: dict[str, Any], where: str) -> None:
         raise ConfigError(f"{where}: {exc}") from None
     renders = s["renders"]
     if not isinstance(renders, list):
-        raise ConfigError(f"{where}: `renders` must be a list of tables")
+        raise ConfigError(f"{where}: `renders` must be a list of tables, got {renders!r}")
     names = set()
     for r in renders:
         _no_unknown(r, _RENDER_KEYS, where, "renders[]")
@@ -398,27 +500,50 @@ def _check_settings(s: dict[str, Any], where: str) -> None:
             )
         shape = r.get("shape", [32, 32, 32])
         if not (
-            isinstance(shape, list) and len(shape) == 3 and all(isinstance(v, int) and 2 <= v <= 512 for v in shape)
+            isinstance(shape, list)
+            and len(shape) == 3
+            and all(isinstance(v, int) and not isinstance(v, bool) and 2 <= v <= 512 for v in shape)
         ):
-            raise ConfigError(f"{where}: render {name!r}: `shape` must be 3 integers in [2, 512]")
+            raise ConfigError(f"{where}: render {name!r}: `shape` must be 3 integers in [2, 512], got {shape!r}")
+        samples = r.get("samples", 32)
+        if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= MAX_AO_SAMPLES:
+            raise ConfigError(
+                f"{where}: render {name!r}: `samples` must be an integer in [1, {MAX_AO_SAMPLES}], got {samples!r}"
+            )
+        fov = r.get("fov", 40.0)
+        if not _is_finite(fov) or not 0 < fov < 180:
+            raise ConfigError(f"{where}: render {name!r}: `fov` must be a number of degrees in (0, 180), got {fov!r}")
+
+
+def _check_constant(value: Any, where: str) -> None:
+    """A parameter's constant (or a ``choice`` entry): a string, a finite number or a list of
+    them; no family parameter is a bool, and a NaN or inf would only fail every item later."""
+    if isinstance(value, bool):
+        raise ConfigError(f"{where}: must be a number or a string, got the bool {value!r}")
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"{where}: must be finite, got {value!r}")
+    if isinstance(value, list):
+        for n, v in enumerate(value):
+            _check_constant(v, f"{where}[{n}]")
+    elif not isinstance(value, (int, float, str)):
+        raise ConfigError(f"{where}: must be a number, a string or a list of them, got {value!r}")
 
 
 def _check_distribution(spec: Any, where: str) -> None:
     if not isinstance(spec, dict):
-        return  # a constant
+        _check_constant(spec, where)
+        return
     if len(spec) != 1 or next(iter(spec)) not in DISTRIBUTIONS:
         raise ConfigError(f"{where}: a distribution is one key of {', '.join(DISTRIBUTIONS)}, got {sorted(spec)}")
     ((kind, args),) = spec.items()
     if kind == "choice":
         if not isinstance(args, list) or not args:
-            raise ConfigError(f"{where}: `choice` needs a non-empty list")
+            raise ConfigError(f"{where}: `choice` needs a non-empty list, got {args!r}")
+        for n, v in enumerate(args):
+            _check_constant(v, f"{where}.choice[{n}]")
         return
-    if not (
-        isinstance(args, list)
-        and len(args) == 2
-        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in args)
-    ):
-        raise ConfigError(f"{where}: `{kind}` needs two numbers, got {args!r}")
+    if not (isinstance(args, list) and len(args) == 2 and all(map(_is_finite, args))):
+        raise ConfigError(f"{where}: `{kind}` needs two finite numbers, got {args!r}")
     a, b = args
     if kind == "normal":
         if b < 0:
@@ -428,6 +553,8 @@ def _check_distribution(spec: Any, where: str) -> None:
             raise ConfigError(f"{where}: `integers` needs integers lo <= hi, got {args!r}")
     elif not a <= b or (kind == "loguniform" and a <= 0):
         raise ConfigError(f"{where}: `{kind}` needs {'0 < ' if kind == 'loguniform' else ''}a <= b, got {args!r}")
+    elif not math.isfinite(b - a):  # numpy's uniform draws inf (or fails) over a range wider than a float
+        raise ConfigError(f"{where}: `{kind}` needs a range b - a that is a finite float, got {args!r}")
 
 
 def sample_params(specs: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:

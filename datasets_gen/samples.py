@@ -8,7 +8,9 @@ in a configuration's ``[defaults]`` or a ``[[family]]`` makes each item's ``samp
     bounds for implicit families, the mesh's bounds grown by 5 % of their width per side for
     lifted ones), then for each sigma in order ``near_surface`` points: surface points plus
     Gaussian offsets of standard deviation ``sigma`` times the box's diagonal. So
-    ``N = uniform + near_surface * len(sigmas)``.
+    ``N = uniform + near_surface * len(sigmas)`` (at most :data:`MAX_POINTS`). The sigmas are
+    distinct, finite, > 0 and at most :data:`MAX_SIGMA` (box diagonals: a larger offset puts
+    the points far outside anything the item describes, and past ~1e300 makes them inf).
 ``occupancy`` (N,) bool
     True inside the solid.
 ``sdf`` (N,) float32
@@ -64,6 +66,8 @@ __all__ = [
     "mesh_occupancy",
     "make_samples",
     "SAMPLE_ARRAYS",
+    "MAX_POINTS",
+    "MAX_SIGMA",
 ]
 
 DEFAULT_SAMPLES: dict[str, Any] = {"uniform": 16384, "near_surface": 16384, "sigmas": [0.01, 0.05], "surface": 16384}
@@ -75,6 +79,11 @@ EXACT_SDF_KINDS = frozenset(
     {"hypersphere", "spheritorus", "torisphere", "ditorus", "tiger", "duocylinder", "tesseract"}
 )
 _MAX_COUNT = 1 << 24
+#: the most points of ``points`` (uniform and near-surface together) in one item
+MAX_POINTS = 1 << 24
+#: the largest ``sigma``, in box diagonals: 10 diagonals already puts most near-surface points
+#: far outside the item's box; float32 points stay finite far beyond it
+MAX_SIGMA = 10.0
 _PAIRS_PER_BLOCK = 1 << 14  # point-simplex pairs per block of mesh_distance's arithmetic
 _BOX_GROWTH = 0.05  # lifted items: the mesh's bounds grown by this fraction of the width per side
 
@@ -100,13 +109,27 @@ def check_samples(value: Any) -> dict[str, Any] | bool:
     sigmas = out["sigmas"]
     if not isinstance(sigmas, list) or not all(isinstance(s, (int, float)) and not isinstance(s, bool) for s in sigmas):
         raise ValueError(f"`samples.sigmas` must be a list of numbers, got {sigmas!r}")
-    bad = [s for s in sigmas if not (math.isfinite(s) and s > 0)]
+    bad = [s for s in sigmas if not (math.isfinite(s) and 0 < s <= MAX_SIGMA)]
     if bad:
-        raise ValueError(f"`samples.sigmas` must all be finite and > 0, got {bad}")
+        raise ValueError(
+            f"`samples.sigmas` must all be finite, > 0 and at most {MAX_SIGMA:g} (box diagonals), got {bad}"
+        )
+    sigmas = [float(s) for s in sigmas]
+    # each sigma names its rows of `points` in the record (repr of the float, one-to-one on
+    # distinct finite floats): a repeated sigma would overwrite the rows of the first
+    repeated = sorted({s for s in sigmas if sigmas.count(s) > 1})
+    if repeated:
+        raise ValueError(f"`samples.sigmas` must be distinct, got {sigmas} ({', '.join(map(repr, repeated))} repeated)")
     if out["near_surface"] and not sigmas:
         raise ValueError("`samples.near_surface` > 0 needs at least one sigma in `samples.sigmas`")
-    out["sigmas"] = [float(s) for s in sigmas]
-    if out["uniform"] + out["near_surface"] * len(sigmas) + out["surface"] == 0:
+    out["sigmas"] = sigmas
+    points = out["uniform"] + out["near_surface"] * len(sigmas)
+    if points > MAX_POINTS:
+        raise ValueError(
+            f"`samples` asks for {points} points per item (uniform + near_surface * {len(sigmas)} sigmas); "
+            f"at most {MAX_POINTS}"
+        )
+    if points + out["surface"] == 0:
         raise ValueError("`samples` asks for no points at all (every count is 0); use samples = false")
     return out
 
@@ -469,7 +492,10 @@ def make_samples(
         n = settings["near_surface"]
         base, _, _, _ = surface_samples(mesh, n, rng)
         parts.append(base + rng.normal(0.0, sigma * diagonal, size=(n, 4)))
-        rows[f"sigma={sigma!r}"] = [start, start + n]
+        key = f"sigma={sigma!r}"
+        if key in rows:  # check_samples refuses repeated sigmas; never overwrite a block's rows
+            raise ValueError(f"`samples.sigmas` holds {sigma!r} twice: its rows would be lost from the record")
+        rows[key] = [start, start + n]
         start += n
     points = np.concatenate(parts).astype(np.float32)
     occupancy, sdf = _labels(shape, kind, points.astype(np.float64), rng, backend)
