@@ -14,6 +14,10 @@ Item ``i`` draws everything from ``np.random.SeedSequence([seed, i])`` (:func:`i
 items can be made in any order or process and give the same bytes. Every file is written
 through the store, each atomically, and ``record.json`` last: an item is complete when its
 record exists and every file it lists has the recorded hash (:func:`item_complete`).
+
+Remaking an item removes only the files a run writes there (:func:`own_file`: the names above
+and the hidden temporary files of atomic writes); anything else in the folder (notes, a
+user's extra files) is left as it is (:func:`foreign_files` lists them for a warning).
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ import hashlib
 import json
 import os
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -35,9 +39,68 @@ from ._files import json_bytes, written_bytes
 from ._store import Store, open_store
 from .config import ItemSpec, sample_params
 
-__all__ = ["RUN_FORMAT", "Job", "item_seed", "item_folder", "item_complete", "make_item", "write_item", "versions"]
+__all__ = [
+    "RUN_FORMAT",
+    "ITEM_FILES",
+    "Job",
+    "item_seed",
+    "item_folder",
+    "item_complete",
+    "own_file",
+    "foreign_files",
+    "make_item",
+    "write_item",
+    "versions",
+]
 
 RUN_FORMAT = 1
+#: the files an item may hold besides its renders (``<render name>.png``)
+ITEM_FILES = frozenset({"mesh.npz", "ao.npz", "samples.npz", "sequence.npz", "record.json", "timing.json"})
+
+
+def own_file(name: str, renders: Iterable[str] = ()) -> bool:
+    """Whether ``name`` in an item's folder is a file a run writes (and may replace or remove).
+
+    Parameters
+    ----------
+    name : str
+        A file name in the item's folder.
+    renders : iterable of str
+        The names of the configuration's renders (each writes ``<name>.png``).
+
+    Returns
+    -------
+    bool
+        True for :data:`ITEM_FILES`, the renders' PNGs, and the hidden temporary files of their
+        atomic writes (``.<name>.<random>.tmp...``); False for anything else.
+    """
+    own = ITEM_FILES | {f"{r}.png" for r in renders}
+    if name in own:
+        return True
+    if name.startswith(".") and ".tmp" in name:  # ao4d._atomic and the stores: .<target>.<hex>.tmp<ext>
+        return any(name.startswith(f".{target}.") for target in own)
+    return False
+
+
+def foreign_files(store: Store, index: int, renders: Iterable[str] = ()) -> list[str]:
+    """The files in item ``index``'s folder that no run writes (:func:`own_file`), sorted.
+
+    Parameters
+    ----------
+    store : Store
+        The run's output.
+    index : int
+        The item's index.
+    renders : iterable of str
+        The names of the configuration's renders.
+
+    Returns
+    -------
+    list of str
+        Names relative to the item's folder; a rerun leaves them as they are.
+    """
+    renders = list(renders)
+    return [name for name in store.files(item_folder(index)) if not own_file(name, renders)]
 
 
 @dataclass(frozen=True)
@@ -131,6 +194,9 @@ def write_item(store: Store, index: int, files: Mapping[str, bytes]) -> None:
     """Write a made item's files into ``store``: leftovers of an interrupted attempt deleted
     first, each file atomically, ``record.json`` last (it marks the item complete).
 
+    Only the run's own files are deleted (:func:`own_file`, the renders being the PNGs among
+    ``files``); any other file in the folder is left as it is.
+
     Parameters
     ----------
     store, index
@@ -139,8 +205,9 @@ def write_item(store: Store, index: int, files: Mapping[str, bytes]) -> None:
         File name -> bytes, as :func:`make_item` wrote them into another store.
     """
     rel = item_folder(index)
+    renders = [name[:-4] for name in files if name.endswith(".png")]
     for stale in store.files(rel):
-        if stale not in files:
+        if stale not in files and own_file(stale, renders):
             store.remove(f"{rel}/{stale}")
     store.remove(f"{rel}/record.json")
     for name in sorted(files, key=lambda n: n == "record.json"):
@@ -188,11 +255,13 @@ def _stage(timing: dict[str, float], name: str) -> Iterator[None]:
 class _Writer:
     """Writes an item's files into its folder of a store and keeps their hashes."""
 
-    def __init__(self, store: Store, index: int, timing: dict[str, float]) -> None:
+    def __init__(self, store: Store, index: int, timing: dict[str, float], renders: Iterable[str] = ()) -> None:
         self.store, self.rel, self.timing = store, item_folder(index), timing
         self.hashes: dict[str, str] = {}
+        renders = list(renders)
         for stale in store.files(self.rel):  # leftovers of an interrupted attempt (no valid record)
-            store.remove(f"{self.rel}/{stale}")
+            if own_file(stale, renders):  # never a file the run did not write (a user's notes)
+                store.remove(f"{self.rel}/{stale}")
 
     def __call__(self, name: str, data: bytes) -> None:
         """Write a file of the item, timed as ``write``, and keep its hash for the record."""
@@ -244,8 +313,8 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
     spec = job.spec
     store = open_store(job.out) if store is None else store
     timing: dict[str, float] = {}
-    write = _Writer(store, spec.index, timing)
     settings = spec.family.settings
+    write = _Writer(store, spec.index, timing, [r["name"] for r in settings["renders"]])
     # spawn(5)'s first three children are spawn(3)'s: samples left the meshes, AO and renders as they were
     params_ss, rotation_ss, ao_ss, samples_ss, sequence_ss = item_seed(job.seed, spec.index).spawn(5)
     rng = np.random.default_rng(params_ss)

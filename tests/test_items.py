@@ -50,10 +50,11 @@ def test_every_write_goes_through_the_store(tiny_reference, tiny_config, tmp_pat
 
     written: list[str] = []
     store = Recording(tmp_path / "out")
-    store.write_bytes(f"{rel}/stale.png", b"an interrupted attempt")
+    store.write_bytes(f"{rel}/.view.png.0123abcd.tmp.png", b"an interrupted attempt")
     store.write_bytes(f"{rel}/mesh.npz", b"half")
+    store.write_bytes(f"{rel}/notes.txt", b"a user's file: never the run's to delete")
     write_item(store, 4, files)
-    assert sorted(store.files(rel)) == sorted(files) and written[-1] == f"{rel}/record.json"
+    assert sorted(store.files(rel)) == sorted([*files, "notes.txt"]) and written[-1] == f"{rel}/record.json"
     assert item_complete(store, 4)
     store.write_bytes(f"{rel}/ao.npz", b"changed after the record")
     assert not item_complete(store, 4)
