@@ -187,20 +187,24 @@ def run_info(config: Config, seed: int) -> bytes:
     -------
     bytes
         Canonical JSON: the configuration's name, source, text and hash, the seed, the
-        versions (:func:`datasets_gen.items.versions`) and the item count.
+        versions (:func:`datasets_gen.items.versions`) and the item count; with a split table,
+        also ``split``, the table (name -> fraction, every name of the config, including those
+        that get no item), so a reader knows every split without parsing ``config_text``.
+        Without one the bytes are as before (no ``split`` key).
     """
-    return json_bytes(
-        {
-            "format": RUN_FORMAT,
-            "config_name": config.name,
-            "config_source": config.source,
-            "config_sha256": config.sha256,
-            "config_text": config.text,
-            "seed": seed,
-            "versions": versions(),
-            "n_items": len(config.items()),
-        }
-    )
+    info: dict[str, Any] = {
+        "format": RUN_FORMAT,
+        "config_name": config.name,
+        "config_source": config.source,
+        "config_sha256": config.sha256,
+        "config_text": config.text,
+        "seed": seed,
+        "versions": versions(),
+        "n_items": config.n_items,
+    }
+    if config.split is not None:
+        info["split"] = dict(config.split)
+    return json_bytes(info)
 
 
 def check_same_run(store: Store, config: Config, seed: int) -> None:
@@ -277,7 +281,9 @@ def claim_out(store: Store, config: Config, seed: int) -> None:
         check_same_run(store, config, seed)
 
 
-def write_index(store: Store, items: list[ItemSpec], summary: RunSummary) -> int:
+def write_index(
+    store: Store, items: list[ItemSpec], summary: RunSummary, *, splits: dict[str, int] | None = None
+) -> int:
     """Write ``items.csv``, ``manifest.json`` (hashes) and ``summary.json``.
 
     An item that ``summary`` counts as made but whose record the store does not hold is
@@ -291,6 +297,10 @@ def write_index(store: Store, items: list[ItemSpec], summary: RunSummary) -> int
         Every item of the run.
     summary : RunSummary
         What the run did.
+    splits : dict of str to int, optional
+        Items per split of the whole run (:func:`datasets_gen.splits.split_counts`, every
+        name of the config's table): ``summary.json`` gets ``splits`` and ``empty_splits``
+        (the names that get no item). Not given without a split table.
 
     Returns
     -------
@@ -313,7 +323,7 @@ def write_index(store: Store, items: list[ItemSpec], summary: RunSummary) -> int
         m = rec["mesh"]
         rows.append(
             [
-                index,
+                int(index),  # a Python int: never a numpy integer that could print wrapped
                 rec["family"],
                 rec["kind"],
                 m["vertices"],
@@ -377,22 +387,21 @@ def write_index(store: Store, items: list[ItemSpec], summary: RunSummary) -> int
         ),
     )
     size = sum(f["bytes"] for f in files.values())
-    store.write_bytes(
-        "summary.json",
-        json_bytes(
-            {
-                "device": device_name(),
-                "made": summary.made,
-                "skipped": summary.skipped,
-                "failed": summary.failed,
-                "seconds": summary.seconds,
-                "items_per_minute": summary.items_per_minute,
-                "bytes": size,
-                "stages": summary.stages,
-                "around_ao": summary.around_ao,
-            }
-        ),
-    )
+    stats: dict[str, Any] = {
+        "device": device_name(),
+        "made": summary.made,
+        "skipped": summary.skipped,
+        "failed": summary.failed,
+        "seconds": summary.seconds,
+        "items_per_minute": summary.items_per_minute,
+        "bytes": size,
+        "stages": summary.stages,
+        "around_ao": summary.around_ao,
+    }
+    if splits is not None:  # summary.json is not hashed: the manifest stays as it was
+        stats["splits"] = dict(splits)
+        stats["empty_splits"] = [name for name, count in splits.items() if count == 0]
+    store.write_bytes("summary.json", json_bytes(stats))
     return size
 
 

@@ -38,6 +38,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -46,8 +47,8 @@ from ._store import is_url, open_store
 from .config import Config, load_config
 from .executors import Executor, executor_for
 from .index import RunSummary, check_same_run, claim_out, device_name, write_index
-from .items import Job, item_complete, item_seed
-from .splits import split_of
+from .items import Job, foreign_files, item_complete, item_seed
+from .splits import split_counts, split_of
 
 __all__ = ["run", "RunSummary", "item_seed", "main"]
 
@@ -102,6 +103,13 @@ def run(
     RunSummary
         What was made and skipped, and the time per stage.
 
+    Warns
+    -----
+    UserWarning
+        A split named in the config's ``split`` table gets no item (a fraction of 0, or too
+        few items): it exists, empty; ``summary.json`` lists it under ``empty_splits``. An
+        item to be remade holds files no run writes (they are left as they are).
+
     Raises
     ------
     FileExistsError
@@ -135,6 +143,10 @@ def run(
     executor.check()  # a scheduler address that is no scheduler: before the output is touched
     seed = cfg.seed if seed is None else check_positive_int(seed, "seed", minimum=0)
     device_name()  # an impossible AO4D_DEVICE fails here, before the folder is touched
+    splits = None if cfg.split is None else split_counts(cfg.split, seed, cfg.n_items)
+    empty = [name for name, count in (splits or {}).items() if count == 0]
+    if empty:  # said before any work: the user may rather change the fractions
+        warnings.warn(empty_split_message(cfg, seed, splits), UserWarning, stacklevel=2)
     claim_out(store, cfg, seed)
     run_sha256 = store.sha256("run.json")
     items = cfg.items()
@@ -146,6 +158,20 @@ def run(
             summary.skipped += 1
         else:
             todo.append(Job(spec, seed, str(out), cfg.backend, run_sha256, split_of(cfg.split, seed, spec.index)))
+    foreign = {}  # files no run writes in folders of items to be remade: kept, and said so
+    for job in todo:
+        names = foreign_files(store, job.spec.index, [r["name"] for r in job.spec.family.settings["renders"]])
+        if names:
+            foreign[job.spec.index] = names
+    if foreign:
+        shown = "; ".join(f"items/{i:05d}: {', '.join(names)}" for i, names in list(foreign.items())[:5])
+        more = f" and {len(foreign) - 5} more items" if len(foreign) > 5 else ""
+        warnings.warn(
+            f"`out` {store.name!r}: items to be remade hold files this run does not write ({shown}{more}); "
+            "they are left as they are (not hashed in the manifest)",
+            UserWarning,
+            stacklevel=2,
+        )
 
     # on a terminal a bar; in a log a line every few seconds (items take seconds to minutes)
     bar = _progress.bar(
@@ -175,7 +201,7 @@ def run(
     if not ours:  # another run wrote its own run.json meanwhile, or it was removed
         check_same_run(store, cfg, seed)
     try:
-        summary.bytes = write_index(store, items, summary)
+        summary.bytes = write_index(store, items, summary, splits=splits)
     except OSError as exc:  # a full disk, a lost mount: the items already written are kept
         raise ValueError(
             f"cannot write the index of `out` {store.name!r} "
@@ -184,6 +210,32 @@ def run(
             "rerun the same command to finish"
         ) from None
     return summary
+
+
+def empty_split_message(cfg: Config, seed: int, splits: dict[str, int]) -> str:
+    """The warning for splits of ``cfg`` that get no item of the run (``splits``: the counts)."""
+    empty = [name for name, count in splits.items() if count == 0]
+    table = ", ".join(f"{name} = {frac:g}" for name, frac in (cfg.split or {}).items())
+    counts = ", ".join(f"{name} {count}" for name, count in splits.items())
+    return (
+        f"`split` {{ {table} }}: split(s) {', '.join(map(repr, empty))} get no item of the "
+        f"{cfg.n_items} items with seed {seed} (items per split: {counts}); they exist but are "
+        "empty (summary.json lists them under empty_splits): raise their fraction or the count "
+        "if they should hold items"
+    )
+
+
+def _usage_error(config: str) -> str:
+    """The message for a ``CONFIG`` that is neither a file nor a shipped configuration: a word
+    such as ``run`` or ``resume`` is no subcommand here."""
+    from .config import shipped_configs
+
+    return (
+        f"no config {config!r}: neither a file nor a shipped config "
+        f"({', '.join(shipped_configs())}); usage: python -m datasets_gen CONFIG --out DIR "
+        "[--workers N | --scheduler ADDRESS|local:N] [--seed S] (rerun the same command to "
+        "resume), or python -m datasets_gen export DIR --format webdataset|parquet --out OUT"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -233,13 +285,18 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.config is None:
         parser.error("the following arguments are required: config")
-    if args.out is None and not args.list:
-        parser.error("the following arguments are required: --out")
     try:
-        cfg = load_config(args.config)
-        if args.list:
-            print(f"{cfg.name} ({cfg.source}): {len(cfg.items())} items\n{describe(cfg)}")
+        # the config first: `python -m datasets_gen run` names no config, whatever --out says
+        try:
+            cfg = load_config(args.config)
+        except FileNotFoundError:
+            print(f"error: {_usage_error(args.config)}", file=sys.stderr)
+            return 2
+        if args.list:  # counts only: listing every item of a large run builds nothing
+            print(f"{cfg.name} ({cfg.source}): {cfg.n_items} items\n{describe(cfg)}")
             return 0
+        if args.out is None:
+            parser.error("the following arguments are required: --out")
         if open_store(args.out).process_local:
             raise ValueError(
                 f"`--out` {args.out!r} is a filesystem inside this process: "
@@ -250,14 +307,18 @@ def main(argv: list[str] | None = None) -> int:
             from ao4d import _progress
 
             _progress.set_enabled(False)
-        summary = run(
-            cfg,
-            args.out,
-            workers=args.workers,
-            scheduler=args.scheduler,
-            seed=args.seed,
-            progress=False if args.no_progress else None,
-        )
+        with warnings.catch_warnings():
+            # warnings (an empty split, foreign files kept) as plain lines, each when it happens
+            warnings.simplefilter("always", UserWarning)
+            warnings.showwarning = _show_warning
+            summary = run(
+                cfg,
+                args.out,
+                workers=args.workers,
+                scheduler=args.scheduler,
+                seed=args.seed,
+                progress=False if args.no_progress else None,
+            )
     except (FileNotFoundError, FileExistsError, ConfigError, ValueError, TypeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -265,3 +326,8 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     print(summary)
     return 1 if summary.failed else 0
+
+
+def _show_warning(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
+    """Print a warning as ``warning: <message>`` on stderr (no source line, no file name)."""
+    print(f"warning: {message}", file=sys.stderr if file is None else file)
