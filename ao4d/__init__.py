@@ -4,8 +4,8 @@ The package's names (``__all__``) are its functions and classes; the stages' mod
 subpackages are reachable as attributes (``ao4d.fields``, ``ao4d.marching``, ...). Everything
 loads lazily on first use, so that ``import ao4d`` is cheap and never touches OpenCL.
 
-Modules that moved into a subpackage keep their old import paths (``ao4d.cl``, ``from ao4d.cl
-import ...``): ``_MOVED`` maps them, and the old name is the same module object as the new one.
+Modules live at one path each: ``ao4d.marching.lut``, ``ao4d.opencl.cl``, ``ao4d.browser.viewer``
+(the package has no released users, so modules that moved keep no aliases at their old paths).
 
 Example
 -------
@@ -18,9 +18,6 @@ True
 from __future__ import annotations
 
 import importlib
-import importlib.abc
-import importlib.util
-import sys
 from typing import Any
 
 from .opencl.tbb import preload_runtime_tbb as _preload_runtime_tbb
@@ -76,55 +73,14 @@ _MODULES = (
     "scenes",
 )
 
-# modules that moved into a subpackage: old name -> new name (relative to this package). The
-# old paths are permanent, silent aliases (no DeprecationWarning: docs/ARCHITECTURE.md says why)
-_MOVED = {
-    "lut": "marching.lut",
-    "cells": "marching.cells",
-    "cells_device": "marching.cells_device",
-    "fields_device": "marching.fields_device",
-    "march": "marching.march",
-    "blockwise": "marching.blockwise",
-    "cl": "opencl.cl",
-    "_kernel_binaries": "opencl.binaries",
-    "_tbb": "opencl.tbb",
-    "pages": "browser.pages",
-    "viewer": "browser.viewer",
-    "image_viewer": "browser.image_viewer",
-    "_page": "browser._page",
-}
-
 __all__ = sorted(_EXPORTS)
-
-
-class _MovedModule(importlib.abc.MetaPathFinder, importlib.abc.Loader):
-    """``import ao4d.<old>`` for a moved module: the module at its new path, also registered in
-    ``sys.modules`` under the old name (the same object, so state and monkeypatches are shared)."""
-
-    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
-        package, _, old = fullname.partition(".")
-        if package != __name__ or old not in _MOVED:
-            return None
-        return importlib.util.spec_from_loader(fullname, self)
-
-    def create_module(self, spec: Any) -> Any:
-        module = importlib.import_module(f"{__name__}.{_MOVED[spec.name.partition('.')[2]]}")
-        spec.loader_state = module.__spec__  # the import system sets the alias' spec on the module
-        return module
-
-    def exec_module(self, module: Any) -> None:
-        module.__spec__ = module.__spec__.loader_state  # its own spec again: the new name
-
-
-if not any(type(finder).__qualname__ == "_MovedModule" for finder in sys.meta_path):  # once, reloads too
-    sys.meta_path.append(_MovedModule())
 
 
 def __getattr__(name: str) -> Any:
     if name in _EXPORTS:
         module_name, _, attr = _EXPORTS[name].partition(":")
         value = getattr(importlib.import_module(f".{module_name}", __name__), attr)
-    elif name in _MODULES or name in _MOVED:
+    elif name in _MODULES:
         value = importlib.import_module(f".{name}", __name__)
     else:
         raise AttributeError(f"module 'ao4d' has no attribute {name!r}")

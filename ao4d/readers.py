@@ -54,7 +54,6 @@ from typing import Any
 
 import numpy as np
 
-from ._deprecation import DEPRECATED, renamed
 from ._validate import as_real, as_vector, check_bool, check_grid_lengths, check_memory
 
 __all__ = ["Grid", "read_grid", "ObliqueAffineWarning", "natural_key", "FRAME_SUFFIXES"]
@@ -156,7 +155,6 @@ def read_grid(
     chunks: Any = None,
     w_scale: float | None = None,
     keep_affine: bool = False,
-    affine: Any = DEPRECATED,  # the old spelling of keep_affine
 ) -> Grid:
     """Open a 2D/3D/4D grid of values from a file, lazily.
 
@@ -186,9 +184,6 @@ def read_grid(
         scanner axes and negative steps as they are, no flips, no warning) for
         ``ao4d.extract(..., affine=grid.affine)``; formats without one get the diagonal affine
         of their spacing and origin.
-    affine : bool
-        The old spelling of ``keep_affine`` (a ``DeprecationWarning``): in :func:`ao4d.extract`
-        ``affine`` is the matrix itself.
 
     Returns
     -------
@@ -221,7 +216,7 @@ def read_grid(
         raise TypeError(f"`ndim` must be an int or a tuple of ints (2, 3, 4), got {ndim!r}")
     if w_scale is not None:
         w_scale = as_real(w_scale, "w_scale", gt=0)
-    keep_affine = check_bool(renamed("read_grid", "affine", affine, "keep_affine", keep_affine, False), "keep_affine")
+    keep_affine = check_bool(keep_affine, "keep_affine")
     if text.endswith(("/", os.sep)) and text.rstrip("/" + os.sep).lower().endswith(".zarr"):
         text = text.rstrip("/" + os.sep)
     inner = _split_inner(text, _H5_SUFFIXES + (".zarr",))

@@ -82,7 +82,6 @@ __all__ = [
     "RenderResult",
     "prepare_scene",
     "ShadeRangeWarning",
-    "composite_layer",
     "MAX_LAYERS",
     "default_weights",
 ]
@@ -351,7 +350,6 @@ def render(
     backend: Literal["auto", "opencl", "numpy"] = "auto",
     progress: bool | None = None,
     max_rays: float | None = None,
-    normals: Literal["smooth", "flat"] | None = None,
 ) -> RenderResult:
     """Render 4D meshes into a 3D image volume (one primary ray per voxel).
 
@@ -432,9 +430,6 @@ def render(
         Refuse, before any work, a render whose rays (primary, AO, shadow and layer rays, an
         upper bound) exceed this; default :data:`ao4d.raycast.MAX_RAYS` of the backend
         (about half an hour of work), ``math.inf`` for no limit (CLI: ``--force``).
-    normals : {"smooth", "flat"}, optional
-        Deprecated spelling of ``shading`` (a :class:`DeprecationWarning`); ``normals`` names
-        arrays of normals elsewhere (:func:`ao4d.ambient_occlusion`).
 
     Returns
     -------
@@ -460,19 +455,6 @@ def render(
     [1.0, 0.5, 0.0, 1.0]
     """
     started = time.perf_counter()
-    if normals is not None:
-        import warnings
-
-        warnings.warn(
-            "render(normals=...) is deprecated: use shading='smooth' or shading='flat'",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        if shading != "smooth" and shading != normals:
-            raise ValueError(
-                f"`normals` (deprecated) and `shading` disagree: {normals!r} and {shading!r}; pass `shading` only"
-            )
-        shading = normals
     opts = _Options.check(
         camera,
         shape,
@@ -539,22 +521,6 @@ def render(
         geometry=camera.geometry(shape),
         info=stats.as_dict(),
     )
-
-
-def composite_layer(acc: np.ndarray, rgb: np.ndarray, alpha: np.ndarray) -> None:
-    """Add one layer behind what ``acc`` holds: front-to-back "over", in place
-    (:func:`ao4d.compositing.over`).
-
-    Parameters
-    ----------
-    acc : (H, 4) float64
-        Premultiplied colour and accumulated opacity so far (updated).
-    rgb : (H, 3) float64
-        The layer's colour (not premultiplied).
-    alpha : (H,) float64
-        The layer's opacity.
-    """
-    over(acc, rgb, alpha)
 
 
 # -- options, scene, statistics: fixed before the first ray --------------------------------------

@@ -140,7 +140,7 @@ def test_pyopencl_imported_first_still_finds_the_bundled_runtime():
     # before: the ICD folder was registered only when pyopencl was not imported yet
     if not any(r.usable for r in cl.device_reports()):
         pytest.skip("no working OpenCL device on this machine")
-    out = _run("import pyopencl; from ao4d import cl; print(cl.describe(cl.get_runtime(warn=False)))")
+    out = _run("import pyopencl; from ao4d.opencl import cl; print(cl.describe(cl.get_runtime(warn=False)))")
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == cl.describe(cl.get_runtime(warn=False))
 

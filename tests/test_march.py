@@ -474,17 +474,11 @@ def test_extract_field_bad_input_is_named(args, kwargs, error, match):
         ao4d.extract_field(*args, **kwargs)
 
 
-def test_extract_field_old_spelling_chunks_warns_and_means_blocks():
-    # `chunk` (cell layers per slab) and `chunks` (dask blocks) read alike: the blocks are `blocks`
-    pytest.importorskip("dask")
-    field = F.hypersphere(1.0, dim=3)
-    new = ao4d.extract_field(field, 10, (-1.3, 1.3), blocks=5)
-    with pytest.warns(DeprecationWarning, match="`chunks` is now called `blocks`"):
-        old = ao4d.extract_field(field, 10, (-1.3, 1.3), chunks=5)
-    np.testing.assert_array_equal(old.vertices, new.vertices)
-    np.testing.assert_array_equal(old.simplices, new.simplices)
-    with pytest.raises(TypeError, match="both `blocks` and its old spelling `chunks`"):
-        ao4d.extract_field(field, 10, (-1.3, 1.3), chunks=5, blocks=5)
+def test_extract_field_takes_blocks_not_the_removed_chunks():
+    # `chunk` (cell layers per slab) and `chunks` (dask blocks) read alike: the blocks are
+    # `blocks`, and the old spelling keeps no alias
+    with pytest.raises(TypeError, match="chunks"):
+        ao4d.extract_field(F.hypersphere(1.0, dim=3), 10, (-1.3, 1.3), chunks=5)
 
 
 # --------------------------------------------------------------------------------------------

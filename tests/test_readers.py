@@ -569,14 +569,11 @@ def test_other_formats_give_a_diagonal_affine_with_affine_true(tmp_path, grid4):
     assert read_grid(tmp_path / "v.npy").affine is None
 
 
-def test_keep_affine_old_spelling_affine_warns_and_still_works(tmp_path, grid4):
-    # `affine` is the matrix in ao4d.extract; read_grid's bool is `keep_affine`
+def test_keep_affine_is_a_bool_and_the_removed_affine_keyword_is_refused(tmp_path, grid4):
+    # `affine` is the matrix in ao4d.extract; read_grid's bool is `keep_affine` (no alias kept)
     np.save(tmp_path / "v.npy", grid4)
-    with pytest.warns(DeprecationWarning, match="`affine` is now called `keep_affine`"):
-        old = read_grid(tmp_path / "v.npy", spacing=0.5, affine=True)
-    np.testing.assert_array_equal(old.affine, read_grid(tmp_path / "v.npy", spacing=0.5, keep_affine=True).affine)
-    with pytest.raises(TypeError, match="both `keep_affine` and its old spelling `affine`"):
-        read_grid(tmp_path / "v.npy", affine=True, keep_affine=True)
+    with pytest.raises(TypeError, match="affine"):
+        read_grid(tmp_path / "v.npy", spacing=0.5, affine=True)
     with pytest.raises(TypeError, match="`keep_affine`"):
         read_grid(tmp_path / "v.npy", keep_affine="yes")
 

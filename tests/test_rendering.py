@@ -1122,19 +1122,17 @@ def test_ao_per_mesh_of_the_wrong_length_is_refused():
         render([mesh, mesh], cam, (4, 4, 4), ao=[np.zeros(mesh.n_vertices), np.zeros(3)], backend="numpy")
 
 
-def test_normals_is_the_deprecated_spelling_of_shading():
+def test_shading_flat_differs_and_the_removed_normals_keyword_is_refused():
     mesh, cam = _small_scene()
     kw = dict(ao="none", light=(0, 1, 0, -1), backend="numpy")
     flat = render(mesh, cam, (8, 8, 8), shading="flat", **kw)
-    with pytest.warns(DeprecationWarning, match=r"use shading="):
-        old = render(mesh, cam, (8, 8, 8), normals="flat", **kw)
-    assert np.array_equal(flat.shade, old.shade)
     smooth = render(mesh, cam, (8, 8, 8), **kw)
     assert not np.array_equal(flat.shade, smooth.shade)
     with pytest.raises(ValueError, match="shading"):
         render(mesh, cam, (4, 4, 4), shading="phong", **kw)
-    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="pass `shading` only"):
-        render(mesh, cam, (4, 4, 4), shading="flat", normals="smooth", **kw)
+    # `normals=` was shading's old spelling; the package has no released users, so no alias
+    with pytest.raises(TypeError, match="normals"):
+        render(mesh, cam, (4, 4, 4), normals="flat", **kw)
 
 
 def test_one_trace_per_ray_batch_on_one_tracer(monkeypatch):

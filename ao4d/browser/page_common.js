@@ -7,7 +7,7 @@
 "use strict";
 const ao4dPage = (function () {
   // ------------------------------------------------------------------ values
-  // degrees into (-180, 180] (ao4d.viewer.full_state)
+  // degrees into (-180, 180] (ao4d.browser.viewer.full_state)
   function wrap(a) { a = ((a + 180) % 360 + 360) % 360 - 180; return a === -180 ? 180 : a + 0; }
   // a number as the fragment writes it: 4 decimals at most, no "-0"
   function fmt(x) { const s = String(+x.toFixed(4)); return s === "-0" ? "0" : s; }
@@ -76,7 +76,7 @@ const ao4dPage = (function () {
     return new type(buffer);
   }
 
-  // ------------------------------------------------------------------ camera (ao4d.viewer.camera)
+  // ------------------------------------------------------------------ camera (ao4d.browser.viewer.camera)
   const dot3 = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
   const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
   const norm3 = (a) => { const l = Math.hypot(a[0], a[1], a[2]); return [a[0] / l, a[1] / l, a[2] / l]; };

@@ -917,7 +917,7 @@ def stats(table: Table) -> TableStats:
 
     Examples
     --------
-    >>> from ao4d import lut
+    >>> from ao4d.marching import lut
     >>> s = lut.stats(lut.load(3))
     >>> s.entries, s.classes, s.simplices
     (256, 22, 836)
@@ -935,3 +935,11 @@ def stats(table: Table) -> TableStats:
         max_per_entry=int(counts.max()),
         mean_per_entry=float(counts.mean()),
     )
+
+
+if __name__ == "__main__":  # `python -m ao4d.marching.lut ...` is `ao4d lut ...`
+    import sys
+
+    from ..cli import main
+
+    sys.exit(main(["lut", *sys.argv[1:]]))

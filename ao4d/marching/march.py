@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from .._deprecation import DEPRECATED, renamed
 from .._validate import (
     as_array,
     as_real,
@@ -460,7 +459,6 @@ def extract_field(
     blocks: Any = None,
     progress: bool | None = None,
     backend: str = "auto",
-    chunks: Any = DEPRECATED,  # the old spelling of blocks
 ) -> SimplexMesh:
     """Sample ``field`` and extract its level set slab by slab, never holding the whole grid.
 
@@ -490,8 +488,6 @@ def extract_field(
         tqdm bar; by default from 2^21 cells on.
     backend : {"auto", "opencl", "numpy"}
         As in :func:`extract`.
-    chunks : int, sequence of int, dask chunk sizes or "auto", optional
-        The old spelling of ``blocks`` (a ``DeprecationWarning``), too close to ``chunk``.
 
     Returns
     -------
@@ -508,7 +504,6 @@ def extract_field(
     """
     from ..fields import evaluate_layers, grid_axes
 
-    blocks = renamed("extract_field", "chunks", chunks, "blocks", blocks, None)
     if not callable(field):
         raise TypeError(f"`field` must be callable on (..., d) points, got {type(field).__name__}")
     axes = grid_axes(shape, bounds, dim=getattr(field, "dim", None))
