@@ -207,7 +207,16 @@ _BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 
 def _toml_key(key: Any) -> str:
     key = str(key)
-    return key if _BARE_KEY.fullmatch(key) else json.dumps(key, ensure_ascii=False)
+    return key if _BARE_KEY.fullmatch(key) else _toml_string(key, f"the key {key!r}")
+
+
+def _toml_string(value: str, where: str) -> str:
+    """A TOML basic string: JSON's escapes, and DEL escaped too (TOML forbids it raw)."""
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:  # a lone surrogate: no UTF-8 text, so no TOML file, holds it
+        raise ConfigError(f"{where}: {value!r} is not valid Unicode text (a lone surrogate)") from None
+    return json.dumps(value, ensure_ascii=False).replace("\x7f", "\\u007f")
 
 
 def _plain(value: Any) -> Any:
@@ -228,7 +237,7 @@ def _toml_value(value: Any, where: str) -> str:
     if isinstance(value, float):
         return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf") if math.isinf(value) else repr(value)
     if isinstance(value, str):
-        return json.dumps(value, ensure_ascii=False)
+        return _toml_string(value, where)
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(v, where) for v in value) + "]"
     if isinstance(value, Mapping):
