@@ -5,7 +5,9 @@ configuration (a TOML file or a shipped name: see :func:`shipped_configs`): its 
 ambient occlusion, optional renders and a JSON record, plus a ``manifest.json`` of sha256
 hashes. The same configuration and seed give byte-identical files; an interrupted run resumes.
 
-``datasets_gen.load(DIR)`` reads a dataset back for training (:mod:`datasets_gen.loader`);
+``datasets_gen.load(DIR)`` reads a dataset (or an export of one) back for training
+(:mod:`datasets_gen.loader`), with fixed-size items from
+:class:`datasets_gen.transforms.SubsamplePoints` and batches from :func:`datasets_gen.collate`;
 ``python -m datasets_gen export DIR --format webdataset|parquet --out OUT`` writes shards.
 
 ``python -m datasets_gen.experiments.<name> --out DIR [--quick]`` regenerates a table (CSV)
@@ -21,6 +23,8 @@ True
 
 from __future__ import annotations
 
+from . import transforms
+from .batching import collate
 from .config import Config, ConfigError, load_config, shipped_configs
 from .index import RunSummary
 from .items import item_seed
@@ -38,4 +42,6 @@ __all__ = [
     "load",
     "Dataset",
     "DatasetError",
+    "collate",
+    "transforms",
 ]
