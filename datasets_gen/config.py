@@ -371,7 +371,7 @@ def _read_text(path: Path) -> str:
 
 
 def _parse(data: dict, text: str, source: str) -> Config:
-    from .families import KINDS
+    from .families import INTEGER_PARAMS, KINDS
 
     _no_unknown(data, _TOP_KEYS, source, "top level")
     for key in ("name", "description"):
@@ -421,6 +421,8 @@ def _parse(data: dict, text: str, source: str) -> Config:
         _no_unknown(params, set(allowed), source, f"{where} params of kind {kind!r}")
         for pname, spec in params.items():
             _check_distribution(spec, f"{source}: {where}: params.{pname}")
+            if (kind, pname) in INTEGER_PARAMS:
+                _check_integer_param(spec, INTEGER_PARAMS[kind, pname], f"{source}: {where}: params.{pname}")
         settings = copy.deepcopy(defaults)
         settings.update({k: v for k, v in fam.items() if k in _SETTING_KEYS})
         _check_settings(settings, f"{source}: {where}")
@@ -564,6 +566,21 @@ def _check_distribution(spec: Any, where: str) -> None:
         raise ConfigError(f"{where}: `{kind}` needs {'0 < ' if kind == 'loguniform' else ''}a <= b, got {args!r}")
     elif not math.isfinite(b - a):  # numpy's uniform draws inf (or fails) over a range wider than a float
         raise ConfigError(f"{where}: `{kind}` needs a range b - a that is a finite float, got {args!r}")
+
+
+def _check_integer_param(spec: Any, bounds: tuple[int, int], where: str) -> None:
+    """A count of parts or steps (:data:`datasets_gen.families.INTEGER_PARAMS`): an integer in
+    ``bounds``, or an ``integers`` / ``choice`` distribution of such integers."""
+    lo, hi = bounds
+    if isinstance(spec, dict):
+        ((kind, args),) = spec.items()
+        values = args if kind in ("integers", "choice") else None
+    else:
+        values = [spec]
+    if values is None or not all(isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi for v in values):
+        raise ConfigError(
+            f"{where}: must be an integer in [{lo}, {hi}] (a constant, or drawn by `integers` or `choice`), got {spec!r}"
+        )
 
 
 def sample_params(specs: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:

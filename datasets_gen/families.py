@@ -43,7 +43,19 @@ __all__ = [
     "shape_support",
     "support_extent",
     "fitted_grid",
+    "INTEGER_PARAMS",
 ]
+
+#: family parameters that count parts or steps: (kind, name) -> (least, most). The
+#: configuration reader refuses a value outside (a constant, an ``integers`` or ``choice``
+#: distribution; no continuous one), before anything is built: ten million metaballs, or a
+#: spin in a billion steps, would run for hours and then exhaust memory in every item.
+INTEGER_PARAMS: dict[tuple[str, str], tuple[int, int]] = {
+    ("metaballs", "n"): (1, 64),
+    ("tesseracts", "n"): (1, 64),
+    ("lifted", "detail"): (0, 6),  # icosphere subdivisions: 20 * 4**6 = 81920 faces
+    ("lifted", "k"): (3, 1024),  # spin steps
+}
 
 # Grid cells between the solid's extent (plus padding) and the grid's outermost points: keeps the
 # zero set off the boundary points (which must be positive for a closed mesh) with room to spare.

@@ -103,6 +103,24 @@ def test_bad_parameters_are_refused_at_load(spec, match):
         load_config(_param(spec))
 
 
+@pytest.mark.parametrize(
+    "kind, params, match",
+    [
+        ("metaballs", {"n": 10**7}, r"params\.n: must be an integer in \[1, 64\]"),
+        ("metaballs", {"n": {"uniform": [2, 5]}}, r"params\.n: must be an integer"),
+        ("tesseracts", {"n": {"integers": [1, 100]}}, r"params\.n: must be an integer in \[1, 64\]"),
+        ("lifted", {"detail": 40}, r"params\.detail: must be an integer in \[0, 6\]"),
+        ("lifted", {"op": "spin", "k": {"choice": [6, 10**9]}}, r"params\.k: must be an integer in \[3, 1024\]"),
+    ],
+)
+def test_counts_of_parts_are_bounded_at_load(kind, params, match):
+    # ten million metaballs ran for minutes in every item before failing
+    data = copy.deepcopy(SMALL)
+    data["family"] = [family(kind, 1, params)]
+    with pytest.raises(ConfigError, match=rf"\({kind}\): " + match):
+        load_config(data)
+
+
 def test_numpy_values_in_a_mapping_become_plain_numbers():
     data = _with(padding=np.float64(0.1), grid=np.int64(6))
     data["family"][0]["params"] = {"radius": {"uniform": np.array([0.5, 0.8])}}
