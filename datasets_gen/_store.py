@@ -58,7 +58,7 @@ def check_url(out: str, name: str = "out") -> str:
 def open_store(out: str | os.PathLike, name: str = "out") -> Store:
     """The store of ``out``: :class:`FsspecStore` for a URL, else :class:`LocalStore`.
 
-    ``name`` is the parameter that errors name (``out`` for the writer, ``path_or_url`` for
+    ``name`` is the parameter that errors name (``out`` for the writer, ``path`` for
     the loader).
 
     Raises

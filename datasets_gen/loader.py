@@ -324,7 +324,9 @@ class _Export:
                 raise
             except Exception as exc:  # missing, unreadable or not a shard of this format
                 raise DatasetError(f"cannot read the shard {path}: {type(exc).__name__}: {exc}") from None
-            self._open = {name: opened}  # one shard at a time: items are read in order mostly
+            if len(self._open) >= 16:  # a few shards open: items are mostly read shard by shard
+                self._open.pop(next(iter(self._open)))
+            self._open[name] = opened
         return self._open[name]
 
     def record(self, index: int) -> dict:
