@@ -38,6 +38,10 @@ def collate(batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """
     if not batch:
         raise ValueError("`batch` is empty")
+    if not isinstance(batch[0], dict):
+        raise TypeError(
+            f"`batch` holds items as dicts (as datasets_gen.load gives them), got {type(batch[0]).__name__}"
+        )
     keys = list(batch[0])
     for n, item in enumerate(batch):
         if not isinstance(item, dict) or set(item) != set(keys):

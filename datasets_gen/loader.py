@@ -159,6 +159,11 @@ def _check_dtype(dtype: Any) -> np.dtype | None:
     return out
 
 
+def _few(values: list[int], n: int = 5) -> str:
+    """``[1, 2, 3]`` or ``[1, 2, 3, 4, 5, ...] (12)`` for a message."""
+    return str(values) if len(values) <= n else f"{str(values[:n])[:-1]}, ...] ({len(values)})"
+
+
 def _json(data: bytes, what: str) -> Any:
     try:
         return json.loads(data)
@@ -227,10 +232,13 @@ class _Folder:
         )
         if sorted(indices) != listed:
             repeated = sorted({i for i in indices if indices.count(i) > 1})
+            extra, missing = sorted(set(indices) - set(listed)), sorted(set(listed) - set(indices))
+            said = [f"item(s) {_few(repeated)} more than once"] if repeated else []
+            said += [f"item(s) {_few(extra)} the manifest has not"] if extra else []
+            said += [f"not item(s) {_few(missing)} of the manifest"] if missing else []
             raise DatasetError(
-                f"{where} does not match manifest.json: it lists {len(indices)} items"
-                + (f" (item(s) {repeated} more than once)" if repeated else "")
-                + f", the manifest {len(listed)} complete items; the index is truncated or damaged "
+                f"{where} does not match manifest.json: it lists {len(indices)} rows, the manifest "
+                f"{len(listed)} complete items ({'; '.join(said)}); the index is truncated or damaged "
                 "(rerun the same command to rewrite it)"
             )
         return out
@@ -258,7 +266,11 @@ class _Folder:
             with np.load(io.BytesIO(data), allow_pickle=False) as z:
                 return {k: z[k] for k in z.files}
         except (zipfile.BadZipFile, zlib.error, ValueError, EOFError, OSError, KeyError, AttributeError) as exc:
-            raise DatasetError(f"item {index}: {name} is damaged: {type(exc).__name__}: {exc}") from None
+            if "pickle" in str(exc):  # numpy's guess for bytes that are no array; object arrays are never loaded
+                why = "not a numpy .npz archive of plain arrays"
+            else:
+                why = f"{type(exc).__name__}: {exc}"
+            raise DatasetError(f"item {index}: {name} is damaged: {why}") from None
 
     def arrays(self, index: int, record: dict, keys: tuple[str, ...] | None) -> dict[str, np.ndarray]:
         files = record["files"]
@@ -290,10 +302,17 @@ class _Export:
     def __init__(self, location: str, manifest: dict, verify: bool):
         self.location, self.manifest, self.verify = location, manifest, verify
         fmt = manifest.get("format")
-        if fmt not in FORMATS or not isinstance(manifest.get("shards"), list):
+        if fmt not in FORMATS:
             raise DatasetError(
                 f"`path` {location!r}: its manifest.json is of format {fmt!r}, neither a datasets_gen run "
                 f"nor an export of one ({', '.join(FORMATS)})"
+            )
+        shards = manifest.get("shards")
+        if not isinstance(shards, list) or not all(
+            isinstance(s, dict) and isinstance(s.get("name"), str) and isinstance(s.get("items"), list) for s in shards
+        ):
+            raise DatasetError(
+                f"{location}/manifest.json is damaged: `shards` is not a list of shards with their items"
             )
         self.format = fmt
         self.rows, self._shard_of = [], {}
@@ -456,7 +475,7 @@ class Dataset:
 
     def _index(self, i: int) -> int:
         if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)):
-            raise TypeError(f"dataset indices are integers, got {type(i).__name__}")
+            raise TypeError(f"a dataset's items are indexed by integers (`ds[i]`), got {type(i).__name__}")
         n = len(self.indices)
         if not -n <= i < n:
             raise IndexError(f"item {i} out of range for a dataset of {n} items")
