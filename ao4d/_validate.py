@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import math
 import numbers
+import stat
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -20,7 +22,13 @@ __all__ = [
     "check_finite",
     "check_memory",
     "check_grid_lengths",
+    "check_seed",
+    "regular_file",
+    "SEED_LIMIT",
 ]
+
+# Seeds are 32-bit: the direction tables and the kernels' per-point hash take a uint32.
+SEED_LIMIT = 2**32
 
 # Refuse allocations above this many bytes before starting work (overridable per call).
 DEFAULT_MEMORY_LIMIT = 16 * 2**30
@@ -236,6 +244,71 @@ def check_int(value: Any, name: str, *, minimum: int | None = None) -> int:
     if minimum is not None and value < minimum:
         raise ValueError(f"`{name}` must be >= {minimum}, got {value}")
     return int(value)
+
+
+def check_seed(value: Any, name: str = "seed") -> int:
+    """Return ``value`` as an int seed in ``[0, 2**32)``, else raise naming ``name``.
+
+    The direction tables (scipy's Sobol scrambling) and the kernels' per-point hash take a
+    32-bit seed. Refusing seeds outside that range (rather than keeping their low 32 bits, as
+    before) keeps every seed in range mapped to the same rays as ever, while ``2**32`` can no
+    longer silently trace the rays of seed 0.
+    """
+    seed = check_int(value, name)
+    if not 0 <= seed < SEED_LIMIT:
+        raise ValueError(f"`{name}` must be an integer in [0, 2**32) (a 32-bit seed), got {seed}")
+    return seed
+
+
+def regular_file(path: Any, name: str, *, what: str = "file") -> Path:
+    """``path`` as a :class:`~pathlib.Path` once it names an existing regular file, else raise.
+
+    A FIFO, socket or device opened for reading blocks or never ends (``open`` on a named pipe
+    waits for a writer), and a folder fails later with an obscure message; so every input file
+    is checked here before it is opened. Symbolic links are followed.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The input file.
+    name : str
+        The parameter or option to name in the message (``"path"``, ``"--input"``).
+    what : str
+        What the file is, for the message (``"file"``, ``"HDF5 file"``).
+
+    Returns
+    -------
+    pathlib.Path
+        The path.
+
+    Raises
+    ------
+    FileNotFoundError
+        Nothing exists at ``path``.
+    ValueError
+        Something exists but is no regular file (a folder, a FIFO, a socket, a device).
+    """
+    p = Path(path)
+    try:
+        mode = p.stat().st_mode
+    except FileNotFoundError:
+        raise FileNotFoundError(f"`{name}` {what} {str(p)!r} does not exist") from None
+    except OSError as exc:  # a name too long, a loop of links, no permission to look
+        raise ValueError(f"`{name}` {what} {str(p)!r} cannot be read: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(mode):
+        kind = (
+            "a folder"
+            if stat.S_ISDIR(mode)
+            else "a FIFO (named pipe)"
+            if stat.S_ISFIFO(mode)
+            else "a socket"
+            if stat.S_ISSOCK(mode)
+            else "a device"
+            if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "not a regular file"
+        )
+        raise ValueError(f"`{name}` {what} {str(p)!r} is {kind}; a regular file is expected")
+    return p
 
 
 def check_positive_int(value: Any, name: str, *, minimum: int = 1) -> int:

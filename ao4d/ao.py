@@ -19,10 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import as_array, check_choice, check_int, check_memory, check_positive_int
+from ._validate import as_array, check_choice, check_memory, check_positive_int, check_seed
 from .bvh.host import nondegenerate_given
+from .bvh.layout import Frame
 from .geometry import vertex_sums
-from .mesh import as_mesh, warn_if_inside_out
+from .mesh import SimplexMesh, as_mesh, warn_if_inside_out
 from .opencl import cl
 from .raycast import ACCELS, check_distance, check_rays, count_occluded, get_bvh, mesh_arrays, progress_bar, unit_rows
 from .topology import GRID_EDGE_KEY
@@ -30,6 +31,13 @@ from .topology import GRID_EDGE_KEY
 __all__ = ["ambient_occlusion", "ORIGIN_OFFSET", "OpenMeshWarning"]
 
 ORIGIN_OFFSET = 1e-4  # times the bounding-box diagonal
+
+# Meshes whose coordinates stay within 2**64 of the origin and whose box is at least 2**-64
+# wide are traced as they are (their bytes as ever); others are recentred and scaled by a power
+# of two first: a normal multiplies d - 1 lengths and its squared length 2 (d - 1), which
+# overflow float64 above ~1e77 (3D) or ~1e51 (4D) and underflow below ~1e-77 / ~1e-51, where
+# every normal came back NaN and so did every AO value.
+_SAFE_EXPONENT = 64
 
 
 class OpenMeshWarning(UserWarning):
@@ -54,8 +62,39 @@ def warn_if_open(mesh: Any, *, stacklevel: int = 3) -> None:
         )
 
 
-def _query_points(mesh, at, points, normals, d):
-    """Points and unit normals where AO is wanted; NaN rows mark undefined normals."""
+def _working_mesh(mesh: SimplexMesh) -> tuple[SimplexMesh, Frame | None]:
+    """The mesh AO is computed on, and the frame that maps world coordinates to it (None: the
+    mesh itself, in world coordinates).
+
+    A mesh within the safe range is used as it is; another is recentred on its box and scaled by
+    a power of two (:meth:`ao4d.bvh.Frame.fit`) in float64, kept in the mesh's cache. AO does
+    not depend on a uniform scaling or a translation, so the result is the same.
+    """
+    cached = mesh.cache.get("ao4d.ao.working_mesh")
+    if cached is not None:
+        return cached
+    vertices = mesh.vertices
+    result: tuple[SimplexMesh, Frame | None] = (mesh, None)
+    if vertices.size:
+        lo, hi = vertices.min(0), vertices.max(0)
+        with np.errstate(over="ignore"):
+            extent = float(np.max(hi - lo))
+        reach = float(max(np.abs(lo).max(), np.abs(hi).max()))
+        if not np.isfinite(extent):
+            raise ValueError(
+                f"`mesh` spans {lo.min():.3g} to {hi.max():.3g}: its extent overflows float64; "
+                "give its coordinates in other units"
+            )
+        if reach > 2.0**_SAFE_EXPONENT or 0 < extent < 2.0**-_SAFE_EXPONENT:
+            frame = Frame.fit(vertices)
+            result = (SimplexMesh(frame.points(vertices), mesh.simplices), frame)
+    mesh.cache["ao4d.ao.working_mesh"] = result
+    return result
+
+
+def _query_points(mesh, at, points, normals, d, frame: Frame | None = None):
+    """Points and unit normals where AO is wanted; NaN rows mark undefined normals. Given
+    points are mapped by ``frame`` into the coordinates of ``mesh`` (the working mesh)."""
     if (points is None) != (normals is None):
         raise ValueError("`points` and `normals` must be given together")
     if points is not None:
@@ -63,6 +102,8 @@ def _query_points(mesh, at, points, normals, d):
         normals = as_array(normals, "normals", ndim=2, shape_tail=(d,), dtype=np.float64, finite=True)
         if len(points) != len(normals):
             raise ValueError(f"`points` and `normals` must have the same length, got {len(points)} and {len(normals)}")
+        if frame is not None:
+            points = frame.points(points)
         return points, unit_rows(normals, "normals"), np.ones(len(points), dtype=bool)
     check_choice(at, "at", ("vertices", "simplices"))
     # at the vertices, kept in the mesh's cache (cleared when the mesh changes; (V, d) values, as
@@ -147,7 +188,8 @@ def ambient_occlusion(
         Evaluate at these points with these normals instead (normalised here; zero length is an
         error). Give both or neither.
     seed : int
-        Seeds the directions; the same seed gives the same rays on every backend.
+        Seeds the directions, in ``[0, 2**32)`` (a 32-bit seed; others are refused); the same
+        seed gives the same rays on every backend.
     backend : {"auto", "opencl", "numpy"}
         ``"auto"``: OpenCL when a device works, else numpy (with a warning).
     progress : bool, optional
@@ -184,7 +226,9 @@ def ambient_occlusion(
     (``ORIGIN_OFFSET``). Degenerate simplices (the BVH's test, relative to each simplex's size:
     :func:`ao4d.bvh.host.nondegenerate`) are left out of the BVH, cannot occlude and add nothing
     to vertex normals; normal components below 1e-12 count as zero. So the result does not
-    depend on the scene's scale.
+    depend on the scene's scale. A mesh farther than ``2**64`` from the origin, or smaller than
+    ``2**-64`` across, is recentred and scaled by a power of two first (``max_distance`` and
+    ``points`` with it), in float64: its normals' products would overflow or underflow.
 
     References
     ----------
@@ -208,9 +252,12 @@ def ambient_occlusion(
     d = vertices.shape[1]
     samples = check_positive_int(samples, "samples")
     max_distance = check_distance(max_distance)
-    seed = check_int(seed, "seed")
+    seed = check_seed(seed)
     check_choice(accel, "accel", ACCELS)
-    pts, nrm, defined = _query_points(mesh, at, points, normals, d)
+    work, frame = _working_mesh(mesh)
+    if frame is not None and math.isfinite(max_distance):  # > 0, and stays > 0 in the frame
+        max_distance = max(frame.length(max_distance), np.finfo(np.float64).tiny)
+    pts, nrm, defined = _query_points(work, at, points, normals, d, frame)
     runtime = cl.resolve_backend(backend)
     check_rays(
         int(defined.sum()) * samples,
@@ -222,8 +269,9 @@ def ambient_occlusion(
     # the Sobol table holds samples x (d - 1) float64 values (and a float32 copy for the device)
     check_memory(samples * d * 12.0, f"the direction table for samples={samples}", hint="use fewer `samples`")
     if points is None:  # at the mesh's own points: inward normals look into the solid
-        warn_if_inside_out(mesh, "every hemisphere looks into the solid (AO = 1 everywhere)")
+        warn_if_inside_out(work, "every hemisphere looks into the solid (AO = 1 everywhere)")
     warn_if_open(mesh)
+    mesh = work  # from here on, in the working frame (the mesh itself when within range)
     tree = get_bvh(mesh, runtime=runtime)  # built by the device that traces it
     occlusion = np.full(len(pts), np.nan)
     idx = np.flatnonzero(defined)

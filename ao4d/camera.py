@@ -191,6 +191,11 @@ class Camera4D:
             distance, half_width = lateral + along + 1.0, lateral
         else:
             distance, half_width = lateral / tan + along, lateral + along * tan
+            if not distance < 1e150:  # the eye would sit where Camera4D refuses it, for fov's sake
+                raise ValueError(
+                    f"`fov` {fov:g} degrees is too narrow to frame the scene: the eye would sit "
+                    f"{distance:.3g} from it; use a wider `fov` or give the eye"
+                )
         return cls(
             centre - distance * direction, centre, up, over, fov=fov, projection=projection, half_width=half_width
         )
@@ -334,12 +339,22 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 def _hollasch_basis(eye, target, up, over) -> np.ndarray:
     """Rows ``a, b, c, d``: orthonormal, ``det = +1``, ``b`` toward ``up``, ``c`` toward ``over``."""
-    view = target - eye
-    dist = np.linalg.norm(view)
-    scale = max(np.linalg.norm(eye), np.linalg.norm(target), 1.0)
+    with np.errstate(over="ignore", invalid="ignore"):  # said below, in words
+        view = target - eye
+        dist = np.linalg.norm(view)
+        scale = max(np.linalg.norm(eye), np.linalg.norm(target), 1.0)
+    if not (np.isfinite(dist) and np.isfinite(scale)):
+        # before: an overflow warning, then "must differ" for points 1e300 apart
+        raise ValueError(
+            "`eye` and `target` must lie within about 1e150 of the origin (their distances "
+            f"overflow float64), got eye={eye.tolist()}, target={target.tolist()}"
+        )
     if dist <= 1e-12 * scale:
         raise ValueError("`eye` and `target` must differ: the view direction is undefined")
     d = view / dist
+    # only their directions count: scaled to a largest entry of 1 first, so that 1e300 entries
+    # do not overflow the norm (and read as "parallel")
+    up, over = (v / np.max(np.abs(v)) if np.any(v) else v for v in (up, over))
     for vec, name in ((up, "up"), (over, "over")):
         n = np.linalg.norm(vec)
         if n == 0:

@@ -140,6 +140,12 @@ def duration(seconds: float) -> str:
     return f"about {max(seconds, 1):.0f} s"
 
 
+def _reach32(max_distance: float) -> np.float32:
+    """A ray length for the float32 kernels: beyond float32's range it is infinite (the trees
+    span about one unit), so the cast is not an overflow warning printed to the user."""
+    return np.float32(max_distance) if max_distance <= float(np.finfo(np.float32).max) else np.float32(np.inf)
+
+
 def check_rays(n_rays: float, backend: str, limit: float | None, *, what: str, hint: str) -> None:
     """Refuse, before any work, to trace more than ``limit`` rays (default ``MAX_RAYS[backend]``)."""
     limit = MAX_RAYS[backend] if limit is None else as_real(limit, "max_rays", finite=False, gt=0)
@@ -332,7 +338,7 @@ def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar, r
             return [o.base.release(feed), w.base.release(feed)]
 
         def launch(bufs, count, written):
-            args = head + [bufs[0], bufs[1], np.float32(max_distance), np.int32(any_hit), bufs[2], bufs[3]]
+            args = head + [bufs[0], bufs[1], _reach32(max_distance), np.int32(any_hit), bufs[2], bufs[3]]
             return kernel(queue, (count,), None, *args, wait_for=written)
 
         return _launches(runtime, rays.n, (16, 16, 4, 4), fill, launch, bar, results)
@@ -362,9 +368,9 @@ def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar, r
         found = packets.pop(id(bufs), None)
         if found is not None:
             args = head + [bufs[0], bufs[1], buf_frame, pcl.Buffer(runtime.context, ro, hostbuf=found)]
-            args += [np.float32(max_distance), bufs[2]]
+            args += [_reach32(max_distance), bufs[2]]
             return packet_kernel(queue, (len(found),), None, *args, wait_for=written)
-        args = head + [bufs[0], bufs[1], buf_frame, np.float32(max_distance), np.int32(any_hit), bufs[2]]
+        args = head + [bufs[0], bufs[1], buf_frame, _reach32(max_distance), np.int32(any_hit), bufs[2]]
         return kernel(queue, (count,), None, *args, wait_for=written)
 
     def check(answers):
@@ -594,7 +600,7 @@ def _ao_opencl(
             np.int32(samples),
             np.uint32(seed & 0xFFFFFFFF),
             np.float32(offset),
-            np.float32(max_distance),
+            _reach32(max_distance),
             buf_counts,
         ]
     )

@@ -55,7 +55,16 @@ from typing import Any, Literal
 import numpy as np
 
 from . import _progress
-from ._validate import as_array, as_real, check_bool, check_choice, check_int, check_memory, check_positive_int
+from ._validate import (
+    as_array,
+    as_real,
+    check_bool,
+    check_choice,
+    check_int,
+    check_memory,
+    check_positive_int,
+    check_seed,
+)
 from .ao import ORIGIN_OFFSET, ambient_occlusion
 from .camera import Camera4D, ImageGeometry, image_shape
 from .compositing import over, unpremultiply
@@ -380,7 +389,7 @@ def render(
         AO ray length (inf: any hit occludes; ``"screen"`` then marches to the diagonal of the
         visible points' bounding box).
     seed : int
-        AO random seed (results are deterministic).
+        AO random seed, in ``[0, 2**32)`` (results are deterministic).
     denoise : int
         With ``ao="screen"``: radius in voxels of the depth- and normal-aware box filter
         (:func:`ao4d.screen_ao.denoise`) applied to the first hits' occlusion before shading, so
@@ -587,7 +596,7 @@ class _Options:
             ao=ao,
             samples=check_positive_int(samples, "samples"),
             max_distance=check_distance(max_distance),
-            seed=check_int(seed, "seed"),
+            seed=check_seed(seed),
             denoise=denoise,
             ambient=ambient,
             diffuse=diffuse,
@@ -852,7 +861,8 @@ def _occlusion(run: _Run, points, face_n, tri, bary, first: bool) -> np.ndarray:
             max_distance=opts.max_distance,
             seed=opts.seed,
             backend=run.backend,
-        )
+            max_rays=math.inf,
+        )  # render checked its budget
         stats.screen_lookups += len(points) * opts.samples * default_steps(volume, opts.max_distance)
         if first and opts.denoise:
             image = np.full(volume.depth.size, np.nan)

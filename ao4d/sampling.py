@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import as_array, check_positive_int
+from ._validate import as_array, check_positive_int, check_seed
 
 __all__ = [
     "hash32",
@@ -159,7 +159,7 @@ def sobol_table(samples: int, ndim: int, *, seed: int = 0) -> np.ndarray:
     ndim : int
         Coordinates per point.
     seed : int
-        Seed of the scrambling.
+        Seed of the scrambling, in ``[0, 2**32)``.
 
     Returns
     -------
@@ -167,7 +167,7 @@ def sobol_table(samples: int, ndim: int, *, seed: int = 0) -> np.ndarray:
         Values in ``[0, 2^24)``; coordinate k of sample j is ``(table[j, k] + 0.5) / 2^24``.
     """
     samples = check_positive_int(samples, "samples")
-    return _sobol_cached(samples, int(ndim), int(seed) & 0xFFFFFFFF)
+    return _sobol_cached(samples, int(ndim), check_seed(seed))
 
 
 def tangent_frames(normals: np.ndarray) -> np.ndarray:
@@ -237,7 +237,7 @@ def cosine_hemisphere(normals: np.ndarray, samples: int, *, seed: int = 0, index
     samples : int
         Directions per normal.
     seed : int
-        Seeds both the Sobol scrambling and the per-point offsets.
+        Seeds both the Sobol scrambling and the per-point offsets, in ``[0, 2**32)``.
     index_offset : int
         Global index of ``normals[0]``: point i uses the offsets of ``index_offset + i``, so a
         chunked computation reproduces the directions of a single call.
@@ -257,6 +257,7 @@ def cosine_hemisphere(normals: np.ndarray, samples: int, *, seed: int = 0, index
     d = n.shape[1]
     if d not in (2, 3, 4):
         raise ValueError(f"`normals` must have 2, 3 or 4 columns, got {d}")
+    seed = check_seed(seed)
     table = sobol_table(samples, d - 1, seed=seed)
     index = np.arange(index_offset, index_offset + len(n))
     shifts = point_shifts(index, seed, d - 1)

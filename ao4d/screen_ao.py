@@ -79,10 +79,11 @@ from functools import cached_property
 
 import numpy as np
 
-from ._validate import as_array, as_real, check_int, check_memory, check_positive_int
+from ._validate import as_array, as_real, check_int, check_memory, check_positive_int, check_seed
 from .camera import Camera4D, image_shape
 from .mesh import as_mesh
 from .opencl import cl
+from .raycast import RAYS_PER_SECOND, check_rays
 from .sampling import cosine_hemisphere, sobol_table
 
 __all__ = [
@@ -335,6 +336,7 @@ def screen_space_occlusion(
     thickness: float | None = None,
     seed: int = 0,
     backend: str = "auto",
+    max_rays: float | None = None,
 ) -> np.ndarray:
     """Screen-space ambient occlusion at points, from a depth volume (module docstring).
 
@@ -364,7 +366,7 @@ def screen_space_occlusion(
         Range limit (> ``bias``): surfaces farther than this in front of a march point do not
         hide it (the depth volume's assumed thickness); default ``L``.
     seed : int
-        Seeds the directions (deterministic: the same seed gives the same result).
+        Seeds the directions, in ``[0, 2**32)`` (deterministic: the same seed gives the same result).
     backend : {"auto", "opencl", "numpy"}
         OpenCL kernel ``kernels/screen_ao.cl`` or the numpy reference (float64); they agree up
         to float32 rounding at the voxel and depth thresholds.
@@ -374,11 +376,17 @@ def screen_space_occlusion(
     occlusion : (N,) float64
         In [0, 1], multiples of ``1 / samples``; 1 = fully occluded.
 
+    max_rays : float, optional
+        Refuse, before any work, when the ``N * samples * steps`` depth look-ups, counted as
+        rays at their cost (``LOOKUPS_PER_SECOND``), exceed this (default
+        ``ao4d.raycast.MAX_RAYS`` of the backend: about half an hour); ``math.inf`` lifts it.
+
     Raises
     ------
     ValueError
         Points and normals of different lengths or not (N, 4), non-finite values, a zero
-        normal, non-positive ``max_distance``, ``steps``, ``samples`` or ``thickness``.
+        normal, non-positive ``max_distance``, ``steps``, ``samples`` or ``thickness``, or
+        look-ups above ``max_rays``.
 
     Examples
     --------
@@ -405,7 +413,7 @@ def screen_space_occlusion(
         raise ValueError(f"`normals` must be non-zero, got a zero row at {int(np.argmin(length))}")
     nrm = nrm / length[:, None]
     samples = check_positive_int(samples, "samples")
-    seed = check_int(seed, "seed")
+    seed = check_seed(seed)
     reach = _reach(volume, max_distance)
     steps = default_steps(volume, reach) if steps is None else check_positive_int(steps, "steps")
     bias = _BIAS * reach if bias is None else as_real(bias, "bias", ge=0)
@@ -415,6 +423,18 @@ def screen_space_occlusion(
     bias = max(bias, volume._rounding, 2.0**-16 * eye_distance)
     check_memory(samples * 4 * 12.0, f"the direction table for samples={samples}", hint="use fewer `samples`")
     runtime = cl.resolve_backend(backend)
+    name = cl.backend_name(runtime)
+    # the work budget of the ray casts, look-ups counted at their cost: before, only the
+    # direction table's memory was checked, and samples=10**7 ran for minutes
+    lookups = len(pts) * samples * steps
+    check_rays(
+        lookups / LOOKUPS_PER_SECOND[name] * RAYS_PER_SECOND[name],
+        name,
+        max_rays,
+        what=f"`samples`={samples} x {steps} steps at {len(pts):,} points ({lookups:.3g} depth look-ups, "
+        "counted as rays at their cost)",
+        hint="use fewer `samples` or points, or pass max_rays=math.inf",
+    )
     if not len(pts):
         return np.zeros(0)
     args = dict(samples=samples, steps=steps, reach=reach, bias=bias, thickness=thickness, seed=seed)

@@ -73,10 +73,10 @@ def unit_normal(normal: Any, d: int) -> np.ndarray:
         The unit normal.
     """
     n = as_array(normal, "normal", ndim=1, shape_tail=(d,), dtype=np.float64, finite=True)
-    length = float(np.linalg.norm(n))
-    if not length > 0.0:
+    if not np.any(n):
         raise ValueError("`normal` must be a nonzero vector")
-    return n / length
+    n = n / np.max(np.abs(n))  # a largest entry of 1: the norm of 1e300 entries would overflow
+    return n / float(np.linalg.norm(n))
 
 
 def _slice_cases() -> list[list[tuple[tuple[int, int], ...]]]:
