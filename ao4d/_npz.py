@@ -1,4 +1,4 @@
-"""Byte-reproducible ``.npz`` archives.
+"""Byte-reproducible ``.npz`` archives, and what to say when a user's ``.npy``/``.npz`` will not load.
 
 ``np.savez`` stamps every zip member with the current time, so writing the same arrays twice
 gives different bytes (and different checksums in manifests). Here every member gets the fixed
@@ -19,7 +19,20 @@ import numpy as np
 
 from ._atomic import atomic_open
 
-__all__ = ["write_npz", "npz_bytes"]
+__all__ = ["write_npz", "npz_bytes", "npy_problem", "npz_member_problem"]
+
+NPY_MAGIC = b"\x93NUMPY"
+
+# what a file that is no .npy often is instead (its first bytes), for the message
+_SIGNATURES = (
+    (b"\x89PNG", "a PNG image"),
+    (b"\xff\xd8\xff", "a JPEG image"),
+    (b"GIF8", "a GIF image"),
+    (b"PK\x03\x04", "a zip archive (an .npz?)"),
+    (b"\x1f\x8b", "gzip data"),
+    (b"\x89HDF", "an HDF5 file"),
+    (b"%PDF", "a PDF document"),
+)
 
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 
@@ -66,3 +79,48 @@ def write_npz(path: str | os.PathLike, arrays: Mapping[str, Any], *, compress: b
     with atomic_open(path, "wb") as fh:
         fh.write(data)
     return Path(path)
+
+
+def npy_problem(path: str | os.PathLike, exc: BaseException) -> str:
+    """Why ``np.load(path, allow_pickle=False)`` refused a ``.npy`` file, in words.
+
+    numpy says of any file without the ``.npy`` header that it "contains pickled (object) data"
+    and suggests ``allow_pickle=True``: wrong for random bytes or a renamed picture, and an
+    invitation to an unsafe load. This looks at the file's first bytes instead.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file that failed to load.
+    exc : BaseException
+        numpy's exception.
+
+    Returns
+    -------
+    str
+        The reason, for a message such as ``f"{path!r} is not a valid .npy file ({reason})"``.
+    """
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except OSError as err:
+        return f"cannot be read: {err.strerror or err}"
+    if not head:
+        return "it is empty"
+    if not head.startswith(NPY_MAGIC):
+        kind = next((f"; it looks like {name}" for magic, name in _SIGNATURES if head.startswith(magic)), "")
+        return f"no .npy header{kind}; it starts with {head[:8]!r}"
+    if "pickle" in str(exc) or "Python objects" in str(exc):
+        return "it holds Python objects (dtype object), which ao4d never loads: unpickling can run code"
+    return f"truncated or damaged: {exc}"
+
+
+def npz_member_problem(exc: BaseException) -> str:
+    """Why reading a member of a ``.npz`` archive failed, in words (without numpy's
+    ``allow_pickle=`` hint): see :func:`npy_problem`."""
+    if "pickle" in str(exc):
+        return (
+            "a member holds Python objects (dtype object) or is no .npy array; ao4d never loads "
+            "those: unpickling can run code"
+        )
+    return f"damaged: {exc}"

@@ -1,13 +1,16 @@
 """The ``ao4d`` command line. Each subcommand lives in ``ao4d/commands/<name>.py``.
 
 A command module defines ``HELP`` (one line), ``EXAMPLES`` (text shown under ``--help``),
-``add_arguments(parser)`` and ``run(args) -> int``.
+``add_arguments(parser)`` and ``run(args) -> int``; optionally ``PARAMETERS``, the library
+parameters its options become under another name (``{"shape": "--size"}``), so that an error
+from the library names the option the user typed.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 
 # order shown in `ao4d --help`
@@ -51,8 +54,42 @@ def build_parser() -> argparse.ArgumentParser:
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
         module.add_arguments(cmd)
-        cmd.set_defaults(_run=module.run)
+        _take_negative_numbers(cmd)
+        for action in cmd._actions:  # and the subcommands' own (``ao4d lut verify``)
+            if isinstance(action, argparse._SubParsersAction):
+                for subparser in action.choices.values():
+                    _take_negative_numbers(subparser)
+        cmd.set_defaults(_run=module.run, _options=_option_names(cmd, getattr(module, "PARAMETERS", {})))
     return parser
+
+
+def _option_names(parser: argparse.ArgumentParser, extra: dict[str, str]) -> dict[str, str]:
+    """Library parameter name -> the command's option: each option's own ``dest``
+    (``max_distance`` -> ``--max-distance``), then the command's ``PARAMETERS``."""
+    names = {}
+    for action in parser._actions:
+        longs = [o for o in action.option_strings if o.startswith("--")]
+        if longs and action.dest not in ("help", "no_progress"):
+            names[action.dest] = longs[0]
+    return {**names, **extra}
+
+
+# argparse takes ``-1`` and ``-.5`` for values but ``-inf``, ``-nan`` and ``-1e3`` for options,
+# and then fails with "--bounds: expected 2 arguments"; every word that reads as a negative
+# number is a value here (no ao4d option looks like one), and the option's own check refuses
+# what is not finite. argparse keeps this pattern per parser (a private attribute since 3.2).
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
+
+
+def _take_negative_numbers(parser: argparse.ArgumentParser) -> None:
+    """Make ``parser`` read any negative number, ``-inf`` and ``-nan`` as a value."""
+    if hasattr(parser, "_negative_number_matcher"):
+        parser._negative_number_matcher = _NEGATIVE_NUMBER
+
+
+def _with_option_names(message: str, names: dict[str, str]) -> str:
+    """``message`` with each backticked library parameter replaced by the command's option."""
+    return re.sub(r"`([A-Za-z_]\w*)`", lambda m: f"`{names.get(m.group(1), m.group(1))}`", message)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -71,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
         print("ao4d: interrupted", file=sys.stderr)
         return 130
     except (ValueError, TypeError, OSError, MemoryError, cl.NoOpenCLDeviceError) as exc:
-        print(f"ao4d {args.command}: error: {exc}", file=sys.stderr)
+        print(f"ao4d {args.command}: error: {_with_option_names(str(exc), args._options)}", file=sys.stderr)
         return 2
 
 

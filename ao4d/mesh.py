@@ -773,7 +773,11 @@ def _restore(vertices, simplices, point_data, cell_data) -> SimplexMesh:
 
 
 def _as_vertices(value: Any) -> np.ndarray:
-    arr = as_array(value, "vertices", ndim=2, dtype=np.float64, finite=True)
+    raw = value if isinstance(value, np.ndarray) else _plain_array(value, "vertices")
+    if raw.dtype.kind not in "iuf" and raw.size:
+        # strings, complex, bool, Decimal or other objects would be converted (or fail) silently
+        raise TypeError(f"`vertices` must hold real numbers (float or int), got dtype {_dtype_words(raw)}")
+    arr = as_array(raw, "vertices", ndim=2, dtype=np.float64, finite=True)
     if arr.shape[1] not in DIMS:
         raise ValueError(f"`vertices` must have shape (V, d) with d in {DIMS}, got {arr.shape}")
     arr = np.array(arr, dtype=np.float64, order="C", copy=True)
@@ -794,9 +798,11 @@ def _as_simplices(value: Any, n_vertices: int, d: int) -> np.ndarray:
         if arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
             pass  # integral floats (e.g. from a text file) are accepted
         else:
-            raise TypeError(f"`simplices` must hold integer vertex indices, got dtype {arr.dtype}")
-    arr = np.array(arr, dtype=np.int64, order="C", copy=True)
+            raise TypeError(f"`simplices` must hold integer vertex indices, got dtype {_dtype_words(arr)}")
+    # checked in the given dtype: as int64, uint64 indices >= 2**63 wrap to negatives and
+    # floats beyond int64 become anything
     _check_indices(arr, n_vertices)
+    arr = np.array(arr, dtype=np.int64, order="C", copy=True)
     arr.flags.writeable = False
     return arr
 
@@ -804,10 +810,27 @@ def _as_simplices(value: Any, n_vertices: int, d: int) -> np.ndarray:
 def _check_indices(simplices: np.ndarray, n_vertices: int) -> None:
     if simplices.size and (simplices.min() < 0 or simplices.max() >= n_vertices):
         bad = int(np.count_nonzero((simplices < 0) | (simplices >= n_vertices)))
+        # .item() keeps the true value of any dtype (int() of a uint64 is right too, but a
+        # float index is shown as given)
         raise ValueError(
             f"`simplices` holds {bad} vertex index(es) outside [0, {n_vertices}) "
-            f"(range found: {int(simplices.min())}..{int(simplices.max())})"
+            f"(range found: {simplices.min().item()}..{simplices.max().item()})"
         )
+
+
+def _plain_array(value: Any, name: str) -> np.ndarray:
+    """``value`` as numpy reads it, with no dtype forced (a ragged list is an error naming ``name``)."""
+    try:
+        return np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"`{name}` must be array-like of numbers: {exc}") from None
+
+
+def _dtype_words(arr: np.ndarray) -> str:
+    """The dtype, and for an object array the type of its first entry (``object (Decimal)``)."""
+    if arr.dtype.kind == "O" and arr.size:
+        return f"object ({type(arr.flat[0]).__name__})"
+    return str(arr.dtype)
 
 
 # --------------------------------------------------------------------------------------------
@@ -919,8 +942,10 @@ def _as_pair(value: Any) -> tuple[np.ndarray, Any] | None:
         vertices = np.asarray(first)
     except (TypeError, ValueError):  # ragged: a sequence of meshes or pairs
         return None
-    if vertices.ndim != 2 or vertices.dtype.kind not in "iuf":
+    if vertices.ndim != 2 or vertices.size == 0 and vertices.dtype.kind not in "iuf":
         return None
+    # a 2D array of anything is a pair's vertices: SimplexMesh then says what is wrong with
+    # their dtype (strings, complex, bool, objects) instead of "no mesh, got tuple"
     return vertices, value[1]
 
 

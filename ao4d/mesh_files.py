@@ -45,8 +45,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ._atomic import atomic_open, atomic_path
-from ._npz import write_npz
-from ._validate import check_choice
+from ._npz import npz_member_problem, write_npz
+from ._validate import check_choice, regular_file
 from .pictures import ao_colors, slice_scalars
 
 __all__ = [
@@ -159,7 +159,7 @@ def read_field_data(path: str | os.PathLike) -> dict[str, np.ndarray]:
         with np.load(p, allow_pickle=False) as data:
             return {k.split("/", 1)[1]: data[k] for k in data.files if k.startswith("field_data/")}
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
-        raise ValueError(f"`path` {str(p)!r} is not a readable .npz file (damaged: {exc})") from None
+        raise ValueError(f"`path` {str(p)!r} is not a readable .npz file ({npz_member_problem(exc)})") from None
 
 
 def read(path: str | os.PathLike) -> MeshArrays:
@@ -180,10 +180,8 @@ def read(path: str | os.PathLike) -> MeshArrays:
 
 
 def _existing(path: str | os.PathLike) -> Path:
-    p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"`path` {str(p)!r} does not exist or is not a file")
-    return p
+    """``path`` once it is an existing regular file (a FIFO would block the reader)."""
+    return regular_file(path, "path")
 
 
 # ------------------------------------------------------------------------------------ npz
@@ -231,8 +229,9 @@ def _load_npz(path: str | os.PathLike) -> MeshArrays:
         with np.load(p, allow_pickle=False) as data:
             files = dict(data.items())
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
-        # truncated or bit-flipped archives fail here (CRC, inflate, short reads)
-        raise ValueError(f"`path` {str(p)!r} is not a readable .npz file (damaged: {exc})") from None
+        # truncated or bit-flipped archives fail here (CRC, inflate, short reads), and members
+        # that are no .npy arrays (numpy then suggests allow_pickle=True: never)
+        raise ValueError(f"`path` {str(p)!r} is not a readable .npz file ({npz_member_problem(exc)})") from None
     missing = {"format", "vertices", "simplices"} - set(files)
     if missing:
         raise ValueError(f"`path` {str(p)!r} is not an ao4d mesh file (missing {sorted(missing)})")

@@ -54,7 +54,8 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import as_real, as_vector, check_bool, check_grid_lengths, check_memory
+from ._npz import npy_problem
+from ._validate import as_real, as_vector, check_bool, check_grid_lengths, check_memory, regular_file
 
 __all__ = ["Grid", "read_grid", "ObliqueAffineWarning", "natural_key", "FRAME_SUFFIXES"]
 
@@ -346,6 +347,7 @@ def _read_one(text: str, scale: dict | None = None) -> tuple[Any, np.ndarray, np
         return _read_zarr(*zarr_parts)
     if not Path(text).exists():
         raise _missing(text)
+    regular_file(text, "path")  # a FIFO would block the reader, a folder fail obscurely
     suffix = _suffix(text)
     if suffix == ".npy":
         values = _open_npy(text)
@@ -502,11 +504,12 @@ def _read_frame(path: str, kind: str, shape: tuple[int, ...], dtype: str) -> np.
 
 
 def _open_npy(path: str) -> np.ndarray:
+    regular_file(path, "path")  # frames of a glob too: a FIFO among them would block
     try:
         values = np.load(path, mmap_mode="r", allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
         size = os.path.getsize(path)
-        raise ValueError(f"{path!r} is not a readable .npy array ({size} bytes; truncated?): {exc}") from None
+        raise ValueError(f"{path!r} is not a valid .npy file ({size} bytes; {npy_problem(path, exc)})") from None
     if not isinstance(values, np.ndarray):
         raise ValueError(f"{path!r} holds no single array")
     return values
@@ -531,6 +534,7 @@ def _read_hdf5(file: str, dataset: str) -> tuple[Any, np.ndarray, np.ndarray, li
 
     if not Path(file).exists():
         raise _missing(file, "HDF5 file")
+    regular_file(file, "path", what="HDF5 file")
     try:
         fh = h5py.File(file, "r")
     except OSError as exc:
@@ -851,8 +855,9 @@ def _read_metaimage(path: str, *, data: bool = True) -> tuple[Any, np.ndarray, n
         raw, offset = str(Path(path).parent / data_file), 0
         if not Path(raw).exists():
             raise FileNotFoundError(f"{path!r} names the data file {data_file!r}, which does not exist")
-        if not Path(raw).is_file():
+        if Path(raw).is_dir():
             raise ValueError(f"{path!r} names the data file {data_file!r}, which is a folder, not a file")
+        regular_file(raw, "path", what=f"data file of {path!r}")  # a FIFO would block the reader
     header_size = _header_int(fields, "HeaderSize", 0, path)
     if header_size > 0:
         offset += header_size
@@ -963,6 +968,7 @@ def _read_vti(path: str) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
 
 def _frame_header(path: str, kind: str, warn: bool = False) -> tuple[tuple[int, ...], np.dtype, np.ndarray, np.ndarray]:
     """Shape, dtype, spacing and origin of one frame, reading as little as the format allows."""
+    regular_file(path, "path", what="frame")  # a glob may match a folder or a FIFO
     if kind == ".vti":
         shape, step, start = _vti_info(path)
         return shape, np.dtype(np.float64), step, start  # dtype: from the first frame's data

@@ -461,7 +461,7 @@ def test_repr_and_basic_properties():
         (np.zeros(3), [[0]], ValueError, "`vertices` must be a 2D array"),
         ([[0, 0], [1, np.nan]], [[0, 1]], ValueError, "`vertices` contains 1 non-finite"),
         ([[0, 0], [1, np.inf]], [[0, 1]], ValueError, "`vertices` contains 1 non-finite"),
-        ([["a", "b"]], [[0, 0]], TypeError, "`vertices` must be array-like of numbers"),
+        ([["a", "b"]], [[0, 0]], TypeError, r"`vertices` must hold real numbers \(float or int\), got dtype <U1"),
         (np.zeros((3, 3)), [[0, 1]], ValueError, r"`simplices` must have shape \(S, 3\)"),
         (np.zeros((3, 3)), [[0, 1, 3]], ValueError, r"`simplices` holds 1 vertex index\(es\) outside \[0, 3\)"),
         (np.zeros((3, 3)), [[0, 1, -1]], ValueError, "outside"),

@@ -846,7 +846,11 @@ def test_render_command_with_lights_colours_and_opacity(ball_over_ground, tmp_pa
         (["--light", "point", "a", "1", "0", "0"], r"--light` takes \[point\]"),
         (["--color", "moon", "1", "0", "0"], "neither an index nor one of the meshes"),
         (["--opacity", "3", "0.5"], "out of range"),
-        (["--light", "0", "1", "0", "0", "2", "0", "0"], r"`color` must hold values in \[0, 1\]"),
+        # the light's colour, not the option --color
+        (
+            ["--light", "0", "1", "0", "0", "2", "0", "0"],
+            r"`--light` '0 1 0 0 2 0 0': its color must hold values in \[0, 1\]",
+        ),
     ],
 )
 def test_render_command_errors(ball_over_ground, tmp_path, capsys, extra, match):

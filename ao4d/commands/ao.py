@@ -8,6 +8,9 @@ import time
 
 from ._options import add_backend, add_force
 
+# the library's parameters that arguments become under another name (errors name the argument)
+PARAMETERS = {"path": "MESH.npz"}
+
 HELP = "compute ambient occlusion of a mesh (.npz) and store it as point_data['ao']"
 EXAMPLES = """  ao4d ao torus.npz --samples 64 --out torus_ao.npz
   ao4d ao torus.npz --samples 256 --max-distance 0.5 --out torus_ao.npz
@@ -43,15 +46,20 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from .._atomic import check_output_file
+    from .._validate import check_seed
     from ..ao import ambient_occlusion
     from ..mesh import SimplexMesh
     from ..mesh_files import SUFFIXES, MeshArrays, read_field_data, write
     from ..opencl import cl
-    from ..raycast import RAYS_PER_SECOND, duration
+    from ..raycast import RAYS_PER_SECOND, check_distance, duration
 
     out = check_output_file(args.out, "--out", SUFFIXES)  # before any work
     if args.samples < 1:
         raise ValueError(f"`--samples` must be >= 1, got {args.samples}")
+    check_seed(args.seed, "--seed")
+    check_distance(args.max_distance)
+    if not args.name.strip():  # before the trace, not when the result is stored
+        raise ValueError(f"`--name` must be a non-empty data array name, got {args.name!r}")
     mesh = SimplexMesh.load(args.mesh)
     runtime = cl.resolve_backend(args.backend, warn=False)
     backend = cl.backend_name(runtime)

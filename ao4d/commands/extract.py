@@ -98,6 +98,9 @@ def _one_or_many(values: list[float] | None):
     return values[0] if len(values) == 1 else values
 
 
+# the library's parameters that options become under another name (errors name the option)
+PARAMETERS = {"shape": "--grid", "values": "--input", "path": "--input", "field": "--shape"}
+
 _INPUT_ONLY = ("spacing", "origin", "w_scale", "affine", "dim")
 _SHAPE_ONLY = ("grid", "bounds")
 
@@ -231,7 +234,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _check_options(args: argparse.Namespace) -> None:
-    """Refuse options that the chosen source would ignore."""
+    """Refuse options that the chosen source would ignore, and bounds that are no box."""
+    import math
+
     defaults = {
         "grid": 48,
         "bounds": None,
@@ -249,6 +254,10 @@ def _check_options(args: argparse.Namespace) -> None:
         raise ValueError(f"{flags} {'applies' if len(given) == 1 else 'apply'} to {other} only, not to {source}")
     if args.w_scale is not None and not args.w_scale > 0:
         raise ValueError(f"`--w-scale` must be > 0, got {args.w_scale}")
+    if args.bounds is not None:
+        lo, hi = args.bounds
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise ValueError(f"`--bounds` must be two finite numbers LO < HI, got {lo!r} {hi!r}")
 
 
 def _grid_info(grid) -> dict:

@@ -8,6 +8,9 @@ import sys
 import time
 from pathlib import Path
 
+# the library's parameters that options become under another name (errors name the option)
+PARAMETERS = {"folder": "--dir"}
+
 HELP = "build, verify or describe the marching lookup tables (d-cubes and Kuhn simplices)"
 EXAMPLES = """  ao4d lut verify                 checksums, then rebuild and compare every shipped table
   ao4d lut stats --dim 4          entries, symmetry classes, tets per entry, build time

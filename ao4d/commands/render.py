@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -19,6 +20,9 @@ EXAMPLES = """  ao4d render scene.npz --out image.mhd
       --color ball 0.9 0.2 0.1 --opacity ball 0.5 --png lit.png
   ao4d render scene.npz --out two.vti --light point 0 3 0 -1 1 0.9 0.8 --light 1 1 0 0 0.3 0.4 1 0.5
 """
+
+# the library's parameters that options become under another name (errors name the option)
+PARAMETERS = {"shape": "--size", "light": "--light", "path": "MESH.npz"}
 
 # the options that go to ao4d.render unchanged, under the same name
 PASSED_TO_RENDER = (
@@ -130,10 +134,17 @@ def parse_light(tokens: list[str]):
         raise ValueError(
             f"`--light` takes [point] X Y Z W [R G B [I]] (4, 7 or 8 numbers), got {len(numbers)}: {' '.join(tokens)!r}"
         )
+    if not all(math.isfinite(x) for x in numbers):
+        raise ValueError(f"`--light` takes finite numbers, got {' '.join(tokens)!r}")
     where = {"position" if kind == "point" else "direction": numbers[:4]}
     color = numbers[4:7] if len(numbers) >= 7 else (1.0, 1.0, 1.0)
     intensity = numbers[7] if len(numbers) == 8 else 1.0
-    return Light(**where, color=color, intensity=intensity)
+    try:
+        return Light(**where, color=color, intensity=intensity)
+    except (TypeError, ValueError) as exc:
+        # the Light's parameter, as a word: `color` here is not the option --color
+        reason = re.sub(r"`(\w+)`", r"its \1", str(exc))
+        raise ValueError(f"`--light` {' '.join(tokens)!r}: {reason}") from None
 
 
 def object_index(name: str, paths: list[Path], n_objects: int, option: str) -> int:

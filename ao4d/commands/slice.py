@@ -16,6 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+# the library's parameters that arguments become under another name (errors name the argument)
+PARAMETERS = {"path": "MESH.npz"}
+
 HELP = "cut a 4D mesh (.npz) by a hyperplane into a 3D mesh (.ply/.glb) coloured by AO"
 EXAMPLES = """  ao4d slice scene.npz --w 0.0 --out slice.ply
   ao4d slice scene.npz --w 0.3 --out slice.glb --png slice.png
@@ -69,6 +72,22 @@ def describe_hyperplane(point, normal) -> str:
     return f"{text} = {_g(c, 3)}"
 
 
+def _check_numbers(args: argparse.Namespace) -> None:
+    """Refuse non-finite numbers before the mesh is read, naming the option given (``--w nan``
+    would otherwise surface as the library's `point`)."""
+    from .._validate import as_real, as_vector
+
+    if args.w is not None:
+        as_real(args.w, "--w")
+    if args.point is not None:
+        as_vector(args.point, "--point", 4, scalar=False)
+    if args.normal is not None:
+        as_vector(args.normal, "--normal", 4, scalar=False, nonzero=True)
+    if args.w_range is not None:
+        as_real(args.w_range[0], "--w-range START")
+        as_real(args.w_range[1], "--w-range STOP")
+
+
 def _g(value: float, digits: int = 6) -> str:
     text = f"{value:.{digits}g}"
     return "0" if text in ("-0", "0") else text
@@ -82,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.w_range is None and args.count is not None:
         raise ValueError("`--count` needs `--w-range START STOP`")
+    _check_numbers(args)
     outputs = []
     if args.w_range is not None:
         check_output_folder(args.out, "--out")  # before loading the mesh

@@ -44,14 +44,15 @@ import itertools
 import json
 import os
 import time
+import zipfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .._npz import npz_bytes
-from .._validate import check_choice
+from .._npz import npz_bytes, npz_member_problem
+from .._validate import check_choice, regular_file
 from ..geometry import cross
 
 __all__ = [
@@ -704,12 +705,19 @@ def read(path: str | os.PathLike) -> Table:
     table : Table
         Arrays read-only, in the in-memory dtypes (int64 indices).
     """
-    path = Path(path)
-    with np.load(path, allow_pickle=False) as data:
-        missing = {"vertices", "edges", "offsets", "simplices"} - set(data.files)
-        if missing:
-            raise ValueError(f"`path` {path} is not a lookup table: no {sorted(missing)}")
-        arrays = {name: data[name].astype(_MEMORY_DTYPES[name]) for name in data.files}
+    path = regular_file(path, "path")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = {"vertices", "edges", "offsets", "simplices"} - set(data.files)
+            if missing:
+                raise ValueError(f"`path` {path} is not a lookup table: no {sorted(missing)}")
+            arrays = {name: data[name].astype(_MEMORY_DTYPES[name]) for name in data.files}
+    except (OSError, EOFError, KeyError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"`path` {str(path)!r} is not a valid .npz file ({npz_member_problem(exc)})") from None
+    except ValueError as exc:
+        if "lookup table" in str(exc):
+            raise
+        raise ValueError(f"`path` {str(path)!r} is not a valid .npz file ({npz_member_problem(exc)})") from None
     kind = "simplex" if "cells" in arrays else "cube"
     return _freeze(Table(dim=int(arrays["vertices"].shape[1]), kind=kind, **arrays))
 
@@ -862,8 +870,16 @@ def verify(
     -------
     report : VerifyReport
         ``ok`` is False on any missing file, checksum mismatch or differing rebuild.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``folder`` does not exist or is not a folder.
     """
     folder = Path(folder) if folder is not None else _lut_folder()
+    if not folder.is_dir():  # a report of "MISMATCH" would blame tables that are not there
+        what = "is not a folder" if folder.exists() else "does not exist"
+        raise FileNotFoundError(f"`folder` {str(folder)!r} {what}: give the folder that holds the tables")
     report = VerifyReport()
     manifest_path = folder / "manifest.json"
     if not manifest_path.is_file():
