@@ -14,7 +14,7 @@ import re
 import sys
 
 # order shown in `ao4d --help`
-COMMANDS = ("demo", "info", "lut", "extract", "ao", "render", "slice", "view")
+COMMANDS = ("demo", "info", "lut", "extract", "lift", "ao", "render", "slice", "view")
 
 EPILOG = """examples:
   ao4d demo                      render the default 4D scene into ./ao4d-demo/
