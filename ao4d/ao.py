@@ -88,7 +88,8 @@ def _working_mesh(mesh: SimplexMesh) -> tuple[SimplexMesh, Frame | None]:
         if reach > 2.0**_SAFE_EXPONENT or 0 < extent < 2.0**-_SAFE_EXPONENT:
             frame = Frame.fit(vertices)
             result = (SimplexMesh(frame.points(vertices), mesh.simplices), frame)
-    mesh.cache["ao4d.ao.working_mesh"] = result
+    if result[1] is not None:  # never the mesh itself: a cycle would keep it (and its tree) alive
+        mesh.cache["ao4d.ao.working_mesh"] = result
     return result
 
 
