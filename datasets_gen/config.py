@@ -614,6 +614,8 @@ def describe(config: Config) -> str:
     def how(f: Family) -> str:
         if f.kind == "lifted":
             return f"lifted with ao4d.lift, caps cut by {f.settings['tetrahedra']!r}"
+        if f.kind == "sweep":
+            return "swept through time with ao4d.lift.sweep"
         if f.settings["bounds"] is not None:
             return f"grid {f.settings['grid']}^4 on {f.settings['bounds']}, {f.settings['method']}"
         return f"grid fitted, {f.settings['grid']} points across, {f.settings['method']}"

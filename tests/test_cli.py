@@ -51,6 +51,14 @@ def ball_file(tmp_path_factory):
 
 def _argv(name, ball, out):
     """A quick run of every command, each doing the kind of work that shows progress."""
+    if name == "lift":  # two frames of a ball moving along x
+        import trimesh
+
+        out.mkdir(parents=True, exist_ok=True)
+        frames = [out / "f0.ply", out / "f1.ply"]
+        for k, path in enumerate(frames):
+            trimesh.creation.icosphere(1).apply_translation([0.2 * k, 0, 0]).export(path)
+        return ["lift", "sweep", *map(str, frames), "--out", str(out / "l.npz")]
     return {
         "demo": ["demo", "--tiny", "--out", str(out / "demo")],
         "info": ["info"],
