@@ -50,20 +50,34 @@ summary = datasets_gen.run(folder / "tiny.toml", folder / "data", progress=False
 print(summary)
 
 # %%
-# Read it back: with ``datasets_gen.load`` where this version has it, else from the files.
-if hasattr(datasets_gen, "load"):
-    dataset = datasets_gen.load(folder / "data")
-    items = [dataset[i] for i in range(len(dataset))]
-    records = [item["record"] for item in items]
-else:
-    records = [json.loads(p.read_text()) for p in sorted((folder / "data" / "items").glob("*/record.json"))]
-items_dir = folder / "data" / "items"
-meshes = [ao4d.SimplexMesh.load(p) for p in sorted(items_dir.glob("*/mesh.npz"))]
-aos = [np.load(p)["occlusion"] for p in sorted(items_dir.glob("*/ao.npz"))]
-for record, mesh in zip(records, meshes):
+# Read it back with :func:`datasets_gen.load`: each item is a dict of its arrays (the mesh's
+# ``vertices`` and ``simplices``, the ``ao`` of its vertices) and its ``record``.
+dataset = datasets_gen.load(folder / "data")
+items = [dataset[i] for i in range(len(dataset))]
+meshes = [ao4d.SimplexMesh(item["vertices"], item["simplices"]) for item in items]
+aos = [item["ao"] for item in items]
+for item, mesh in zip(items, meshes):
+    record = item["record"]
     print(f"item {record['index']}: {record['kind']}, {mesh.n_simplices} tetrahedra, closed: {mesh.check().closed}")
 manifest = json.loads((folder / "data" / "manifest.json").read_text())
 print(f"manifest: {manifest['n_items']} items, {len(manifest['files'])} files hashed")
+
+# %%
+# Each item cut through its centre across its own x axis (the record's ``rotation`` turned the
+# shape): a spheritorus gives a ring torus, a hypersphere a ball. AO from 0 (purple) to 0.3.
+fig = plt.figure(figsize=(10, 2.8))
+for n, (item, mesh, ao) in enumerate(zip(items, meshes, aos)):
+    mesh.point_data["ao"] = ao
+    normal = np.asarray(item["record"]["rotation"]) @ [1.0, 0.0, 0.0, 0.0]
+    cut = mesh.slice(np.zeros(4), normal)
+    ax = fig.add_subplot(1, len(items), n + 1, projection="3d")
+    surf = ax.plot_trisurf(*cut.vertices.T, triangles=cut.faces, linewidth=0, antialiased=False)
+    surf.set_facecolors(plt.cm.viridis(np.clip(cut.vertex_attributes["ao"][cut.faces].mean(axis=1) / 0.3, 0, 1)))
+    ax.set_box_aspect((1, 1, 1))
+    ax.set_axis_off()
+    ax.set_title(f"item {n}: {item['record']['kind']}")
+fig.tight_layout()
+plt.show()
 
 # %%
 # The distribution of AO over each item's vertices.
@@ -77,3 +91,5 @@ fig.tight_layout()
 plt.show()
 
 shutil.rmtree(folder)  # the files written above, no longer needed
+
+# sphinx_gallery_thumbnail_number = 1
