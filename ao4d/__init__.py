@@ -71,6 +71,7 @@ _MODULES = (
     "pictures",
     "lift",
     "scenes",
+    "data",
 )
 
 __all__ = sorted(_EXPORTS)

@@ -138,3 +138,75 @@ def test_view_port_out_of_range_is_an_argument_error(port, tmp_path, capsys):
         cli.main(["view", str(tmp_path / "s.vti"), "--serve", "--port", port])
     assert exit_.value.code == 2
     assert f"argument --port: must be an integer in 0..65535 (0: any free one), got '{port}'" in capsys.readouterr().err
+
+
+# -- time estimates from rates measured on this device (ao4d._calibration) --------------------
+
+
+@pytest.fixture
+def calibration(tmp_path, monkeypatch):
+    """A fresh calibration cache; ``measure`` counted (its rates are the real ones)."""
+    from ao4d import _calibration
+
+    monkeypatch.setenv("AO4D_DATA_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(_calibration, "_memo", {})
+    calls = []
+    real = _calibration.measure
+
+    def counted(runtime):
+        calls.append(runtime)
+        return real(runtime)
+
+    monkeypatch.setattr(_calibration, "measure", counted)
+    return tmp_path / "cache" / _calibration.CACHE_NAME, calls
+
+
+def test_ao_and_render_estimates_measure_once_and_keep_the_rates(calibration, ball_file, tmp_path, capsys, monkeypatch):
+    import json
+
+    from ao4d import __version__, _calibration
+
+    cache, calls = calibration
+    assert cli.main(["ao", str(ball_file), "--samples", "8", "--out", str(tmp_path / "a.npz")]) == 0
+    out = capsys.readouterr().out
+    assert "timing this device once for the estimates" in out and len(calls) == 1
+    assert "with the BVH build (rates measured on this device)" in out
+    ((key, entry),) = json.loads(cache.read_text()).items()
+    assert key.startswith(f"ao4d {__version__} | ") and entry["ao_rays"] > 0 and entry["bvh"] > 0
+    # a later command reads the file: nothing is measured again, not even in a new process
+    monkeypatch.setattr(_calibration, "_memo", {})
+    assert cli.main(["render", str(tmp_path / "a.npz"), "--out", str(tmp_path / "r.vti"), "--size", "8"]) == 0
+    out = capsys.readouterr().out
+    assert "timing this device" not in out and len(calls) == 1
+    assert "render: 512 voxels, " in out and "(rates measured on this device)" in out
+
+
+def test_damaged_calibration_cache_is_measured_again(calibration, ball_file, tmp_path, capsys):
+    cache, calls = calibration
+    cache.parent.mkdir(parents=True)
+    cache.write_text("{not json")
+    assert cli.main(["ao", str(ball_file), "--samples", "4", "--out", str(tmp_path / "a.npz")]) == 0
+    assert len(calls) == 1 and cache.read_text().startswith("{\n")
+
+
+def test_estimates_scale_with_the_work():
+    from ao4d._calibration import Rates, ao_seconds, render_seconds, seconds_text
+
+    r = Rates(bvh=1e6, points=1e6, ao_rays=1e7, voxels=1e7, hits=1e6, setup=1e7, simplices=1e5, device="d", seconds=0.1)
+    base = ao_seconds(r, simplices=10**5, points=10**5, rays=64e5)
+    assert ao_seconds(r, simplices=10**5, points=10**5, rays=256e5) - base == pytest.approx(192e5 / 1e7)
+    assert ao_seconds(r, simplices=10**5, points=10**5, rays=64e5, build=False) == pytest.approx(base - 0.1)
+    # a deeper tree: slower rays (by the depth ratio), never faster than measured
+    deep = ao_seconds(r, simplices=10**7, points=10**5, rays=64e5, build=False)
+    assert deep - 0.1 == pytest.approx(0.64 * 7 / 5)
+    shallow = ao_seconds(r, simplices=10**3, points=10**5, rays=64e5, build=False)
+    assert shallow - 0.1 == pytest.approx(0.64)
+    plain = render_seconds(r, voxels=10**6, hits=10**5, simplices=10**5)
+    assert render_seconds(r, voxels=10**6, hits=10**5, simplices=10**5, rays_per_hit=64) - plain == pytest.approx(0.64)
+    assert render_seconds(r, voxels=2 * 10**6, hits=10**5, simplices=10**5) - plain == pytest.approx(0.1)
+    assert [seconds_text(s) for s in (0.04, 2.44, 75, 7200)] == [
+        "about 0.04 s",
+        "about 2.4 s",
+        "about 75 s",
+        "about 2 h",
+    ]

@@ -46,12 +46,13 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from .._atomic import check_output_file
+    from .._calibration import ao_seconds, rates, seconds_text
     from .._validate import check_seed
     from ..ao import ambient_occlusion
     from ..mesh import SimplexMesh
     from ..mesh_files import SUFFIXES, MeshArrays, read_field_data, write
     from ..opencl import cl
-    from ..raycast import RAYS_PER_SECOND, check_distance, duration
+    from ..raycast import check_distance
 
     out = check_output_file(args.out, "--out", SUFFIXES)  # before any work
     if args.samples < 1:
@@ -69,10 +70,10 @@ def run(args: argparse.Namespace) -> int:
         f"{mesh.dim}D mesh: {mesh.n_vertices:,} vertices, {mesh.n_simplices:,} simplices; "
         f"device: {cl.describe(runtime)}"
     )
-    print(
-        f"AO: {rays:,} rays, {duration(rays / RAYS_PER_SECOND[backend])} at ~{RAYS_PER_SECOND[backend]:.2g} "
-        "rays/s (BVH build not included)"
-    )
+    # rates measured on this device once (cached), so the estimate holds here, BVH build included
+    measured = rates(runtime, say=print)
+    seconds = ao_seconds(measured, simplices=mesh.n_simplices, points=points, rays=rays)
+    print(f"AO: {rays:,} rays, {seconds_text(seconds)} with the BVH build (rates measured on this device)")
     start = time.perf_counter()
     ao = ambient_occlusion(
         mesh,

@@ -205,6 +205,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         camera = Camera4D(args.eye, args.target, args.up, args.over, fov=args.fov, projection=args.projection)
     print(camera)
+    print(_estimate(args, scene, camera, tuple(size), lights, opacity))
     image = render(
         scene,
         camera,
@@ -220,6 +221,64 @@ def run(args: argparse.Namespace) -> int:
         written = _write(args, image, size)
     print(f"{int(image.hit.sum()):,} of {image.hit.size:,} voxels hit; wrote " + ", ".join(map(str, written)))
     return 0
+
+
+# primary rays per axis of the preview that counts the hits before the render
+_PREVIEW = 12
+
+
+def _estimate(args: argparse.Namespace, scene, camera, size: tuple[int, int, int], lights: list, opacity) -> str:
+    """One line: the render's work and its time on this device (:mod:`ao4d._calibration`).
+
+    The per-hit work (AO and shadow rays, shading) depends on how much of the image the scene
+    covers, so a preview of at most ``_PREVIEW``^3 primary rays over the same image counts the
+    hits first. It builds the scene's BVH, which the render then uses.
+    """
+    import numpy as np
+
+    from .._calibration import rates, render_seconds, seconds_text
+    from ..opencl import cl
+    from ..raycast import RAYS_PER_SECOND, cast_rays
+    from ..screen_ao import DENOISE_PER_SECOND, LOOKUPS_PER_SECOND, MAX_STEPS, MIN_STEPS, STEP_VOXELS
+
+    runtime = cl.resolve_backend(args.backend, warn=False)
+    backend = cl.backend_name(runtime)
+    measured = rates(runtime, say=print)
+    voxels = math.prod(size)
+    preview = tuple(min(n, _PREVIEW) for n in size)
+    origins, directions = camera.rays(preview)
+    hit = cast_rays(scene, origins.reshape(-1, 4), directions.reshape(-1, 4), closest=False, backend=backend).hit
+    layers = 1 if np.all(opacity >= 1) else args.layers  # a transparent hit lets the ray go on
+    hits = float(hit.mean()) * voxels * layers
+    per_hit = (args.samples if args.ao == "hits" else 0) + (len(lights) if args.shadows else 0)
+    vertex_ao = args.ao == "vertices" and "ao" not in scene.point_data
+    extra = 0.0
+    if args.ao == "screen":  # depth look-ups and the filter window, at the rates of their estimate
+        spacing = camera.geometry(size).spacing
+        reach = min(args.max_distance, float(np.linalg.norm(np.subtract(*scene.bounds[::-1]))))
+        steps = min(MAX_STEPS, max(MIN_STEPS, math.ceil(reach / spacing / STEP_VOXELS)))
+        window = voxels * (2 * args.denoise + 1) ** 3 if args.denoise else 0
+        # those rates are the reference machine's: scaled by how fast rays go here against it
+        slower = RAYS_PER_SECOND[backend] / measured.ao_rays
+        extra = slower * (
+            hits * args.samples * steps / LOOKUPS_PER_SECOND[backend] + window / DENOISE_PER_SECOND[backend]
+        )
+    seconds = render_seconds(
+        measured,
+        voxels=voxels,
+        hits=hits,
+        simplices=scene.n_simplices,
+        rays_per_hit=per_hit,
+        other_points=scene.n_vertices if vertex_ao else 0,
+        other_rays=scene.n_vertices * args.samples if vertex_ao else 0,
+        extra_seconds=extra,
+    )
+    work = [f"{voxels:,} voxels, {hit.mean():.0%} hit (a preview of {hit.size:,} rays)"]
+    if per_hit:
+        work.append(f"{per_hit} ray(s) per hit")
+    if vertex_ao:
+        work.append(f"AO at {scene.n_vertices:,} vertices first")
+    return f"render: {', '.join(work)}; {seconds_text(seconds)} (rates measured on this device)"
 
 
 def _write(args: argparse.Namespace, image, size) -> list:
