@@ -67,11 +67,10 @@ def cache_dir() -> Path:
 
     Examples
     --------
-    >>> import os, ao4d
-    >>> os.environ["AO4D_DATA_DIR"] = "/tmp/ao4d-samples"
-    >>> str(ao4d.data.cache_dir())
-    '/tmp/ao4d-samples'
-    >>> del os.environ["AO4D_DATA_DIR"]
+    >>> import ao4d
+    >>> folder = ao4d.data.cache_dir()  # ~/.cache/ao4d unless AO4D_DATA_DIR or XDG_CACHE_HOME say
+    >>> ao4d.data.scan_4d().is_relative_to(folder)
+    True
     """
     explicit = os.environ.get(ENV)
     if explicit:
