@@ -298,7 +298,7 @@ def surface_3d() -> Path:
     --------
     >>> import ao4d
     >>> surface = ao4d.lift.load_surface(ao4d.data.surface_3d())
-    >>> surface.is_watertight, surface.volume > 0
+    >>> surface.is_watertight, bool(surface.volume > 0)
     (True, True)
     >>> ao4d.lift.prism(surface, 0.5).check().closed
     True
