@@ -370,16 +370,15 @@ def screen_space_occlusion(
     backend : {"auto", "opencl", "numpy"}
         OpenCL kernel ``kernels/screen_ao.cl`` or the numpy reference (float64); they agree up
         to float32 rounding at the voxel and depth thresholds.
+    max_rays : float, optional
+        Refuse, before any work, when the ``N * samples * steps`` depth look-ups, counted as
+        rays at their cost (``LOOKUPS_PER_SECOND``), exceed this (default
+        ``ao4d.raycast.MAX_RAYS`` of the backend: about half an hour); ``math.inf`` lifts it.
 
     Returns
     -------
     occlusion : (N,) float64
         In [0, 1], multiples of ``1 / samples``; 1 = fully occluded.
-
-    max_rays : float, optional
-        Refuse, before any work, when the ``N * samples * steps`` depth look-ups, counted as
-        rays at their cost (``LOOKUPS_PER_SECOND``), exceed this (default
-        ``ao4d.raycast.MAX_RAYS`` of the backend: about half an hour); ``math.inf`` lifts it.
 
     Raises
     ------

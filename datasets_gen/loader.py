@@ -392,8 +392,18 @@ class Dataset:
     ----------
     path : path, str or URL
         The dataset's folder, URL or export folder (:func:`load`).
-    split, keys, dtype, verify, normalize, transform
-        As for :func:`load`.
+    split : str, optional
+        Only the items of this split.
+    keys : sequence of str, optional
+        The arrays each item holds (:data:`KEYS`); only their files are opened.
+    dtype : numpy floating dtype, optional
+        Cast every floating array to it.
+    verify : bool
+        Check each file against the manifest before use.
+    normalize : bool
+        Apply each item's ``record["normalization"]``.
+    transform : callable, optional
+        Called on each item's dict.
     """
 
     def __init__(

@@ -103,13 +103,6 @@ def run(
     RunSummary
         What was made and skipped, and the time per stage.
 
-    Warns
-    -----
-    UserWarning
-        A split named in the config's ``split`` table gets no item (a fraction of 0, or too
-        few items): it exists, empty; ``summary.json`` lists it under ``empty_splits``. An
-        item to be remade holds files no run writes (they are left as they are).
-
     Raises
     ------
     FileExistsError
@@ -120,6 +113,13 @@ def run(
         filesystem that lives in this process (``memory://``), an ``AO4D_DEVICE`` that names
         no working device (:class:`ao4d.opencl.cl.DeviceSelectionError`). After the items: the index
         cannot be written (a full disk; the message names the file, the items are kept).
+
+    Warns
+    -----
+    UserWarning
+        A split named in the config's ``split`` table gets no item (a fraction of 0, or too
+        few items): it exists, empty; ``summary.json`` lists it under ``empty_splits``. An
+        item to be remade holds files no run writes (they are left as they are).
     """
     from ao4d import _progress
     from ao4d._validate import check_positive_int

@@ -75,7 +75,13 @@ class SubsamplePoints:
         return f"SubsamplePoints(points={self.points}, surface={self.surface}, seed={self.seed})"
 
     def set_epoch(self, epoch: int) -> None:
-        """Draw the rows of epoch ``epoch`` from now on (:meth:`datasets_gen.Dataset.set_epoch`)."""
+        """Draw the rows of epoch ``epoch`` from now on (:meth:`datasets_gen.Dataset.set_epoch`).
+
+        Parameters
+        ----------
+        epoch : int
+            The epoch (a non-negative integer).
+        """
         self.epoch = int(epoch)
 
     def _rows(self, rng: np.random.Generator, n: int, k: int, index: int, group: str) -> np.ndarray:
@@ -93,6 +99,19 @@ class SubsamplePoints:
         return np.sort(rng.choice(n, k, replace=True))
 
     def __call__(self, item: dict[str, Any]) -> dict[str, Any]:
+        """The fixed-size item of ``item``.
+
+        Parameters
+        ----------
+        item : dict
+            An item as :func:`datasets_gen.load` gives it (with ``index``, or its ``record``).
+
+        Returns
+        -------
+        dict
+            The subsampled arrays, ``index``, and ``loc`` and ``scale`` when the item has its
+            record.
+        """
         if "index" in item:
             index = int(item["index"])
         elif "record" in item:

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 
 import pytest
 from hypothesis import settings
@@ -10,6 +13,12 @@ from hypothesis import settings
 # helper modules and scripts (tests/_*.py) are imported by tests, never collected: --doctest-modules
 # would otherwise import scripts such as _oclgrind_check.py, which set up OpenCL on import
 collect_ignore_glob = ["_*.py"]
+
+# sample data (ao4d.data) and the device's timings (ao4d._calibration) go to a folder of this
+# session, removed at its end, never into the user's cache; set before any test or doctest runs
+if not os.environ.get("AO4D_DATA_DIR"):
+    os.environ["AO4D_DATA_DIR"] = tempfile.mkdtemp(prefix="ao4d-test-data-")
+    atexit.register(shutil.rmtree, os.environ["AO4D_DATA_DIR"], True)
 
 # CI replays the same examples on every run (reproducible verdicts); local runs keep exploring.
 settings.register_profile("ci", derandomize=True, print_blob=True)
