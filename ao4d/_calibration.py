@@ -81,9 +81,9 @@ def _key(backend: str, device: str) -> str:
 
 def _cache_files() -> list[Path]:
     """Where the rates may be kept: the sample-data cache, then (default cache only) its fallback."""
-    from .data import ENV, _fallback_dir, cache_dir
+    from .data import ENV, cache_dir, fallback_dir
 
-    folders = [cache_dir()] if os.environ.get(ENV) else [cache_dir(), _fallback_dir()]
+    folders = [cache_dir()] if os.environ.get(ENV) else [cache_dir(), fallback_dir()]
     return [folder / CACHE_NAME for folder in folders]
 
 

@@ -80,7 +80,7 @@ def cache_dir() -> Path:
     return base / "ao4d"
 
 
-def _fallback_dir() -> Path:
+def fallback_dir() -> Path:
     """Where samples go when the default cache cannot be written: one folder per user."""
     user = os.getuid() if hasattr(os, "getuid") else os.environ.get("USERNAME", "user")
     return Path(tempfile.gettempdir()) / f"ao4d-{user}"
@@ -104,7 +104,7 @@ def _fetch(name: str, filename: str, make: Callable[[Path], None], modules: tupl
 
     relative = Path("data") / f"{name}-{_key(name, modules)}" / filename
     root = cache_dir()
-    roots = [root] if os.environ.get(ENV) else [root, _fallback_dir()]
+    roots = [root] if os.environ.get(ENV) else [root, fallback_dir()]
     for folder in roots:
         if (folder / relative).is_file():
             return folder / relative

@@ -25,6 +25,9 @@ their faces exactly. A triangle x interval (a triangular prism) is cut into
 three tetrahedra by the global vertex order rule (the staircase split keyed on vertex ids), which
 two neighbouring prisms always agree on, so the walls are conforming.
 
+Why this file is long: the four lifts share the cap cutting, the wall rule and the surface checks,
+which no other stage uses; apart, they would import each other's private helpers.
+
 References
 ----------
 Y. Hu, T. Schneider, B. Wang, D. Zorin, D. Panozzo, "Fast Tetrahedral Meshing in the Wild",

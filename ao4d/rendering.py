@@ -79,6 +79,7 @@ from .screen_ao import (
     MIN_STEPS,
     STEP_VOXELS,
     DepthVolume,
+    check_samples,
     default_steps,
     screen_space_occlusion,
     viewer_side,
@@ -594,7 +595,7 @@ class _Options:
         return cls(
             shape=shape,
             ao=ao,
-            samples=check_positive_int(samples, "samples"),
+            samples=check_samples(samples) if ao == "screen" else check_positive_int(samples, "samples"),
             max_distance=check_distance(max_distance),
             seed=check_seed(seed),
             denoise=denoise,

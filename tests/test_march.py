@@ -536,7 +536,7 @@ def test_cli_extract_reports_bad_input(tmp_path, capsys):
 
     np.save(tmp_path / "v.npy", np.ones(5))
     assert main(["extract", "--input", str(tmp_path / "v.npy"), "--out", str(tmp_path / "m.npz")]) == 2
-    assert "`values` must be a 2D, 3D or 4D array" in capsys.readouterr().err
+    assert "`--input` must be a 2D, 3D or 4D array" in capsys.readouterr().err
     assert not (tmp_path / "m.npz").exists()
     with pytest.raises(SystemExit):
         main(["extract", "--shape", "klein", "--out", str(tmp_path / "m.npz")])

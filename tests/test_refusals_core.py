@@ -172,8 +172,8 @@ def test_screen_space_occlusion_refuses_work_above_the_budget():
     centers = cam.voxel_centers(shape).reshape(-1, 4)
     up = np.tile([0.0, 0, 0, -1], (len(centers), 1))
     vol = DepthVolume.from_hits(cam, shape, np.full(len(centers), 4.0), up)
-    with pytest.raises(ValueError, match=r"`samples`=10000000 .* above the limit"):
-        screen_space_occlusion(vol, centers, up, samples=10**7, backend="numpy")
+    with pytest.raises(ValueError, match=r"`samples`=60000 .* above the limit"):
+        screen_space_occlusion(vol, centers, up, samples=60000, steps=16, backend="numpy")
     small = screen_space_occlusion(vol, centers[:2], up[:2], samples=4, backend="numpy", max_rays=1e6)
     assert small.shape == (2,)
 
@@ -347,3 +347,16 @@ def test_slice_by_a_huge_normal_is_the_slice_by_its_direction(ball_file, tmp_pat
     assert code == 0, err
     _cli(["slice", ball_file, "--normal", "1", "1", "0", "0", "--out", tmp_path / "b.ply"], capsys)
     assert (tmp_path / "a.ply").read_bytes() == (tmp_path / "b.ply").read_bytes()
+
+
+def test_screen_space_ao_refuses_more_directions_than_it_can_resolve(ball_file, tmp_path, capsys):
+    from ao4d.cli import main
+    from ao4d.screen_ao import MAX_SAMPLES, check_samples
+
+    assert check_samples(MAX_SAMPLES) == MAX_SAMPLES
+    with pytest.raises(ValueError, match="`samples` of screen-space AO must be at most 65536"):
+        check_samples(MAX_SAMPLES + 1)
+    argv = ["render", str(ball_file), "--ao", "screen", "--samples", "10000000", "--size", "16"]
+    assert main([*argv, "--out", str(tmp_path / "r.vti")]) == 2
+    err = capsys.readouterr().err
+    assert "`--samples`" in err and "65536" in err and not (tmp_path / "r.vti").exists()
