@@ -29,7 +29,7 @@ from typing import Any
 
 from ao4d._atomic import atomic_open
 
-from ._files import json_bytes
+from ._files import json_bytes, sha256_file
 from ._store import is_url
 from .loader import Dataset, load, normalized
 from .shards import FORMATS, parquet_bytes, shard_name, tar_bytes, webdataset_members
@@ -97,14 +97,6 @@ def _check_out(out: Path, marker: dict) -> None:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ValueError(f"cannot create the folder `out` {str(out)!r}: {exc.strerror or exc}") from None
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def export(
@@ -190,7 +182,7 @@ def export(
             data = batch["bytes"]
             digest = hashlib.sha256(data).hexdigest()
             path = out / name
-            if not (path.is_file() and path.stat().st_size == len(data) and _sha256(path) == digest):
+            if not (path.is_file() and path.stat().st_size == len(data) and sha256_file(path) == digest):
                 with atomic_open(path, "wb") as fh:
                     fh.write(data)
             shards.append(

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from ._files import sha256_file
 from ._store import Store, is_url, open_store
 from .items import item_folder
 from .samples import SAMPLE_ARRAYS
@@ -333,7 +334,7 @@ class _Export:
                 if not stat.S_ISREG(path.stat().st_mode):
                     raise OSError(f"{path} is not a regular file")
                 if self.verify:
-                    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+                    digest = sha256_file(path)  # in blocks: a shard may be 1 GB
                     if digest != shard.get("sha256"):
                         raise DatasetError(
                             f"{path} fails its checksum: sha256 {digest} != manifest {shard.get('sha256')}"

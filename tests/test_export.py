@@ -141,8 +141,8 @@ def test_refuses_a_non_empty_folder_and_bad_arguments(tmp_path, dataset):
         parse_size("lots")
 
 
-def test_an_interrupted_export_leaves_whole_shards_and_resumes(tmp_path, dataset, monkeypatch):
-    clean = export(dataset, tmp_path / "clean", format="webdataset", shard_size=40_000, progress=False)
+def _interrupt_the_second_shard(monkeypatch):
+    """Make the export's second WebDataset shard raise KeyboardInterrupt; return the real writer."""
     real, calls = export_mod.tar_bytes, []
 
     def failing(parts):
@@ -151,8 +151,14 @@ def test_an_interrupted_export_leaves_whole_shards_and_resumes(tmp_path, dataset
             raise KeyboardInterrupt
         return real(parts)
 
-    out = tmp_path / "cut"
     monkeypatch.setattr(export_mod, "tar_bytes", failing)
+    return real
+
+
+def test_an_interrupted_export_leaves_whole_shards_and_resumes(tmp_path, dataset, monkeypatch):
+    clean = export(dataset, tmp_path / "clean", format="webdataset", shard_size=40_000, progress=False)
+    out = tmp_path / "cut"
+    real = _interrupt_the_second_shard(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         export(dataset, out, format="webdataset", shard_size=40_000, progress=False)
     left = sorted(p.name for p in out.iterdir())
@@ -309,15 +315,7 @@ def test_a_file_url_is_a_local_folder_and_an_empty_out_is_refused(tmp_path, data
 
 
 def test_a_resume_accepts_the_same_paths_spelt_otherwise(tmp_path, dataset, monkeypatch):
-    real, calls = export_mod.tar_bytes, []
-
-    def failing(parts):
-        calls.append(1)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return real(parts)
-
-    monkeypatch.setattr(export_mod, "tar_bytes", failing)
+    real = _interrupt_the_second_shard(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         export(str(dataset), tmp_path / "cut", format="webdataset", shard_size=40_000, progress=False)
     monkeypatch.setattr(export_mod, "tar_bytes", real)
