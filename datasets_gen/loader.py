@@ -28,6 +28,7 @@ import os
 import stat
 import zipfile
 import zlib
+from collections import Counter
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
@@ -222,7 +223,7 @@ class _Folder:
         out = []
         for n, row in enumerate(rows, 2):
             text = row.get("index") or ""
-            if not text.isdigit():
+            if not (text.isascii() and text.isdigit()):
                 raise DatasetError(f"{where} is damaged: line {n} has index {text!r}, not an item number")
             out.append((int(text), row.get("split") or ""))
         indices = [i for i, _ in out]
@@ -232,7 +233,7 @@ class _Folder:
             if rel.startswith("items/") and rel.endswith("/record.json") and rel.split("/")[1].isdigit()
         )
         if sorted(indices) != listed:
-            repeated = sorted({i for i in indices if indices.count(i) > 1})
+            repeated = sorted(i for i, n in Counter(indices).items() if n > 1)
             extra, missing = sorted(set(indices) - set(listed)), sorted(set(listed) - set(indices))
             said = [f"item(s) {_few(repeated)} more than once"] if repeated else []
             said += [f"item(s) {_few(extra)} the manifest has not"] if extra else []
@@ -252,7 +253,7 @@ class _Folder:
             from .config import tomllib
 
             table = tomllib.loads(info["config_text"]).get("split")
-        except Exception:  # an older or foreign run.json: the splits the items carry
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):  # no run.json of ours: the items' splits
             return names
         if isinstance(table, dict):  # the config's order, then any the items carry besides
             return list(table) + [n for n in names if n not in table]
