@@ -332,6 +332,16 @@ def _camera_shape(camera: Camera4D, shape) -> tuple[int, int, int]:
 def check_samples(samples: object) -> int:
     """``samples`` as a count of directions per point, 1 to :data:`MAX_SAMPLES`.
 
+    Parameters
+    ----------
+    samples : int
+        The directions per point asked for.
+
+    Returns
+    -------
+    int
+        ``samples``, checked.
+
     Raises
     ------
     ValueError
