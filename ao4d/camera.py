@@ -344,7 +344,7 @@ def _hollasch_basis(eye, target, up, over) -> np.ndarray:
         dist = np.linalg.norm(view)
         scale = max(np.linalg.norm(eye), np.linalg.norm(target), 1.0)
     if not (np.isfinite(dist) and np.isfinite(scale)):
-        # before: an overflow warning, then "must differ" for points 1e300 apart
+        # points 1e300 apart overflow the distance: say so, not "must differ"
         raise ValueError(
             "`eye` and `target` must lie within about 1e150 of the origin (their distances "
             f"overflow float64), got eye={eye.tolist()}, target={target.tolist()}"

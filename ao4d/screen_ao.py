@@ -456,8 +456,8 @@ def screen_space_occlusion(
     check_memory(samples * 4 * 12.0, f"the direction table for samples={samples}", hint="use fewer `samples`")
     runtime = cl.resolve_backend(backend)
     name = cl.backend_name(runtime)
-    # the work budget of the ray casts, look-ups counted at their cost: before, only the
-    # direction table's memory was checked, and samples=10**7 ran for minutes
+    # the work budget of the ray casts, look-ups counted at their cost: a run is refused before
+    # it starts, not only when its direction table would not fit in memory
     lookups = len(pts) * samples * steps
     check_rays(
         lookups / LOOKUPS_PER_SECOND[name] * RAYS_PER_SECOND[name],
