@@ -22,6 +22,7 @@ from ._files import json_bytes
 from ._store import Store
 from .config import Config, ItemSpec
 from .items import RUN_FORMAT, item_folder, versions
+from .splits import empty_splits
 
 __all__ = [
     "RunSummary",
@@ -400,7 +401,7 @@ def write_index(
     }
     if splits is not None:  # summary.json is not hashed: the manifest stays as it was
         stats["splits"] = dict(splits)
-        stats["empty_splits"] = [name for name, count in splits.items() if count == 0]
+        stats["empty_splits"] = empty_splits(splits)
     store.write_bytes("summary.json", json_bytes(stats))
     return size
 

@@ -25,7 +25,6 @@ import io
 import json
 import math
 import os
-import stat
 import zipfile
 import zlib
 from collections import Counter
@@ -34,6 +33,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ao4d._npz import npz_member_problem
+from ao4d._validate import regular_file
 
 from ._files import sha256_file
 from ._store import Store, is_url, open_store
@@ -268,10 +270,8 @@ class _Folder:
             with np.load(io.BytesIO(data), allow_pickle=False) as z:
                 return {k: z[k] for k in z.files}
         except (zipfile.BadZipFile, zlib.error, ValueError, EOFError, OSError, KeyError, AttributeError) as exc:
-            if "pickle" in str(exc):  # numpy's guess for bytes that are no array; object arrays are never loaded
-                why = "not a numpy .npz archive of plain arrays"
-            else:
-                why = f"{type(exc).__name__}: {exc}"
+            # numpy's allow_pickle hint replaced (object arrays are never loaded)
+            why = npz_member_problem(exc) if "pickle" in str(exc) else f"{type(exc).__name__}: {exc}"
             raise DatasetError(f"item {index}: {name} is damaged: {why}") from None
 
     def arrays(self, index: int, record: dict, keys: tuple[str, ...] | None) -> dict[str, np.ndarray]:
@@ -332,8 +332,7 @@ class _Export:
         if name not in self._open:
             path = Path(self.location) / name
             try:
-                if not stat.S_ISREG(path.stat().st_mode):
-                    raise OSError(f"{path} is not a regular file")
+                regular_file(path, "path", what="shard")  # never a FIFO, which would block
                 if self.verify:
                     digest = sha256_file(path)  # in blocks: a shard may be 1 GB
                     if digest != shard.get("sha256"):

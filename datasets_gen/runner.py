@@ -48,7 +48,7 @@ from .config import Config, load_config
 from .executors import Executor, executor_for
 from .index import RunSummary, check_same_run, claim_out, device_name, write_index
 from .items import Job, foreign_files, item_complete, item_seed
-from .splits import split_counts, split_of
+from .splits import empty_splits, split_counts, split_of
 
 __all__ = ["run", "RunSummary", "item_seed", "main"]
 
@@ -144,8 +144,7 @@ def run(
     seed = cfg.seed if seed is None else check_positive_int(seed, "seed", minimum=0)
     device_name()  # an impossible AO4D_DEVICE fails here, before the folder is touched
     splits = None if cfg.split is None else split_counts(cfg.split, seed, cfg.n_items)
-    empty = [name for name, count in (splits or {}).items() if count == 0]
-    if empty:  # said before any work: the user may rather change the fractions
+    if splits and empty_splits(splits):  # said before any work: the user may rather change the fractions
         warnings.warn(empty_split_message(cfg, seed, splits), UserWarning, stacklevel=2)
     claim_out(store, cfg, seed)
     run_sha256 = store.sha256("run.json")
@@ -214,7 +213,7 @@ def run(
 
 def empty_split_message(cfg: Config, seed: int, splits: dict[str, int]) -> str:
     """The warning for splits of ``cfg`` that get no item of the run (``splits``: the counts)."""
-    empty = [name for name, count in splits.items() if count == 0]
+    empty = empty_splits(splits)
     table = ", ".join(f"{name} = {frac:g}" for name, frac in (cfg.split or {}).items())
     counts = ", ".join(f"{name} {count}" for name, count in splits.items())
     return (

@@ -102,9 +102,7 @@ def split_counts(split: dict[str, float], seed: int, n_items: int) -> dict[str, 
     return {name: int(counts[i]) for i, name in enumerate(names)}
 
 
-def empty_splits(split: dict[str, float] | None, seed: int, n_items: int) -> list[str]:
-    """The names of ``split`` that get no item of a run with ``seed`` and ``n_items`` items
-    (a fraction of 0, or one too small for so few items), in the table's order."""
-    if not split:
-        return []
-    return [name for name, count in split_counts(split, seed, n_items).items() if count == 0]
+def empty_splits(counts: dict[str, int]) -> list[str]:
+    """The names that get no item, in the table's order (``counts``: :func:`split_counts`; a
+    fraction of 0, or one too small for so few items)."""
+    return [name for name, count in counts.items() if count == 0]
