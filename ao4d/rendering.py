@@ -75,12 +75,10 @@ from .raycast import RAYS_PER_SECOND, Tracer, check_distance, check_rays, trace
 from .screen_ao import (
     DENOISE_PER_SECOND,
     LOOKUPS_PER_SECOND,
-    MAX_STEPS,
-    MIN_STEPS,
-    STEP_VOXELS,
     DepthVolume,
     check_samples,
     default_steps,
+    march_steps,
     screen_space_occlusion,
     viewer_side,
 )
@@ -774,8 +772,7 @@ def _screen_steps(scene: _Scene, camera, opts: _Options) -> int:
     """An upper bound of :func:`ao4d.screen_ao.default_steps` before the image exists: the
     reach clamped to the scene's diagonal (the visible points' box is inside it)."""
     reach = min(opts.max_distance, scene.diagonal)
-    voxels = reach / camera.geometry(opts.shape).spacing
-    return int(min(MAX_STEPS, max(MIN_STEPS, math.ceil(voxels / STEP_VOXELS))))
+    return march_steps(reach / camera.geometry(opts.shape).spacing)
 
 
 # -- the pipeline: rays, first hits, shading, layers ----------------------------------------------

@@ -100,6 +100,7 @@ __all__ = [
     "DENOISE_PER_SECOND",
     "MAX_SAMPLES",
     "check_samples",
+    "march_steps",
 ]
 
 # Default march: one point per STEP_VOXELS voxels of reach (at the target's distance), between
@@ -515,8 +516,24 @@ def default_steps(volume: DepthVolume, max_distance: float) -> int:
     (4, 8)
     """
     reach = _reach(volume, max_distance)
-    voxels = reach / volume.camera.geometry(volume.shape).spacing
-    return int(min(MAX_STEPS, max(MIN_STEPS, math.ceil(voxels / STEP_VOXELS))))
+    return march_steps(reach / volume.camera.geometry(volume.shape).spacing)
+
+
+def march_steps(reach_voxels: float) -> int:
+    """March points per direction for a reach of ``reach_voxels`` voxel sizes:
+    ``ceil(reach_voxels / STEP_VOXELS)`` clipped to ``[MIN_STEPS, MAX_STEPS]``.
+
+    Parameters
+    ----------
+    reach_voxels : float
+        The reach, in voxel sizes at the target's distance.
+
+    Returns
+    -------
+    int
+        March points per direction.
+    """
+    return int(min(MAX_STEPS, max(MIN_STEPS, math.ceil(reach_voxels / STEP_VOXELS))))
 
 
 def denoise(

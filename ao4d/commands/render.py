@@ -239,7 +239,7 @@ def _estimate(args: argparse.Namespace, scene, camera, size: tuple[int, int, int
     from .._calibration import rates, render_seconds, seconds_text
     from ..opencl import cl
     from ..raycast import RAYS_PER_SECOND, cast_rays
-    from ..screen_ao import DENOISE_PER_SECOND, LOOKUPS_PER_SECOND, MAX_STEPS, MIN_STEPS, STEP_VOXELS
+    from ..screen_ao import DENOISE_PER_SECOND, LOOKUPS_PER_SECOND, march_steps
 
     runtime = cl.resolve_backend(args.backend, warn=False)
     backend = cl.backend_name(runtime)
@@ -256,7 +256,7 @@ def _estimate(args: argparse.Namespace, scene, camera, size: tuple[int, int, int
     if args.ao == "screen":  # depth look-ups and the filter window, at the rates of their estimate
         spacing = camera.geometry(size).spacing
         reach = min(args.max_distance, float(np.linalg.norm(np.subtract(*scene.bounds[::-1]))))
-        steps = min(MAX_STEPS, max(MIN_STEPS, math.ceil(reach / spacing / STEP_VOXELS)))
+        steps = march_steps(reach / spacing)
         window = voxels * (2 * args.denoise + 1) ** 3 if args.denoise else 0
         # those rates are the reference machine's: scaled by how fast rays go here against it
         slower = RAYS_PER_SECOND[backend] / measured.ao_rays
