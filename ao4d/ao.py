@@ -10,16 +10,31 @@ shared Sobol table and per-point integer-hash offsets), through the same BVH.
 
 Rays start at ``p + offset * n`` with ``offset = 1e-4 * (bounding-box diagonal)`` so that they do
 not hit the simplices p lies on; geometry closer than that to p is not seen.
+
+With a ``tolerance``, each point traces ``REPLICATES`` independently scrambled Sobol sequences
+(each with its own seed, derived from the call's seed with :class:`numpy.random.SeedSequence`),
+extended in rounds; a point stops when the Student-t half-width of its replicates' mean is at
+most the tolerance, after at least :func:`minimum_samples` rays. The user guide's "AO to a
+stated accuracy" describes the estimator and its measured coverage.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from ._validate import as_array, check_choice, check_memory, check_positive_int, check_seed
+from ._validate import (
+    as_array,
+    as_real,
+    check_bool,
+    check_choice,
+    check_int,
+    check_memory,
+    check_positive_int,
+    check_seed,
+)
 from .bvh.host import nondegenerate_given
 from .bvh.layout import Frame
 from .geometry import vertex_sums
@@ -28,9 +43,24 @@ from .opencl import cl
 from .raycast import ACCELS, check_distance, check_rays, count_occluded, get_bvh, mesh_arrays, progress_bar, unit_rows
 from .topology import GRID_EDGE_KEY
 
-__all__ = ["ambient_occlusion", "ORIGIN_OFFSET", "OpenMeshWarning"]
+__all__ = [
+    "ambient_occlusion",
+    "minimum_samples",
+    "replicate_seed",
+    "OcclusionEstimate",
+    "ORIGIN_OFFSET",
+    "REPLICATES",
+    "OpenMeshWarning",
+]
 
 ORIGIN_OFFSET = 1e-4  # times the bounding-box diagonal
+
+# AO to a tolerance: independently scrambled Sobol sequences per point (replicates), traced
+# together in rounds that extend every replicate by a factor of about GROWTH; the fewest points
+# a replicate starts with
+REPLICATES = 8
+GROWTH = 1.5
+MIN_POINTS = 4
 
 # Meshes whose coordinates stay within 2**64 of the origin and whose box is at least 2**-64
 # wide are traced as they are (their bytes as ever); others are recentred and scaled by a power
@@ -60,6 +90,86 @@ def warn_if_open(mesh: Any, *, stacklevel: int = 3) -> None:
             OpenMeshWarning,
             stacklevel=stacklevel,
         )
+
+
+class OcclusionEstimate(tuple):
+    """``(occlusion, error)``, from ``ambient_occlusion(..., return_error=True)``.
+
+    A pair, so ``occlusion, error = ambient_occlusion(mesh, tolerance=0.01, return_error=True)``
+    unpacks it; ``rays`` holds the rays each point traced.
+
+    Attributes
+    ----------
+    occlusion : (N,) float64 numpy.ndarray
+        The AO values, as ``ambient_occlusion`` returns them without ``return_error``.
+    error : (N,) float64 numpy.ndarray
+        Their standard errors (NaN where the AO is NaN).
+    rays : (N,) int64 numpy.ndarray
+        Rays traced per point (0 where none were: undefined normals, and the vertices that take
+        their neighbours' values).
+    """
+
+    occlusion: np.ndarray
+    error: np.ndarray
+    rays: np.ndarray
+
+    def __new__(cls, occlusion: np.ndarray, error: np.ndarray, rays: np.ndarray) -> OcclusionEstimate:
+        self = super().__new__(cls, (occlusion, error))
+        self.occlusion, self.error, self.rays = occlusion, error, rays
+        return self
+
+    def __repr__(self) -> str:
+        return f"OcclusionEstimate(occlusion=<{self.occlusion.size} values>, error=..., rays={int(self.rays.sum()):,})"
+
+
+def minimum_samples(tolerance: float, confidence: float = 0.95) -> int:
+    """The fewest rays a point traces before its AO may stop at ``tolerance``.
+
+    A point whose ``N`` rays all escape (or all hit) has a zero sample variance; that run is
+    credible at ``confidence`` only when an occlusion of ``tolerance`` would make it unlikely:
+    ``(1 - tolerance)^N <= 1 - confidence``, so ``N >= log(1 - confidence) / log(1 - tolerance)``
+    (about ``3 / tolerance`` at 95 %: the "rule of three"). The rays are shared equally by the
+    ``REPLICATES`` replicates, each of at least ``MIN_POINTS`` rays.
+
+    Parameters
+    ----------
+    tolerance : float
+        In (0, 1): the half-width the AO must reach.
+    confidence : float
+        In (0, 1): the interval's confidence level.
+
+    Returns
+    -------
+    int
+        ``REPLICATES * max(MIN_POINTS, ceil(N / REPLICATES))``.
+
+    Examples
+    --------
+    >>> minimum_samples(0.01), minimum_samples(0.02), minimum_samples(0.1)
+    (304, 152, 32)
+    """
+    tolerance = as_real(tolerance, "tolerance", gt=0, lt=1)
+    confidence = as_real(confidence, "confidence", gt=0, lt=1)
+    rays = max(1, math.ceil(math.log1p(-confidence) / math.log1p(-tolerance) * (1 - 1e-12)))
+    return max(MIN_POINTS, -(-rays // REPLICATES)) * REPLICATES
+
+
+def replicate_seed(seed: int, replicate: int) -> int:
+    """The 32-bit seed of a replicate: ``SeedSequence(seed, spawn_key=(replicate,))``'s first word.
+
+    Parameters
+    ----------
+    seed : int
+        The call's seed, in ``[0, 2**32)``.
+    replicate : int
+        The replicate's number (0 to ``REPLICATES - 1``).
+
+    Returns
+    -------
+    int
+        The seed of that replicate's Sobol scrambling and per-point shifts.
+    """
+    return int(np.random.SeedSequence(seed, spawn_key=(replicate,)).generate_state(1)[0])
 
 
 def _working_mesh(mesh: SimplexMesh) -> tuple[SimplexMesh, Frame | None]:
@@ -166,12 +276,17 @@ def ambient_occlusion(
     progress: bool | None = None,
     accel: str = "bvh",
     max_rays: float | None = None,
-) -> np.ndarray:
+    tolerance: float | None = None,
+    confidence: float = 0.95,
+    max_samples: int = 4096,
+    return_error: bool = False,
+) -> np.ndarray | OcclusionEstimate:
     """Ambient occlusion of a simplex mesh in 2D, 3D or 4D.
 
     ``A(p) = (1/|B^{d-1}|) * integral over the hemisphere of V(p, w) (w . n) dw``, estimated with
     ``samples`` cosine-weighted rays per point (:func:`ao4d.sampling.cosine_hemisphere`); its
-    standard error is at most ``0.5 / sqrt(samples)``.
+    standard error is at most ``0.5 / sqrt(samples)``. Or, with ``tolerance``, to a stated
+    accuracy: each point traces rays until its AO is within ``tolerance`` at ``confidence``.
 
     Parameters
     ----------
@@ -179,7 +294,8 @@ def ambient_occlusion(
         Occluding geometry, (d-1)-simplices in R^d, d in {2, 3, 4}, in any form
         :func:`ao4d.mesh.as_mesh` takes (a ``SimplexMesh`` keeps its BVH between calls).
     samples : int
-        Rays per point (>= 1); 64 by default, as in :func:`ao4d.render` and ``ao4d ao``.
+        Rays per point (>= 1); 64 by default, as in :func:`ao4d.render` and ``ao4d ao``. Left
+        at its default when ``tolerance`` is given (the two are exclusive).
     max_distance : float
         Only hits within this distance occlude (``inf``: any hit).
     at : {"vertices", "simplices"}
@@ -201,7 +317,26 @@ def ambient_occlusion(
     max_rays : float, optional
         Refuse, before any work, to trace more rays than this (default
         ``ao4d.raycast.MAX_RAYS`` of the backend that runs: about half an hour of work at its
-        typical rate); ``math.inf`` lifts the limit.
+        typical rate); ``math.inf`` lifts the limit. With ``tolerance`` the most rays any
+        point may take (``max_samples``) count.
+    tolerance : float, optional
+        In (0, 1): trace each point until the half-width of its AO's confidence interval is at
+        most this, in rounds that extend ``REPLICATES`` independently scrambled Sobol sequences
+        (whose hit fractions are unbiased and independent), never fewer than
+        :func:`minimum_samples` rays and at most ``max_samples``. ``None`` (default): a fixed
+        ``samples`` rays per point, the rays and bytes of earlier versions.
+    confidence : float
+        In (0, 1): the confidence level of the interval (0.95).
+    max_samples : int
+        With ``tolerance``: the most rays a point traces (a multiple of ``REPLICATES``: the
+        rest is not used); at least :func:`minimum_samples` of the tolerance. A point that reaches it stops there,
+        and its ``error`` says how good its AO is.
+    return_error : bool
+        Also return each value's standard error, as an :class:`OcclusionEstimate`
+        ``(occlusion, error)`` (with ``.rays``, the rays per point). With ``tolerance``: the
+        replicates' standard error (see Notes); with fixed ``samples``: that of independent
+        rays, ``sqrt(A (1 - A) / samples)`` (the stratified rays do better; 0 where all rays
+        agree).
 
     Returns
     -------
@@ -213,7 +348,8 @@ def ambient_occlusion(
         where its neighbours in those simplices sit, so it takes their mean AO; a cluster of
         such simplices with no other neighbour (a grid point exactly at the level, surrounded by
         the solid) takes the mean AO of the two hemispheres about the first axis. So every
-        vertex a simplex uses gets a finite AO at ``at="vertices"``.
+        vertex a simplex uses gets a finite AO at ``at="vertices"``. With ``return_error``, an
+        :class:`OcclusionEstimate`, the pair ``(occlusion, error)``.
 
     Warns
     -----
@@ -231,9 +367,24 @@ def ambient_occlusion(
     ``2**-64`` across, is recentred and scaled by a power of two first (``max_distance`` and
     ``points`` with it), in float64: its normals' products would overflow or underflow.
 
+    With ``tolerance``, replicate ``k`` (``k < REPLICATES = 8``) of a point is the start of its
+    own scrambled Sobol sequence (seed :func:`replicate_seed` ``(seed, k)``, and a shift hashed
+    from the point's index), so each replicate's hit fraction ``Y_k`` over its ``n`` rays is an
+    unbiased estimate of ``A``, independent of the others. Each round extends every replicate
+    of the points still going (``n`` grows by about 1.5 a round, from
+    ``minimum_samples / 8``); the AO is ``mean(Y)`` and its standard error ``se = s / sqrt(8)``,
+    ``s`` the replicates' sample standard deviation. A point stops when
+    ``t_7((1 + confidence) / 2) * se <= tolerance`` (Student's t with 7 degrees of freedom) or
+    when it reaches ``max_samples``. Measured on analytic scenes and a dense 4D shape (the user
+    guide), 97-99 % of the points end within ``tolerance`` of the exact AO at
+    ``confidence=0.95``. Only the points still going are traced in each round, so the rays go
+    where the AO is hard. The rays of a point depend only on ``seed``, its index and the
+    replicate: the result is the same bytes however the work is split into launches.
+
     References
     ----------
     M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 3rd ed., 13.6.3 (Malley).
+    P. L'Ecuyer, C. Lemieux, *Recent advances in randomized quasi-Monte Carlo methods*, 2002.
 
     Examples
     --------
@@ -247,6 +398,14 @@ def ambient_occlusion(
     ...                       max_distance=2 ** 0.5, samples=4096, backend="numpy")
     >>> abs(float(a[0]) - 0.5) < 0.03
     True
+
+    To a stated accuracy, with the standard error:
+
+    >>> a, err = ambient_occlusion(roof, points=[[0, 0, 0]], normals=[[0, 0, 1]],
+    ...                            max_distance=2 ** 0.5, tolerance=0.05, return_error=True,
+    ...                            backend="numpy")
+    >>> abs(float(a[0]) - 0.5) < 0.05, bool(err[0] < 0.05 / 2)
+    (True, True)
     """
     mesh = as_mesh(mesh)
     vertices, _ = mesh_arrays(mesh)
@@ -255,17 +414,24 @@ def ambient_occlusion(
     max_distance = check_distance(max_distance)
     seed = check_seed(seed)
     check_choice(accel, "accel", ACCELS)
+    rule = _tolerance_rule(tolerance, confidence, max_samples, samples)
+    return_error = check_bool(return_error, "return_error")
     work, frame = _working_mesh(mesh)
     if frame is not None and math.isfinite(max_distance):  # > 0, and stays > 0 in the frame
         max_distance = max(frame.length(max_distance), np.finfo(np.float64).tiny)
     pts, nrm, defined = _query_points(work, at, points, normals, d, frame)
     runtime = cl.resolve_backend(backend)
+    per_point = samples if rule is None else rule.max_points * REPLICATES
     check_rays(
-        int(defined.sum()) * samples,
+        int(defined.sum()) * per_point,
         cl.backend_name(runtime),
         max_rays,
-        what=f"`samples`={samples} at {int(defined.sum())} points",
-        hint="use fewer `samples` or points, or pass max_rays=math.inf (CLI: --force)",
+        what=f"`samples`={samples} at {int(defined.sum())} points"
+        if rule is None
+        else f"`max_samples`={per_point} at {int(defined.sum())} points (at worst)",
+        hint="use fewer `samples` or points, or pass max_rays=math.inf (CLI: --force)"
+        if rule is None
+        else "lower `max_samples`, raise `tolerance`, or pass max_rays=math.inf (CLI: --force)",
     )
     # the Sobol table holds samples x (d - 1) float64 values (and a float32 copy for the device)
     check_memory(samples * d * 12.0, f"the direction table for samples={samples}", hint="use fewer `samples`")
@@ -275,9 +441,11 @@ def ambient_occlusion(
     mesh = work  # from here on, in the working frame (the mesh itself when within range)
     tree = get_bvh(mesh, runtime=runtime)  # built by the device that traces it
     occlusion = np.full(len(pts), np.nan)
+    error = np.full(len(pts), np.nan)
+    rays = np.zeros(len(pts), dtype=np.int64)
     idx = np.flatnonzero(defined)
     if idx.size == 0:
-        return occlusion
+        return OcclusionEstimate(occlusion, error, rays) if return_error else occlusion
     pts, nrm = pts[idx], nrm[idx]
     # how every ray of this call is traced (the AO rays and those of points without a normal)
     trace = dict(
@@ -289,16 +457,106 @@ def ambient_occlusion(
         accel=accel,
     )
     desc = f"{d}D AO ({cl.backend_name(runtime)})"
-    with progress_bar(progress, idx.size * samples, desc) as bar:
-        counts = count_occluded(mesh, pts, nrm, **trace, bar=bar)
-    occlusion[idx] = counts / samples
+    with progress_bar(progress, idx.size * per_point, desc) as bar:
+        if rule is None:
+            counts = count_occluded(mesh, pts, nrm, **trace, bar=bar)
+            occlusion[idx] = counts / samples
+            error[idx] = _binomial_error(occlusion[idx], samples)
+            rays[idx] = samples
+        else:
+            occlusion[idx], error[idx], rays[idx] = _to_tolerance(mesh, pts, nrm, idx, trace, rule, bar)
     if points is None and at == "vertices":
         simplices = np.asarray(mesh_arrays(mesh)[1])
-        _fill_flat_vertices(occlusion, simplices)
+        _fill_flat_vertices(occlusion, simplices, error)
         alone = np.flatnonzero(_referenced(len(occlusion), simplices) & np.isnan(occlusion))
         if alone.size:  # clusters of zero measure only: no neighbour has an AO to share
-            occlusion[alone] = _both_sides(mesh, np.asarray(mesh_arrays(mesh)[0])[alone], trace)
-    return occlusion
+            where = np.asarray(mesh_arrays(mesh)[0])[alone]
+            occlusion[alone], error[alone], rays[alone] = _both_sides(mesh, where, alone, trace, rule)
+    return OcclusionEstimate(occlusion, error, rays) if return_error else occlusion
+
+
+class _Rule(NamedTuple):
+    """How AO to a tolerance runs: the checked parameters; points per replicate."""
+
+    tolerance: float
+    confidence: float
+    first_points: int
+    max_points: int
+
+    def schedule(self) -> list[int]:
+        """Points per replicate after each round: from ``first_points`` up by ``GROWTH``."""
+        steps = [self.first_points]
+        while steps[-1] < self.max_points:
+            steps.append(min(self.max_points, max(steps[-1] + 1, math.ceil(steps[-1] * GROWTH))))
+        return steps
+
+
+def _tolerance_rule(tolerance: Any, confidence: Any, max_samples: Any, samples: int) -> _Rule | None:
+    """The checked tolerance parameters (None: fixed ``samples``), before any work."""
+    confidence = as_real(confidence, "confidence", gt=0, lt=1)
+    max_samples = check_int(max_samples, "max_samples")
+    if tolerance is None:
+        return None
+    tolerance = as_real(tolerance, "tolerance", gt=0, lt=1)
+    if samples != 64:
+        raise ValueError(
+            f"give `samples` ({samples}) or `tolerance` ({tolerance:g}), not both: with a tolerance "
+            "each point traces as many rays as it needs, at most `max_samples`"
+        )
+    fewest = minimum_samples(tolerance, confidence)
+    if max_samples < fewest:
+        raise ValueError(
+            f"`max_samples` must be >= {fewest} for tolerance={tolerance:g} at confidence="
+            f"{confidence:g} (the fewest rays that make a run of all-escaping or all-hitting rays "
+            f"credible, shared by {REPLICATES} replicates), got {max_samples}"
+        )
+    return _Rule(tolerance, confidence, fewest // REPLICATES, max_samples // REPLICATES)
+
+
+def _binomial_error(occlusion: np.ndarray, samples: int) -> np.ndarray:
+    """Standard error of a hit fraction of ``samples`` independent rays."""
+    return np.sqrt(occlusion * (1.0 - occlusion) / samples)
+
+
+def _replicate_error(hits: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Standard errors of the mean of the replicates' hit fractions (``ambient_occlusion``'s
+    Notes), from the integer hit counts (P, REPLICATES) over ``points`` (P,) rays a replicate:
+    the spread is an exact integer, so the bits do not depend on the order of the work."""
+    r = hits.shape[1]
+    total = hits.sum(1)
+    spread = r * (hits * hits).sum(1) - total * total  # r (r - 1) n^2 s^2, an exact integer >= 0
+    variance = spread / (r * (r - 1)) / (points * points.astype(np.float64))
+    return np.sqrt(variance / r)
+
+
+def _to_tolerance(mesh, pts, nrm, index, trace: dict[str, Any], rule: _Rule, bar) -> tuple[np.ndarray, ...]:
+    """AO, standard error and rays per point: every replicate of the points still going
+    extended round by round until a point's half-width is at most ``rule.tolerance`` (or its
+    replicates have ``rule.max_points`` rays each)."""
+    from scipy.special import stdtrit
+
+    m = len(pts)
+    hits = np.zeros((m, REPLICATES), dtype=np.int64)
+    points = np.zeros(m, dtype=np.int64)
+    active = np.arange(m)
+    index = np.asarray(index, dtype=np.int64)
+    quantile = float(stdtrit(REPLICATES - 1, 0.5 + rule.confidence / 2))
+    seeds = [replicate_seed(trace["seed"], k) for k in range(REPLICATES)]
+    start = 0
+    for stop in rule.schedule():
+        for k, seed in enumerate(seeds):
+            step = {**trace, "samples": stop - start, "seed": seed}
+            hits[active, k] += count_occluded(
+                mesh, pts[active], nrm[active], **step, first=start, bar=bar, index=index[active]
+            )
+        points[active] = stop
+        half = quantile * _replicate_error(hits[active], points[active])
+        active = active[~(half <= rule.tolerance)]
+        if active.size == 0:
+            break
+        start = stop
+    rays = REPLICATES * points
+    return hits.sum(1) / rays, _replicate_error(hits, points), rays
 
 
 def _referenced(n: int, simplices: np.ndarray) -> np.ndarray:
@@ -307,26 +565,39 @@ def _referenced(n: int, simplices: np.ndarray) -> np.ndarray:
     return used
 
 
-def _both_sides(mesh, pts: np.ndarray, trace: dict[str, Any]) -> np.ndarray:
+def _both_sides(mesh, pts: np.ndarray, index: np.ndarray, trace: dict[str, Any], rule: _Rule | None):
     """AO of points without a normal: the mean over the two hemispheres about the first axis.
 
     A cluster of zero-measure simplices that touches nothing else (a grid point exactly at the
     level whose neighbours all lie on the solid side: a hole of no volume) has no normal and no
     neighbour to take an AO from; rays in every direction see what surrounds the point (all of
-    them hit when it is enclosed by the solid).
+    them hit when it is enclosed by the solid). Returns the AO, its standard error and the rays
+    per point; with a tolerance each hemisphere is traced to it (the second one's rays hashed
+    from the point's index plus ``2**31``).
     """
     d = pts.shape[1]
     axis = np.zeros((len(pts), d))
     axis[:, 0] = 1.0
-    total = np.zeros(len(pts))
-    for sign in (1.0, -1.0):
-        total += count_occluded(mesh, pts, sign * axis, **trace)
-    return total / (2 * trace["samples"])
+    if rule is None:
+        samples = trace["samples"]
+        total = np.zeros(len(pts))
+        for sign in (1.0, -1.0):
+            total += count_occluded(mesh, pts, sign * axis, **trace)
+        occlusion = total / (2 * samples)
+        return occlusion, _binomial_error(occlusion, 2 * samples), np.full(len(pts), 2 * samples)
+    sides = [
+        _to_tolerance(mesh, pts, s * axis, index + k * 2**31, trace, rule, None) for k, s in enumerate((1.0, -1.0))
+    ]
+    (a, ea, ra), (b, eb, rb) = sides
+    return (a + b) / 2, np.hypot(ea, eb) / 2, ra + rb
 
 
-def _fill_flat_vertices(occlusion: np.ndarray, simplices: np.ndarray) -> None:
+def _fill_flat_vertices(occlusion: np.ndarray, simplices: np.ndarray, error: np.ndarray | None = None) -> None:
     """Give referenced vertices without AO (only zero-measure simplices around them) the mean
-    AO of the vertices they share a simplex with, spreading until nothing more can be filled."""
+    AO of the vertices they share a simplex with, spreading until nothing more can be filled;
+    ``error`` (the standard errors, NaN where the AO is) is filled the same way."""
+    if error is not None:
+        _fill_flat_vertices(error, simplices)
     referenced = _referenced(len(occlusion), simplices)
     while True:  # each pass fills one more ring of the zero-measure clusters
         missing = referenced & np.isnan(occlusion)

@@ -565,7 +565,21 @@ def shared_origin_packets(origins: np.ndarray, size: int) -> np.ndarray | None:
 
 
 def _ao_opencl(
-    mesh, tree, runtime, points, normals, samples, seed, offset, max_distance, accel, bar, visits=None, traversal=None
+    mesh,
+    tree,
+    runtime,
+    points,
+    normals,
+    samples,
+    seed,
+    offset,
+    max_distance,
+    accel,
+    bar,
+    index=None,
+    first=0,
+    visits=None,
+    traversal=None,
 ):
     """Occluded-ray counts per point on the device (points Morton-sorted for coherence); with
     ``visits`` ((N, 4) int64), the counting kernels fill it (see :func:`traversal_counts`).
@@ -580,11 +594,12 @@ def _ao_opencl(
     ctx, queue = runtime.context, runtime.queue
     mf = pcl.mem_flags
     ro = mf.READ_ONLY | mf.COPY_HOST_PTR
-    table = sobol_table(samples, tree.dim - 1, seed=seed)
+    table = sobol_table(first + samples, tree.dim - 1, seed=seed)[first:]
     buffers = [
         pcl.Buffer(ctx, ro, hostbuf=_pad4(points[order])),
         pcl.Buffer(ctx, ro, hostbuf=_pad4(normals[order])),
-        pcl.Buffer(ctx, ro, hostbuf=order.astype(np.uint32)),  # global index: same directions
+        # global index: same directions
+        pcl.Buffer(ctx, ro, hostbuf=(order if index is None else np.asarray(index)[order]).astype(np.uint32)),
         pcl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(table)),
     ]
     counts = np.empty(n, dtype=np.int32)
@@ -797,13 +812,15 @@ def _trace_numpy(tree, rays, max_distance, any_hit, accel, bar):
     return hit
 
 
-def _ao_numpy(tree, points, normals, samples, seed, offset, max_distance, accel, bar):
+def _ao_numpy(tree, points, normals, samples, seed, offset, max_distance, accel, bar, index=None, first=0):
     n = len(points)
     counts = np.empty(n, dtype=np.int64)
     per_step = max(1, _NUMPY_RAYS_PER_STEP // samples)
     for start in range(0, n, per_step):
         sl = slice(start, min(n, start + per_step))
-        w = cosine_hemisphere(normals[sl], samples, seed=seed, index_offset=start)
+        w = cosine_hemisphere(
+            normals[sl], samples, seed=seed, index_offset=start, index=None if index is None else index[sl], first=first
+        )
         o = points[sl] + offset * normals[sl]
         o = np.repeat(o, samples, axis=0)
         trace = _trace_numpy_bvh if accel == "bvh" else _trace_numpy_brute
@@ -1286,6 +1303,8 @@ def count_occluded(
     runtime: Any,
     accel: str = "bvh",
     bar: Any = None,
+    index: np.ndarray | None = None,
+    first: int = 0,
 ) -> np.ndarray:
     """Per point, how many of ``samples`` cosine-weighted rays hit ``mesh`` (any hit).
 
@@ -1310,6 +1329,12 @@ def count_occluded(
         Traverse the BVH, or test every simplex.
     bar : tqdm-like, optional
         Updated with the number of rays traced.
+    index : (N,) int, optional
+        The points' global indices, which seed their directions' shifts (default: their
+        positions in ``points``): a point keeps its rays whichever points are traced with it.
+    first : int
+        Trace directions ``first`` to ``first + samples - 1`` of each point's sequence (the
+        rows of the Sobol table of ``seed``): a later call continues an earlier one's rays.
 
     Returns
     -------
@@ -1324,8 +1349,8 @@ def count_occluded(
     frame = tree.frame
     args = (frame.points(points), normals, samples, seed, frame.length(offset), frame.length(max_distance), accel, bar)
     if runtime is not None:
-        return _ao_opencl(mesh, tree, runtime, *args)
-    return _ao_numpy(tree, *args)
+        return _ao_opencl(mesh, tree, runtime, *args, index=index, first=first)
+    return _ao_numpy(tree, *args, index=index, first=first)
 
 
 def traversal_counts(

@@ -167,7 +167,10 @@ def sobol_table(samples: int, ndim: int, *, seed: int = 0) -> np.ndarray:
         Values in ``[0, 2^24)``; coordinate k of sample j is ``(table[j, k] + 0.5) / 2^24``.
     """
     samples = check_positive_int(samples, "samples")
-    return _sobol_cached(samples, int(ndim), check_seed(seed))
+    # computed (and kept) as the next power of two: its prefix is the same scrambled sequence,
+    # and the rounds of AO to a tolerance, which read growing prefixes, share one table
+    whole = _sobol_cached(1 << max(0, math.ceil(math.log2(samples))), int(ndim), check_seed(seed))
+    return whole if len(whole) == samples else whole[:samples]
 
 
 def tangent_frames(normals: np.ndarray) -> np.ndarray:
@@ -227,7 +230,15 @@ def ball_points(u: np.ndarray) -> np.ndarray:
     raise ValueError(f"ball points are implemented for 1 to 3 dimensions, got {k}")
 
 
-def cosine_hemisphere(normals: np.ndarray, samples: int, *, seed: int = 0, index_offset: int = 0) -> np.ndarray:
+def cosine_hemisphere(
+    normals: np.ndarray,
+    samples: int,
+    *,
+    seed: int = 0,
+    index_offset: int = 0,
+    index: np.ndarray | None = None,
+    first: int = 0,
+) -> np.ndarray:
     """Cosine-weighted directions on the hemisphere around each normal.
 
     Parameters
@@ -241,6 +252,12 @@ def cosine_hemisphere(normals: np.ndarray, samples: int, *, seed: int = 0, index
     index_offset : int
         Global index of ``normals[0]``: point i uses the offsets of ``index_offset + i``, so a
         chunked computation reproduces the directions of a single call.
+    index : (N,) int, optional
+        Global indices of the normals (instead of ``index_offset + arange(N)``): a point's
+        directions depend only on ``seed`` and its index, whichever points are traced with it.
+    first : int
+        Start at row ``first`` of the Sobol table: directions ``first`` to
+        ``first + samples - 1`` of each point's sequence.
 
     Returns
     -------
@@ -258,8 +275,8 @@ def cosine_hemisphere(normals: np.ndarray, samples: int, *, seed: int = 0, index
     if d not in (2, 3, 4):
         raise ValueError(f"`normals` must have 2, 3 or 4 columns, got {d}")
     seed = check_seed(seed)
-    table = sobol_table(samples, d - 1, seed=seed)
-    index = np.arange(index_offset, index_offset + len(n))
+    table = sobol_table(first + samples, d - 1, seed=seed)[first:]
+    index = np.arange(index_offset, index_offset + len(n)) if index is None else np.asarray(index)
     shifts = point_shifts(index, seed, d - 1)
     u_int = (table[None, :, :] + shifts[:, None, :]) & _MASK
     u = (u_int.astype(np.float64) + 0.5) * _SCALE
