@@ -24,11 +24,12 @@ from .camera import Camera4D
 
 __all__ = ["SceneObject", "Scene", "default_scene", "box", "extract_scene", "QUALITY"]
 
-# Settings per quality: grid cell size (world units), image voxels per axis, AO samples.
+# Settings per quality: grid cell size (world units), image shape (voxels along the image's x, y
+# and z: the default scene's box, see default_scene's camera, in cubic voxels), AO samples.
 QUALITY: dict[str, dict[str, Any]] = {
-    "tiny": {"cell": 0.2, "image": 16, "samples": 8},
-    "default": {"cell": 0.085, "image": 80, "samples": 64},
-    "high": {"cell": 0.045, "image": 128, "samples": 128},
+    "tiny": {"cell": 0.2, "image": (26, 10, 16), "samples": 8},
+    "default": {"cell": 0.085, "image": (132, 48, 80), "samples": 64},
+    "high": {"cell": 0.045, "image": (212, 76, 128), "samples": 128},
 }
 
 
@@ -211,8 +212,10 @@ def default_scene() -> Scene:
         specular=0.3,
     )
 
+    # fov 62 degrees across x: the image spans x in +-3.4 (the slab's near corners appear at
+    # +-3.3, nearer the eye and larger); QUALITY's shapes give y +-1.24 and z +-2.06 in cubic voxels
     camera = Camera4D(
-        eye=[0.0, 1.6, -0.6, -5.5], target=[0.0, 0.45, 0.0, 0.0], up=[0, 1, 0, 0], over=[0, 0, 1, 0], fov=40.0
+        eye=[0.0, 1.6, -0.6, -5.5], target=[0.0, 0.45, 0.0, 0.0], up=[0, 1, 0, 0], over=[0, 0, 1, 0], fov=62.0
     )
     light = np.array([-0.35, 1.0, -0.25, -0.45])
     return Scene("default", (ground, sphere, torus, cube), camera, light / np.linalg.norm(light), shininess=20.0)

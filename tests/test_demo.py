@@ -41,7 +41,7 @@ def _not_blank(path):
 def test_demo_writes_every_file(demo_dir):
     assert sorted(p.name for p in demo_dir.iterdir()) == sorted(EXPECTED)
     vol = io.read_mhd(demo_dir / "image.mhd")
-    assert vol.data.shape == (16, 16, 16) and vol.data.dtype == np.float32
+    assert vol.data.shape == (26, 10, 16) and vol.data.dtype == np.float32
     # shade = 0.4 (1 - AO) + 0.3 Lambert + 0.3 specular lies in [0, 1]; some voxels hit, some not
     assert 0.0 <= vol.data.min() and vol.data.max() <= 1.0 + 1e-6
     assert 0 < (vol.data > 0).mean() < 1
@@ -55,6 +55,25 @@ def test_demo_writes_every_file(demo_dir):
         "slice_w0.png",
     ):
         assert _not_blank(demo_dir / png), png
+
+
+@pytest.mark.parametrize("quality", ["tiny", "default", "high"])
+def test_default_scene_fits_in_the_demo_image(quality):
+    # every object appears whole: its mesh's vertices project inside the image box (voxel
+    # centres +- half a voxel) of the shape the demo renders at that quality
+    from ao4d.mesh import concatenate
+    from ao4d.scenes import QUALITY, default_scene, extract_scene
+
+    scene = default_scene()
+    mesh = concatenate(extract_scene(scene, cell=0.2, progress=False))
+    geo = scene.camera.geometry(QUALITY[quality]["image"])
+    lo = np.asarray(geo.origin) - geo.spacing / 2
+    hi = lo + geo.spacing * np.asarray(geo.shape)
+    where = scene.camera.project(mesh.vertices)
+    assert (where > lo).all() and (where < hi).all()
+    # and the box is not mostly empty: the scene reaches within 10 % of each side along x and z
+    span = hi - lo
+    assert (where.min(axis=0) - lo)[[0, 2]].max() < 0.1 * span[[0, 2]].min()
 
 
 def test_demo_scene_has_graded_ao_and_object_ids(demo_dir):
@@ -136,7 +155,7 @@ def test_demo_default_quality(tmp_path):
     from ao4d.commands.demo import run_demo
 
     report = run_demo(tmp_path, quality="default", progress=False, stream=stdio.StringIO())
-    assert report.image_shape == (80, 80, 80)
+    assert report.image_shape == (132, 48, 80)
     scene = SimplexMesh.load(tmp_path / "scene.npz")
     assert scene.check().closed
     ao = scene.point_data["ao"]

@@ -114,7 +114,7 @@ def test_demo_view_html_holds_both_views(demo_dir):
     inner = [html.unescape(part.split('"', 1)[0]) for part in text.split('srcdoc="')[1:]]
     assert len(inner) == 2
     assert 'content="ao4d view"' in inner[0] and 'content="ao4d view (image)"' in inner[1]
-    assert iv.page_info(inner[1])["shape"] == [16, 16, 16]
+    assert iv.page_info(inner[1])["shape"] == [26, 10, 16]
 
 
 # --------------------------------------------------------------------------- one shared script

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from _shapes import graded_icosphere
@@ -37,6 +39,7 @@ def _spy_backends(monkeypatch) -> list[str]:
         ("pyvista", "_volume_png_pyvista"),
         ("numpy", "_volume_png_numpy"),
         ("voxels", "_voxel_picture"),
+        ("surface", "_surface_picture"),
     ):
         real = getattr(pictures, attr)
 
@@ -99,7 +102,7 @@ def test_montage_png(tmp_path):
     _assert_not_blank(path)
 
 
-@pytest.mark.parametrize("backend", ["auto", "voxels", "pyvista", "numpy"])
+@pytest.mark.parametrize("backend", ["auto", "surface", "voxels", "pyvista", "numpy"])
 def test_volume_png(tmp_path, backend, monkeypatch):
     data, bg = _ball_volume()
     used = _spy_backends(monkeypatch)
@@ -107,7 +110,7 @@ def test_volume_png(tmp_path, backend, monkeypatch):
         tmp_path / "v.png", data, background=bg, title="ball", label="shade", backend=backend, size=(320, 280)
     )
     assert path == tmp_path / "v.png"
-    assert used == ["voxels" if backend == "auto" else backend]
+    assert used == ["surface" if backend == "auto" else backend]
     _assert_not_blank(tmp_path / "v.png")
 
 
@@ -225,3 +228,62 @@ def test_montage_tiles_put_each_slice_in_its_panel():
         y0, x0 = 3 + r * 6, c * 6
         np.testing.assert_allclose(tiles[y0 : y0 + 3, x0 : x0 + 5], np.broadcast_to(np.array(cmap(n / 6)), (3, 5, 4)))
     assert tiles[:3, :, 3].max() == 0 and tiles[3:6, 5, 3].max() == 0  # transparent gaps
+
+
+def _ball(n: int, radius: float) -> np.ndarray:
+    """Voxels (unit spacing, centres at integer indices) whose centres lie within ``radius`` of the middle."""
+    c = (n - 1) / 2
+    i = np.indices((n, n, n)) - c
+    return (i**2).sum(axis=0) <= radius**2
+
+
+def test_surface_view_draws_a_ball_as_its_round_silhouette():
+    # the silhouette of a voxelised ball of radius r (unit voxels) is a disc: its pixel area is
+    # pi r^2 / pixel^2 to within the voxelisation's half voxel, and its outline is rounder than the
+    # voxels': the boundary pixels of the disc (4-neighbour perimeter) shrink towards 2 pi r
+    radius, width = 10.0, 200
+    occ = _ball(25, radius)
+    colours = np.broadcast_to([0.2, 0.4, 0.6], occ.shape + (3,))
+    rgb, shown, extent, lost = pictures.surface_view(occ, colours, width=width)
+    voxel, _, voxel_extent = pictures.voxel_view(occ, width=width)
+    np.testing.assert_allclose(extent, voxel_extent)
+    assert shown.shape == voxel.shape and not lost.any()
+    pixel = (extent[1] - extent[0]) / width
+    disc = math.pi * (radius / pixel) ** 2
+    # the voxel set's own radius lies between r and r + sqrt(3)/2 (cube corners); the blurred
+    # surface at 1/2 follows the cubes' faces, so the area is that of a radius within [r, r + 0.6]
+    assert disc <= shown.sum() <= math.pi * ((radius + 0.6) / pixel) ** 2
+
+    def perimeter(mask):
+        edges = (mask[1:] != mask[:-1]).sum() + (mask[:, 1:] != mask[:, :-1]).sum()
+        return edges * pixel
+
+    # a 4-connected outline of a smooth disc measures 4/pi times its circumference (the
+    # staircase metric); the cubes' outline is longer, with their corners added
+    smooth = perimeter(shown) / (2 * math.pi * radius * 4 / math.pi)
+    cubes = perimeter(voxel >= 0) / (2 * math.pi * radius * 4 / math.pi)
+    assert 0.97 < smooth < 1.1 and smooth < cubes
+    # a uniform colour comes back unchanged (normalised convolution: empty voxels give none)
+    np.testing.assert_allclose(rgb[shown], np.broadcast_to([0.2, 0.4, 0.6], (shown.sum(), 3)), atol=1e-5)
+
+
+def test_surface_view_keeps_sheets_and_save_volume_png_draws_lone_voxels(tmp_path, monkeypatch):
+    sheet = np.zeros((12, 12, 12), bool)
+    sheet[2:10, 5, 2:10] = True  # one voxel thick: its surface survives the blur
+    colours = np.ones(sheet.shape + (3,)) * 0.5
+    _, shown, _, lost = pictures.surface_view(sheet, colours, width=60)
+    assert shown.any() and not lost.any()
+    lone = np.zeros((12, 12, 12), bool)
+    lone[6, 6, 6] = True
+    _, shown, _, lost = pictures.surface_view(lone, colours, width=60)
+    assert not shown.any() and lost[6, 6, 6] and lost.sum() == 1
+    # the picture still shows it, from the voxel view
+    drawn = []
+    real = pictures._boxed_picture
+    monkeypatch.setattr(
+        pictures,
+        "_boxed_picture",
+        lambda fig, picture, *a, **k: (drawn.append(picture), real(fig, picture, *a, **k))[1],
+    )
+    pictures.save_volume_png(tmp_path / "lone.png", np.where(lone, 1.0, np.nan), backend="surface", vmin=0, vmax=2)
+    assert (drawn[0] < 0.99).any()

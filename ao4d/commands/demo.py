@@ -135,10 +135,10 @@ def run_demo(
         print(text, file=stream, flush=True)
 
     scene_def = default_scene()
-    n = settings["image"]
+    shape = settings["image"]
     say(
         f"ao4d demo: {len(scene_def.objects)} objects, grid cell {settings['cell']}, "
-        f"{settings['samples']} AO samples, {n}^3 image -> {out}/"
+        f"{settings['samples']} AO samples, {'x'.join(map(str, shape))} image -> {out}/"
     )
 
     t = time.perf_counter()
@@ -179,7 +179,7 @@ def run_demo(
     image = render(
         scene,
         scene_def.camera,
-        (n, n, n),
+        shape,
         ao="vertices",
         light=scene_def.light,
         ambient=_AMBIENT,
@@ -192,7 +192,7 @@ def run_demo(
         progress=progress,
     )
     stages["render"] = time.perf_counter() - t
-    say(f"rendered {n}^3 voxels in {stages['render']:.1f} s")
+    say(f"rendered {'x'.join(map(str, shape))} voxels in {stages['render']:.1f} s")
 
     t = time.perf_counter()
     file_seconds: dict[str, float] = {}
@@ -205,7 +205,7 @@ def run_demo(
         ao_rays=ao_rays,
         ao_seconds=ao_seconds,
         device=_device(backend),
-        image_shape=(n, n, n),
+        image_shape=shape,
         files=files,
         stage_seconds=stages,
         file_seconds=file_seconds,
@@ -220,7 +220,7 @@ def _write_files(out: Path, scene, image, settings, seconds: dict[str, float], *
     of each step to ``seconds`` (imports included: they are part of what the step costs)."""
     geo = image.geometry
     samples = settings["samples"]
-    params = f"{geo.shape[0]}^3 voxels, {samples} AO samples"
+    params = f"{'x'.join(map(str, geo.shape))} voxels, {samples} AO samples"
     model = f"{_AMBIENT:g} (1 - AO) + {_DIFFUSE:g} Lambert + specular, 4D shadows"
     files: list[Path] = []
     clock = [time.perf_counter()]
