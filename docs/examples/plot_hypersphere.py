@@ -64,3 +64,21 @@ for ax, k in zip(axes, (8, 13, 18, 23)):
     ax.set_axis_off()
 fig.tight_layout()
 plt.show()
+
+# %%
+# The whole image volume seen from outside, as the demo's volume picture draws it
+# (:func:`ao4d.pictures.surface_view`: the hit voxels' smoothed outer surface in their shade).
+hit = np.isfinite(image.depth)
+colours = plt.cm.magma(np.where(hit, image.shade, 0.0))[..., :3]
+geometry = image.geometry
+picture, shown, extent, _ = ao4d.pictures.surface_view(
+    hit, colours, spacing=geometry.spacing, origin=geometry.origin, width=400
+)
+fig, ax = plt.subplots(figsize=(5, 4))
+ax.imshow(np.where(shown[..., None], picture, 1.0), extent=extent)
+ax.set_title("the 32³ image volume, coloured by shade")
+ax.set_axis_off()
+fig.tight_layout()
+plt.show()
+
+# sphinx_gallery_thumbnail_number = 2
