@@ -14,6 +14,8 @@ A configuration (see ``datasets_gen/configs/*.toml``)::
                                   # one cell of margin: datasets_gen.families.fitted_grid)
     rotation = "random"           # "none" | "random" (uniform in SO(4))
     ao = { samples = 64, max_distance = inf, at = "vertices" }   # or ao = false
+                                  # or ao = { tolerance = 0.01 } (confidence = 0.95,
+                                  # max_samples = 4096): each value within 0.01, ao.npz's `error`
     renders = [{ name = "front", shape = [32, 32, 32], samples = 32 }]   # projection, fov
     samples = { uniform = 16384, near_surface = 16384, sigmas = [0.01, 0.05], surface = 16384 }
                                   # samples.npz (datasets_gen.samples); default false
@@ -99,7 +101,8 @@ _SETTING_KEYS = {
     "sequence",
 }
 _FAMILY_KEYS = _SETTING_KEYS | {"kind", "count", "params", "name"}
-_AO_KEYS = {"samples", "max_distance", "at"}
+_AO_KEYS = {"samples", "max_distance", "at", "tolerance", "confidence", "max_samples"}
+_AO_TOLERANCE_KEYS = ("tolerance", "confidence", "max_samples")  # only when given
 _RENDER_KEYS = {"name", "shape", "samples", "projection", "fov"}
 DEFAULTS: dict[str, Any] = {
     "grid": 24,
@@ -439,6 +442,34 @@ def _no_unknown(table: Any, allowed: set[str], source: str, where: str) -> None:
         raise ConfigError(f"{source}: {exc}") from None
 
 
+def _check_ao_tolerance(ao: Mapping[str, Any], where: str) -> None:
+    """``ao.tolerance`` (with ``confidence`` and ``max_samples``) instead of ``ao.samples``:
+    checked as :func:`ao4d.ambient_occlusion` checks them, before any work."""
+    given = [k for k in _AO_TOLERANCE_KEYS if k in ao]
+    if not given:
+        return
+    if "tolerance" not in ao:
+        raise ConfigError(f"{where}: `ao.{given[0]}` is used only with `ao.tolerance`; give `ao.tolerance` too")
+    if "samples" in ao:
+        raise ConfigError(
+            f"{where}: give `ao.samples` or `ao.tolerance`, not both (with a tolerance each vertex "
+            "traces as many rays as it needs, at most `ao.max_samples`)"
+        )
+    tolerance, confidence = ao["tolerance"], ao.get("confidence", 0.95)
+    for key, value in (("tolerance", tolerance), ("confidence", confidence)):
+        if not _is_number(value) or not 0 < value < 1:
+            raise ConfigError(f"{where}: `ao.{key}` must be a number in (0, 1), got {value!r}")
+    from ao4d.ao import minimum_samples
+
+    fewest = minimum_samples(tolerance, confidence)
+    most = ao.get("max_samples", 4096)
+    if isinstance(most, bool) or not isinstance(most, int) or not fewest <= most <= MAX_AO_SAMPLES:
+        raise ConfigError(
+            f"{where}: `ao.max_samples` must be an integer in [{fewest}, {MAX_AO_SAMPLES}] (at least "
+            f"the fewest rays for tolerance={tolerance:g} at confidence={confidence:g}), got {most!r}"
+        )
+
+
 def _is_number(value: Any) -> bool:
     """An int or float, never a bool (``True`` is an int in Python, and no number in a config)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool)
@@ -476,6 +507,7 @@ def _check_settings(s: dict[str, Any], where: str) -> None:
         if ao is True:
             ao = s["ao"] = copy.deepcopy(DEFAULTS["ao"])
         _no_unknown(ao, _AO_KEYS, where, "ao")
+        _check_ao_tolerance(ao, where)
         ao = s["ao"] = {**DEFAULTS["ao"], **ao}
         if (
             isinstance(ao["samples"], bool)

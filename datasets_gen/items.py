@@ -341,16 +341,23 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
 
         ao = settings["ao"]
         with _stage(timing, "ao"):
-            occlusion = ao4d.ambient_occlusion(
+            # ao.tolerance (with confidence, max_samples) instead of samples: the config allows one
+            accuracy = {k: ao[k] for k in ("tolerance", "confidence", "max_samples") if k in ao}
+            occlusion, error = ao4d.ambient_occlusion(
                 mesh,
-                samples=ao["samples"],
+                samples=64 if accuracy else ao["samples"],
                 max_distance=ao["max_distance"],
                 at=ao["at"],
                 seed=ao_seed,
                 backend=job.backend,
                 progress=False,
+                return_error=True,
+                **accuracy,
             )
-        write.npz("ao.npz", {"occlusion": np.asarray(occlusion, np.float64)})
+        arrays = {"occlusion": np.asarray(occlusion, np.float64)}
+        if accuracy:  # the standard errors of a tolerance's values
+            arrays["error"] = np.asarray(error, np.float64)
+        write.npz("ao.npz", arrays)
 
     extra: dict[str, Any] = {}
     ao_at = settings["ao"]["at"] if settings["ao"] else "vertices"

@@ -242,3 +242,29 @@ def test_cli_tolerance_writes_the_error(tmp_path, capsys):
     assert "`--max-samples` must be >= 304" in capsys.readouterr().err
     assert main(["ao", str(path), "--tolerance", "0.05", "--samples", "16", "--out", str(out)]) != 0
     assert "`--samples`" in capsys.readouterr().err
+
+
+def test_dataset_config_ao_tolerance(tmp_path):
+    from _datasets import config, family
+
+    from datasets_gen import ConfigError, load_config, run
+
+    def cfg(ao):
+        return config("tol", 1, [family("hypersphere", 1, {"radius": 0.8})], grid=10, ao=ao)
+
+    settings = load_config(cfg({"tolerance": 0.05})).families[0].settings["ao"]
+    assert settings["tolerance"] == 0.05
+    for ao_table, match in (
+        ({"tolerance": 0.05, "samples": 32}, "give `ao.samples` or `ao.tolerance`, not both"),
+        ({"tolerance": 1.0}, r"`ao.tolerance` must be a number in \(0, 1\), got 1.0"),
+        ({"tolerance": 0.05, "confidence": 0}, r"`ao.confidence` must be a number in \(0, 1\)"),
+        ({"tolerance": 0.01, "max_samples": 100}, r"`ao.max_samples` must be an integer in \[304, 65536\]"),
+        ({"confidence": 0.9}, "`ao.confidence` is used only with `ao.tolerance`"),
+    ):
+        with pytest.raises(ConfigError, match=match):
+            load_config(cfg(ao_table))
+    # an item's ao.npz holds the standard errors beside the values
+    run(cfg({"tolerance": 0.1}), out=tmp_path / "ds", progress=False)
+    with np.load(next((tmp_path / "ds").rglob("ao.npz"))) as f:
+        assert set(f.files) == {"occlusion", "error"}
+        assert np.isfinite(f["error"]).all() and (f["error"] * T_7 <= 0.1).all()
