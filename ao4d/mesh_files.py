@@ -232,6 +232,10 @@ def _load_npz(path: str | os.PathLike) -> MeshArrays:
         # truncated or bit-flipped archives fail here (CRC, inflate, short reads), and members
         # that are no .npy arrays (numpy then suggests allow_pickle=True: never)
         raise ValueError(f"`path` {str(p)!r} is not a readable .npz file ({npz_member_problem(exc)})") from None
+    if "solid_format" in files:
+        raise ValueError(
+            f"`path` {str(p)!r} holds a SolidMesh (simplices filling a region): read it with ao4d.SolidMesh.load"
+        )
     missing = {"format", "vertices", "simplices"} - set(files)
     if missing:
         raise ValueError(f"`path` {str(p)!r} is not an ao4d mesh file (missing {sorted(missing)})")
