@@ -123,7 +123,7 @@ def _slice_cases() -> list[list[tuple[tuple[int, int], ...]]]:
 SLICE_CASES = _slice_cases()
 
 
-def slice_mesh(mesh: Any, origin: np.ndarray, normal: np.ndarray, names: list[str]):
+def slice_mesh(mesh: Any, origin: np.ndarray, normal: np.ndarray, names: list[str], candidates=None):
     """The cut of ``mesh`` (a 4D SimplexMesh) by the plane through ``origin`` with unit ``normal``.
 
     See :meth:`ao4d.SimplexMesh.slice` for the conventions; no validation here.
@@ -138,6 +138,10 @@ def slice_mesh(mesh: Any, origin: np.ndarray, normal: np.ndarray, names: list[st
         The hyperplane's unit normal.
     names : list of str
         Point data arrays of ``mesh`` to interpolate onto the cut.
+    candidates : (k,) int numpy.ndarray, optional
+        Increasing indices of the simplices that may cross the plane (a superset of those that
+        do: a caller cutting many parallel planes finds them from the simplices' extents along
+        the normal, instead of testing every simplex per plane). Default: all.
 
     Returns
     -------
@@ -150,15 +154,21 @@ def slice_mesh(mesh: Any, origin: np.ndarray, normal: np.ndarray, names: list[st
     n_vertices = mesh.n_vertices
     s = (vertices - origin) @ normal
     positive = s >= 0.0
-    case = np.zeros(len(simplices), dtype=np.int64)
+    pool = simplices if candidates is None else simplices[candidates]
+    case = np.zeros(len(pool), dtype=np.int8)
     for i in range(4):
-        case |= positive[simplices[:, i]].astype(np.int64) << i
+        case |= positive[pool[:, i]].astype(np.int8) << i
+    # only the few tetrahedra the plane crosses go on (cases 0 and 15 cut nothing)
+    crossed = np.flatnonzero((case != 0) & (case != 15))
+    case = case[crossed]
+    if candidates is not None:
+        crossed = np.asarray(candidates)[crossed]
     keys, sources = [], []
     for c in np.unique(case):
         triangles = SLICE_CASES[c]
         if not triangles:
             continue
-        tets = np.flatnonzero(case == c)
+        tets = crossed[case == c]
         for tri in triangles:
             corner_keys = []
             for a, b in tri:

@@ -182,10 +182,15 @@ def surface_samples(
 _FACES = [list(c) for k in range(1, 5) for c in itertools.combinations(range(4), k)]
 
 
-def _solve_small(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _solve_small(gram: np.ndarray, rhs: np.ndarray, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Batched ``gram @ x = rhs`` for (K, m, m) Gram matrices, m <= 3, by Cramer's rule
     (elementwise arithmetic: far faster than a LAPACK call per tiny system); also returns
-    which systems are well conditioned (determinant not negligible against the diagonal)."""
+    which systems are well conditioned: determinant above ``1e-10 scale^m``, ``scale`` (K,) the
+    squared size of the simplex the face belongs to. The Gram entries come from differences of
+    products of size ``scale``, so their round-off is about ``1e-16 scale``: measured against
+    the face's own diagonal, an edge of two coincident corners passed as well conditioned, and
+    its projection, all round-off, claimed a distance of 0 far from the simplex. A face skipped
+    as degenerate is covered by its own faces, within its width (under ``1e-5`` of the size)."""
     m = gram.shape[1]
     g = [[gram[:, i, j] for j in range(m)] for i in range(m)]
     r = [rhs[:, i] for i in range(m)]
@@ -209,8 +214,7 @@ def _solve_small(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndar
             c01 * r[0] + c11 * r[1] + c12 * r[2],
             c02 * r[0] + c12 * r[1] + c22 * r[2],
         ]
-    trace = sum(g[i][i] for i in range(m))
-    ok = np.abs(det) > 1e-18 * trace**m
+    ok = np.abs(det) > 1e-10 * np.asarray(scale) ** m
     safe = np.where(ok, det, 1.0)
     return np.stack([xi / safe for xi in x], axis=1), ok
 
@@ -223,6 +227,7 @@ def _simplex_distance(p: np.ndarray, corners: np.ndarray) -> np.ndarray:
     the tetrahedron, so the least distance over the valid projections is the distance.
     """
     best = np.full(len(p), np.inf)
+    size = np.einsum("knd,knd->kn", corners - corners[:, :1], corners - corners[:, :1]).max(axis=1)
     for face in _FACES:
         a0 = corners[:, face[0]]
         r = p - a0
@@ -232,7 +237,7 @@ def _simplex_distance(p: np.ndarray, corners: np.ndarray) -> np.ndarray:
         e = corners[:, face[1:]] - a0[:, None, :]  # (K, m, d)
         gram = np.einsum("kmd,knd->kmn", e, e)
         rhs = np.einsum("kmd,kd->km", e, r)
-        lam, ok = _solve_small(gram, rhs)
+        lam, ok = _solve_small(gram, rhs, size)
         ok &= (lam >= 0).all(axis=1) & (lam.sum(axis=1) <= 1)
         diff = r - np.einsum("km,kmd->kd", lam, e)
         d2 = np.einsum("kd,kd->k", diff, diff)
@@ -270,7 +275,7 @@ class _Simplices:
             for a_, ia in enumerate(rest):
                 for b_, ib in enumerate(rest):
                     gram[:, a_, b_] = W[:, ia, ib] - W[:, ia, i0] - W[:, i0, ib] + W[:, i0, i0]
-            inverse, ok = _inverse_small(gram)
+            inverse, ok = _inverse_small(gram, self.diag.max(axis=1))
             const = np.stack([W[:, i0, i0] - W[:, k, i0] for k in rest], axis=1)
             self.faces.append((i0, rest, inverse, const, ok))
 
@@ -312,13 +317,13 @@ class _Simplices:
         return np.sqrt(np.maximum(best, 0.0))
 
 
-def _inverse_small(gram: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _inverse_small(gram: np.ndarray, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Inverses of (S, m, m) symmetric matrices, m <= 3, by cofactors; and which are well
-    conditioned (see :func:`_solve_small`)."""
+    conditioned against ``scale`` (see :func:`_solve_small`)."""
     m = gram.shape[1]
     eye = np.eye(m)
-    cols = [_solve_small(gram, np.broadcast_to(eye[:, j], (len(gram), m)))[0] for j in range(m)]
-    _, ok = _solve_small(gram, np.zeros((len(gram), m)))
+    cols = [_solve_small(gram, np.broadcast_to(eye[:, j], (len(gram), m)), scale)[0] for j in range(m)]
+    _, ok = _solve_small(gram, np.zeros((len(gram), m)), scale)
     return np.stack(cols, axis=2), ok
 
 

@@ -119,6 +119,28 @@ def test_mesh_distance_is_the_brute_force_minimum():
     np.testing.assert_allclose(mesh_distance(shape.mesh, pts), brute, rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize("dim", [3, 4])
+def test_distance_to_a_simplex_with_two_corners_a_rounding_apart(dim):
+    # a triangle of a tiger's w-slice (seed 0) whose last two corners differ by one rounding:
+    # the edge between them is noise, and the distance is the one to the segment the triangle
+    # is, 0.0539; the Gram matrix built from products once called that edge well conditioned
+    # and returned 0
+    a = [1.0071536576491131, -0.14628032446430517, -0.9264420549405992]
+    b = [1.0096871698409942, -0.04876010815476861, -0.8289218386310628]
+    twin = [1.0096871698409942, -0.04876010815476861, -0.8289218386310626]
+    p = np.array([1.0623382329940796, -0.09539888799190521, -0.876648485660553] + [0.25] * (dim - 3))
+    corners = np.array([a, b, twin] + [[1.0, -0.1, -0.9]] * (dim - 3), float)
+    if dim == 4:  # the triangle in the hyperplane w = 0.25, plus a fourth corner off it
+        corners = np.hstack([corners, [[0.25], [0.25], [0.25], [0.9]]])
+        corners[3, :3] = corners[0, :3]
+    a_, b_ = corners[0], corners[1]
+    t = np.clip((p - a_) @ (b_ - a_) / ((b_ - a_) @ (b_ - a_)), 0, 1)
+    segment = np.linalg.norm(a_ + t * (b_ - a_) - p)
+    want = segment if dim == 3 else min(segment, _simplex_distance(p[None], corners[None])[0])
+    assert want > 0.05
+    assert corners_distance(corners[None], p[None])[0] == pytest.approx(want, rel=1e-9)
+
+
 def test_triangle_distances_against_trimesh_with_slivers():
     # 3D frames: exact distances to triangles, also where a few long slivers widen the search
     import trimesh

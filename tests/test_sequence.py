@@ -45,6 +45,37 @@ def test_frames_are_the_balls_slices(axis):
         assert f.is_watertight and f.volume > 0  # closed, outward
 
 
+@pytest.mark.parametrize("axis", ["w", "y"])
+def test_frames_equal_the_meshs_own_slices(axis):
+    # the sequence cuts only the simplices a frame's hyperplane can cross: the same triangles,
+    # vertices and source simplices as SimplexMesh.slice testing every simplex
+    shape = _ball(0.7)
+    arrays, _ = make_sequence(shape, "hypersphere", check_sequence({"frames": 5, "axis": axis}))
+    k = "xyzw".index(axis)
+    normal = np.eye(4)[k]
+    for frame, value in zip(frames_of(arrays), arrays["value"]):
+        whole = shape.mesh.slice(normal * value, normal)
+        np.testing.assert_array_equal(frame.vertices, whole.vertices)
+        np.testing.assert_array_equal(frame.faces, whole.faces)
+
+
+def test_triangles_distance_equals_the_numpy_distance_far_from_the_origin():
+    import trimesh
+
+    from datasets_gen.samples import corners_distance
+    from datasets_gen.sequence import triangles_distance
+
+    rng = np.random.default_rng(3)
+    torus = trimesh.creation.torus(1.0, 0.3, major_sections=24, minor_sections=10)
+    for offset in (0.0, 1e5):
+        vertices = np.asarray(torus.vertices) + offset
+        faces = np.asarray(torus.faces, np.int64)
+        points = offset + np.concatenate([rng.uniform(-2, 2, (300, 3)), torus.vertices[:50] * 1.01])
+        got = triangles_distance(vertices, faces, points)
+        want = corners_distance(vertices[faces], points)
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * (1 + offset))
+
+
 def test_frame_ao():
     shape = _ball()
     occ = shape.mesh.vertices[:, 0].copy()
