@@ -36,6 +36,7 @@ _EXPORTS = {
     "extract_solid": "marching.solid:extract_solid",
     "extract_solid_field": "marching.solid:extract_solid_field",
     "SolidMesh": "solid_mesh:SolidMesh",
+    "load": "solid_mesh:load",
     "read_grid": "readers:read_grid",
     "SimplexMesh": "mesh:SimplexMesh",
     "ambient_occlusion": "ao:ambient_occlusion",

@@ -7,7 +7,8 @@ positively oriented (``det[p1 - p0; ...; pd - p0] >= 0``). Its boundary is the
 solid by a hyperplane is a :class:`SolidSlice`: tetrahedra in the hyperplane's 3D frame
 (:func:`ao4d.slicing.hyperplane_basis`, as :meth:`ao4d.SimplexMesh.slice` uses), written as
 ``.vtu`` (``VTK_TETRA``) for ParaView. Files: ``.npz`` (with the key ``solid_format``, which
-marks a solid) and, for 2D and 3D solids, ``.vtu``.
+marks a solid) and, for 2D and 3D solids, ``.vtu``; :func:`load` (``ao4d.load``) reads a solid
+or a surface file, whichever it holds.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 
 from ._validate import as_array
 
-__all__ = ["SolidMesh", "SolidSlice", "SolidReport", "SOLID_FORMAT"]
+__all__ = ["SolidMesh", "SolidSlice", "SolidReport", "SOLID_FORMAT", "load"]
 
 SOLID_FORMAT = 1  # the npz key ``solid_format``: marks a SolidMesh file and its version
 
@@ -312,6 +313,49 @@ class SolidMesh:
                     f"`path` {str(p)!r} has solid format {int(data['solid_format'])}; this reads {SOLID_FORMAT}"
                 )
             return cls(data["vertices"], data["simplices"])
+
+
+def load(path: str | os.PathLike):
+    """Read any mesh ao4d saves: a surface (:class:`ao4d.SimplexMesh`) or, from a ``.npz``
+    holding the key ``solid_format``, a solid (:class:`ao4d.SolidMesh`).
+
+    Parameters
+    ----------
+    path : str or path-like
+        A file written by ``SimplexMesh.save`` (``.npz``, ``.vtu``, text) or ``SolidMesh.save``
+        (``.npz``; a solid's ``.vtu`` reads as the surface of its cells' type, so load it with
+        ``pyvista``).
+
+    Returns
+    -------
+    SimplexMesh or SolidMesh
+        What the file holds.
+
+    Examples
+    --------
+    >>> import ao4d, tempfile, pathlib
+    >>> solid = ao4d.extract_solid_field(ao4d.fields.hypersphere(1.0), 6, (-1.3, 1.3))
+    >>> path = solid.save(pathlib.Path(tempfile.mkdtemp()) / "ball.npz")
+    >>> type(ao4d.load(path)).__name__
+    'SolidMesh'
+    """
+    import zipfile
+    import zlib
+
+    from ._npz import npz_member_problem
+    from ._validate import regular_file
+    from .mesh import SimplexMesh
+
+    if Path(path).suffix.lower() == ".npz" and zipfile.is_zipfile(regular_file(path, "path")):
+        p = Path(path)  # (not a zip archive: SimplexMesh.load says why)
+        try:
+            with np.load(p, allow_pickle=False) as data:
+                solid = "solid_format" in data.files
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+            raise ValueError(f"`path` {str(p)!r} is not a readable .npz file ({npz_member_problem(exc)})") from None
+        if solid:
+            return SolidMesh.load(p)
+    return SimplexMesh.load(path)
 
 
 def _parity(rows: np.ndarray) -> np.ndarray:

@@ -101,3 +101,16 @@ def test_bad_arrays_refused():
         SolidMesh([[0, np.nan], [1, 0], [0, 1]], [[0, 1, 2]])
     with pytest.raises(ValueError, match="4D"):
         SolidMesh([[0, 0], [1, 0], [0, 1]], [[0, 1, 2]]).slice([0, 0], [0, 1])
+
+
+def test_ao4d_load_reads_what_each_mesh_saves(tmp_path):
+    solid = _hyperball(5)
+    surface = solid.boundary()
+    back = ao4d.load(solid.save(tmp_path / "solid.npz"))
+    assert isinstance(back, SolidMesh) and np.array_equal(back.simplices, solid.simplices)
+    for name in ("surface.npz", "surface.vtu"):
+        back = ao4d.load(surface.save(tmp_path / name))
+        assert isinstance(back, ao4d.SimplexMesh) and np.array_equal(back.simplices, surface.simplices)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="`path`.*not a readable .npz"):
+        ao4d.load(tmp_path / "junk.npz")
