@@ -169,11 +169,12 @@ def test_field_and_array_give_the_same_solid():
     assert a.volume == pytest.approx(b.volume, rel=1e-12) and a.n_simplices == b.n_simplices
 
 
-def test_3d_against_pytetwild():
+def test_3d_against_pytetwild(tmp_path, monkeypatch):
     """pytetwild tetrahedralises scikit-image's surface of the same ball; it keeps its boundary
     within epsilon (1e-3) of the bounding box diagonal, so the volumes agree within the surface
     area times that distance, plus the difference of the two marching-cubes surfaces' volumes."""
     pytetwild = pytest.importorskip("pytetwild")
+    monkeypatch.chdir(tmp_path)  # fTetWild writes __tracked_surface.stl into the working directory
     skimage_measure = pytest.importorskip("skimage.measure")
     r, h, o = _radius(3, 21)
     verts, faces, _, _ = skimage_measure.marching_cubes(r, 1.0, spacing=(h, h, h))
