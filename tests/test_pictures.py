@@ -287,3 +287,21 @@ def test_surface_view_keeps_sheets_and_save_volume_png_draws_lone_voxels(tmp_pat
     )
     pictures.save_volume_png(tmp_path / "lone.png", np.where(lone, 1.0, np.nan), backend="surface", vmin=0, vmax=2)
     assert (drawn[0] < 0.99).any()
+
+
+def test_blur_and_trilinear_equal_scipy_ndimage():
+    # the surface picture's numpy Gaussian and interpolation, against the library they replace
+    from scipy import ndimage
+
+    rng = np.random.default_rng(0)
+    volume = rng.random((9, 8, 7))
+    colours = rng.random((9, 8, 7, 3))
+    for sigma in (0.7, 1.3):
+        np.testing.assert_allclose(
+            pictures._blur(volume, sigma), ndimage.gaussian_filter(volume, sigma, mode="constant"), atol=1e-12
+        )
+    blurred = pictures._blur(colours, 0.7)
+    want = np.stack([ndimage.gaussian_filter(colours[..., k], 0.7, mode="constant") for k in range(3)], axis=-1)
+    np.testing.assert_allclose(blurred, want, atol=1e-12)
+    points = rng.uniform(0, 6, (40, 3))
+    np.testing.assert_allclose(pictures._trilinear(volume, points), ndimage.map_coordinates(volume, points.T, order=1))
