@@ -26,7 +26,9 @@ How the cells are cut (tables made once per case, in exact integer coordinates):
 Every table is built in the cells' own exact geometry (corners and crossings at quarter points),
 where each simplex is oriented positively; interpolated positions keep that orientation for
 simplices (a linear field moves the polytope without changing its faces) and, for cubes, as far
-as the interpolated cube surface itself keeps the table's shape. Values equal to a level give
+as the interpolated cube surface itself keeps the table's shape; where a cube template's simplex
+turns over, its neighbourhood is re-cut as a star from an inside apex (:func:`_untangle`), keeping
+the neighbourhood's boundary. Values equal to a level give
 simplices of zero volume (the surface's own flat simplices), and so does the one-cell padding
 that closes the solid where it meets the grid's edge (as ``closed=True`` does).
 
@@ -325,6 +327,180 @@ def _cube_rows(dim: int, cases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 # --------------------------------------------------------------------------------------------
+# simplices the cube method's templates turn over: their neighbourhood re-cut as a star
+# --------------------------------------------------------------------------------------------
+
+# what the last call of _untangle did: inverted simplices found, regions re-cut, Steiner points
+# added, inverted simplices left (none on smooth fields; a few on 4D random noise, warned)
+UNTANGLED = {"inverted": 0, "regions": 0, "steiner": 0, "left": 0}
+
+
+def _untangle(vertices: np.ndarray, simplices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Re-cut the neighbourhoods of the simplices of negative volume, keeping their boundaries.
+
+    A region of simplices (a vertex's star, the union of an inverted simplex's vertex stars, or
+    the union of those stars' vertex stars) is replaced by the star (cone) from an apex over the
+    region's boundary facets, the first of its vertices or the deepest point of its kernel (a
+    linear program; a Steiner point) for which every cone has positive volume (zero only where
+    two of its vertices coincide, as at values equal to the level). The region's boundary is
+    unchanged, so the solid stays conforming and keeps its boundary; cones of positive volume over
+    a closed boundary cover the region once (their signed volumes add up to its volume), and the
+    rest of the solid is untouched. Vertices left unused (an inner grid point whose star was
+    re-cut from a Steiner point) are dropped.
+    """
+    from ..solid_mesh import _signed_volumes
+
+    UNTANGLED.update(inverted=0, regions=0, steiner=0, left=0)
+    vol = _signed_volumes(vertices, simplices)
+    bad = np.flatnonzero(vol < 0)
+    if not len(bad):
+        return vertices, simplices
+    UNTANGLED["inverted"] = len(bad)
+    # every region below lies in the two rings of simplices around the inverted ones
+    ring1 = np.isin(simplices, np.unique(simplices[bad])).any(axis=1)
+    ring2 = np.isin(simplices, np.unique(simplices[ring1])).any(axis=1)
+    sub = [tuple(r) for r in simplices[ring2].tolist()]
+    alive = [True] * len(sub)
+    is_bad = (vol[ring2] < 0).tolist()
+    pos = [vertices]
+    n_points = len(vertices)
+    for b in range(len(is_bad)):
+        if not (is_bad[b] and alive[b]):
+            continue
+        for region in _regions(sub, alive, b):
+            rows = np.array([sub[i] for i in region], dtype=np.int64)
+            facets = _cell_boundary(rows)
+            found = _star(facets, rows, np.concatenate(pos) if len(pos) > 1 else vertices, n_points)
+            if found is None:
+                continue
+            apex, cones = found
+            if apex is not None:
+                pos.append(apex[None])
+                n_points += 1
+                UNTANGLED["steiner"] += 1
+            UNTANGLED["regions"] += 1
+            for i in region:
+                alive[i] = False
+            sub.extend(map(tuple, cones.tolist()))
+            alive.extend([True] * len(cones))
+            is_bad.extend([False] * len(cones))
+            break
+    UNTANGLED["left"] = sum(1 for x, a in zip(is_bad, alive) if x and a)
+    if UNTANGLED["left"]:
+        import warnings
+
+        warnings.warn(
+            f"{UNTANGLED['left']} of the cube method's simplices stay inverted (negative volume): no"
+            " neighbourhood of theirs is star-shaped; method='simplices' never inverts",
+            RuntimeWarning,
+            stacklevel=4,
+        )
+    kept = [r for r, a in zip(sub, alive) if a]
+    simplices = np.concatenate([simplices[~ring2], np.array(kept, dtype=np.int64).reshape(-1, simplices.shape[1])])
+    vertices = np.concatenate(pos)
+    used = np.zeros(len(vertices), dtype=bool)
+    used[simplices] = True
+    if not used.all():
+        remap = np.cumsum(used) - 1
+        vertices, simplices = vertices[used], remap[simplices]
+    return vertices, simplices
+
+
+def _regions(sub: list[tuple[int, ...]], alive: list[bool], b: int):
+    """Regions around simplex ``b`` (lists of indices into ``sub``), smallest first: each of its
+    vertices' stars, their union, and the union of the stars of that union's vertices."""
+    rows = [(i, set(r)) for i, r in enumerate(sub) if alive[i]]
+
+    def stars(points: set) -> list[int]:
+        return [i for i, r in rows if r & points]
+
+    for v in sub[b]:
+        yield stars({v})
+    near = stars(set(sub[b]))
+    yield near
+    yield stars({v for i in near for v in sub[i]})
+
+
+def _cell_boundary(rows: np.ndarray) -> np.ndarray:
+    """(F, d) the facets used once by ``rows``, ordered so that ``(x, *facet)`` is positive for
+    ``x`` on the simplices' side (the orientation the rows induce, whatever their volumes)."""
+    faces: dict[tuple, tuple[int, ...] | None] = {}
+    for row in rows.tolist():
+        for i in range(len(row)):
+            rest = row[:i] + row[i + 1 :]
+            if i % 2:  # (row[i], *rest) is an odd permutation of the row
+                rest[0], rest[1] = rest[1], rest[0]
+            key = tuple(sorted(rest))
+            faces[key] = None if key in faces else tuple(rest)
+    return np.array([f for f in faces.values() if f is not None], dtype=np.int64)
+
+
+def _star(
+    facets: np.ndarray, rows: np.ndarray, pos: np.ndarray, new_id: int
+) -> tuple[np.ndarray | None, np.ndarray] | None:
+    """The first apex whose cones over ``facets`` all have positive volume: (its position if it
+    is a new point (id ``new_id`` = len(pos)), else None; the cone rows), or None if none does."""
+    from ..solid_mesh import _signed_volumes
+
+    a, b, centre, scale = _cone_volumes(pos[facets])
+    points = np.unique(rows)
+    # the cones' volumes from every vertex, nearly: only those near positive are checked exactly
+    approx = ((pos[points] - centre) / scale) @ a.T + b  # (points, facets)
+    own = (points[:, None, None] == facets[None]).any(axis=2)
+    approx[own] = 1.0
+    candidates: list[Any] = points[(approx > -1e-9 * np.abs(b).max()).all(axis=1)].tolist()
+    kernel = _kernel_centre(a, b)
+    if kernel is not None:
+        candidates.append(centre + scale * kernel)
+    for apex in candidates:
+        if isinstance(apex, int):
+            f = facets[~(facets == apex).any(axis=1)]
+            cone, ext = np.concatenate([np.full((len(f), 1), apex), f], axis=1), pos
+        else:
+            cone = np.concatenate([np.full((len(facets), 1), new_id), facets], axis=1)
+            ext = np.concatenate([pos, apex[None]])
+        v = _signed_volumes(ext, cone)
+        if (v < 0).any() or ((v == 0).any() and not _coincident(ext[cone[v == 0]]).all()):
+            continue
+        return (None if isinstance(apex, int) else apex), cone
+    return None
+
+
+def _cone_volumes(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The cones' volumes over facets (F, d, d) as affine functions of the apex x:
+    det[q0 - x; ...; q_{d-1} - x] = b + a . (x - centre) / scale. Returns (a, b, centre, scale)."""
+    d = q.shape[2]
+    centre = q.reshape(-1, d).mean(axis=0)
+    scale = float(np.ptp(q.reshape(-1, d), axis=0).max()) or 1.0
+    rel = (q - centre) / scale
+    b = np.linalg.det(rel)  # read at x = centre and the unit steps from it
+    a = np.stack([np.linalg.det(rel - np.eye(d)[k]) - b for k in range(d)], axis=1)
+    return a, b, centre, scale
+
+
+def _kernel_centre(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """The point deepest inside every half-space ``b + a . x > 0`` within [-1, 1]^d (the
+    Chebyshev centre of the region's kernel, by a linear program); None where it is empty."""
+    from scipy.optimize import linprog
+
+    d = a.shape[1]
+    norm = np.linalg.norm(a, axis=1)
+    live = norm > 1e-12 * norm.max()  # a facet of no area bounds nothing
+    a_ub = np.concatenate([-a[live], norm[live, None]], axis=1)
+    bounds = [(-1.0, 1.0)] * d + [(None, 1.0)]
+    res = linprog(np.r_[np.zeros(d), -1.0], A_ub=a_ub, b_ub=b[live], bounds=bounds, method="highs")
+    if res.status != 0 or not res.x[-1] > 0:
+        return None
+    return res.x[:d]
+
+
+def _coincident(p: np.ndarray) -> np.ndarray:
+    """(k,) whether two of each simplex's vertices (k, d + 1, d) are at the same position."""
+    same = (p[:, :, None, :] == p[:, None, :, :]).all(axis=-1)
+    return same.sum(axis=(1, 2)) > p.shape[1]
+
+
+# --------------------------------------------------------------------------------------------
 # the slab engine
 # --------------------------------------------------------------------------------------------
 
@@ -504,6 +680,8 @@ def _run(read: Callable[[int, int], np.ndarray], shape: tuple[int, ...], origin,
         hint="use thinner slabs (`chunk=`) or a coarser grid",
     )
     vertices, simplices = _Solid(_padded_reader(read, shape, math.inf), padded, geom, levels, method).run(layers)
+    if method == "cubes":  # where interpolated crossings turned a template's simplex over
+        vertices, simplices = _untangle(vertices, simplices)
     return SolidMesh._adopt(np.ascontiguousarray(vertices, dtype=np.float64), simplices.astype(np.int64))
 
 
