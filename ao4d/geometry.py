@@ -9,12 +9,13 @@ builder and the camera all use these functions.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
 
-__all__ = ["cross", "cross_components", "edge_blocks", "simplex_normals", "vertex_sums"]
+__all__ = ["cross", "cross_components", "edge_blocks", "signed_volumes", "simplex_normals", "vertex_sums"]
 
 # Simplices per block when gathering corners: the block's temporaries (about 30 arrays) stay in
 # a core's L2 cache, which larger blocks overflow (figures in the benchmarks guide)
@@ -120,6 +121,38 @@ def simplex_normals(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
     for rows, edges in edge_blocks(vertices, simplices):
         out[rows] = cross_components(edges).T
     return out
+
+
+def signed_volumes(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
+    """Signed d-volumes ``det[p1 - p0; ...; pd - p0] / d!`` of d-simplices (d + 1 corners in R^d).
+
+    Parameters
+    ----------
+    vertices : (n, d) float numpy.ndarray
+        Points.
+    simplices : (m, d + 1) int numpy.ndarray
+        Corner indices per simplex.
+
+    Returns
+    -------
+    (m,) float64 numpy.ndarray
+        Positive for positively oriented simplices; the corners are measured from each
+        simplex's centroid (less cancellation far from the origin). Exactly 0 for a simplex
+        with two equal corners (LAPACK's LU leaves about 1e-16 of the scale, either sign).
+    """
+    d = vertices.shape[1]
+    if len(simplices) == 0:
+        return np.zeros(0)
+    p = vertices[simplices]
+    p = p - p.mean(axis=1, keepdims=True)
+    volume = np.linalg.det(p[:, 1:] - p[:, :1]) / math.factorial(d)
+    k = simplices.shape[1]
+    repeated = np.zeros(len(simplices), dtype=bool)
+    for i in range(k):
+        for j in range(i + 1, k):
+            repeated |= (p[:, i] == p[:, j]).all(axis=1)
+    volume[repeated] = 0.0
+    return volume
 
 
 def vertex_sums(values: np.ndarray, simplices: np.ndarray, n: int) -> np.ndarray:

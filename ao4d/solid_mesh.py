@@ -13,7 +13,6 @@ or a surface file, whichever it holds.
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,21 +21,11 @@ from typing import Any
 import numpy as np
 
 from ._validate import as_array
+from .geometry import signed_volumes
 
 __all__ = ["SolidMesh", "SolidSlice", "SolidReport", "SOLID_FORMAT", "load"]
 
 SOLID_FORMAT = 1  # the npz key ``solid_format``: marks a SolidMesh file and its version
-
-
-def _signed_volumes(vertices: np.ndarray, simplices: np.ndarray) -> np.ndarray:
-    """(m,) signed d-volumes det[p1 - p0; ...; pd - p0] / d!."""
-    d = vertices.shape[1]
-    if len(simplices) == 0:
-        return np.zeros(0)
-    p = vertices[simplices]
-    centre = p.mean(axis=1, keepdims=True)  # measured from each centroid: less cancellation
-    p = p - centre
-    return np.linalg.det(p[:, 1:] - p[:, :1]) / math.factorial(d)
 
 
 def _facets(simplices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -162,7 +151,7 @@ class SolidMesh:
     def simplex_volumes(self) -> np.ndarray:
         """(m,) signed d-volume of each simplex (>= 0 for a positively oriented solid)."""
         if self._volumes is None:
-            self._volumes = _signed_volumes(self._vertices, self._simplices)
+            self._volumes = signed_volumes(self._vertices, self._simplices)
         return self._volumes
 
     @property
@@ -394,7 +383,7 @@ class SolidSlice:
     @property
     def volume(self) -> float:
         """Total 3-volume of the tetrahedra."""
-        return float(_signed_volumes(self.vertices, self.tets).sum())
+        return float(signed_volumes(self.vertices, self.tets).sum())
 
     def to_solid(self) -> SolidMesh:
         """The cut as a 3D :class:`SolidMesh`.

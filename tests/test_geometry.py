@@ -92,3 +92,16 @@ def test_bad_vectors():
         cross([1.0, 2.0, 3.0, 4.0, 5.0])
     with pytest.raises(TypeError, match="real numbers"):
         cross(["a", "b"])
+
+
+def test_signed_volumes_orientation_scale_and_repeated_corners():
+    from ao4d.geometry import signed_volumes
+
+    # the unit 4-simplex: 1/4!; swapping two corners flips the sign; far from the origin too
+    corners = np.vstack([np.zeros(4), np.eye(4)])
+    simplices = np.array([[0, 1, 2, 3, 4], [1, 0, 2, 3, 4]])
+    for offset in (0.0, 1e6):
+        np.testing.assert_allclose(signed_volumes(corners + offset, simplices), [1 / 24, -1 / 24], rtol=1e-9)
+    # two equal corners: exactly zero (the LU determinant alone leaves round-off of either sign)
+    flat = np.array([[4 / 3, 4 / 3, 0, 1 / 3], [2, 2, 0, 1], [2, 1, 0, 0], [2, 1, 0, 0], [2, 2, 1 / 3, 1 / 3]])
+    assert signed_volumes(flat, np.array([[0, 1, 2, 3, 4]]))[0] == 0.0

@@ -35,7 +35,7 @@ def test_slice_of_hyperball_at_w0_is_a_ball():
     (relative d^2 h^2 / (8 r^2) with d = 4, as in test_solid.py)."""
     solid = _hyperball(11)
     cut = solid.slice([0, 0, 0, 0], [0, 0, 0, 1])
-    vols = ao4d.solid_mesh._signed_volumes(cut.vertices, cut.tets)
+    vols = ao4d.geometry.signed_volumes(cut.vertices, cut.tets)
     assert (vols > 0).all()
     report = cut.to_solid().check()
     assert report.ok

@@ -348,10 +348,10 @@ def _untangle(vertices: np.ndarray, simplices: np.ndarray) -> tuple[np.ndarray, 
     rest of the solid is untouched. Vertices left unused (an inner grid point whose star was
     re-cut from a Steiner point) are dropped.
     """
-    from ..solid_mesh import _signed_volumes
+    from ..geometry import signed_volumes
 
     UNTANGLED.update(inverted=0, regions=0, steiner=0, left=0)
-    vol = _signed_volumes(vertices, simplices)
+    vol = signed_volumes(vertices, simplices)
     bad = np.flatnonzero(vol < 0)
     if not len(bad):
         return vertices, simplices
@@ -440,7 +440,7 @@ def _star(
 ) -> tuple[np.ndarray | None, np.ndarray] | None:
     """The first apex whose cones over ``facets`` all have positive volume: (its position if it
     is a new point (id ``new_id`` = len(pos)), else None; the cone rows), or None if none does."""
-    from ..solid_mesh import _signed_volumes
+    from ..geometry import signed_volumes
 
     a, b, centre, scale = _cone_volumes(pos[facets])
     points = np.unique(rows)
@@ -459,7 +459,7 @@ def _star(
         else:
             cone = np.concatenate([np.full((len(facets), 1), new_id), facets], axis=1)
             ext = np.concatenate([pos, apex[None]])
-        v = _signed_volumes(ext, cone)
+        v = signed_volumes(ext, cone)
         if (v < 0).any() or ((v == 0).any() and not _coincident(ext[cone[v == 0]]).all()):
             continue
         return (None if isinstance(apex, int) else apex), cone
