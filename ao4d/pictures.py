@@ -656,9 +656,11 @@ def surface_view(
     vertex takes the Gaussian-weighted mean colour of the occupied voxels around it (a
     normalised convolution: empty voxels give no colour), and :func:`triangle_view` draws the
     surface with colours interpolated across each triangle. At ``sigma = 0.7`` a sheet one
-    voxel thick keeps its surface (its blurred value is 0.53); a line one voxel thick (0.28)
-    melts away, and lone voxels (0.15), which would vanish too, are drawn by
-    :func:`save_volume_png` from :func:`voxel_view` where the surface leaves the pixel empty.
+    voxel thick keeps its surface (its blurred value is 0.53, over the contour's 0.5); a line one
+    voxel thick (0.25-0.32), a sheet of voxels touching at their edges (at most 0.33) and a lone
+    voxel (0.15) melt away, so voxels under 0.4 are drawn by :func:`save_volume_png` from
+    :func:`voxel_view` where the surface leaves the pixel empty (a box's corner voxel keeps 0.48:
+    the rounded corner stands, without the cube's tooth).
 
     Parameters
     ----------
@@ -682,8 +684,8 @@ def surface_view(
     extent : (4,) tuple of float
         ``(left, right, bottom, top)``, the same as :func:`voxel_view`'s for these arguments.
     lost : (nx, ny, nz) bool
-        Occupied voxels whose blurred value is under 0.2 (lone voxels), which the surface does
-        not draw.
+        Occupied voxels whose blurred value is under 0.4 (lines, edge-touching sheets, lone
+        voxels), which the surface does not draw.
     """
     from skimage.measure import marching_cubes
 
@@ -700,7 +702,7 @@ def surface_view(
     pad = _blur_radius(sigma) + 1  # closed at the box's faces, whatever the blur reaches
     blurred = _blur(np.pad(occ.astype(np.float32), pad), sigma)
     inner = (slice(pad, -pad),) * 3
-    lost = occ & (blurred[inner] < 0.2)
+    lost = occ & (blurred[inner] < 0.4)
     if blurred.max() <= 0.5:  # nothing survives the blur: an empty view of the same frame
         face, _, extent = triangle_view(box, np.zeros((0, 3), np.int64), width=width, box=box, fit="width")
         return np.zeros(face.shape + (3,)), face >= 0, extent, lost
