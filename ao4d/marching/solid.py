@@ -231,16 +231,22 @@ def _place(boundary: list[tuple[int, ...]], new: list[int], coords: np.ndarray) 
                     ridges[key] = (facet, i)
         facets = [facets[i] for i in np.flatnonzero(~seen)]
         for facet, i in ridges.values():
-            ridge = facet[:i] + facet[i + 1 :]
-            cand = (*ridge, p)
-            c = coords[list(cand)]
-            if _on_cube_boundary(c[None])[0]:
-                continue
-            # outward: away from the vertex facet[i] of the new simplex
-            if _det_sign((np.vstack([c[1:], coords[facet[i]][None]]) - c[0])[None])[0] > 0:
-                cand = (cand[1], cand[0], *cand[2:])
-            facets.append(cand)
+            # the new simplex's facet through the ridge, away from its vertex facet[i]
+            cand = _outward((*facet[:i], *facet[i + 1 :], p), facet[i], coords)
+            if cand is not None:
+                facets.append(cand)
     return out
+
+
+def _outward(facet: tuple[int, ...], opposite: int, coords: np.ndarray) -> tuple[int, ...] | None:
+    """``facet`` oriented away from the corner ``opposite`` of its simplex, or None when it lies
+    on the cube's boundary (where no polytope grows)."""
+    c = coords[list(facet)]
+    if _on_cube_boundary(c[None])[0]:
+        return None
+    if _det_sign((np.vstack([c[1:], coords[opposite][None]]) - c[0])[None])[0] > 0:
+        return (facet[1], facet[0], *facet[2:])
+    return facet
 
 
 @functools.lru_cache(maxsize=None)
@@ -277,15 +283,9 @@ def _outer_facets(simplices: list[tuple[int, ...]], coords: np.ndarray) -> list[
             count.setdefault(frozenset(s[:i] + s[i + 1 :]), []).append((s, i))
     out = []
     for (s, i), *rest in count.values():
-        if rest:
-            continue
-        facet = s[:i] + s[i + 1 :]
-        c = coords[list(facet)]
-        if _on_cube_boundary(c[None])[0]:
-            continue
-        if _det_sign((np.vstack([c[1:], coords[s[i]][None]]) - c[0])[None])[0] > 0:
-            facet = (facet[1], facet[0], *facet[2:])
-        out.append(facet)
+        facet = None if rest else _outward(s[:i] + s[i + 1 :], s[i], coords)
+        if facet is not None:
+            out.append(facet)
     return out
 
 
