@@ -23,7 +23,6 @@ topology, slicing and mesh_files).
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -926,8 +925,9 @@ def as_meshes(meshes: Any, name: str = "meshes") -> list[SimplexMesh]:
 
 
 def _is_trimesh(value: Any) -> bool:
-    module = sys.modules.get("trimesh")  # a Trimesh exists only once trimesh is imported
-    return module is not None and isinstance(value, module.Trimesh)
+    # by the class's home, not ``sys.modules["trimesh"]``: that module may be half-imported by
+    # another thread, and reading the class's name imports nothing
+    return any(c.__name__ == "Trimesh" and c.__module__ == "trimesh.base" for c in type(value).__mro__)
 
 
 def _as_pair(value: Any) -> tuple[np.ndarray, Any] | None:

@@ -259,6 +259,33 @@ def test_as_mesh_takes_a_mesh_a_trimesh_a_pair_and_a_plain_object():
     assert [m.n_simplices for m in as_meshes(Plain())] == [mesh.n_simplices]
 
 
+def test_as_meshes_reads_pairs_while_trimesh_is_half_imported(monkeypatch):
+    # another thread importing trimesh leaves a module without `Trimesh` in sys.modules for a
+    # while; a pair or a mesh must not be taken for (or fail on) a Trimesh then
+    import sys
+    import types
+
+    from ao4d.mesh import as_meshes
+
+    mesh = simplex_boundary(3)
+    monkeypatch.setitem(sys.modules, "trimesh", types.ModuleType("trimesh"))
+    got = as_meshes([(mesh.vertices, mesh.simplices), mesh])
+    assert [m.n_simplices for m in got] == [mesh.n_simplices] * 2
+
+
+def test_as_mesh_takes_a_subclass_of_trimesh():
+    import trimesh
+
+    class Tagged(trimesh.Trimesh):
+        pass
+
+    from ao4d.mesh import as_mesh
+
+    tm = _trimesh_shapes()["icosphere"]
+    got = as_mesh(Tagged(vertices=tm.vertices, faces=tm.faces, process=False))
+    np.testing.assert_array_equal(got.simplices, tm.faces)
+
+
 @pytest.mark.parametrize(
     ("value", "error", "match"),
     [
