@@ -253,7 +253,7 @@ class Dask(Executor):
         cluster = None
         try:
             if count is not None:
-                from ao4d.marching.blockwise import worker_environment
+                from ao4d import worker_environment
 
                 # glibc's default malloc in the workers: dask's MALLOC_TRIM_THRESHOLD_ slows numpy
                 with worker_environment():
