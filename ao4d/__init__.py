@@ -46,6 +46,8 @@ _EXPORTS = {
     "render": "rendering:render",
     "RenderResult": "rendering:RenderResult",
     "view": "browser.pages:view",
+    "worker_environment": "_dask:worker_environment",
+    "WorkerEnvironmentWarning": "_dask:WorkerEnvironmentWarning",
 }
 
 # the stages' modules: reachable as ``ao4d.<name>`` (loaded on first use), kept out of

@@ -301,7 +301,7 @@ def render_seconds(
 
 def seconds_text(seconds: float) -> str:
     """An estimate in words: ``about 0.4 s``, ``about 12 s``, ``about 3 min``."""
-    from .raycast import duration
+    from ._budget import duration
 
     if seconds < 9.5:
         return f"about {seconds:.1g} s" if seconds < 1 else f"about {seconds:.1f} s"

@@ -25,6 +25,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ._budget import check_rays
 from ._validate import (
     as_array,
     as_real,
@@ -40,7 +41,7 @@ from .bvh.layout import Frame
 from .geometry import vertex_sums
 from .mesh import SimplexMesh, as_mesh, warn_if_inside_out
 from .opencl import cl
-from .raycast import ACCELS, check_distance, check_rays, count_occluded, get_bvh, mesh_arrays, progress_bar, unit_rows
+from .raycast import ACCELS, check_distance, count_occluded, get_bvh, mesh_arrays, progress_bar, unit_rows
 from .topology import GRID_EDGE_KEY
 
 __all__ = [
@@ -316,7 +317,7 @@ def ambient_occlusion(
         ``"brute"`` tests every simplex (for checks and benchmarks; same answer).
     max_rays : float, optional
         Refuse, before any work, to trace more rays than this (default
-        ``ao4d.raycast.MAX_RAYS`` of the backend that runs: about half an hour of work at its
+        ``ao4d._budget.MAX_RAYS`` of the backend that runs: about half an hour of work at its
         typical rate); ``math.inf`` lifts the limit. With ``tolerance`` the most rays any
         point may take (``max_samples``) count.
     tolerance : float, optional

@@ -125,36 +125,10 @@ class RayHits:
 # -- input handling ---------------------------------------------------------------------------
 
 
-# Typical rates (rays/s) on this project's 2-core machine, for estimates before long work; a
-# GPU is faster, which only makes the estimate cautious.
-RAYS_PER_SECOND = {"opencl": 8e6, "numpy": 7e4}
-# Refuse more rays than this by default: about half an hour at the typical rate.
-MAX_RAYS = {backend: 1800 * rate for backend, rate in RAYS_PER_SECOND.items()}
-
-
-def duration(seconds: float) -> str:
-    """A rough duration for estimates ("about 40 s", "about 3 h", "about 12 days")."""
-    for unit, size in (("days", 86400), ("h", 3600), ("min", 60)):
-        if seconds >= 2 * size:
-            return f"about {seconds / size:.0f} {unit}"
-    return f"about {max(seconds, 1):.0f} s"
-
-
 def _reach32(max_distance: float) -> np.float32:
     """A ray length for the float32 kernels: beyond float32's range it is infinite (the trees
     span about one unit), so the cast is not an overflow warning printed to the user."""
     return np.float32(max_distance) if max_distance <= float(np.finfo(np.float32).max) else np.float32(np.inf)
-
-
-def check_rays(n_rays: float, backend: str, limit: float | None, *, what: str, hint: str) -> None:
-    """Refuse, before any work, to trace more than ``limit`` rays (default ``MAX_RAYS[backend]``)."""
-    limit = MAX_RAYS[backend] if limit is None else as_real(limit, "max_rays", finite=False, gt=0)
-    if n_rays > limit:
-        raise ValueError(
-            f"{what} asks for {n_rays:.3g} rays, {duration(n_rays / RAYS_PER_SECOND[backend])} on the "
-            f"{backend} backend at ~{RAYS_PER_SECOND[backend]:.2g} rays/s, above the limit of "
-            f"{limit:.3g} rays; {hint}"
-        )
 
 
 def check_distance(max_distance: Any) -> float:

@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from ._dask import block_sizes, is_dask_array
 from ._npz import npy_problem
 from ._validate import as_real, as_vector, check_bool, check_grid_lengths, check_memory, regular_file
 
@@ -114,8 +115,6 @@ class Grid:
     @property
     def lazy(self) -> bool:
         """True when the values are a dask array (read block by block when used)."""
-        from .marching.blockwise import is_dask_array
-
         return is_dask_array(self.values)
 
     def __repr__(self) -> str:
@@ -368,8 +367,6 @@ def _read_one(text: str, scale: dict | None = None) -> tuple[Any, np.ndarray, np
 def _as_dask(values: Any, chunks: Any, text: str) -> Any:
     import dask.array as da
     import dask.base
-
-    from .marching.blockwise import block_sizes, is_dask_array
 
     sizes = block_sizes(chunks, tuple(int(n) for n in values.shape))
     if is_dask_array(values):

@@ -55,6 +55,7 @@ from typing import Any, Literal
 import numpy as np
 
 from . import _progress
+from ._budget import RAYS_PER_SECOND, check_rays
 from ._validate import (
     as_array,
     as_real,
@@ -71,7 +72,7 @@ from .compositing import over, unpremultiply
 from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, lambert
 from .mesh import SimplexMesh, as_meshes, concatenate, warn_if_inside_out
 from .opencl import cl
-from .raycast import RAYS_PER_SECOND, Tracer, check_distance, check_rays, trace
+from .raycast import Tracer, check_distance, trace
 from .screen_ao import (
     DENOISE_PER_SECOND,
     LOOKUPS_PER_SECOND,
@@ -436,7 +437,7 @@ def render(
         images of 2^18 voxels or more.
     max_rays : float, optional
         Refuse, before any work, a render whose rays (primary, AO, shadow and layer rays, an
-        upper bound) exceed this; default :data:`ao4d.raycast.MAX_RAYS` of the backend
+        upper bound) exceed this; default :data:`ao4d._budget.MAX_RAYS` of the backend
         (about half an hour of work), ``math.inf`` for no limit (CLI: ``--force``).
 
     Returns

@@ -79,11 +79,11 @@ from functools import cached_property
 
 import numpy as np
 
+from ._budget import RAYS_PER_SECOND, check_rays
 from ._validate import as_array, as_real, check_int, check_memory, check_positive_int, check_seed
 from .camera import Camera4D, image_shape
 from .mesh import as_mesh
 from .opencl import cl
-from .raycast import RAYS_PER_SECOND, check_rays
 from .sampling import cosine_hemisphere, sobol_table
 
 __all__ = [
@@ -108,7 +108,7 @@ __all__ = [
 # the surface's own voxels), a long one needs more, or whole objects are stepped over.
 STEP_VOXELS, MIN_STEPS, MAX_STEPS = 8, 4, 16
 GRAZING = 0.1  # |u . m| below which the voxel's depth replaces its tangent hyperplane
-# Rates for render's estimates before work, on the fast side (raycast.RAYS_PER_SECOND's rule):
+# Rates for render's estimates before work, on the fast side (_budget.RAYS_PER_SECOND's rule):
 # depth look-ups per second and denoise filter-window voxels per second, per backend
 LOOKUPS_PER_SECOND = {"opencl": 1e8, "numpy": 1e6}
 DENOISE_PER_SECOND = {"opencl": 1e9, "numpy": 1.5e7}
@@ -407,7 +407,7 @@ def screen_space_occlusion(
     max_rays : float, optional
         Refuse, before any work, when the ``N * samples * steps`` depth look-ups, counted as
         rays at their cost (``LOOKUPS_PER_SECOND``), exceed this (default
-        ``ao4d.raycast.MAX_RAYS`` of the backend: about half an hour); ``math.inf`` lifts it.
+        ``ao4d._budget.MAX_RAYS`` of the backend: about half an hour); ``math.inf`` lifts it.
 
     Returns
     -------

@@ -4,7 +4,7 @@
    float64, never held anywhere): the in-process slab path (``extract_field``) against
    ``extract_field(..., blocks=)`` on a ``LocalCluster`` of 2 worker processes (1 thread each),
    started with dask's default worker environment and inside
-   ``ao4d.marching.blockwise.worker_environment()`` (no ``MALLOC_TRIM_THRESHOLD_``).
+   ``ao4d.worker_environment()`` (no ``MALLOC_TRIM_THRESHOLD_``).
    Wall time, cells per second, peak resident memory of the client process (taken when the
    extraction returns) and of each worker (``ru_maxrss``), and whether the two meshes are identical (sha256 of vertices and simplices).
    Each case runs in a fresh process, one after the other.
@@ -81,7 +81,7 @@ def _case(kind: str, grid: int, chunks: int) -> dict:
 
         from distributed import Client, LocalCluster
 
-        from ao4d.marching.blockwise import WorkerEnvironmentWarning, worker_environment
+        from ao4d import WorkerEnvironmentWarning, worker_environment
 
         warnings.simplefilter("ignore", WorkerEnvironmentWarning)  # the default case is measured
         env = worker_environment() if kind == "cluster-tuned" else contextlib.nullcontext()
@@ -188,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{slab['closed'] and cluster['closed'] and tuned['closed']}; identical arrays on all "
             f"paths: {same}; speed-up over the slab path {slab['seconds'] / cluster['seconds']:.2f}x "
             f"(dask's worker environment), {slab['seconds'] / tuned['seconds']:.2f}x "
-            "(ao4d.marching.blockwise.worker_environment)"
+            "(ao4d.worker_environment)"
         )
     if not args.skip_datasets:
         with tempfile.TemporaryDirectory(prefix="ao4d-scale-") as tmp:

@@ -276,7 +276,7 @@ def test_process_workers_pickle_the_tasks(tmp_path):
 
     from distributed import Client, LocalCluster
 
-    from ao4d.marching.blockwise import WorkerEnvironmentWarning, worker_environment
+    from ao4d import WorkerEnvironmentWarning, worker_environment
 
     values = _noise(np.random.default_rng(11), (11, 10, 9, 8))
     np.save(tmp_path / "v.npy", values)

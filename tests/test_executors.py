@@ -52,7 +52,7 @@ def cluster():
     """Two worker processes of one thread, shared by the tests of this module."""
     from distributed import LocalCluster
 
-    from ao4d.marching.blockwise import worker_environment
+    from ao4d import worker_environment
 
     with worker_environment():
         cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0")

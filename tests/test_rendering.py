@@ -968,7 +968,7 @@ def test_booleans_are_not_numbers(option):
 
 
 def test_ray_budget_is_checked_before_any_ray_and_can_be_lifted(monkeypatch):
-    from ao4d import raycast
+    from ao4d import _budget, raycast
 
     mesh, cam = _small_scene()
     cast = []
@@ -976,7 +976,7 @@ def test_ray_budget_is_checked_before_any_ray_and_can_be_lifted(monkeypatch):
     with pytest.raises(ValueError, match=r"pass max_rays=math.inf \(CLI: --force\)"):
         render(mesh, cam, (16, 16, 16), ao="hits", samples=200000, backend="numpy")
     assert not cast  # before: the primary rays ran first, and render had no max_rays
-    monkeypatch.setitem(raycast.MAX_RAYS, "numpy", 100)
+    monkeypatch.setitem(_budget.MAX_RAYS, "numpy", 100)
     with pytest.raises(ValueError, match="above the limit"):
         render(mesh, cam, (8, 8, 8), ao="none", backend="numpy")
     img = render(mesh, cam, (8, 8, 8), ao="none", backend="numpy", max_rays=math.inf)
@@ -1004,11 +1004,11 @@ def test_screen_ao_and_its_filter_are_budgeted_before_any_ray(backend, request, 
 
 
 def test_render_command_force_lifts_the_ray_budget(tmp_path, capsys, monkeypatch):
-    from ao4d import cli, raycast
+    from ao4d import _budget, cli
 
     mesh, _ = _small_scene()
     mesh.save(tmp_path / "ball.npz")
-    monkeypatch.setitem(raycast.MAX_RAYS, "numpy", 100)
+    monkeypatch.setitem(_budget.MAX_RAYS, "numpy", 100)
     argv = [
         "render",
         str(tmp_path / "ball.npz"),

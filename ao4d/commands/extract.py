@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import Any
 
 from ._options import add_force
 
@@ -112,7 +113,7 @@ MAX_CELLS = 600 * CELLS_PER_SECOND
 
 
 def _estimate(n_cells: float, force: bool) -> None:
-    from ..raycast import duration
+    from .._budget import duration
 
     seconds = n_cells / CELLS_PER_SECOND
     if n_cells >= 1e8:
@@ -125,14 +126,10 @@ def _estimate(n_cells: float, force: bool) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import math
     import warnings
 
-    import numpy as np
-
     from .._atomic import all_or_nothing, check_output_file
-    from ..fields import preset
-    from ..marching.march import EmptyMeshWarning, extract, extract_field
+    from ..marching.march import EmptyMeshWarning
     from ..mesh_files import SUFFIXES, MeshArrays, write
 
     _check_options(args)
@@ -140,74 +137,12 @@ def run(args: argparse.Namespace) -> int:
     if args.vtu:
         outputs.append(check_output_file(args.vtu, "--vtu", (".vtu",)))
     start = time.perf_counter()
-    field = None
-    caught = warnings.catch_warnings(record=True)
-    seen = caught.__enter__()
-    warnings.simplefilter("always", EmptyMeshWarning)
-    if args.shape is not None:
-        field = preset(args.shape)
-        _estimate(float(args.grid - 1) ** field.dim, args.force)
-        if args.bounds is not None:
-            bounds = tuple(args.bounds)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always", EmptyMeshWarning)
+        if args.shape is not None:
+            mesh, what, info, field = _from_shape(args)
         else:
-            lo, hi = field.extent
-            pad = 0.1 * (hi - lo)
-            bounds = (lo - pad, hi + pad)
-        if args.closed:  # the padding works on values: sample the field, then extract
-            from ..fields import sample
-
-            mesh = extract(
-                sample(field, args.grid, bounds),
-                args.level,
-                method=args.method,
-                inside=args.inside,
-                chunk=args.chunk,
-                closed=True,
-                spacing=(bounds[1] - bounds[0]) / (args.grid - 1),
-                origin=bounds[0],
-            )
-        else:
-            mesh = extract_field(
-                field, args.grid, bounds, args.level, method=args.method, inside=args.inside, chunk=args.chunk
-            )
-        what = f"{field.name} on a {args.grid}^{field.dim} grid"
-        info = {"source": f"--shape {args.shape}"}
-    else:
-        from ..readers import read_grid
-
-        grid = read_grid(
-            args.input,
-            spacing=_one_or_many(args.spacing),
-            origin=_one_or_many(args.origin),
-            ndim=args.dim,
-            w_scale=args.w_scale,
-            keep_affine=args.affine,
-        )
-        print(
-            f"read {grid.source}: shape {grid.shape}, {grid.values.dtype}"
-            f"{' (lazy, block by block)' if grid.lazy else ''}; spacing "
-            f"{np.round(grid.spacing, 6).tolist()}, origin {np.round(grid.origin, 6).tolist()}"
-            + (f" ({'; '.join(grid.notes)})" if grid.notes else "")
-        )
-        _estimate(float(math.prod(n - 1 for n in grid.shape)), args.force)
-        if grid.w_scale is not None:
-            print(
-                f"w scale: {grid.w_scale:.6g} length units per {grid.units[3]} "
-                f"(w step {grid.spacing[3]:.6g}; recorded in the mesh file)"
-            )
-        place = {"affine": grid.affine} if grid.affine is not None else {"spacing": grid.spacing, "origin": grid.origin}
-        mesh = extract(
-            grid.values,
-            args.level,
-            method=args.method,
-            inside=args.inside,
-            chunk=args.chunk,
-            closed=args.closed,
-            **place,
-        )
-        what = f"{args.input} {grid.shape} at level {args.level:g}"
-        info = _grid_info(grid)
-    caught.__exit__(None, None, None)
+            mesh, what, info, field = _from_input(args)
     for w in seen:
         if issubclass(w.category, EmptyMeshWarning):  # nothing to write: say why, exit 2
             raise ValueError(str(w.message))
@@ -231,6 +166,83 @@ def run(args: argparse.Namespace) -> int:
             mesh.to_vtu(args.vtu)
     print("wrote " + ", ".join(map(str, outputs)))
     return 0
+
+
+def _from_shape(args: argparse.Namespace) -> tuple[Any, str, dict, Any]:
+    """(mesh, what was extracted, what the mesh file records, the field) for ``--shape``."""
+    from ..fields import preset
+    from ..marching.march import extract, extract_field
+
+    field = preset(args.shape)
+    _estimate(float(args.grid - 1) ** field.dim, args.force)
+    if args.bounds is not None:
+        bounds = tuple(args.bounds)
+    else:
+        lo, hi = field.extent
+        pad = 0.1 * (hi - lo)
+        bounds = (lo - pad, hi + pad)
+    if args.closed:  # the padding works on values: sample the field, then extract
+        from ..fields import sample
+
+        mesh = extract(
+            sample(field, args.grid, bounds),
+            args.level,
+            method=args.method,
+            inside=args.inside,
+            chunk=args.chunk,
+            closed=True,
+            spacing=(bounds[1] - bounds[0]) / (args.grid - 1),
+            origin=bounds[0],
+        )
+    else:
+        mesh = extract_field(
+            field, args.grid, bounds, args.level, method=args.method, inside=args.inside, chunk=args.chunk
+        )
+    what = f"{field.name} on a {args.grid}^{field.dim} grid"
+    return mesh, what, {"source": f"--shape {args.shape}"}, field
+
+
+def _from_input(args: argparse.Namespace) -> tuple[Any, str, dict, None]:
+    """(mesh, what was extracted, what the mesh file records, no field) for ``--input``."""
+    import math
+
+    import numpy as np
+
+    from ..marching.march import extract
+    from ..readers import read_grid
+
+    grid = read_grid(
+        args.input,
+        spacing=_one_or_many(args.spacing),
+        origin=_one_or_many(args.origin),
+        ndim=args.dim,
+        w_scale=args.w_scale,
+        keep_affine=args.affine,
+    )
+    print(
+        f"read {grid.source}: shape {grid.shape}, {grid.values.dtype}"
+        f"{' (lazy, block by block)' if grid.lazy else ''}; spacing "
+        f"{np.round(grid.spacing, 6).tolist()}, origin {np.round(grid.origin, 6).tolist()}"
+        + (f" ({'; '.join(grid.notes)})" if grid.notes else "")
+    )
+    _estimate(float(math.prod(n - 1 for n in grid.shape)), args.force)
+    if grid.w_scale is not None:
+        print(
+            f"w scale: {grid.w_scale:.6g} length units per {grid.units[3]} "
+            f"(w step {grid.spacing[3]:.6g}; recorded in the mesh file)"
+        )
+    place = {"affine": grid.affine} if grid.affine is not None else {"spacing": grid.spacing, "origin": grid.origin}
+    mesh = extract(
+        grid.values,
+        args.level,
+        method=args.method,
+        inside=args.inside,
+        chunk=args.chunk,
+        closed=args.closed,
+        **place,
+    )
+    what = f"{args.input} {grid.shape} at level {args.level:g}"
+    return mesh, what, _grid_info(grid), None
 
 
 def _check_options(args: argparse.Namespace) -> None:

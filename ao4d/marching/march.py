@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from .._dask import is_dask_array
 from .._validate import (
     as_array,
     as_real,
@@ -201,8 +202,6 @@ def extract(
     >>> mesh.check().ok, mesh.dim
     (True, 4)
     """
-    from .blockwise import is_dask_array
-
     closed = check_bool(closed, "closed")
     if isinstance(values, np.ma.MaskedArray):
         masked = int(np.ma.count_masked(values))
