@@ -329,86 +329,11 @@ class _Engine:
         vertices' keys (K,) int64, the active cells and their simplex counts; the last three
         only with ``want_cells``, else None).
         """
-        cl_, q = self.cl, self.queue
-        d = self.d
-        i32 = np.int32
-        kv = _kernel_value(slab.dtype, self.fp64)
-        if kv is None:
-            slab, kv = slab.astype(np.float64), _kernel_value(np.dtype(np.float64), self.fp64)
-        fill = getattr(slab, "fill_device", None)  # a field sampled on the device: ao4d.marching.fields_device
-        k = self.kernels(*kv)
-        n = slab.size
-        chunks = -(-n // _CHUNK)
-        blocks = -(-chunks // _SCAN_BLOCK)
-        n0 = slab.shape[0]
-        scratch = self._scratch
-        # an aligned array in memory is read in place by a CPU device (no upload: a copy of the
-        # whole slab, a sixth of a 256^3 march); others are copied into the scratch buffer
-        host_values = fill is None and self.in_place and readable_in_place(slab)
-        if host_values:
-            values = cl_.Buffer(self.ctx, self.mf.READ_ONLY | self.mf.USE_HOST_PTR, hostbuf=slab)
-        else:
-            values = scratch("values", slab.nbytes)
-        sign = scratch("sign", n + 16)  # classify reads 16 bytes past the last point
-        cases = scratch("cases", chunks * _CHUNK * self.case_size)
-        vmask = scratch("vmask", chunks * _CHUNK * self.mask_size)
-        chunk_vi, chunk_va, chunk_s, chunk_a = (scratch(f"chunk {x}", chunks * 4) for x in ("vi", "va", "s", "a"))
-        blk = scratch("blocks", 4 * blocks * 4)
-        totals_buf = scratch("totals", 16)
-        bad_buf = scratch("bad", 4)
-        t = time.perf_counter()
-        if fill is not None:
-            fill(self.runtime, values)
-        elif not host_values:
-            cl_.enqueue_copy(q, values, np.ascontiguousarray(slab), is_blocking=False)
-        t = _stage("upload", q, t)
-        thr, mode = self._threshold_arg(level, slab.dtype, inside, kv[1])
-        cl_.enqueue_fill_buffer(q, bad_buf, np.int32(0), 0, 4)
-        k["sign"](q, (-(-n // 16),), None, values, sign, thr, mode, bad_buf, i32(n))
-        t = _stage("sign", q, t)
-        top_start = (n0 - 1) * self.layer
-        cur, nxt = self.carry
-        if chunks * _CHUNK > n:  # zero the last chunk's padding
-            zero = np.uint8(0)
-            cl_.enqueue_fill_buffer(q, cases, zero, n * self.case_size, (chunks * _CHUNK - n) * self.case_size)
-            cl_.enqueue_fill_buffer(q, vmask, zero, n * self.mask_size, (chunks * _CHUNK - n) * self.mask_size)
-        e = slab.shape
-        grid = (-(-e[-1] // 16), e[-2], n // (e[-1] * e[-2]))
-        shared = self.in_plane if (self.has_below if below is None else below) else 0
-        k["classify"](
-            q,
-            grid,
-            None,
-            sign,
-            cases,
-            vmask,
-            self.tables["counts"],
-            i32(shared),
-            *self.strides,
-            *self.user_bits,
-            i32(e[0]),
-            i32(e[1] if d == 4 else 1),
-            i32(e[-1]),
-        )
-        t = _stage("classify", q, t)
-        in_plane = i32(self.in_plane)
-        k["count"](
-            q, (chunks,), None, cases, vmask, self.tables["counts"], chunk_vi, chunk_va, chunk_s, chunk_a, in_plane
-        )
-        k["scan_chunks"](q, (blocks,), None, chunk_vi, chunk_va, chunk_s, chunk_a, blk, i32(chunks), i32(blocks))
-        k["scan_blocks"](q, (1,), None, blk, i32(blocks), totals_buf)
-        totals = np.empty(4, dtype=np.int32)
-        bad = np.zeros(1, dtype=np.int32)
-        if check:
-            cl_.enqueue_copy(q, bad, bad_buf, is_blocking=False)
-        cl_.enqueue_copy(q, totals, totals_buf)
-        if host_values:  # no kernel keeps the caller's array past this call
-            k["sign"].set_arg(0, scratch("placeholder", 64))
-        if bad[0]:
-            check_finite(slab, "values")  # counts them and raises
-        t = _stage("count and scan", q, t)
-        n_in, n_ax, n_simp, n_active = (int(x) for x in totals)
-        n_new = n_in + n_ax
+        run = _SlabMarch(self, slab)
+        run.upload()
+        run.sign(level, inside)
+        run.classify(self.in_plane if (self.has_below if below is None else below) else 0)
+        n_new, n_simp, n_active = run.count(check)
         if take is None:
             return n_new, n_simp
         self.has_below = True
@@ -419,176 +344,322 @@ class _Engine:
                 f"the mesh would have more than {_INT_MAX:,} vertices, more than the "
                 "device engine indexes; use backend='numpy' (AO4D_DEVICE=none)"
             )
-        if n_simp * d > _INT_MAX:
+        if n_simp * self.d > _INT_MAX:
             raise MemoryError(
                 f"one slab makes {n_simp:,} simplices, more than the device engine "
                 "indexes in one slab; use thinner slabs (`chunk=`)"
             )
         simplices, vertices = take(n_simp, n_new)
-        wide = simplices.dtype == np.int64
-        # the final rows themselves where the device can write them in place: a CPU device and
-        # rows that start on a page (the first slab's; other slabs' would be copied)
-        in_place = (
-            self.in_place and simplices.ctypes.data % PAGE == 0 and (n_new == 0 or vertices.ctypes.data % PAGE == 0)
+        run.outputs(simplices, vertices, n_new)
+        run.number(z0, n_new, n_active)
+        run.emit(n_active)
+        run.interpolate(z0, level, n_new)
+        found = run.read_back(simplices, vertices, n_new, n_active, want_cells)
+        self.carry = [run.nxt, run.cur]  # the top layer's vertices: the next slab's shared layer
+        self.n_vertices += n_new
+        return found
+
+    def release(self) -> None:
+        for buf in self.carry:
+            buf.release()
+        self.carry = []
+
+
+class _SlabMarch:
+    """One slab's march on an :class:`_Engine`: its buffers and kernel launches, step by step.
+
+    The steps run in order: :meth:`upload`, :meth:`sign`, :meth:`classify`, :meth:`count`; then,
+    with a place for the rows, :meth:`outputs`, :meth:`number`, :meth:`emit`,
+    :meth:`interpolate` and :meth:`read_back`.
+    """
+
+    def __init__(self, engine: _Engine, slab: np.ndarray) -> None:
+        kv = _kernel_value(slab.dtype, engine.fp64)
+        if kv is None:
+            slab, kv = slab.astype(np.float64), _kernel_value(np.dtype(np.float64), engine.fp64)
+        self.engine, self.slab, self.vkind = engine, slab, kv[1]
+        self.cl, self.q = engine.cl, engine.queue
+        self.fill = getattr(slab, "fill_device", None)  # a field sampled on the device: ao4d.marching.fields_device
+        self.k = engine.kernels(*kv)
+        self.n = n = slab.size
+        self.chunks = chunks = -(-n // _CHUNK)
+        self.blocks = blocks = -(-chunks // _SCAN_BLOCK)
+        self.n0 = slab.shape[0]
+        scratch = self.scratch = engine._scratch
+        # an aligned array in memory is read in place by a CPU device (no upload: a copy of the
+        # whole slab, a sixth of a 256^3 march); others are copied into the scratch buffer
+        self.host_values = self.fill is None and engine.in_place and readable_in_place(slab)
+        if self.host_values:
+            self.values = self.cl.Buffer(engine.ctx, engine.mf.READ_ONLY | engine.mf.USE_HOST_PTR, hostbuf=slab)
+        else:
+            self.values = scratch("values", slab.nbytes)
+        self.sign_buf = scratch("sign", n + 16)  # classify reads 16 bytes past the last point
+        self.cases = scratch("cases", chunks * _CHUNK * engine.case_size)
+        self.vmask = scratch("vmask", chunks * _CHUNK * engine.mask_size)
+        self.chunk_vi, self.chunk_va, self.chunk_s, self.chunk_a = (
+            scratch(f"chunk {x}", chunks * 4) for x in ("vi", "va", "s", "a")
         )
-        if in_place:
-            flags = self.mf.WRITE_ONLY | self.mf.USE_HOST_PTR
-            out = cl_.Buffer(self.ctx, flags, hostbuf=simplices)
-            verts = cl_.Buffer(self.ctx, flags, hostbuf=vertices) if n_new else None
-        else:
-            out = scratch("simplices", n_simp * d * (8 if wide else 4))
-            verts = scratch("vertices", n_new * d * 8)
-        keys_buf = scratch("keys", n_new * 4)
-        if self.vertex_blocks:  # (ki, ka) per block of 16 points
-            vblock = scratch("vertex blocks", chunks * _CHUNK // 16 * 8)
-            vfirst = vax = scratch("placeholder", 64)
-        else:
-            vblock = scratch("placeholder", 64)
-            vfirst, vax = scratch("vfirst", n * 4), scratch("vax", n * 4)
-        layer_in, layer_ax = scratch("layer in", (n0 + 1) * 4), scratch("layer ax", (n0 + 1) * 4)
-        act_p, act_s = scratch("active points", n_active * 4), scratch("active first", n_active * 4)
-        act_b = scratch("active flags", n_active)
-        z0_, period = i32(z0), i32(self.period)
-        k["layer_prefix"](
+        self.blk = scratch("blocks", 4 * blocks * 4)
+        self.totals_buf = scratch("totals", 16)
+        self.bad_buf = scratch("bad", 4)
+        self.cur, self.nxt = engine.carry
+        self.t = time.perf_counter()
+
+    def _stage(self, name: str) -> None:
+        self.t = _stage(name, self.q, self.t)
+
+    def upload(self) -> None:
+        """The slab's values into the device buffer (sampled there, copied, or read in place)."""
+        if self.fill is not None:
+            self.fill(self.engine.runtime, self.values)
+        elif not self.host_values:
+            self.cl.enqueue_copy(self.q, self.values, np.ascontiguousarray(self.slab), is_blocking=False)
+        self._stage("upload")
+
+    def sign(self, level: float, inside: str) -> None:
+        """Each value's side of the level; NaN and infinities flagged in the ``bad`` buffer."""
+        thr, mode = self.engine._threshold_arg(level, self.slab.dtype, inside, self.vkind)
+        self.cl.enqueue_fill_buffer(self.q, self.bad_buf, np.int32(0), 0, 4)
+        self.k["sign"](
+            self.q, (-(-self.n // 16),), None, self.values, self.sign_buf, thr, mode, self.bad_buf, np.int32(self.n)
+        )
+        self._stage("sign")
+
+    def classify(self, shared: int) -> None:
+        """Each cell's case and each point's new crossed edges (``shared``: the in-plane
+        directions whose edges the slab below gave vertices, or 0)."""
+        engine, q, n = self.engine, self.q, self.n
+        padded = self.chunks * _CHUNK
+        if padded > n:  # zero the last chunk's padding
+            zero = np.uint8(0)
+            self.cl.enqueue_fill_buffer(q, self.cases, zero, n * engine.case_size, (padded - n) * engine.case_size)
+            self.cl.enqueue_fill_buffer(q, self.vmask, zero, n * engine.mask_size, (padded - n) * engine.mask_size)
+        e = self.slab.shape
+        grid = (-(-e[-1] // 16), e[-2], n // (e[-1] * e[-2]))
+        self.k["classify"](
             q,
+            grid,
+            None,
+            self.sign_buf,
+            self.cases,
+            self.vmask,
+            engine.tables["counts"],
+            np.int32(shared),
+            *engine.strides,
+            *engine.user_bits,
+            np.int32(e[0]),
+            np.int32(e[1] if engine.d == 4 else 1),
+            np.int32(e[-1]),
+        )
+        self._stage("classify")
+
+    def count(self, check: bool) -> tuple[int, int, int]:
+        """(new vertices, simplices, active cells) of the slab: counted per chunk and scanned.
+
+        ``check``: raise ``ValueError`` naming ``values`` when the slab holds NaN or infinities.
+        """
+        k, q, cl_ = self.k, self.q, self.cl
+        chunks, blocks = self.chunks, self.blocks
+        counts = (self.chunk_vi, self.chunk_va, self.chunk_s, self.chunk_a)
+        tables = self.engine.tables
+        k["count"](
+            q, (chunks,), None, self.cases, self.vmask, tables["counts"], *counts, np.int32(self.engine.in_plane)
+        )
+        k["scan_chunks"](q, (blocks,), None, *counts, self.blk, np.int32(chunks), np.int32(blocks))
+        k["scan_blocks"](q, (1,), None, self.blk, np.int32(blocks), self.totals_buf)
+        totals = np.empty(4, dtype=np.int32)
+        bad = np.zeros(1, dtype=np.int32)
+        if check:
+            cl_.enqueue_copy(q, bad, self.bad_buf, is_blocking=False)
+        cl_.enqueue_copy(q, totals, self.totals_buf)
+        if self.host_values:  # no kernel keeps the caller's array past this call
+            k["sign"].set_arg(0, self.scratch("placeholder", 64))
+        if bad[0]:
+            check_finite(self.slab, "values")  # counts them and raises
+        self._stage("count and scan")
+        n_in, n_ax, n_simp, n_active = (int(x) for x in totals)
+        return n_in + n_ax, n_simp, n_active
+
+    def outputs(self, simplices: np.ndarray, vertices: np.ndarray, n_new: int) -> None:
+        """The device buffers the simplices and new vertices are written to: the final rows
+        themselves where the device can write them in place (a CPU device and rows that start on
+        a page: the first slab's; other slabs' would be copied), else scratch buffers."""
+        engine = self.engine
+        self.wide = simplices.dtype == np.int64
+        self.in_place = (
+            engine.in_place and simplices.ctypes.data % PAGE == 0 and (n_new == 0 or vertices.ctypes.data % PAGE == 0)
+        )
+        if self.in_place:
+            flags = engine.mf.WRITE_ONLY | engine.mf.USE_HOST_PTR
+            self.out = self.cl.Buffer(engine.ctx, flags, hostbuf=simplices)
+            self.verts = self.cl.Buffer(engine.ctx, flags, hostbuf=vertices) if n_new else None
+        else:
+            self.out = self.scratch("simplices", len(simplices) * engine.d * (8 if self.wide else 4))
+            self.verts = self.scratch("vertices", n_new * engine.d * 8)
+
+    def number(self, z0: int, n_new: int, n_active: int) -> None:
+        """Number the new vertices in the numpy engine's order (keeping the top layer's in-plane
+        ones for the next slab) and compact the active cells with their first simplex."""
+        engine, scratch, n, n0 = self.engine, self.scratch, self.n, self.n0
+        self.keys_buf = scratch("keys", n_new * 4)
+        if engine.vertex_blocks:  # (ki, ka) per block of 16 points
+            self.vblock = scratch("vertex blocks", self.chunks * _CHUNK // 16 * 8)
+            self.vfirst = self.vax = scratch("placeholder", 64)
+        else:
+            self.vblock = scratch("placeholder", 64)
+            self.vfirst, self.vax = scratch("vfirst", n * 4), scratch("vax", n * 4)
+        self.layer_in, self.layer_ax = scratch("layer in", (n0 + 1) * 4), scratch("layer ax", (n0 + 1) * 4)
+        self.act_p, self.act_s = scratch("active points", n_active * 4), scratch("active first", n_active * 4)
+        self.act_b = scratch("active flags", n_active)
+        in_plane, layer = np.int32(engine.in_plane), np.int32(engine.layer)
+        chunk_counts = (self.chunk_vi, self.chunk_va)
+        self.k["layer_prefix"](
+            self.q,
             (n0 + 1,),
             None,
-            vmask,
-            chunk_vi,
-            chunk_va,
-            blk,
-            totals_buf,
-            layer_in,
-            layer_ax,
-            i32(self.layer),
-            i32(n),
-            i32(blocks),
+            self.vmask,
+            *chunk_counts,
+            self.blk,
+            self.totals_buf,
+            self.layer_in,
+            self.layer_ax,
+            layer,
+            np.int32(n),
+            np.int32(self.blocks),
             in_plane,
         )
-        k["number"](
-            q,
-            (chunks,),
+        self.k["number"](
+            self.q,
+            (self.chunks,),
             None,
-            cases,
-            vmask,
-            self.tables["counts"],
-            chunk_vi,
-            chunk_va,
-            chunk_s,
-            chunk_a,
-            blk,
-            layer_in,
-            layer_ax,
-            vblock,
-            vfirst,
-            vax,
-            keys_buf,
-            nxt,
-            act_p,
-            act_s,
-            act_b,
-            i32(blocks),
-            i32(self.n_vertices),
+            self.cases,
+            self.vmask,
+            engine.tables["counts"],
+            *chunk_counts,
+            self.chunk_s,
+            self.chunk_a,
+            self.blk,
+            self.layer_in,
+            self.layer_ax,
+            self.vblock,
+            self.vfirst,
+            self.vax,
+            self.keys_buf,
+            self.nxt,
+            self.act_p,
+            self.act_s,
+            self.act_b,
+            np.int32(self.blocks),
+            np.int32(engine.n_vertices),
             in_plane,
-            i32(top_start),
-            i32(self.layer),
-            z0_,
-            period,
+            np.int32((n0 - 1) * engine.layer),  # the top layer's first point
+            layer,
+            np.int32(z0),
+            np.int32(engine.period),
         )
-        t = _stage("number", q, t)
-        k["emit64" if wide else "emit32"](
-            q,
+        self._stage("number")
+
+    def emit(self, n_active: int) -> None:
+        """Each active cell's simplices, table row by table row, into the output buffer."""
+        engine = self.engine
+        self.k["emit64" if self.wide else "emit32"](
+            self.q,
             (n_active,),
             None,
-            cases,
-            vmask,
-            vblock,
-            vfirst,
-            vax,
-            layer_in,
-            layer_ax,
-            cur,
-            act_p,
-            act_s,
-            act_b,
-            self.tables["offsets"],
-            self.tables["table"],
-            self.edge_off,
-            self.edge_dir,
-            in_plane,
-            i32(self.layer),
-            i32(self.n_vertices),
-            out,
+            self.cases,
+            self.vmask,
+            self.vblock,
+            self.vfirst,
+            self.vax,
+            self.layer_in,
+            self.layer_ax,
+            self.cur,
+            self.act_p,
+            self.act_s,
+            self.act_b,
+            engine.tables["offsets"],
+            engine.tables["table"],
+            engine.edge_off,
+            engine.edge_dir,
+            np.int32(engine.in_plane),
+            np.int32(engine.layer),
+            np.int32(engine.n_vertices),
+            self.out,
         )
-        t = _stage("emit", q, t)
+        self._stage("emit")
+
+    def interpolate(self, z0: int, level: float, n_new: int) -> None:
+        """Every new vertex's position, with :func:`ao4d.marching.cells.interpolate`'s operations."""
+        engine = self.engine
         if n_new:
-            real, pad = self.real, [0] * (4 - d)
-            index, origin, spacing = self.geom.frame(z0)  # what cells.interpolate adds and scales
-            shape = list(e[1:]) + [1] * (4 - d)
-            perm = list(self.geom.perm) + pad
+            d = engine.d
+            real, pad = engine.real, [0] * (4 - d)
+            index, origin, spacing = engine.geom.frame(z0)  # what cells.interpolate adds and scales
+            shape = list(self.slab.shape[1:]) + [1] * (4 - d)
+            perm = list(engine.geom.perm) + pad
             base = index + pad
             origin = [real(x) for x in origin + pad]
             spacing = [real(x) for x in spacing + pad]
-            k["interpolate"](
-                q,
+            self.k["interpolate"](
+                self.q,
                 (n_new,),
                 None,
-                values,
-                keys_buf,
-                verts,
+                self.values,
+                self.keys_buf,
+                self.verts,
                 real(level),
-                *(i32(x) for x in shape[:3]),
-                *self.strides,
-                *(i32(x) for x in perm),
-                *(i32(x) for x in base),
+                *(np.int32(x) for x in shape[:3]),
+                *engine.strides,
+                *(np.int32(x) for x in perm),
+                *(np.int32(x) for x in base),
                 *origin,
                 *spacing,
             )
-        t = _stage("interpolate", q, t)
+        self._stage("interpolate")
+
+    def read_back(
+        self, simplices: np.ndarray, vertices: np.ndarray, n_new: int, n_active: int, want_cells: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """The rows read (or mapped) back, and with ``want_cells`` the new vertices' keys, the
+        active cells and their simplex counts (int64); the kernels let go of the caller's arrays."""
+        cl_, q, k = self.cl, self.q, self.k
         mapped = []
-        if in_place:
-            for buf, rows in ((out, simplices), (verts, vertices)):
+        if self.in_place:
+            for buf, rows in ((self.out, simplices), (self.verts, vertices)):
                 if buf is not None:
                     view, _ = cl_.enqueue_map_buffer(
                         q, buf, cl_.map_flags.READ, 0, rows.shape, rows.dtype, is_blocking=False
                     )
                     mapped.append((buf, view))
         else:
-            cl_.enqueue_copy(q, simplices, out, is_blocking=False)
+            cl_.enqueue_copy(q, simplices, self.out, is_blocking=False)
             if n_new:
-                cl_.enqueue_copy(q, vertices, verts, is_blocking=False)
+                cl_.enqueue_copy(q, vertices, self.verts, is_blocking=False)
         keys = cells = counts = None
         if want_cells:
             keys = np.empty(n_new, dtype=np.int32)
             cells = np.empty(n_active, dtype=np.int32)
             first = np.empty(n_active + 1, dtype=np.int32)
-            first[n_active] = n_simp
+            first[n_active] = len(simplices)
             if n_new:
-                cl_.enqueue_copy(q, keys, keys_buf, is_blocking=False)
-            cl_.enqueue_copy(q, cells, act_p, is_blocking=False)
-            cl_.enqueue_copy(q, first[:n_active], act_s, is_blocking=False)
+                cl_.enqueue_copy(q, keys, self.keys_buf, is_blocking=False)
+            cl_.enqueue_copy(q, cells, self.act_p, is_blocking=False)
+            cl_.enqueue_copy(q, first[:n_active], self.act_s, is_blocking=False)
         q.finish()
         # no kernel keeps the caller's rows (written in place) or values (read in place)
-        placeholder = scratch("placeholder", 64)
-        if in_place:
-            k["emit64" if wide else "emit32"].set_arg(18, placeholder)
+        placeholder = self.scratch("placeholder", 64)
+        if self.in_place:
+            k["emit64" if self.wide else "emit32"].set_arg(18, placeholder)
             k["interpolate"].set_arg(2, placeholder)
-        if host_values:
+        if self.host_values:
             k["interpolate"].set_arg(0, placeholder)
         for buf, view in mapped:
             view.base.release()
             buf.release()
-        t = _stage("download", q, t)
+        self._stage("download")
         if want_cells:
             keys, cells, counts = keys.astype(np.int64), cells.astype(np.int64), np.diff(first).astype(np.int64)
-        self.carry = [nxt, cur]
-        self.n_vertices += n_new
         return simplices, vertices, keys, cells, counts
-
-    def release(self) -> None:
-        for buf in self.carry:
-            buf.release()
-        self.carry = []
 
 
 def march_slabs(
