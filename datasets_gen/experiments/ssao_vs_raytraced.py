@@ -223,15 +223,27 @@ def plot_all(rows: list[dict], hist_rows: list[dict], slices: dict, sweep: list[
     fig = Figure(figsize=(13.0, 7.2), dpi=80, layout="constrained")
     FigureCanvasAgg(fig)
     grid = fig.add_gridspec(2, 4)
-    ax_h = fig.add_subplot(grid[0, 0:2])
-    centres = 0.5 * (BINS[:-1] + BINS[1:])
     scene_names = list(dict.fromkeys(r["scene"] for r in rows))
+    _plot_errors(fig.add_subplot(grid[0, 0:2]), rows, hist_rows, scene_names)
+    _plot_speed(fig.add_subplot(grid[0, 2]), rows, scene_names)
+    _plot_steps(fig.add_subplot(grid[0, 3]), sweep)
+    if slices:
+        _plot_slices(fig, grid, slices)
+    fig.suptitle(
+        f"4D screen-space AO vs ray-traced AO ({SAMPLES} rays), {rows[0]['image']} images ({machine()})", fontsize=9
+    )
+    save_figure(fig, path)
+
+
+def _plot_errors(ax, rows: list[dict], hist_rows: list[dict], scene_names: list[str]) -> None:
+    """Histograms of screen-space minus ray-traced AO per hit voxel, a line per scene and variant."""
+    centres = 0.5 * (BINS[:-1] + BINS[1:])
     first = SCREEN_VARIANTS[0][0]
     for r in rows:
         i = scene_names.index(r["scene"])
         style = "-" if r["variant"] == first else ":"
         sel = [h["fraction"] for h in hist_rows if (h["scene"], h["variant"]) == (r["scene"], r["variant"])]
-        ax_h.step(
+        ax.step(
             centres,
             sel,
             where="mid",
@@ -239,33 +251,37 @@ def plot_all(rows: list[dict], hist_rows: list[dict], slices: dict, sweep: list[
             ls=style,
             label=f"{r['scene']}, {r['variant'].split(', ')[1]}: MAE {r['mae']:.3f}, r = {r['correlation']:.2f}",
         )
-    ax_h.set_yscale("log")
-    ax_h.set_xlabel("screen-space AO - ray-traced AO (per hit voxel)")
-    ax_h.set_ylabel("fraction of hit voxels")
-    ax_h.legend(fontsize=6)
-    ax_h.grid(True, alpha=0.3)
+    ax.set_yscale("log")
+    ax.set_xlabel("screen-space AO - ray-traced AO (per hit voxel)")
+    ax.set_ylabel("fraction of hit voxels")
+    ax.legend(fontsize=6)
+    ax.grid(True, alpha=0.3)
 
-    ax_t = fig.add_subplot(grid[0, 2])
+
+def _plot_speed(ax, rows: list[dict], scene_names: list[str]) -> None:
+    """AO seconds per scene: ray traced beside each screen-space variant, with the speed-ups."""
     x = np.arange(len(scene_names))
     traced = [next(r for r in rows if r["scene"] == n)["traced_ao_seconds"] for n in scene_names]
-    ax_t.bar(x - 0.27, traced, 0.27, label=f"ray traced, {SAMPLES} rays")
+    ax.bar(x - 0.27, traced, 0.27, label=f"ray traced, {SAMPLES} rays")
     for k, (name, _, _) in enumerate(SCREEN_VARIANTS):
         sel = [next(r for r in rows if (r["scene"], r["variant"]) == (n, name)) for n in scene_names]
-        ax_t.bar(x + 0.27 * k, [r["screen_ao_seconds"] for r in sel], 0.27, label=name)
+        ax.bar(x + 0.27 * k, [r["screen_ao_seconds"] for r in sel], 0.27, label=name)
         for xi, r in zip(x, sel):
-            ax_t.text(
+            ax.text(
                 xi + 0.27 * k, r["screen_ao_seconds"], f"{r['ao_speedup']:.1f}x", ha="center", va="bottom", fontsize=6
             )
-    ax_t.set_xticks(x, [n.replace(" (", "\n(") for n in scene_names], fontsize=7)
-    ax_t.set_ylabel(f"AO seconds at the same hits ({rows[0]['image']})")
-    ax_t.set_ylim(0, 1.45 * max(traced + [r["screen_ao_seconds"] for r in rows]))
-    ax_t.legend(fontsize=6, loc="upper left")
-    ax_t.set_title("speed-up over ray traced above the bars", fontsize=8)
+    ax.set_xticks(x, [n.replace(" (", "\n(") for n in scene_names], fontsize=7)
+    ax.set_ylabel(f"AO seconds at the same hits ({rows[0]['image']})")
+    ax.set_ylim(0, 1.45 * max(traced + [r["screen_ao_seconds"] for r in rows]))
+    ax.legend(fontsize=6, loc="upper left")
+    ax.set_title("speed-up over ray traced above the bars", fontsize=8)
 
-    ax_s = fig.add_subplot(grid[0, 3])
+
+def _plot_steps(ax, sweep: list[dict]) -> None:
+    """MAE against seconds as the march points per direction grow, a line per scene."""
     for i, name in enumerate(dict.fromkeys(r["scene"] for r in sweep)):
         sel = [r for r in sweep if r["scene"] == name]
-        ax_s.plot(
+        ax.plot(
             [r["seconds"] for r in sel],
             [r["mae"] for r in sel],
             "o-",
@@ -274,56 +290,54 @@ def plot_all(rows: list[dict], hist_rows: list[dict], slices: dict, sweep: list[
         )
         for r in sel:
             mark = " (default)" if r["default"] in (True, "True") else ""
-            ax_s.annotate(
+            ax.annotate(
                 f"{r['steps']}{mark}", (r["seconds"], r["mae"]), fontsize=6, textcoords="offset points", xytext=(3, 3)
             )
-    ax_s.set_xlabel("screen-space AO seconds, 64 directions")
-    ax_s.set_ylabel("MAE against ray traced")
-    ax_s.set_title("march points per direction", fontsize=8)
-    ax_s.legend(fontsize=6)
-    ax_s.grid(True, alpha=0.3)
+    ax.set_xlabel("screen-space AO seconds, 64 directions")
+    ax.set_ylabel("MAE against ray traced")
+    ax.set_title("march points per direction", fontsize=8)
+    ax.legend(fontsize=6)
+    ax.grid(True, alpha=0.3)
 
-    if slices:
-        hit = slices["hit"]
-        diff = np.where(hit, np.abs(slices["screen"] - slices["traced"]), 0.0)
-        k = int(np.argmax(diff.sum(axis=(0, 1))))  # the z-slice with the largest error
-        show = lambda a: np.where(hit[:, :, k], a[:, :, k], np.nan).T  # noqa: E731  (x right, y up)
-        panels = [
-            ("ray-traced AO", slices["traced"], "magma_r", (0, 1)),
-            ("screen-space AO", slices["screen"], "magma_r", (0, 1)),
-            ("screen - ray traced", slices["screen"] - slices["traced"], "RdBu_r", (-0.3, 0.3)),
-        ]
-        for j, (title, arr, cmap, (vmin, vmax)) in enumerate(panels):
-            ax = fig.add_subplot(grid[1, j])
-            im = ax.imshow(show(arr), origin="lower", cmap=cmap, vmin=vmin, vmax=vmax)
-            ax.set_title(f"demo, z-slice {k}: {title}", fontsize=8)  # screen: 64 directions
-            ax.set_xticks([])
-            ax.set_yticks([])
-            fig.colorbar(im, ax=ax, shrink=0.8)
-        ax = fig.add_subplot(grid[1, 3])
-        ax.axis("off")
-        ax.text(
-            0,
-            1,
-            "Wrong by construction\n(blue: too open, red: too occluded)\n\n"
-            "- occluders the image does not\n"
-            "  show: the ground under objects,\n"
-            "  their hidden backs, anything\n"
-            "  outside the image: too open\n"
-            "- a visible surface is taken as\n"
-            "  solid up to the reach behind\n"
-            "  it: haloes on what lies behind\n"
-            "  silhouettes and thin objects\n"
-            "- march points leaving the\n"
-            "  image count as open",
-            va="top",
-            fontsize=8,
-            family="monospace",
-        )
-    fig.suptitle(
-        f"4D screen-space AO vs ray-traced AO ({SAMPLES} rays), {rows[0]['image']} images ({machine()})", fontsize=9
+
+def _plot_slices(fig, grid, slices: dict) -> None:
+    """The demo's z-slice with the largest error: both AOs and their difference, and why they differ."""
+    hit = slices["hit"]
+    diff = np.where(hit, np.abs(slices["screen"] - slices["traced"]), 0.0)
+    k = int(np.argmax(diff.sum(axis=(0, 1))))  # the z-slice with the largest error
+    show = lambda a: np.where(hit[:, :, k], a[:, :, k], np.nan).T  # noqa: E731  (x right, y up)
+    panels = [
+        ("ray-traced AO", slices["traced"], "magma_r", (0, 1)),
+        ("screen-space AO", slices["screen"], "magma_r", (0, 1)),
+        ("screen - ray traced", slices["screen"] - slices["traced"], "RdBu_r", (-0.3, 0.3)),
+    ]
+    for j, (title, arr, cmap, (vmin, vmax)) in enumerate(panels):
+        ax = fig.add_subplot(grid[1, j])
+        im = ax.imshow(show(arr), origin="lower", cmap=cmap, vmin=vmin, vmax=vmax)
+        ax.set_title(f"demo, z-slice {k}: {title}", fontsize=8)  # screen: 64 directions
+        ax.set_xticks([])
+        ax.set_yticks([])
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    ax = fig.add_subplot(grid[1, 3])
+    ax.axis("off")
+    ax.text(
+        0,
+        1,
+        "Wrong by construction\n(blue: too open, red: too occluded)\n\n"
+        "- occluders the image does not\n"
+        "  show: the ground under objects,\n"
+        "  their hidden backs, anything\n"
+        "  outside the image: too open\n"
+        "- a visible surface is taken as\n"
+        "  solid up to the reach behind\n"
+        "  it: haloes on what lies behind\n"
+        "  silhouettes and thin objects\n"
+        "- march points leaving the\n"
+        "  image count as open",
+        va="top",
+        fontsize=8,
+        family="monospace",
     )
-    save_figure(fig, path)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
