@@ -30,7 +30,7 @@ EXTRAS = {
 }
 
 
-def require(module: str, what: str) -> ModuleType:
+def require(module: str, what: str, *, extra: str | None = None) -> ModuleType:
     """Import ``module`` for a feature, or say which extra of ao4d installs it.
 
     Parameters
@@ -39,6 +39,9 @@ def require(module: str, what: str) -> ModuleType:
         The module to import (``"dask.array"``); its top-level package is a key of :data:`EXTRAS`.
     what : str
         The feature that needs it, the start of the error's sentence (``"reading NIfTI"``).
+    extra : str, optional
+        The extra to name, where the feature's own extra holds ``module`` too (reading zarr
+        needs dask, which ``ao4d[io]`` installs); default: ``EXTRAS`` of its package.
 
     Returns
     -------
@@ -54,7 +57,7 @@ def require(module: str, what: str) -> ModuleType:
         return importlib.import_module(module)
     except ModuleNotFoundError as exc:
         top = module.partition(".")[0]
-        extra = EXTRAS[top]
+        extra = extra or EXTRAS[top]
         missing = exc.name or top
         detail = "" if missing.partition(".")[0] == top else f" (it lacks {missing})"
         raise ModuleNotFoundError(f'{what} needs {top}{detail}: pip install "ao4d[{extra}]"', name=missing) from None

@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._optional import require
+
 __all__ = ["cache_dir", "scan_4d", "grid_4d", "scene", "surface_3d", "SAMPLES"]
 
 ENV = "AO4D_DATA_DIR"
@@ -187,8 +189,7 @@ def _scan_values() -> np.ndarray:
 
 
 def _make_scan(path: Path) -> None:
-    import nibabel as nib
-
+    nib = require("nibabel", "the example scan (NIfTI)", extra="io")
     affine = np.diag([SCAN_SPACING_MM] * 3 + [1.0])
     affine[:3, 3] = SCAN_ORIGIN_MM
     image = nib.Nifti1Image(_scan_values(), affine)

@@ -46,6 +46,7 @@ import numpy as np
 
 from ._atomic import atomic_open, atomic_path
 from ._npz import npz_member_problem, write_npz
+from ._optional import require
 from ._validate import check_choice, regular_file
 from .pictures import ao_colors, slice_scalars
 
@@ -254,7 +255,7 @@ def _load_npz(path: str | os.PathLike) -> MeshArrays:
 
 # ------------------------------------------------------------------------------------ vtu
 def _vtk_cell_type(dim: int) -> int:
-    import pyvista as pv
+    pv = require("pyvista", "VTK meshes (.vtu)")
 
     return {2: pv.CellType.LINE, 3: pv.CellType.TRIANGLE, 4: pv.CellType.TETRA}[dim]
 
@@ -272,8 +273,7 @@ def to_pyvista(mesh: MeshArrays):
     pyvista.UnstructuredGrid
         The grid.
     """
-    import pyvista as pv
-
+    pv = require("pyvista", "writing .vtu meshes")
     points = np.zeros((len(mesh.vertices), 3))
     points[:, : min(3, mesh.dim)] = mesh.vertices[:, :3]
     grid = pv.UnstructuredGrid({_vtk_cell_type(mesh.dim): mesh.simplices}, points)
@@ -313,8 +313,7 @@ def _load_vtu(path: str | os.PathLike) -> MeshArrays:
     mesh : MeshArrays
         Point and cell data arrays are restored (``"w"`` becomes the 4th coordinate).
     """
-    import pyvista as pv
-
+    pv = require("pyvista", "reading .vtu meshes")
     p = _existing(path)
     try:
         grid = pv.read(p)

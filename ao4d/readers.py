@@ -56,6 +56,7 @@ import numpy as np
 
 from ._dask import block_sizes, is_dask_array
 from ._npz import npy_problem
+from ._optional import require
 from ._validate import as_real, as_vector, check_bool, check_grid_lengths, check_memory, regular_file
 
 __all__ = ["Grid", "read_grid", "ObliqueAffineWarning", "natural_key", "FRAME_SUFFIXES"]
@@ -365,7 +366,7 @@ def _read_one(text: str, scale: dict | None = None) -> tuple[Any, np.ndarray, np
 
 
 def _as_dask(values: Any, chunks: Any, text: str) -> Any:
-    import dask.array as da
+    da = require("dask.array", "`chunks` (blocks as dask tasks)")
     import dask.base
 
     sizes = block_sizes(chunks, tuple(int(n) for n in values.shape))
@@ -526,8 +527,8 @@ def _attrs_grid(attrs: Any, d: int, where: str) -> tuple[np.ndarray, np.ndarray,
 
 
 def _read_hdf5(file: str, dataset: str) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
-    import dask.array as da
-    import h5py
+    h5py = require("h5py", "reading HDF5")
+    da = require("dask.array", "reading HDF5", extra="io")
 
     if not Path(file).exists():
         raise _missing(file, "HDF5 file")
@@ -570,8 +571,8 @@ def _auto_multiple(shape: tuple[int, ...], stored: tuple[int, ...], itemsize: in
 
 
 def _read_zarr(store: str, inner: str) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
-    import dask.array as da
-    import zarr
+    zarr = require("zarr", "reading zarr")
+    da = require("dask.array", "reading zarr", extra="io")
 
     if not Path(store).exists():
         raise _missing(store, "zarr store")
@@ -603,7 +604,7 @@ def _read_zarr(store: str, inner: str) -> tuple[Any, np.ndarray, np.ndarray, lis
 
 def _nifti_open(path: str) -> tuple[Any, tuple[int, ...], np.dtype, bool]:
     """(image, shape, value dtype, scaled) from the header alone."""
-    import nibabel as nib
+    nib = require("nibabel", "reading NIfTI")
 
     try:
         img = nib.load(path, mmap=True)
@@ -636,8 +637,7 @@ def _read_nifti(
         if not scaled:
             values = img.dataobj.get_unscaled().reshape(shape, order="F")  # memory map
         elif lazy:
-            import dask.array as da
-
+            da = require("dask.array", "reading a scaled NIfTI lazily", extra="io")
             values = da.from_array(_NiftiSource(path, shape, dtype.str), chunks="auto", asarray=True, fancy=False)
         else:
             values = _NiftiSource(path, shape, dtype.str)[...]
@@ -934,7 +934,7 @@ def _vti_info(path: str) -> tuple[tuple[int, ...], np.ndarray, np.ndarray]:
 
 
 def _vti_values(path: str) -> np.ndarray:
-    import pyvista as pv
+    pv = require("pyvista", "reading .vti frames")
 
     try:
         grid = pv.read(path)
@@ -985,8 +985,8 @@ def _frame_header(path: str, kind: str, warn: bool = False) -> tuple[tuple[int, 
 
 
 def _read_frames(pattern: str) -> tuple[Any, np.ndarray, np.ndarray, list[str]]:
+    da = require("dask.array", "reading a glob of frames", extra="io")
     import dask
-    import dask.array as da
 
     paths = sorted(globmod.glob(pattern), key=natural_key)
     if not paths:

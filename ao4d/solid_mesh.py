@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from ._optional import require
 from ._validate import as_array
 from .geometry import signed_volumes
 
@@ -424,8 +425,7 @@ class SolidSlice:
 
 
 def _grid(vertices: np.ndarray, simplices: np.ndarray) -> Any:
-    import pyvista as pv
-
+    pv = require("pyvista", "writing .vtu meshes")
     points = np.zeros((len(vertices), 3))
     points[:, : vertices.shape[1]] = vertices
     kind = pv.CellType.TETRA if simplices.shape[1] == 4 else pv.CellType.TRIANGLE

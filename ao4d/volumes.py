@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from ._atomic import all_or_nothing, atomic_open
+from ._optional import require
 from ._validate import as_array, as_vector, check_choice
 
 __all__ = [
@@ -286,7 +287,7 @@ def pyvista_offscreen():
     module
         ``pyvista``.
     """
-    import pyvista as pv
+    pv = require("pyvista", "reading and writing VTK files")
     import vtk
 
     pv.OFF_SCREEN = True
@@ -315,9 +316,9 @@ def read_vtk_image(path: str | os.PathLike, name: str = "path") -> Any:
     """
     import warnings
 
+    pv = pyvista_offscreen()
     import vtk
 
-    pv = pyvista_offscreen()
     path = Path(path)
     shown = vtk.vtkObject.GetGlobalWarningDisplay()
     vtk.vtkObject.GlobalWarningDisplayOff()  # VTK's own error lines; the message below says it

@@ -228,9 +228,10 @@ def _timestep(w: float) -> str:
 
 def _save_vtp(path: Path, tri) -> None:
     """The slice as VTK polydata with every 1-value-per-vertex attribute as point data."""
-    import pyvista as pv
-
     from .._atomic import atomic_path
+    from .._optional import require
+
+    pv = require("pyvista", "writing .vtp slices")
 
     faces = np.asarray(tri.faces, dtype=np.int64)
     cells = np.hstack([np.full((len(faces), 1), 3, dtype=np.int64), faces]).ravel()

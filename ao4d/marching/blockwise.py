@@ -65,6 +65,7 @@ from typing import Any
 import numpy as np
 
 from .._dask import block_sizes, check_workers
+from .._optional import require
 from .._validate import check_finite
 from ..mesh import SimplexMesh
 from . import cells_device
@@ -477,7 +478,7 @@ def extract_field_blocks(
     SimplexMesh
         Equal, array for array, to ``ao4d.extract_field(field, ...)`` without ``blocks``.
     """
-    import dask
+    dask = require("dask", "`blocks` (blocks as dask tasks)")
 
     d = len(axes)
     shape = tuple(len(a) for a in axes)
@@ -535,10 +536,9 @@ def field_array(field: Callable, shape: Any, bounds: Any, *, chunks: Any = "auto
     >>> x.chunks[0], float(x[4, 4, 4, 4].compute())
     ((4, 4, 1), -1.0)
     """
-    import dask.array as da
-
     from ..fields import grid_axes
 
+    da = require("dask.array", "field_array")
     if not callable(field):
         raise TypeError(f"`field` must be callable on (..., d) points, got {type(field).__name__}")
     axes = grid_axes(shape, bounds, dim=getattr(field, "dim", None))
