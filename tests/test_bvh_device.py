@@ -415,7 +415,7 @@ def test_a_3d_tree_on_this_device_has_the_devices_block_lanes(cl_runtime):
 
 
 # a tetrahedron of R^4 at the degeneracy threshold: |n| / L^3 falls between the one rounding of
-# numpy's L ** 3 and the two of the kernel's L * L * L (issue 31); a unit one far away keeps the
+# numpy's L ** 3 and the two of the kernel's L * L * L; a unit one far away keeps the
 # mesh from being all degenerate
 SLIVER_A, SLIVER_H = 2.0219080013611848, 4.088111965968381e-12
 

@@ -137,7 +137,7 @@ def test_no_device_falls_back_with_one_warning():
 
 
 def test_pyopencl_imported_first_still_finds_the_bundled_runtime():
-    # before: the ICD folder was registered only when pyopencl was not imported yet
+    # the ICD folder is registered even when pyopencl was imported before ao4d
     if not any(r.usable for r in cl.device_reports()):
         pytest.skip("no working OpenCL device on this machine")
     out = _run("import pyopencl; from ao4d.opencl import cl; print(cl.describe(cl.get_runtime(warn=False)))")
@@ -408,7 +408,7 @@ def test_ao4d_imported_first_makes_both_work(foreign_tbb):
     device, tbb_version = out.stdout.split("\n")[:2]
     assert device == cl.describe(cl.get_runtime(warn=False))
     assert tbb_version != "fake-tbb-0"  # the stand-in runs on the runtime's (newer) TBB
-    # without the preload (the old behaviour) the same order loses the device
+    # without the preload the same order loses the device
     off = _run(code, AO4D_PRELOAD_TBB="0")
     assert off.returncode == 0, off.stderr
     assert off.stdout.split("\n")[:2] == ["numpy (no OpenCL device)", "fake-tbb-0"]

@@ -16,8 +16,7 @@ def test_every_command_is_listed_with_help(capsys):
 
 
 def test_a_missing_command_module_is_an_error_not_a_silent_gap(monkeypatch):
-    # before: cli._load returned None for a command that failed to import ("not built yet"),
-    # and the command simply vanished from `ao4d --help`
+    # a command module that fails to import raises, rather than vanishing from `ao4d --help`
     monkeypatch.setattr(cli, "COMMANDS", cli.COMMANDS + ("nope",))
     with pytest.raises(ModuleNotFoundError, match="ao4d.commands.nope"):
         cli.build_parser()
@@ -118,8 +117,8 @@ def eager_progress(monkeypatch):
 def test_every_command_is_silent_with_no_progress_and_logs_plain_lines(
     name, ball_file, tmp_path, capsys, eager_progress
 ):
-    # before: render (and the demo's render) wrote tqdm bars ("primary rays", "shadow rays")
-    # with carriage returns through --no-progress, because rendering called tqdm directly
+    # render and the demo's render included: no tqdm bars ("primary rays", "shadow rays") and no
+    # carriage returns under --no-progress
     argv = _argv(name, ball_file, tmp_path / "quiet")
     assert cli.main(argv[:1] + ["--no-progress"] + argv[1:]) == 0
     err = capsys.readouterr().err

@@ -126,7 +126,7 @@ def test_store_writes_are_whole_or_absent(tmp_path, monkeypatch):
     assert Path(store.root) == tmp_path / "s"
 
 
-# ---------------------------------------------------------------- hostile outputs (issue 31)
+# ---------------------------------------------------------------- hostile outputs
 
 
 def _hidden(folder: Path) -> list[Path]:

@@ -1,7 +1,7 @@
-"""Fault injection (issue 12): bad files, bad places to write, inside-out and empty results.
+"""Fault injection: bad files, bad places to write, inside-out and empty results.
 
-Every case was silent or ended in a traceback before; each asserts that the message names the
-problem and, where files are written, that nothing partial is left behind.
+No case is silent or ends in a traceback: each asserts that the message names the problem and,
+where files are written, that nothing partial is left behind.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def _cli(capsys, *argv) -> tuple[int, str]:
 
 
 def test_inside_out_mesh_is_reported(ball):
-    # before: check() said "=> OK" with a negative volume
+    # a negative volume is not "=> OK"
     report = ball.flipped().check()
     assert report.inside_out and not report.ok
     assert "inside out" in str(report) and "NOT OK" in str(report)
@@ -67,7 +67,7 @@ def test_extract_warns_when_inside_is_probably_wrong():
 
 
 def test_ambient_occlusion_warns_on_inside_out_meshes(ball):
-    # before: AO was 1.0 at every vertex, silently
+    # AO is 1.0 at every vertex of an inside-out mesh: said, not silent
     with pytest.warns(InsideOutWarning, match=r"inside out.*AO = 1 everywhere.*mesh.flipped\(\)"):
         ao4d.ambient_occlusion(ball.flipped(), samples=4, backend="numpy")
 
@@ -106,7 +106,7 @@ def test_ao_command_refuses_a_bad_out_before_tracing(mesh_file, tmp_path, capsys
 
 
 def test_ao_command_writes_the_format_its_suffix_names(mesh_file, tmp_path, capsys):
-    # before: `ao --out x.vtu` wrote an npz named .vtu
+    # `ao --out x.vtu` writes a .vtu, not an npz named .vtu
     code, _ = _cli(capsys, "ao", mesh_file, "--out", tmp_path / "x.vtu", "--samples", "2", "--backend", "numpy")
     assert code == 0
     assert not zipfile.is_zipfile(tmp_path / "x.vtu")
@@ -156,7 +156,7 @@ def test_cli_turns_a_write_fault_into_one_line(mesh_file, tmp_path, capsys, monk
     ids=["empty", "truncated", "bit-flipped", "png"],
 )
 def test_damaged_mesh_files_get_one_clear_error(mesh_file, tmp_path, damage, message):
-    # before: BadZipFile / EOFError / zlib errors
+    # one ValueError, not BadZipFile / EOFError / zlib errors
     bad = tmp_path / "bad.npz"
     bad.write_bytes(damage(mesh_file.read_bytes()))
     with pytest.raises(ValueError, match=message) as info:
@@ -192,7 +192,7 @@ def test_max_distance_is_checked_before_the_bvh(ball, monkeypatch):
 
 
 def test_absurd_sample_counts_are_refused_with_an_estimate(ball):
-    # before: samples=10**7 started 2e10 rays; samples=10**9 died in scipy allocating 24 GiB
+    # samples=10**7 would start 2e10 rays; samples=10**9 would allocate 24 GiB in scipy
     with pytest.raises(ValueError, match=r"`samples`=10000000 .* asks for .* rays, about .* max_rays=math.inf"):
         ao4d.ambient_occlusion(ball, samples=10**7, backend="numpy")
     with pytest.raises(MemoryError, match="direction table for samples=1000000000"):
@@ -253,7 +253,7 @@ def test_logs_get_lines_not_bars(ball, capsys, monkeypatch):
     ao4d.ambient_occlusion(ball.copy(), samples=4, backend="numpy", progress=True)
     err = capsys.readouterr().err
     assert "4D AO (numpy): " in err and "rays" in err
-    assert "\r" not in err and "\x1b[" not in err  # before: tqdm's redraws in the log
+    assert "\r" not in err and "\x1b[" not in err  # no tqdm redraws in the log
 
 
 def test_no_progress_silences_everything(mesh_file, tmp_path, capsys, monkeypatch):
@@ -278,7 +278,7 @@ def test_no_progress_silences_everything(mesh_file, tmp_path, capsys, monkeypatc
 
 
 def test_render_png_failure_leaves_no_vti_behind(mesh_file, tmp_path, capsys, monkeypatch):
-    # before: a traceback after the render, and the .vti stayed
+    # an error, not a traceback after the render, and no .vti left
     def fail(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
@@ -316,7 +316,7 @@ def test_render_refuses_bad_outputs_before_rendering(mesh_file, tmp_path, capsys
 
 
 def test_extract_command_estimates_and_refuses_huge_grids(tmp_path, capsys, monkeypatch):
-    # before: a 300^4 grid started without an estimate
+    # a 300^4 grid is estimated, and refused, before any work
     sampled = []
     monkeypatch.setattr("ao4d.marching.march.extract_field", lambda *a, **k: sampled.append(1))
     code, text = _cli(capsys, "extract", "--shape", "hypersphere", "--grid", "300", "--out", tmp_path / "x.npz")
@@ -325,7 +325,7 @@ def test_extract_command_estimates_and_refuses_huge_grids(tmp_path, capsys, monk
 
 
 def test_extract_command_empty_result_is_an_error_with_the_reason(tmp_path, capsys):
-    # before: exit 0 and an empty mesh file
+    # exit 2, not 0 with an empty mesh file
     np.save(tmp_path / "ramp.npy", np.linspace(0.0, 1.0, 4**4).reshape((4,) * 4))
     code, text = _cli(capsys, "extract", "--input", tmp_path / "ramp.npy", "--level", "3", "--out", tmp_path / "x.npz")
     assert code == 2 and "outside the data range [0, 1]" in text
@@ -360,7 +360,7 @@ def test_slice_command_checks_outputs_before_loading(tmp_path, capsys, monkeypat
     assert not loaded
 
 
-# -- datasets_gen: bad output folders, per-item seeds (issue 21) ------------------------------
+# -- datasets_gen: bad output folders, per-item seeds -----------------------------------------
 
 
 @pytest.fixture()

@@ -5,8 +5,7 @@ held to that numpy ray-march pixel by pixel.
 The browser tests read the page's own pixels (``window.ao4d.capture()``: premultiplied RGBA, alpha
 0 where nothing is drawn) and compare them with :func:`ao4d.browser.image_viewer.reference_march` of the
 same image, transfer function, clipping and camera: the silhouettes (alpha > 1/2) overlap by
-IoU >= 95 % and the median colour error over pixels inside both is <= 0.02 (DESIGN bar of the
-issue). The ray-march is nearest-voxel on both sides, so a disagreement is a real difference of
+IoU >= 95 % and the median colour error over pixels inside both is <= 0.02. The ray-march is nearest-voxel on both sides, so a disagreement is a real difference of
 sampling or compositing, not filtering round-off.
 """
 
@@ -267,7 +266,7 @@ def _capture(browser, api="window.ao4d"):
 
 
 def agreement(page, reference):
-    """(silhouette IoU, median colour error inside both): the issue's two figures."""
+    """(silhouette IoU, median colour error inside both): the two figures the tests bound."""
     a, b = page[..., 3] > 0.5, reference[..., 3] > 0.5
     both = a & b
     iou = both.sum() / max((a | b).sum(), 1)

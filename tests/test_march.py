@@ -393,7 +393,7 @@ def test_progress_bar_is_shown_on_request(capsys, monkeypatch):
 def test_level_outside_the_data_gives_an_empty_mesh():
     v = _noise(np.random.default_rng(0), (5, 5, 5, 5))
     for level in (-5.0, 5.0):
-        # issue 12: this passed silently; now the warning gives the data's range
+        # the warning gives the data's range
         with pytest.warns(
             march.EmptyMeshWarning, match=r"`level` [-0-9.]+ is outside the data range \[-?[0-9.]+, [0-9.]+\]"
         ):
@@ -474,9 +474,9 @@ def test_extract_field_bad_input_is_named(args, kwargs, error, match):
         ao4d.extract_field(*args, **kwargs)
 
 
-def test_extract_field_takes_blocks_not_the_removed_chunks():
+def test_extract_field_takes_blocks_and_no_chunks_keyword():
     # `chunk` (cell layers per slab) and `chunks` (dask blocks) read alike: the blocks are
-    # `blocks`, and the old spelling keeps no alias
+    # `blocks`, and `chunks` is no alias of it
     with pytest.raises(TypeError, match="chunks"):
         ao4d.extract_field(F.hypersphere(1.0, dim=3), 10, (-1.3, 1.3), chunks=5)
 
@@ -544,7 +544,7 @@ def test_cli_extract_reports_bad_input(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_slab_extraction_of_a_160_grid_stays_under_1_5_gb():
-    # issue 12: the slab path needs the output plus bounded slabs, whatever the grid (measured
+    # the slab path needs the output plus bounded slabs, whatever the grid (measured
     # 0.57 GB peak RSS for this 160^4 grid, whose float64 samples alone would be 5.2 GB)
     import subprocess
     import sys

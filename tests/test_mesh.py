@@ -389,7 +389,7 @@ def test_scaling_and_reversal(d, scale):
     assert flipped.volume == pytest.approx(-scaled.volume, rel=1e-12)
     assert np.allclose(flipped.simplex_normals, -scaled.simplex_normals, atol=1e-12)
     report = flipped.check()
-    # consistently inward is still consistent, but inside out is not OK (issue 12: it passed)
+    # consistently inward is still consistent, but inside out is not OK
     assert report.closed and report.oriented and report.manifold
     assert report.inside_out and not report.ok and "inside out" in str(report)
 
@@ -525,7 +525,7 @@ def test_empty_mesh():
     assert report.n_simplices == 0 and not report.closed and not report.ok and report.empty
     assert "empty" in str(report) and "boundary faces" not in str(report)
     assert mesh.split() == []
-    with pytest.raises(ValueError, match="`mesh` has no simplices"):  # issue 12: was silent
+    with pytest.raises(ValueError, match="`mesh` has no simplices"):
         mesh.slice([0, 0, 0, 0], [0, 0, 0, 1])
     assert SimplexMesh(np.zeros((2, 3)), []).n_simplices == 0
 

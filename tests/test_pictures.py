@@ -128,7 +128,7 @@ def test_slice_png(tmp_path):
 
 
 def test_pictures_need_no_render_window(tmp_path, monkeypatch):
-    # before: the volume and slice pictures opened a VTK render window (1-2 s each)
+    # the volume and slice pictures render off-screen, with no VTK render window (1-2 s each)
     def broken(*args, **kwargs):
         raise RuntimeError("no OpenGL context")
 

@@ -239,15 +239,15 @@ def test_kernel_macros_are_all_used():
     assert not unused, f"macros defined but never used in kernels/: {unused}"
 
 
-# -- kernel defects of issue 11 (found under Oclgrind and PoCL) --------------------------------
+# -- kernel edge cases (checked under Oclgrind and PoCL) -----------------------------------------
 
 
 @pytest.mark.parametrize("d", (3, 4))
 @pytest.mark.parametrize("closest", [True, False])
 def test_far_scene_with_zero_direction_components(d, closest, backend):
-    # at 1e9 the box test computed o * (1 / 1e-30) for a zero direction component: +-inf in
-    # float32, and the BVH rejected boxes its rays hit (axis-aligned orthographic cameras give
-    # exact zeros); the answer must still equal brute force
+    # at 1e9, o * (1 / 1e-30) for a zero direction component is +-inf in float32, and the box
+    # test must still accept the boxes its rays hit (axis-aligned orthographic cameras give
+    # exact zeros): the answer equals brute force
     rng = np.random.default_rng(1300 + d)
     scale = 1e9
     base = soup_scene(rng, d)
@@ -283,8 +283,8 @@ def _private_bytes(runtime, kernel) -> int:
 
 
 def test_traversal_stack_size_comes_from_python(cl_runtime, monkeypatch):
-    # the stack size was written in kernels/bvh.h and in ao4d/bvh separately; now Python
-    # passes it (-D STACK_SIZE) and refuses trees whose traversal could overflow it
+    # one stack size, written once: Python passes it (-D STACK_SIZE) to kernels/bvh.h and
+    # refuses trees whose traversal could overflow it
     rng = np.random.default_rng(1500)
     mesh = soup_scene(rng, 3, n=2000)
     o, w = random_rays(rng, 3, 3000)

@@ -1,5 +1,5 @@
-"""Hostile input to the core package (issue 55, "nothing silently wrong"): each case was silent,
-wrong, blocking or murky before its fix; now it works or is refused early, naming what is wrong."""
+"""Hostile input to the core package ("nothing silently wrong"): each case works or is refused
+early, naming what is wrong; none is silent, wrong, blocking or murky."""
 
 from __future__ import annotations
 
@@ -42,8 +42,8 @@ def _cli(argv, capsys):
 @pytest.mark.parametrize("scale", [1e100, 1e-100])
 @pytest.mark.parametrize("dim", [3, 4])
 def test_ao_at_extreme_scales_equals_the_unscaled_ao(dim, scale, backend, ball3, ball4):
-    # before: NaN everywhere without a word (the normals' squared lengths over- or underflowed
-    # float64 beyond ~1e78 / 1e-120 in 3D, ~1e52 / 1e-60 in 4D)
+    # no NaN: the normals' squared lengths would over- or underflow float64 beyond ~1e78 / 1e-120
+    # in 3D, ~1e52 / 1e-60 in 4D
     base = ball3 if dim == 3 else ball4
     kw = dict(samples=8, backend=backend)
     want = ao4d.ambient_occlusion(base, max_distance=0.5, **kw)
@@ -80,7 +80,7 @@ def test_ao_of_a_mesh_whose_extent_overflows_is_refused():
 
 @pytest.mark.parametrize("seed", [2**32, 2**40 + 1, -1])
 def test_seeds_outside_32_bits_are_refused(seed, ball3):
-    # before: only the low 32 bits were used, so seed 2**32 traced the rays of seed 0
+    # refused, not cut to its low 32 bits (seed 2**32 would trace the rays of seed 0)
     with pytest.raises(ValueError, match=r"`seed` must be an integer in \[0, 2\*\*32\)"):
         ao4d.ambient_occlusion(ball3, samples=4, seed=seed, backend="numpy")
     from ao4d.sampling import cosine_hemisphere, sobol_table
@@ -109,7 +109,7 @@ def test_cli_seed_out_of_range_names_the_option(ball_file, tmp_path, capsys):
 # -- 3. no compatibility layer -------------------------------------------------------------------
 
 
-def test_the_removed_old_paths_and_keywords_are_gone():
+def test_modules_live_at_one_path_with_no_aliases():
     import importlib
 
     with pytest.raises(ModuleNotFoundError):
@@ -131,7 +131,7 @@ def fifo(tmp_path):
 
 
 def test_extract_refuses_a_fifo_instead_of_blocking(fifo, tmp_path, capsys):
-    # before: np.load opened the FIFO and waited for a writer, for ever
+    # refused before np.load could open the FIFO and wait for a writer, for ever
     code, err = _cli(["extract", "--input", fifo, "--out", tmp_path / "o.npz"], capsys)
     assert code == 2 and "`--input` file" in err and "is a FIFO (named pipe); a regular file is expected" in err
 
@@ -164,7 +164,7 @@ def _renamed(path, name):
 
 
 def test_screen_space_occlusion_refuses_work_above_the_budget():
-    # before: only the direction table's memory was checked; samples=10**7 ran for minutes
+    # the work is checked, not only the direction table's memory: samples=10**7 would run for minutes
     from ao4d.screen_ao import DepthVolume, screen_space_occlusion
 
     cam = ao4d.Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=1)
@@ -242,7 +242,7 @@ def test_vertices_of_other_dtypes_say_what_is_wrong(dtype, words):
         vertices = [[Decimal(int(x)) for x in row] for row in vertices]
     else:
         vertices = vertices.astype(dtype)
-    # before: "`mesh` must be a SimplexMesh, ... a (vertices, simplices) pair ..., got tuple"
+    # the error names `vertices` and its dtype, not the pair as a whole
     with pytest.raises(TypeError, match=r"`vertices` must hold real numbers \(float or int\), got dtype") as info:
         ao4d.ambient_occlusion((vertices, [[0, 1, 2]]), samples=2, backend="numpy")
     assert words in str(info.value) and "got tuple" not in str(info.value)
@@ -250,7 +250,7 @@ def test_vertices_of_other_dtypes_say_what_is_wrong(dtype, words):
 
 @pytest.mark.parametrize("index", [2**64 - 1, 2**63])
 def test_uint64_indices_are_shown_as_they_are(index):
-    # before: converted to int64 first, so 2**64 - 1 showed as -1
+    # not converted to int64 first, where 2**64 - 1 would show as -1
     with pytest.raises(ValueError, match=rf"range found: 0\.\.{index}\)"):
         ao4d.SimplexMesh(np.eye(3), np.array([[0, 1, index]], dtype=np.uint64))
 
@@ -260,7 +260,7 @@ def test_uint64_indices_are_shown_as_they_are(index):
 
 def test_bounds_take_negative_numbers_and_refuse_non_finite(tmp_path, capsys):
     out = tmp_path / "o.npz"
-    # before: argparse's "expected 2 arguments" (it took -inf for an option)
+    # -inf is a number, not an option (argparse's "expected 2 arguments")
     code, err = _cli(["extract", "--shape", "hypersphere", "--bounds", "-inf", "inf", "--out", out], capsys)
     assert code == 2 and "`--bounds` must be two finite numbers LO < HI, got -inf inf" in err
     code, err = _cli(["extract", "--shape", "hypersphere", "--bounds", "2", "-1", "--out", out], capsys)
@@ -295,7 +295,7 @@ def test_ao_refuses_an_empty_name_before_the_trace(ball_file, tmp_path, capsys):
     ],
 )
 def test_cli_errors_name_the_option(argv, option, ball_file, tmp_path, capsys):
-    # before: `--w nan` named `point` and `--light nan ...` named `direction`
+    # the option, not the library's parameter (`point` for `--w nan`, `direction` for `--light nan ...`)
     code, err = _cli([a.format(ball=ball_file, tmp=tmp_path) for a in argv], capsys)
     assert code == 2 and option in err, err
     assert "`point`" not in err and "`direction`" not in err
@@ -316,13 +316,13 @@ def test_lut_verify_of_a_missing_folder_says_so(tmp_path, capsys):
 @pytest.mark.parametrize(
     "extra, outcome",
     [
-        # a reach beyond float32 is unbounded: before, "overflow encountered in cast"
+        # a reach beyond float32 is unbounded, with no "overflow encountered in cast"
         (["--max-distance", "1e300", "--ao", "hits", "--samples", "2"], 0),
-        # only up's direction counts: before, an overflow and then "parallel to the view direction"
+        # only up's direction counts: no overflow, not "parallel to the view direction"
         (["--up", "1e300", "1e300", "0", "0"], 0),
-        # before: an overflow, then "`eye` and `target` must differ" for points 1e300 apart
+        # points 1e300 apart: the limit named, not "`eye` and `target` must differ" after an overflow
         (["--eye", "0", "0", "0", "1e300", "--target", "0", "0", "0", "0"], "within about 1e150"),
-        # before: the eye framed at 1e302 was blamed, not the fov
+        # the fov is named, not the eye it would frame at 1e302
         (["--fov", "1e-300"], "`--fov` 1e-300 degrees is too narrow"),
     ],
 )
@@ -338,7 +338,7 @@ def test_render_extremes_warn_nothing(extra, outcome, ball_file, tmp_path, capsy
 
 
 def test_slice_by_a_huge_normal_is_the_slice_by_its_direction(ball_file, tmp_path, capsys):
-    # before: the norm of (1e300, 1e300, 0, 0) overflowed and the slice came back "empty"
+    # the norm of (1e300, 1e300, 0, 0) overflows float64: the slice is taken by its direction, not "empty"
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
         code, err = _cli(

@@ -1,4 +1,4 @@
-"""Hostile inputs to dataset generation (issue 55, "nothing silently wrong"; issue 54 item 4):
+"""Hostile inputs to dataset generation ("nothing silently wrong"):
 each is refused at config load with a message naming the key (or file), or handled without
 losing anything, before any long work."""
 
@@ -184,7 +184,7 @@ def test_a_config_file_not_in_utf8_is_refused_naming_it(tmp_path):
 
 @pytest.mark.parametrize("word", ["run", "resume"])
 def test_a_subcommand_like_word_is_no_config(word, capsys):
-    # `run` without --out used to say "--out is required", as if `run` were a config
+    # `run` without --out is named as no config, not asked for its --out as if it were one
     assert main([word]) == 2
     err = capsys.readouterr().err
     assert f"no config {word!r}" in err and "usage: python -m datasets_gen CONFIG --out DIR" in err

@@ -103,7 +103,7 @@ def test_describe_hyperplane():
 
 def test_single_slice_title_describes_the_hyperplane_cut(scene, tmp_path, monkeypatch):
     # `--normal 1 0 0 0 --w 0.3` cuts the hyperplane x = 0 through (0, 0, 0, 0.3): the title
-    # used to say "w = 0.3"
+    # names that hyperplane, not "w = 0.3"
     import ao4d.pictures
 
     titles = []

@@ -104,7 +104,7 @@ def test_integers_and_bools():
 @pytest.mark.parametrize(
     ("call", "error", "match"),
     [
-        # before: "could not convert string to float: 'big'" (issue 10)
+        # the parameter's name and the value, not float()'s message
         (lambda: ao4d.fields.hypersphere("big"), TypeError, "`radius` must be a real number, got str 'big'"),
         (lambda: ao4d.fields.spheritorus(1.0, "thin"), TypeError, "`r` must be a real number"),
         (lambda: ao4d.fields.tesseract(1.0, -0.1), ValueError, "`rounding` must be in"),

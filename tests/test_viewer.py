@@ -321,8 +321,8 @@ def _shader_cut_float32(scene, blob, state):
 
 @pytest.mark.parametrize("shift", [1e3, 1e6])
 def test_page_far_from_the_origin_looks_like_the_page_at_it(tmp_path, sphere, shift):
-    # before: the page got absolute float32 vertices (0.06 apart at 1e6) and a float32
-    # translation, so a scene far from the origin cut into noise
+    # the page gets recentred vertices: absolute float32 ones (0.06 apart at 1e6) and a float32
+    # translation would cut a scene far from the origin into noise
     moved = ao4d.SimplexMesh(
         np.asarray(sphere.vertices) + shift, sphere.simplices, point_data={"ao": sphere.point_data["ao"]}
     )
@@ -825,7 +825,7 @@ def test_browser_served_page_equals_file_page(browser, small_sphere, tmp_path):
 
 
 def test_browser_scene_far_from_the_origin_looks_like_the_one_at_it(browser, sphere, tmp_path):
-    # before: absolute float32 vertices and translation: at 1e6 the cut was noise
+    # recentred vertices: absolute float32 vertices and translation would cut noise at 1e6
     shift = 1e6
     moved = ao4d.SimplexMesh(
         np.asarray(sphere.vertices) + shift, sphere.simplices, point_data={"ao": sphere.point_data["ao"]}
@@ -846,7 +846,7 @@ def test_browser_scene_far_from_the_origin_looks_like_the_one_at_it(browser, sph
 
 @pytest.mark.parametrize("fragment", ["#w=%", "#zoom=%E0%A4%A", "#light=banana", "#zoom=abc&xw=", "#hide=x"])
 def test_browser_bad_fragment_values_are_ignored_with_a_warning(browser, sphere_page, fragment):
-    # before: "URI malformed" left a blank page, and light=banana turned the light off
+    # no blank page on "URI malformed", and light=banana keeps the light on
     browser.console.clear()
     open_page(browser, sphere_page, fragment)
     s = browser.evaluate("window.ao4d.state()")
@@ -858,8 +858,8 @@ def test_browser_bad_fragment_values_are_ignored_with_a_warning(browser, sphere_
 
 
 def test_browser_url_holds_the_whole_view(browser, small_sphere, tmp_path):
-    # before: hide was left out when empty and light when 1, and a reload merged the fragment
-    # into the page's initial state: the objects the user showed came back hidden, unlit
+    # hide is written when empty and light when 1, and a reload takes the fragment as the whole
+    # state: the objects the user showed come back shown and lit
     path = viewer.view(
         [small_sphere, small_sphere],
         tmp_path / "two.html",
@@ -883,7 +883,7 @@ def test_browser_url_holds_the_whole_view(browser, small_sphere, tmp_path):
 
 def test_view_refuses_what_the_command_line_refuses(tmp_path, small_sphere):
     with pytest.raises(ValueError, match=r"`path` must end in \.html or \.htm"):
-        viewer.view(small_sphere, tmp_path / "p.png")  # before: HTML written into a .png
+        viewer.view(small_sphere, tmp_path / "p.png")  # no HTML written into a .png
     assert not (tmp_path / "p.png").exists()
     with pytest.raises(TypeError, match=r"`state` must be a mapping.*'w=0.3'.*#"):
         viewer.view(small_sphere, tmp_path / "p.html", state="w=0.3")
