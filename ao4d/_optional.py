@@ -23,10 +23,8 @@ EXTRAS = {
     "distributed": "dask",
     "pyvista": "vtk",
     "vtk": "vtk",
-    "matplotlib": "plot",
     "igl": "datasets",
     "threadpoolctl": "datasets",
-    "pyarrow": "datasets",
 }
 
 
