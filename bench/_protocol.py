@@ -1,34 +1,37 @@
-"""The benchmarks' protocol: the machine line, the machine's load, spreads over rounds.
+"""The benchmarks' protocol: the machine line, the load gate, rounds taken in turn, spreads.
 
-Shared by ``bench/ao.py`` and ``bench/cast.py``. A figure without the machine it was measured on
-is not worth much for a traversal bound by memory traffic: the machine line names the CPU, its
-widest SIMD registers, its L2 and L3 (from ``lscpu``, else sysfs) and the OpenCL device and
-driver. Every ratio is printed as the median over rounds with its minimum and maximum.
+Every script in ``bench/`` runs as ``python -m bench.NAME`` from the repository root and follows
+it. A figure without the machine it was measured on is not worth much for a traversal bound by
+memory traffic: the machine line (:func:`machine_line`, printed first) names the CPU, its widest
+SIMD registers, its L2 and L3 (from ``lscpu``, else sysfs) and the OpenCL device and driver.
+Measurements are taken in :class:`Rounds`, every case once a round, in turn, so that all see the
+same machine load; every time or ratio is printed as the median over rounds with its minimum and
+maximum (:func:`format_spread`, :func:`format_ratio`).
+
+The 1-minute load average counts the benchmark's own work (the meshes it extracts, its previous
+round: it runs on every core), so it is printed, but before each round the load gate
+(:func:`gate`) pauses and measures how many CPUs other processes keep busy (:func:`others_load`:
+``/proc/stat`` less this process tree's own CPU time); a round that starts with that figure above
+:data:`LOAD_LIMIT` is flagged loudly, and :meth:`Rounds.warning` repeats the flag under the table.
 
 The memory latency line (:func:`memory_latency`: one work-item chasing a random cycle through
 256 MiB, before and after the rounds) describes the machine at the time of a run, beside the
 machine line. It is not an explanation: on this project's VM ao4d's AO trace rate once fell 20-25 %
 for an hour on the same code (Embree's 7 %) while the line read 177-200 ns, and recovered while it
 read 254-267 ns.
-
-The 1-minute load average counts the benchmark's own work (the meshes it extracts, its previous
-round: it runs on every core), so it is printed, but before each round :func:`others_load`
-pauses and measures how many CPUs other processes keep busy (``/proc/stat`` less this process
-tree's own CPU time); a round that starts with that figure above :data:`LOAD_LIMIT` is flagged
-loudly.
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
 import statistics
 import subprocess
-import sys
 import time
 import warnings
 from pathlib import Path
-from typing import Iterable
+from typing import Any, Callable, Iterable, Iterator
 
 LOAD_LIMIT = 0.5  # CPUs busy with other work before a round above which the round is flagged
 
@@ -45,14 +48,6 @@ _UNITS = {
     "GB": 1 << 30,
     "GIB": 1 << 30,
 }
-
-
-def use_checkout(bench_dir: str) -> None:
-    """Import ``ao4d`` from the checkout that holds ``bench_dir``, before any installed copy
-    (``python bench/ao.py`` puts only ``bench/`` on ``sys.path``)."""
-    root = Path(bench_dir).resolve().parent
-    if (root / "ao4d" / "__init__.py").is_file() and str(root) not in sys.path:
-        sys.path.insert(1, str(root))
 
 
 def parse_size(text: str) -> int | None:
@@ -192,21 +187,109 @@ def others_load(pause: float = 1.0) -> float | None:
     return max(0.0, busy / (wall_b - wall_a))
 
 
-def check_round(index: int, rounds: int, limit: float = LOAD_LIMIT, pause: float = 2.0) -> bool:
-    """Before round ``index`` (0-based): print the load averages and the CPUs other processes
-    keep busy during a ``pause``; warn loudly when that exceeds ``limit``. Returns whether the
-    round starts quiet."""
+def gate(label: str, limit: float = LOAD_LIMIT, pause: float = 2.0) -> bool:
+    """The load gate before the timed step ``label`` ("round 2/5"): print the load averages and
+    the CPUs other processes keep busy during a ``pause``; warn loudly when that exceeds
+    ``limit``. Returns whether the step starts quiet."""
     others = others_load(pause)
     loud = others is not None and others > limit
     what = f"other processes keep {others:.2f} CPUs busy" if others is not None else "others' load unknown"
-    print(f"round {index + 1}/{rounds}: load average {load_average()} (includes this benchmark); {what}", flush=True)
+    print(f"{label}: load average {load_average()} (includes this benchmark); {what}", flush=True)
     if loud:
         print(
-            f"!!! WARNING: round {index + 1} starts on a busy machine ({others:.2f} CPUs busy with other "
+            f"!!! WARNING: {label} starts on a busy machine ({others:.2f} CPUs busy with other "
             f"work, above {limit}): its figures are not quiet figures !!!",
             flush=True,
         )
     return not loud
+
+
+def check_round(index: int, rounds: int, limit: float = LOAD_LIMIT, pause: float = 2.0) -> bool:
+    """:func:`gate` before round ``index`` (0-based) of ``rounds``."""
+    return gate(f"round {index + 1}/{rounds}", limit, pause)
+
+
+class Rounds:
+    """``count`` rounds taken in turn, each behind the load gate: iterating gives the round
+    indices (0-based), :attr:`quiet` whether each round started quiet.
+
+    Parameters
+    ----------
+    count : int
+        Rounds, at least 1.
+    limit : float
+        CPUs busy with other work above which a round is flagged.
+    pause : float
+        Seconds the gate measures the others' load for.
+    """
+
+    def __init__(self, count: int, *, limit: float = LOAD_LIMIT, pause: float = 2.0):
+        if count < 1:
+            raise ValueError(f"rounds must be at least 1, got {count}")
+        self.count, self.limit, self.pause = count, limit, pause
+        self.quiet: list[bool] = []
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __iter__(self) -> Iterator[int]:
+        for index in range(self.count):
+            self.quiet.append(check_round(index, self.count, self.limit, self.pause))
+            yield index
+
+    @property
+    def noisy(self) -> list[int]:
+        """The rounds (1-based) that started on a busy machine."""
+        return [i + 1 for i, quiet in enumerate(self.quiet) if not quiet]
+
+    def warning(self) -> str:
+        """The loud line for the table's head when a round started busy, else ""."""
+        if not self.noisy:
+            return ""
+        return f"!!! WARNING: rounds {self.noisy} started on a busy machine: these are not quiet figures !!!"
+
+
+def _at_least_one(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def add_rounds(parser: argparse.ArgumentParser, default: int | None, help: str, *aliases: str) -> None:
+    """``--rounds`` (and ``aliases``) on ``parser``: an integer of at least 1."""
+    parser.add_argument("--rounds", *aliases, dest="rounds", type=_at_least_one, default=default, help=help)
+
+
+class Clock:
+    """Wall and process CPU time (all threads: OpenCL's and Embree's included) since the last lap."""
+
+    def __init__(self):
+        self.wall, self.cpu = time.perf_counter(), time.process_time()
+
+    def lap(self) -> tuple[float, float]:
+        """(wall, CPU) seconds since the last lap or the start."""
+        wall, cpu = time.perf_counter(), time.process_time()
+        out = (wall - self.wall, cpu - self.cpu)
+        self.wall, self.cpu = wall, cpu
+        return out
+
+
+def timed(fn: Callable[[], Any], repeat: int = 1) -> tuple[float, Any]:
+    """(median wall seconds of ``repeat`` calls of ``fn``, the last call's result)."""
+    walls, result = [], None
+    for _ in range(repeat):
+        start = time.perf_counter()
+        result = fn()
+        walls.append(time.perf_counter() - start)
+    return statistics.median(walls), result
+
+
+def opencl_runtime():
+    """ao4d's OpenCL runtime for the machine line, or None without a device."""
+    from ao4d.opencl import cl
+
+    return cl.get_runtime(warn=False)
 
 
 _CHASE = """
@@ -263,6 +346,12 @@ def spread(values: Iterable[float]) -> tuple[float, float, float]:
     """Median, minimum and maximum of ``values``."""
     values = list(values)
     return statistics.median(values), min(values), max(values)
+
+
+def format_spread(values: Iterable[float], spec: str = ".3f", dash: str = "–") -> str:
+    """``median (min–max)`` of ``values``, each formatted with ``spec``, e.g. ``0.123 (0.120–0.130)``."""
+    m, lo, hi = spread(values)
+    return f"{m:{spec}} ({lo:{spec}}{dash}{hi:{spec}})"
 
 
 def format_ratio(values: Iterable[float]) -> str:

@@ -1,17 +1,21 @@
-"""Tests for the benchmarks' protocol helpers (bench/_protocol.py): the machine line's parsing,
-the spreads over rounds and the loud warning of a busy round."""
+"""Tests for the benchmarks (``bench/``): the protocol's pieces (``bench._protocol``: the machine
+line's parsing, the load gate, rounds, spreads), the shapes and figures of ``bench.ao``, and every
+script run as ``python -m bench.NAME`` from the repository root (``--help``, and a tiny real run
+where the script has small sizes)."""
 
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
-import _protocol as protocol  # noqa: E402
+from bench import _embree
+from bench import _protocol as protocol
+from bench import ao as ao_bench
+
+ROOT = Path(__file__).resolve().parent.parent
 
 LSCPU = """Architecture:                            x86_64
 Model name:                              AMD EPYC 7B13
@@ -114,12 +118,10 @@ def test_dense_3d_analogues_are_closed_outward_level_sets_of_their_fields(kind):
     # bench/ao.py's 3D analogues of the dense 4D shapes (Embree's dense workload): a closed
     # surface of about the asked size, facing outwards, on its field's zero level: half a cell's
     # step along each vertex normal leaves the solid, a step against it enters it
-    import ao as ao_bench
-
-    tm = ao_bench.dense3d_trimesh(kind, 20_000)
+    tm = _embree.dense3d_trimesh(kind, 20_000)
     assert tm.is_watertight and tm.volume > 0
     assert 10_000 < len(tm.faces) < 40_000
-    field = ao_bench.dense3d_field(kind)
+    field = _embree.dense3d_field(kind)
     step = 0.5 * float(tm.edges_unique_length.mean())  # about half a cell of the extraction's grid
     out = field(tm.vertices + step * tm.vertex_normals) > 0
     inside = field(tm.vertices - step * tm.vertex_normals) < 0
@@ -133,8 +135,6 @@ def test_dense_3d_analogues_are_closed_outward_level_sets_of_their_fields(kind):
 def test_cache_ceiling_is_the_trace_ratio_times_the_gain_of_a_tree_in_cache(capsys):
     # bench/ao.py's cache ceiling: per round, seconds per ray of the full mesh over the small
     # mesh's, times that round's trace ratio against Open3D; rounds stay apart
-    import ao as ao_bench
-
     full = [{"trace": (3.0, 5.8), "first": (4.0, 7.0), "rays": 1000}] * 3
     small = [{"trace": (t, 2 * t), "first": (t, t), "rays": 50} for t in (0.1, 0.15, 0.12)]  # gains 1.5, 1.0, 1.25
     assert ao_bench.cache_gains(full, small) == pytest.approx([1.5, 1.0, 1.25])
