@@ -1,15 +1,16 @@
 """Benchmark: ``ao4d.raycast.cast_rays`` (render's primary and shadow rays) against Embree.
 
-Run ``python bench/cast.py`` (``--help`` for sizes; ``--quick`` for a small run). Each of the
+Run ``python -m bench.cast`` from the repository root (``--help`` for sizes; ``--quick`` for a
+small run). Each of the
 ``--rounds`` rounds (5) takes every measurement once, in turn; the table shows medians, the
 ratio its median and min–max over the rounds. The machine line comes first, and a round that
-starts on a busy machine is flagged loudly (``bench/_protocol.py``).
+starts on a busy machine is flagged loudly (``bench._protocol``).
 
-* 3D: any-hit rays against a torus of ``--triangles`` triangles: the AO rays of ``bench/ao.py``
+* 3D: any-hit rays against a torus of ``--triangles`` triangles: the AO rays of ``bench.ao``
   (64 cosine-weighted directions per point, from points spread over the torus), identical on both
   sides. Open3D's ``RaycastingScene.test_occlusions`` (Embree 4, all threads, in a process of its
   own) against ``cast_rays(mesh, o, w, closest=False)``, the tree already built (the build is
-  ``bench/ao.py``'s subject). Closest hits (``closest=True``, reading ``t`` and the barycentrics)
+  ``bench.ao``'s subject). Closest hits (``closest=True``, reading ``t`` and the barycentrics)
   are timed too.
 * 4D: the same kind of rays from the vertices of a spheritorus, through ``cast_rays``.
 * Host share: the part of a ``cast_rays`` call's wall time when no kernel launch runs (input
@@ -24,13 +25,12 @@ import argparse
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol as protocol  # noqa: E402  (bench/_protocol.py)
-import ao as ao_bench  # noqa: E402  (bench/ao.py: the torus, its rays and the Open3D worker)
+from bench import _protocol as protocol
+from bench._embree import Open3D, have_open3d, torus_rays
+from bench._shapes import shape_mesh
 
 
 class KernelClock:
@@ -105,7 +105,7 @@ def rays_4d(tets: float, samples: int):
     import ao4d
     from ao4d import ao, raycast, sampling
 
-    mesh = ao_bench.shape_mesh("spheritorus", tets)
+    mesh = shape_mesh("spheritorus", tets)
     p, n = mesh.vertices, mesh.vertex_normals
     order = raycast._morton_order(p)
     p, n = p[order], n[order]
@@ -115,27 +115,91 @@ def rays_4d(tets: float, samples: int):
     return ao4d.SimplexMesh(mesh.vertices, mesh.simplices), o.astype(np.float32), w.astype(np.float32)
 
 
-def main(argv=None) -> int:
+def parse_args(argv=None) -> argparse.Namespace:
+    """The options (``--quick``: small sizes, two rounds)."""
     parser = argparse.ArgumentParser(
+        prog="python -m bench.cast",
         description=__doc__.splitlines()[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="example: python bench/cast.py --rounds 5",
+        epilog="example: python -m bench.cast --rounds 5",
     )
     parser.add_argument("--triangles", type=float, default=1e6, help="3D torus size (default 1e6)")
     parser.add_argument("--tets", type=float, default=1.1e6, help="4D spheritorus size (default 1.1e6)")
     parser.add_argument("--points", type=int, default=160_000, help="AO points (default 160000: 10.2 M rays)")
     parser.add_argument("--samples", type=int, default=64)
-    parser.add_argument(
-        "--rounds", "--repeat", dest="rounds", type=int, default=5, help="rounds taken in turn (default 5)"
-    )
+    protocol.add_rounds(parser, 5, "rounds taken in turn (default 5)", "--repeat")
     parser.add_argument("--quick", action="store_true", help="small sizes, two rounds (seconds)")
     args = parser.parse_args(argv)
     if args.quick:
         args.triangles, args.tets, args.points, args.rounds = 5e4, 5e4, 8000, 2
-    if args.rounds < 1:
-        parser.error(f"--rounds must be at least 1, got {args.rounds}")
+    return args
+
+
+def workloads(args, runtime) -> dict:
+    """The 3D torus and the 4D spheritorus with their rays, trees built and kernels loaded:
+    name -> (mesh, origins, directions)."""
     import ao4d
-    from ao4d import _progress, raycast
+    from ao4d import raycast
+
+    tm, _, _, o3, w3 = torus_rays(int(args.triangles), args.points, args.samples)
+    torus = ao4d.SimplexMesh(tm.vertices, tm.faces)
+    mesh4, o4, w4 = rays_4d(args.tets, args.samples)
+    out = {"3D": (torus, o3, w3), "4D": (mesh4, o4, w4)}
+    for mesh, o, w in out.values():
+        raycast.get_bvh(mesh, runtime=runtime)
+        raycast.cast_rays(mesh, o[:1], w[:1], backend="opencl")  # device copies and kernels
+    return out
+
+
+def measure(args, work: dict, peer, rounds: protocol.Rounds) -> dict[str, list[dict]]:
+    """Every measurement once a round, in turn: name -> the rounds' figures."""
+    runs: dict[str, list[dict]] = {}
+    for _ in rounds:
+        if peer is not None:
+            runs.setdefault("Open3D test_occlusions (3D)", []).append(
+                peer.run(int(args.triangles), args.points, args.samples)
+            )
+        for dim in ("3D", "4D"):
+            runs.setdefault(f"ao4d cast_rays any hit ({dim})", []).append(ao4d_cast(*work[dim], False))
+            runs.setdefault(f"ao4d cast_rays closest ({dim})", []).append(ao4d_cast(*work[dim], True))
+    return runs
+
+
+def report(runs: dict, work: dict, rounds: protocol.Rounds, why_not: str | None) -> None:
+    """The rates and host shares (medians, min–max) and ao4d's ratio against Open3D."""
+    if rounds.warning():
+        print(rounds.warning())
+    print(
+        f"\nmedians of {len(rounds)} rounds (wall clock); host share: the part of the call outside "
+        "its kernel launches, median (min–max)"
+    )
+    print("\n| | M rays/s | host share of the call | hits |\n|---|---|---|---|")
+    rates = {}
+    for name, rs in runs.items():
+        n = len(work["4D"][1]) if "(4D)" in name else len(work["3D"][1])
+        # the Open3D worker reports (wall, CPU) seconds
+        rates[name] = [n / (r["trace"][0] if isinstance(r["trace"], list) else r["trace"]) / 1e6 for r in rs]
+        if "kernel" in rs[0]:
+            m, lo, hi = protocol.spread(100 * (1 - r["kernel"] / r["trace"]) for r in rs)
+            host_s = f"{m:.0f} % ({lo:.0f}–{hi:.0f})"
+        else:
+            host_s = "–"
+        print(f"| {name} | {statistics.median(rates[name]):.2f} | {host_s} | {rs[0]['hit']:.3f} |")
+    if why_not is None:
+        base = rates["Open3D test_occlusions (3D)"]
+        ours = rates["ao4d cast_rays any hit (3D)"]
+        print(
+            f"\nao4d any-hit cast_rays / Open3D test_occlusions (identical rays), median (min–max) over "
+            f"{len(rounds)} rounds: {protocol.format_ratio(a / b for a, b in zip(ours, base))}"
+        )
+    else:
+        print(f"\nOpen3D not measured: {why_not}")
+
+
+def main(argv=None) -> int:
+    """Run the benchmark (``argv``: the options); 1 without an OpenCL device."""
+    args = parse_args(argv)
+    from ao4d import _progress
     from ao4d.opencl import cl
 
     _progress.set_enabled(False)  # no progress lines in the table
@@ -147,63 +211,21 @@ def main(argv=None) -> int:
     print(protocol.machine_line(runtime))
     print(f"device: {runtime.name}; load average {protocol.load_average()}")
     print(f"before the rounds, {protocol.memory_line(runtime)}", flush=True)
-    tm, _, _, o3, w3 = ao_bench.torus_rays(int(args.triangles), args.points, args.samples)
-    torus = ao4d.SimplexMesh(tm.vertices, tm.faces)
-    raycast.get_bvh(torus, runtime=runtime)
-    raycast.cast_rays(torus, o3[:1], w3[:1], backend="opencl")  # device copies and kernels
-    mesh4, o4, w4 = rays_4d(args.tets, args.samples)
-    raycast.get_bvh(mesh4, runtime=runtime)
-    raycast.cast_rays(mesh4, o4[:1], w4[:1], backend="opencl")
-    why_not = ao_bench.have_open3d()
-    peer = None if why_not else ao_bench.Open3D()
+    work = workloads(args, runtime)
+    why_not = have_open3d()
+    peer = None if why_not else Open3D()
+    (torus, o3, _), (mesh4, o4, _) = work["3D"], work["4D"]
     print(
-        f"3D torus: {len(tm.faces):,} triangles, {len(o3):,} rays; 4D spheritorus: "
+        f"3D torus: {len(torus.simplices):,} triangles, {len(o3):,} rays; 4D spheritorus: "
         f"{len(mesh4.simplices):,} tets, {len(o4):,} rays"
     )
-    runs: dict[str, list[dict]] = {}
-    quiet = []
-    for index in range(args.rounds):
-        quiet.append(protocol.check_round(index, args.rounds))
-        if peer is not None:
-            runs.setdefault("Open3D test_occlusions (3D)", []).append(
-                peer.run(int(args.triangles), args.points, args.samples)
-            )
-        runs.setdefault("ao4d cast_rays any hit (3D)", []).append(ao4d_cast(torus, o3, w3, False))
-        runs.setdefault("ao4d cast_rays closest (3D)", []).append(ao4d_cast(torus, o3, w3, True))
-        runs.setdefault("ao4d cast_rays any hit (4D)", []).append(ao4d_cast(mesh4, o4, w4, False))
-        runs.setdefault("ao4d cast_rays closest (4D)", []).append(ao4d_cast(mesh4, o4, w4, True))
+    rounds = protocol.Rounds(args.rounds)
+    runs = measure(args, work, peer, rounds)
     if peer is not None:
         peer.close()
     print(f"load average after: {protocol.load_average()}")
     print(f"after the rounds, {protocol.memory_line(runtime)}")
-    noisy = [i + 1 for i, q in enumerate(quiet) if not q]
-    if noisy:
-        print(f"!!! WARNING: rounds {noisy} started on a busy machine: these are not quiet figures !!!")
-    print(
-        f"\nmedians of {args.rounds} rounds (wall clock); host share: the part of the call outside "
-        "its kernel launches, median (min–max)"
-    )
-    print("\n| | M rays/s | host share of the call | hits |\n|---|---|---|---|")
-    rates = {}
-    for name, rs in runs.items():
-        n = len(o4) if "(4D)" in name else len(o3)
-        # the Open3D worker reports (wall, CPU) seconds
-        rates[name] = [n / (r["trace"][0] if isinstance(r["trace"], list) else r["trace"]) / 1e6 for r in rs]
-        if "kernel" in rs[0]:
-            m, lo, hi = protocol.spread(100 * (1 - r["kernel"] / r["trace"]) for r in rs)
-            host_s = f"{m:.0f} % ({lo:.0f}–{hi:.0f})"
-        else:
-            host_s = "–"
-        print(f"| {name} | {statistics.median(rates[name]):.2f} | {host_s} | {rs[0]['hit']:.3f} |")
-    if peer is not None:
-        base = rates["Open3D test_occlusions (3D)"]
-        ours = rates["ao4d cast_rays any hit (3D)"]
-        print(
-            f"\nao4d any-hit cast_rays / Open3D test_occlusions (identical rays), median (min–max) over "
-            f"{args.rounds} rounds: {protocol.format_ratio(a / b for a, b in zip(ours, base))}"
-        )
-    else:
-        print(f"\nOpen3D not measured: {why_not}")
+    report(runs, work, rounds, why_not)
     print(f"\n{protocol.machine_line(runtime)}")
     print(f"bench run time {time.perf_counter() - began:.0f} s")
     return 0
