@@ -279,15 +279,20 @@ def read_mhd(path: str | os.PathLike) -> Volume:
     return Volume(np.ascontiguousarray(data), spacing, origin, path.stem)
 
 
-def pyvista_offscreen():
+def pyvista_offscreen(what: str = "backend='pyvista'"):
     """Import pyvista for off-screen use, silencing VTK's harmless missing-X-server warning.
+
+    Parameters
+    ----------
+    what : str, optional
+        The feature that needs pyvista, named when it is not installed (``ao4d[vtk]``).
 
     Returns
     -------
     module
         ``pyvista``.
     """
-    pv = require("pyvista", "reading and writing VTK files")
+    pv = require("pyvista", what)
     import vtk
 
     pv.OFF_SCREEN = True
@@ -316,7 +321,7 @@ def read_vtk_image(path: str | os.PathLike, name: str = "path") -> Any:
     """
     import warnings
 
-    pv = pyvista_offscreen()
+    pv = pyvista_offscreen("reading .vti images")
     import vtk
 
     path = Path(path)
