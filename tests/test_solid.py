@@ -1,4 +1,4 @@
-"""ao4d.marching.solid: solids and interval volumes cut into simplices (issue 58, part 2).
+"""ao4d.marching.solid: solids and interval volumes cut into simplices.
 
 Tolerances: the extracted boundary is a piecewise-linear surface whose facets are chords of the
 true level set; a chord of length L on a sphere of radius r lies within its sagitta L^2 / (8 r),
@@ -97,14 +97,28 @@ def test_interval_shell_volume_and_boundary():
     assert solid.volume == pytest.approx(up.volume + low.volume, rel=1e-9)
 
 
-def test_inside_above_is_the_flipped_field():
+@pytest.mark.parametrize("method", ["cubes", "simplices"])
+def test_inside_above_is_the_flipped_field(method):
     r, h, o = _radius(3, 9)
-    below = extract_solid(r, 1.0, spacing=h, origin=o)
-    above = extract_solid(-r, -1.0, spacing=h, origin=o, inside="above")
+    below = extract_solid(r, 1.0, spacing=h, origin=o, method=method)
+    above = extract_solid(-r, -1.0, spacing=h, origin=o, inside="above", method=method)
     assert above.volume == pytest.approx(below.volume, rel=1e-12)
-    _assert_boundary_is_extract(above, -r, -1.0, spacing=h, origin=o, inside="above")
+    _assert_boundary_is_extract(above, -r, -1.0, spacing=h, origin=o, inside="above", method=method)
     shell = extract_solid(-r, -1.0, upper=-0.5, spacing=h, origin=o, inside="above", method="simplices")
     assert shell.check().ok and shell.volume > 0
+
+
+def test_the_default_method_is_simplices_positive_on_4d_noise():
+    # the default cuts Kuhn simplices: positively oriented on any field, no warning, and its
+    # boundary is the simplex method's surface
+    values = np.random.default_rng(7).normal(size=(5, 5, 5, 5))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        solid = extract_solid(values, 0.0)
+    assert (solid.simplex_volumes >= 0).all() and solid.check().ok
+    _assert_boundary_is_extract(solid, values, 0.0, method="simplices")
 
 
 @pytest.mark.parametrize("method", ["cubes", "simplices"])
