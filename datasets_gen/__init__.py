@@ -13,6 +13,10 @@ hashes. The same configuration and seed give byte-identical files; an interrupte
 ``python -m datasets_gen.experiments.<name> --out DIR [--quick]`` regenerates a table (CSV)
 and figure (PNG) of the README.
 
+Making datasets needs extras of ao4d: ``pip install "ao4d[datasets]"`` (libigl for sweeps of mesh
+sequences, threadpoolctl for the workers' thread limits) and ``"ao4d[dask]"`` for
+``--scheduler``; reading one back needs neither.
+
 Example
 -------
 >>> from datasets_gen import load_config

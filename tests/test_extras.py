@@ -127,9 +127,9 @@ def test_extras_install_what_require_names_and_the_core_holds_none():
         assert extra in everything, extra
         assert dist in _names(extras[extra]) or (module == "vtk" and "pyvista" in _names(extras[extra])), module
         assert dist not in core, f"{dist} is in the core"
-    # the design's core, and matplotlib for the demo's pictures
+    # the design's core, matplotlib for the demo's pictures, tomli (tomllib) on Python 3.10
     design = {"numpy", "scipy", "scikit-image", "pyopencl", "trimesh", "pytetwild", "tqdm", "matplotlib"}
-    assert design <= core and not core - design - {"intel-opencl-rt", "intel-cmplr-lib-rt"}, core
+    assert design <= core and not core - design - {"intel-opencl-rt", "intel-cmplr-lib-rt", "tomli"}, core
     # the README's install command (".[test]") and the docs install everything
     for name in ("test", "docs"):
         assert "ao4d[all]" in extras[name], name
