@@ -2,7 +2,8 @@
 
 A field is a callable taking an ``(..., d)`` array of points and returning an ``(...)`` array.
 The fields built here are :class:`Field` objects: besides being callable they carry their
-dimension, a bounding box of the solid (``extent``) and, where a closed form exists, the enclosed
+dimension, a bounding box of the solid (``extent``), its support function (``support``) and,
+where a closed form exists, the enclosed
 d-volume (``volume``) and the boundary (d-1)-volume (``boundary_measure``), which the tests use to
 check extraction accuracy. Fields are signed distances, or bounds on them, in the sense of
 sphere tracing [1]_; on four-space shapes and how to see them: [2]_.
@@ -74,6 +75,9 @@ __all__ = [
 # Points evaluated per call of a field while sampling a grid: bounds the temporary (..., d) array.
 _POINTS_PER_BLOCK = 1 << 18
 
+Support = Callable[[np.ndarray], np.ndarray]
+"""A support function: ``(..., d)`` directions u -> ``(...)`` values, max over the solid of u . x."""
+
 
 class Field:
     """A scalar field on R^d, negative inside the solid it describes.
@@ -91,13 +95,19 @@ class Field:
         Analytic enclosed d-volume and boundary (d-1)-volume of the solid ``{f < 0}``.
     extent : (2, d) array_like, optional
         A box ``(lo, hi)`` containing the solid; ``None`` when unbounded or unknown.
+    support : callable, optional
+        The solid's support function ``h(u) = max over the solid of u . x``: ``(..., d)``
+        directions to ``(...)`` values; exact for the primitives, an upper bound where a
+        constructor says so (the solid then lies in ``{x : u . x <= h(u)}`` for every u, which
+        is all a bound is used for); ``None`` when unbounded or unknown. Rotated solids take
+        their extents from it (``Field.extent`` is a box, loose under rotation).
     program : tuple, optional
         The same field as a small expression tree ``(op, params, children)`` that
         ``ao4d.marching.fields_device`` evaluates in an OpenCL kernel with ``func``'s operations;
         ``None`` (any other callable): sampled on the host only.
     """
 
-    __slots__ = ("_func", "dim", "name", "volume", "boundary_measure", "extent", "program")
+    __slots__ = ("_func", "dim", "name", "volume", "boundary_measure", "extent", "support", "program")
 
     def __init__(
         self,
@@ -108,9 +118,11 @@ class Field:
         volume: float | None = None,
         boundary_measure: float | None = None,
         extent: Any = None,
+        support: Support | None = None,
         program: tuple | None = None,
     ) -> None:
         self._func = func
+        self.support = support
         self.program = program
         self.dim = dim
         self.name = name
@@ -167,6 +179,10 @@ def _common_dim(fields: Sequence[Any]) -> int | None:
 
 def _extent_of(field: Any) -> np.ndarray | None:
     return getattr(field, "extent", None)
+
+
+def _support_of(field: Any) -> Support | None:
+    return getattr(field, "support", None)
 
 
 def _program(op: str, params: Sequence[float], *children: Any) -> tuple | None:
@@ -237,6 +253,7 @@ def hypersphere(radius: float = 1.0, center: Any = 0.0, *, dim: int | None = Non
         volume=vol,
         boundary_measure=dim * vol / r,
         extent=(c - r, c + r),
+        support=lambda u: r * _norm(u, slice(None)) + u @ c,
         program=_program("hypersphere", (r, *c)),
     )
 
@@ -253,7 +270,8 @@ def spheritorus(R: float = 1.0, r: float = 0.4) -> Field:
     -------
     Field
         Exact signed distance to the surface; ``volume = 4 pi^2 R^2 r^2 + pi^2 r^4`` and
-        ``boundary_measure = 8 pi^2 R^2 r + 4 pi^2 r^3``.
+        ``boundary_measure = 8 pi^2 R^2 r + 4 pi^2 r^3``; ``support`` the Minkowski sum's
+        (2-sphere of radius R in xyz plus an r-ball: supports add), ``R |u_xyz| + r |u|``.
 
     Notes
     -----
@@ -272,6 +290,7 @@ def spheritorus(R: float = 1.0, r: float = 0.4) -> Field:
         volume=4 * math.pi**2 * R**2 * r**2 + math.pi**2 * r**4,
         boundary_measure=8 * math.pi**2 * R**2 * r + 4 * math.pi**2 * r**3,
         extent=([-a, -a, -a, -r], [a, a, a, r]),
+        support=lambda u: R * _norm(u, slice(0, 3)) + r * _norm(u, slice(None)),
         **_named("spheritorus", R=R, r=r),
     )
 
@@ -288,7 +307,7 @@ def torisphere(R: float = 1.0, r: float = 0.4) -> Field:
     -------
     Field
         Exact signed distance to the surface; ``volume = 8/3 pi^2 R r^3`` and
-        ``boundary_measure = 8 pi^2 R r^2``.
+        ``boundary_measure = 8 pi^2 R r^2``; ``support`` (circle plus ball) ``R |u_xy| + r |u|``.
 
     Notes
     -----
@@ -306,6 +325,7 @@ def torisphere(R: float = 1.0, r: float = 0.4) -> Field:
         volume=8 / 3 * math.pi**2 * R * r**3,
         boundary_measure=8 * math.pi**2 * R * r**2,
         extent=([-a, -a, -r, -r], [a, a, r, r]),
+        support=lambda u: R * _norm(u, slice(0, 2)) + r * _norm(u, slice(None)),
         **_named("torisphere", R=R, r=r),
     )
 
@@ -323,7 +343,7 @@ def ditorus(R: float = 1.0, r1: float = 0.45, r2: float = 0.2) -> Field:
     -------
     Field
         Exact signed distance to the surface; ``volume = 4 pi^3 R r1 r2^2`` and
-        ``boundary_measure = 8 pi^3 R r1 r2``.
+        ``boundary_measure = 8 pi^3 R r1 r2``; ``support`` ``R |u_xy| + r1 |u_xyz| + r2 |u|``.
 
     Notes
     -----
@@ -332,6 +352,9 @@ def ditorus(R: float = 1.0, r1: float = 0.45, r2: float = 0.2) -> Field:
     The solid is the disk (q - r1)^2 + w^2 <= r2^2, so the 4-volume is
     ``4 pi^2 R * int_disk q = 4 pi^2 R * r1 * pi r2^2 = 4 pi^3 R r1 r2^2`` and the boundary
     3-volume ``4 pi^2 R * int_circle q ds = 4 pi^2 R * r1 * 2 pi r2 = 8 pi^3 R r1 r2``.
+    The solid is the 3D torus surface T (R, r1) in w = 0 grown by an r2-ball. T's support is
+    ``max_phi [R a + r1 sqrt(a^2 + u_z^2)]`` with ``a = u_xy . (cos phi, sin phi)``, largest at
+    ``a = |u_xy|``: ``R |u_xy| + r1 |u_xyz|``.
     """
     R, r1, r2 = as_real(R, "R", gt=0), as_real(r1, "r1", gt=0), as_real(r2, "r2", gt=0)
     if not (r2 < r1 and r1 + r2 < R):
@@ -348,6 +371,7 @@ def ditorus(R: float = 1.0, r1: float = 0.45, r2: float = 0.2) -> Field:
         volume=4 * math.pi**3 * R * r1 * r2**2,
         boundary_measure=8 * math.pi**3 * R * r1 * r2,
         extent=([-a, -a, -b, -r2], [a, a, b, r2]),
+        support=lambda u: R * _norm(u, slice(0, 2)) + r1 * _norm(u, slice(0, 3)) + r2 * _norm(u, slice(None)),
         **_named("ditorus", R=R, r1=r1, r2=r2),
     )
 
@@ -367,7 +391,8 @@ def tiger(R1: float = 0.8, R2: float = 0.8, r: float = 0.35) -> Field:
     Field
         Exact signed distance to the surface; ``volume = (2 pi R1) (2 pi R2) (pi r^2)`` and
         ``boundary_measure = (2 pi R1) (2 pi R2) (2 pi r)``: the two core circles times the tube's
-        disk and circle.
+        disk and circle; ``support`` (the flat torus, two circles in the xy and zw planes, plus
+        an r-ball) ``R1 |u_xy| + R2 |u_zw| + r |u|``.
 
     Notes
     -----
@@ -385,6 +410,7 @@ def tiger(R1: float = 0.8, R2: float = 0.8, r: float = 0.35) -> Field:
         volume=4 * math.pi**3 * R1 * R2 * r**2,
         boundary_measure=8 * math.pi**3 * R1 * R2 * r,
         extent=([-a, -a, -b, -b], [a, a, b, b]),
+        support=lambda u: R1 * _norm(u, slice(0, 2)) + R2 * _norm(u, slice(2, 4)) + r * _norm(u, slice(None)),
         **_named("tiger", R1=R1, R2=R2, r=r),
     )
 
@@ -402,7 +428,8 @@ def duocylinder(r1: float = 1.0, r2: float = 1.0) -> Field:
     Field
         Exact signed distance (the boundary has a sharp ridge, a flat 2-torus).
         ``volume = pi^2 r1^2 r2^2``; ``boundary_measure = 2 pi^2 r1 r2 (r1 + r2)``
-        (two solid tori: circle 2 pi r1 times disk pi r2^2, and vice versa).
+        (two solid tori: circle 2 pi r1 times disk pi r2^2, and vice versa); ``support`` (the
+        product of two disks is their Minkowski sum) ``r1 |u_xy| + r2 |u_zw|``.
     """
     r1, r2 = as_real(r1, "r1", gt=0), as_real(r2, "r2", gt=0)
 
@@ -417,6 +444,7 @@ def duocylinder(r1: float = 1.0, r2: float = 1.0) -> Field:
         volume=math.pi**2 * r1**2 * r2**2,
         boundary_measure=2 * math.pi**2 * r1 * r2 * (r1 + r2),
         extent=([-r1, -r1, -r2, -r2], [r1, r1, r2, r2]),
+        support=lambda u: r1 * _norm(u, slice(0, 2)) + r2 * _norm(u, slice(2, 4)),
         **_named("duocylinder", r1=r1, r2=r2),
     )
 
@@ -447,7 +475,8 @@ def tesseract(half: float = 1.0, rounding: float = 0.0, *, dim: int = 4) -> Fiel
         with a = h - rho, the cube has C(d,k) 2^k faces of dimension d-k, each of
         (d-k)-volume (2a)^(d-k) with an orthant (1/2^k) of a k-ball as normal cone, so
         ``V = sum_k C(d,k) (2a)^(d-k) omega_k rho^k`` (omega_k: unit k-ball volume) and the
-        boundary is dV/drho; the sharp 4-cube gives 16 h^4 and 64 h^3.
+        boundary is dV/drho; the sharp 4-cube gives 16 h^4 and 64 h^3. ``support`` (the cube
+        plus a rho-ball) ``a |u|_1 + rho |u|``.
     """
     h = as_real(half, "half", gt=0)
     rho = as_real(rounding, "rounding", ge=0, lt=h, unit=" (`half`)")
@@ -463,6 +492,7 @@ def tesseract(half: float = 1.0, rounding: float = 0.0, *, dim: int = 4) -> Fiel
         volume=vol,
         boundary_measure=area,
         extent=(np.full(dim, -h), np.full(dim, h)),
+        support=lambda u: a * np.abs(u).sum(axis=-1) + rho * _norm(u, slice(None)),
         program=_program("tesseract", (a, rho, dim)),
     )
 
@@ -489,7 +519,9 @@ def indented_cube(half: float = 1.0, indent: float = 0.6, *, axis: int = 3) -> F
         ``max(cube, -ball)``. Half of the ball lies inside the cube, so
         ``volume = 16 h^4 - pi^2 rho^4 / 4`` and the boundary loses a 3-ball (4/3 pi rho^3) of
         the facet and gains a half 3-sphere (pi^2 rho^3):
-        ``boundary_measure = 64 h^3 - 4/3 pi rho^3 + pi^2 rho^3``.
+        ``boundary_measure = 64 h^3 - 4/3 pi rho^3 + pi^2 rho^3``; ``support`` the cube's,
+        exact: the dent (radius < h, centred on a facet) keeps every vertex of the cube, where
+        a linear function is largest.
     """
     h = as_real(half, "half", gt=0)
     rho = as_real(indent, "indent", gt=0)
@@ -508,6 +540,7 @@ def indented_cube(half: float = 1.0, indent: float = 0.6, *, axis: int = 3) -> F
         volume=16 * h**4 - math.pi**2 * rho**4 / 4,
         boundary_measure=64 * h**3 - 4 / 3 * math.pi * rho**3 + math.pi**2 * rho**3,
         extent=cube.extent,
+        support=cube.support,
         program=_program("difference", (), cube, ball),  # the same operations
     )
 
@@ -527,8 +560,9 @@ def metaballs(centers: Any, radii: Any = 0.5, *, sharpness: float = 2.0) -> Fiel
     Returns
     -------
     Field
-        Negative inside the blended solid (not a distance). Its extent uses that a point
-        farther than ``r_i sqrt(1 + ln(k) / s)`` from every center has each term below 1/k.
+        Negative inside the blended solid (not a distance). Its extent and ``support`` (a
+        bound: the union of balls of radius ``r_i sqrt(1 + ln(k) / s)`` about the centers) use
+        that a point farther than that from every center has each term below 1/k.
     """
     c = as_array(centers, "centers", ndim=2, dtype=np.float64, finite=True, min_size=1)
     k, dim = c.shape
@@ -549,11 +583,16 @@ def metaballs(centers: Any, radii: Any = 0.5, *, sharpness: float = 2.0) -> Fiel
         return 1.0 - total
 
     reach = r * math.sqrt(1.0 + math.log(k) / s)
+
+    def support(u: np.ndarray) -> np.ndarray:
+        return np.max([ri * _norm(u, slice(None)) + u @ ci for ci, ri in zip(c, reach)], axis=0)
+
     return Field(
         f,
         dim=dim,
         name=f"metaballs(k={k})",
         extent=((c - reach[:, None]).min(axis=0), (c + reach[:, None]).max(axis=0)),
+        support=support,
         program=_program("metaballs", (-s, dim, *np.column_stack([c, inv_r2]).ravel())),
     )
 
@@ -574,7 +613,7 @@ def gyroid(period: float = 1.0, thickness: float = 0.3) -> Field:
     Returns
     -------
     Field
-        Negative inside the sheet (not a distance).
+        Negative inside the sheet (not a distance); no ``extent`` or ``support`` (unbounded).
     """
     k = 2 * math.pi / as_real(period, "period", gt=0)
     t = as_real(thickness, "thickness", gt=0)
@@ -602,7 +641,8 @@ def ground(height: float = 0.0, axis: int = 1, *, dim: int = 4) -> Field:
     Returns
     -------
     Field
-        ``x[axis] - height``; unbounded (intersect with a box to extract it).
+        ``x[axis] - height``; unbounded (intersect with a box to extract it): no ``extent`` or
+        ``support``.
     """
     h = as_real(height, "height")
     dim = check_positive_int(dim, "dim")
@@ -627,6 +667,22 @@ def _hull(extents: Sequence[np.ndarray | None]) -> np.ndarray | None:
     return np.stack([np.min([e[0] for e in extents], axis=0), np.max([e[1] for e in extents], axis=0)])
 
 
+def _support_max(supports: Sequence[Support | None]) -> Support | None:
+    """Support of a union: the largest of the parts' supports; ``None`` if a part has none."""
+    if any(h is None for h in supports):
+        return None
+    return lambda u: np.max([h(u) for h in supports], axis=0)
+
+
+def _support_min(supports: Sequence[Support | None]) -> Support | None:
+    """A bound on an intersection's support: the smallest of the parts' that have one (the
+    intersection lies inside each part); ``None`` if none has one."""
+    known = [h for h in supports if h is not None]
+    if not known:
+        return None
+    return lambda u: np.min([h(u) for h in known], axis=0)
+
+
 def _check_fields(fields: Sequence[Any], name: str) -> None:
     if len(fields) == 0:
         raise ValueError(f"`{name}` needs at least one field")
@@ -646,7 +702,8 @@ def union(*fields: Callable) -> Field:
     Returns
     -------
     Field
-        The union's field; it has an ``extent`` (the box around the operands') only when every
+        The union's field; it has an ``extent`` (the box around the operands') and a
+        ``support`` (the largest of the operands', exact where theirs are) only when every
         operand has one.
     """
     _check_fields(fields, "fields")
@@ -656,6 +713,7 @@ def union(*fields: Callable) -> Field:
         dim=dim,
         name="union(" + ", ".join(map(repr, fields)) + ")",
         extent=_hull([_extent_of(f) for f in fields]),
+        support=_support_max([_support_of(f) for f in fields]),
         program=_program("union", (), *fields),
     )
 
@@ -672,7 +730,8 @@ def intersection(*fields: Callable) -> Field:
     Returns
     -------
     Field
-        The intersection's field.
+        The intersection's field; its ``support`` is a bound, the smallest of the operands'
+        that have one (``None`` if none has).
     """
     _check_fields(fields, "fields")
     dim = _common_dim(fields)
@@ -685,6 +744,7 @@ def intersection(*fields: Callable) -> Field:
         dim=dim,
         name="intersection(" + ", ".join(map(repr, fields)) + ")",
         extent=extent,
+        support=_support_min([_support_of(f) for f in fields]),
         program=_program("intersection", (), *fields),
     )
 
@@ -700,7 +760,7 @@ def difference(a: Callable, b: Callable) -> Field:
     Returns
     -------
     Field
-        The difference's field.
+        The difference's field; its ``extent`` and ``support`` are ``a``'s (a bound).
     """
     _check_fields((a, b), "a, b")
     return Field(
@@ -708,6 +768,7 @@ def difference(a: Callable, b: Callable) -> Field:
         dim=_common_dim((a, b)),
         name=f"difference({a!r}, {b!r})",
         extent=_extent_of(a),
+        support=_support_of(a),
         program=_program("difference", (), a, b),
     )
 
@@ -728,7 +789,8 @@ def smooth_union(a: Callable, b: Callable, k: float = 0.2) -> Field:
     Returns
     -------
     Field
-        The smooth union's field.
+        The smooth union's field; no ``support``: the fillet reaches past both solids by an
+        amount their fields do not bound in general (not distances, e.g. metaballs).
     """
     _check_fields((a, b), "a, b")
     k = as_real(k, "k", gt=0)
@@ -762,7 +824,7 @@ def translate(field: Callable, offset: Any) -> Field:
     Returns
     -------
     Field
-        The moved solid's field.
+        The moved solid's field; ``support`` ``h(u) + u . offset``.
     """
     _check_fields((field,), "field")
     off = as_array(offset, "offset", ndim=1, dtype=np.float64, finite=True, min_size=1)
@@ -770,6 +832,7 @@ def translate(field: Callable, offset: Any) -> Field:
     if dim is not None and off.shape[0] != dim:
         raise ValueError(f"`offset` must have length {dim}, got {off.shape[0]}")
     ext = _extent_of(field)
+    h = _support_of(field)
     return Field(
         lambda p: field(p - off),
         dim=off.shape[0],
@@ -777,6 +840,7 @@ def translate(field: Callable, offset: Any) -> Field:
         volume=getattr(field, "volume", None),
         boundary_measure=getattr(field, "boundary_measure", None),
         extent=None if ext is None else ext + off,
+        support=None if h is None else lambda u: h(u) + u @ off,
         program=_program("translate", off, field),
     )
 
@@ -796,13 +860,14 @@ def scale(field: Callable, factor: float) -> Field:
     Returns
     -------
     Field
-        The scaled solid's field.
+        The scaled solid's field; ``support`` ``factor * h(u)``.
     """
     _check_fields((field,), "field")
     s = as_real(factor, "factor", gt=0)
     dim = _dim_of(field)
     vol, area = getattr(field, "volume", None), getattr(field, "boundary_measure", None)
     ext = _extent_of(field)
+    h = _support_of(field)
     return Field(
         lambda p: s * np.asarray(field(p / s), dtype=float),
         dim=dim,
@@ -810,6 +875,7 @@ def scale(field: Callable, factor: float) -> Field:
         volume=None if vol is None or dim is None else vol * s**dim,
         boundary_measure=None if area is None or dim is None else area * s ** (dim - 1),
         extent=None if ext is None else ext * s,
+        support=None if h is None else lambda u: s * h(u),
         program=_program("scale", (s,), field),
     )
 
@@ -830,7 +896,7 @@ def rotate(field: Callable, plane: tuple[int, int] = (0, 3), angle: float = 0.0)
     Returns
     -------
     Field
-        ``f(R^-1 x)``; volume and boundary measure are unchanged.
+        ``f(R^-1 x)``; volume and boundary measure are unchanged; ``support`` ``h(R^-1 u)``.
     """
     _check_fields((field,), "field")
     try:
@@ -844,11 +910,13 @@ def rotate(field: Callable, plane: tuple[int, int] = (0, 3), angle: float = 0.0)
     a = as_real(angle, "angle")
     c, s = math.cos(a), math.sin(a)
 
-    def f(p: np.ndarray) -> np.ndarray:
+    def back(p: np.ndarray) -> np.ndarray:
         q = p.copy()
         q[..., i] = c * p[..., i] + s * p[..., j]  # R^-1 = rotation by -angle
         q[..., j] = -s * p[..., i] + c * p[..., j]
-        return field(q)
+        return q
+
+    h = _support_of(field)
 
     ext = _extent_of(field)
     if ext is not None:  # bounding box of the rotated box's corners
@@ -858,12 +926,13 @@ def rotate(field: Callable, plane: tuple[int, int] = (0, 3), angle: float = 0.0)
         rot[:, j] = s * corners[:, i] + c * corners[:, j]
         ext = np.stack([rot.min(axis=0), rot.max(axis=0)])
     return Field(
-        f,
+        lambda p: field(back(p)),
         dim=dim,
         name=f"rotate({field!r}, plane=({i}, {j}), angle={a:g})",
         volume=getattr(field, "volume", None),
         boundary_measure=getattr(field, "boundary_measure", None),
         extent=ext,
+        support=None if h is None else lambda u: h(back(u)),
         program=_program("rotate", (i, j, c, s, -s), field),
     )
 

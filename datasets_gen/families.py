@@ -10,10 +10,10 @@ the item's rotation, grown by ``padding`` (a fraction of the width) and then by
 :data:`MARGIN_CELLS` grid cells; its cells are cubes, ``grid`` points across the widest axis
 and fewer across narrower ones (see :func:`fitted_grid`). The extent comes from the solid's
 support function ``h(u) = max_{x in S} u . x``: the solid ``Q S`` spans
-``[-h(-Q^T e_k), h(Q^T e_k)]`` along axis k. Every family kind has a closed form (the
-analytic shapes are Minkowski sums of circles, spheres, disks and cubes with a ball, whose
-supports add; see :func:`shape_support`): exact for the analytic shapes and CSG unions, a
-containing bound for metaballs (balls of each term's reach), gyroid balls (the ball) and CSG
+``[-h(-Q^T e_k), h(Q^T e_k)]`` along axis k. Each field carries its own support
+(:attr:`ao4d.fields.Field.support`; the analytic shapes are Minkowski sums of circles, spheres,
+disks and cubes with a ball, whose supports add): exact for the analytic shapes and CSG unions,
+a containing bound for metaballs (balls of each term's reach), gyroid balls (the ball) and CSG
 differences (the first operand). A closed form is preferred over fitting by sampling the
 field: it is exact and costs nothing, needs no Lipschitz bound (metaballs and gyroids have
 none worth using), and cannot miss a thin part between samples. The box of the rotated
@@ -28,9 +28,12 @@ import inspect
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ao4d.fields import Support
 
 __all__ = [
     "KINDS",
@@ -40,7 +43,6 @@ __all__ = [
     "random_rotation",
     "build_shape",
     "MARGIN_CELLS",
-    "shape_support",
     "support_extent",
     "fitted_grid",
     "INTEGER_PARAMS",
@@ -60,9 +62,6 @@ INTEGER_PARAMS: dict[tuple[str, str], tuple[int, int]] = {
 # Grid cells between the solid's extent (plus padding) and the grid's outermost points: keeps the
 # zero set off the boundary points (which must be positive for a closed mesh) with room to spare.
 MARGIN_CELLS = 1.0
-
-Support = Callable[[np.ndarray], np.ndarray]
-"""A support function: (..., 4) directions u -> (...) values max over the solid of u . x."""
 
 
 @dataclass
@@ -115,8 +114,8 @@ def random_rotation(rng: np.random.Generator, dim: int = 4) -> np.ndarray:
 
 
 def _rotated_field(f: Any, rotation: np.ndarray | None) -> Any:
-    """The solid ``rotation @ S``: ``g(x) = f(rotation^T x)``, extent = box of rotated corners
-    (a loose bound, used only for fields without a support function)."""
+    """The solid ``rotation @ S``: ``g(x) = f(rotation^T x)``, support ``h(rotation^T u)``,
+    extent the box of the rotated extent's corners (loose: grids are fitted to the support)."""
     if rotation is None:
         return f
     from itertools import product
@@ -127,6 +126,7 @@ def _rotated_field(f: Any, rotation: np.ndarray | None) -> Any:
     if ext is not None:
         corners = np.array(list(product(*ext.T))) @ rotation.T
         ext = (corners.min(axis=0), corners.max(axis=0))
+    h = f.support
     return Field(
         lambda p: f(p @ rotation),
         dim=f.dim,
@@ -134,101 +134,11 @@ def _rotated_field(f: Any, rotation: np.ndarray | None) -> Any:
         volume=f.volume,
         boundary_measure=f.boundary_measure,
         extent=ext,
+        support=None if h is None else lambda u: h(u @ rotation),
     )
 
 
-# --------------------------------------------------------------------------- support functions
-
-
-def _norm(u: np.ndarray, axes: slice = slice(None)) -> np.ndarray:
-    sub = u[..., axes]
-    return np.sqrt(np.einsum("...i,...i->...", sub, sub))
-
-
-def _cube_support(half: float, rounding: float = 0.0) -> Support:
-    """Cube ``[-(h - rho), h - rho]^4`` grown by a rho-ball: ``(h - rho) |u|_1 + rho |u|``."""
-    return lambda u: (half - rounding) * np.abs(u).sum(axis=-1) + rounding * _norm(u)
-
-
-def _rotated(support: Support, rotation: np.ndarray | None) -> Support:
-    """Support of ``rotation @ S``: ``h(Q^T u)``, i.e. ``h(u @ Q)`` for row vectors."""
-    if rotation is None:
-        return support
-    q = np.asarray(rotation, dtype=float)
-    return lambda u: support(u @ q)
-
-
-def _translated(support: Support, offset: np.ndarray) -> Support:
-    """Support of ``S + t``: ``h(u) + u . t``."""
-    t = np.asarray(offset, dtype=float)
-    return lambda u: support(u) + u @ t
-
-
-def _union(supports: list[Support]) -> Support:
-    """Support of a union: the largest of the parts' supports."""
-    return lambda u: np.max([h(u) for h in supports], axis=0)
-
-
-def shape_support(kind: str, args: dict[str, Any]) -> Support | None:
-    """Support function of the :mod:`ao4d.fields` shape ``kind`` built with ``args``.
-
-    Parameters
-    ----------
-    kind : str
-        A constructor of :mod:`ao4d.fields` ("spheritorus", ...).
-    args : dict
-        Its arguments, defaults included (``inspect.BoundArguments.arguments``).
-
-    Returns
-    -------
-    callable or None
-        ``h(u)`` for ``(..., 4)`` directions, exact for every shape here; ``None`` for a kind
-        without a closed form.
-
-    Notes
-    -----
-    The solids are Minkowski sums, whose support functions add: ``h_{A+B} = h_A + h_B``,
-    a rho-ball has ``rho |u|``, a circle or disk of radius R in a coordinate plane P has
-    ``R |u_P|``, a 2-sphere of radius R in xyz has ``R |u_xyz|``.
-
-    - hypersphere: ``c + B_r``: ``u . c + r |u|``.
-    - spheritorus ``dist(x, S^2_R) <= r``: ``S^2_R + B_r``: ``R |u_xyz| + r |u|``.
-    - torisphere ``dist(x, S^1_R) <= r``: ``R |u_xy| + r |u|``.
-    - tiger ``dist(x, S^1_R1 x S^1_R2) <= r``, the flat torus being ``S^1_R1 + S^1_R2`` in
-      the planes xy and zw: ``R1 |u_xy| + R2 |u_zw| + r |u|``.
-    - ditorus ``dist(x, T) <= r2``, T the 3D torus surface (R, r1) in w = 0. Its support is
-      ``max_phi [R a + r1 sqrt(a^2 + u_z^2)]`` with ``a = u_xy . (cos phi, sin phi)``, largest
-      at ``a = |u_xy|``: ``R |u_xy| + r1 |u_xyz| + r2 |u|``.
-    - duocylinder ``D_r1 x D_r2 = D_r1 + D_r2``: ``r1 |u_xy| + r2 |u_zw|``.
-    - tesseract, the cube of half side ``h - rho`` plus ``B_rho``: ``(h - rho) |u|_1 + rho |u|``.
-    - indented_cube: the cube's ``h |u|_1``; the dent (radius < h, centred on a facet) never
-      removes a vertex of the cube, where a linear function is largest, so this is exact.
-    """
-    a = args
-    if kind == "hypersphere":
-        r = float(a["radius"])
-        c = np.asarray(a["center"], dtype=float)
-        return lambda u: r * _norm(u) + u @ np.broadcast_to(c, u.shape[-1:])
-    if kind == "spheritorus":
-        R, r = float(a["R"]), float(a["r"])
-        return lambda u: R * _norm(u, slice(0, 3)) + r * _norm(u)
-    if kind == "torisphere":
-        R, r = float(a["R"]), float(a["r"])
-        return lambda u: R * _norm(u, slice(0, 2)) + r * _norm(u)
-    if kind == "tiger":
-        R1, R2, r = float(a["R1"]), float(a["R2"]), float(a["r"])
-        return lambda u: R1 * _norm(u, slice(0, 2)) + R2 * _norm(u, slice(2, 4)) + r * _norm(u)
-    if kind == "ditorus":
-        R, r1, r2 = float(a["R"]), float(a["r1"]), float(a["r2"])
-        return lambda u: R * _norm(u, slice(0, 2)) + r1 * _norm(u, slice(0, 3)) + r2 * _norm(u)
-    if kind == "duocylinder":
-        r1, r2 = float(a["r1"]), float(a["r2"])
-        return lambda u: r1 * _norm(u, slice(0, 2)) + r2 * _norm(u, slice(2, 4))
-    if kind == "tesseract":
-        return _cube_support(float(a["half"]), float(a["rounding"]))
-    if kind == "indented_cube":
-        return _cube_support(float(a["half"]))
-    return None
+# --------------------------------------------------------------------------- grids
 
 
 def support_extent(support: Support, rotation: np.ndarray | None = None, *, dim: int = 4) -> np.ndarray:
@@ -287,9 +197,10 @@ def fitted_grid(extent: Any, n: int, *, padding: float = 0.0, margin: float = MA
     }
 
 
-def _grid_for(g: Any, support: Support | None, rotation: np.ndarray | None, settings: dict) -> dict:
-    """The extraction grid of one item: the config's ``bounds`` (a cube), else fitted to the
-    rotated solid (its support, or the field's loose extent where it has none)."""
+def _grid_for(f: Any, g: Any, rotation: np.ndarray | None, settings: dict) -> dict:
+    """The extraction grid of one item (``f`` the field, ``g`` it rotated): the config's
+    ``bounds`` (a cube), else fitted to the rotated solid (``f``'s support, or ``g``'s loose
+    extent where there is none)."""
     n = settings["grid"]
     if settings["bounds"] is not None:
         lo, hi = (float(v) for v in settings["bounds"])
@@ -300,8 +211,8 @@ def _grid_for(g: Any, support: Support | None, rotation: np.ndarray | None, sett
             "spacing": ((hi_v - lo_v) / (n - 1)).tolist(),
             "extent": None,
         }
-    if support is not None:
-        extent = support_extent(support, rotation)
+    if f.support is not None:
+        extent = support_extent(f.support, rotation)
     elif g.extent is not None:
         extent = g.extent
     else:
@@ -309,14 +220,12 @@ def _grid_for(g: Any, support: Support | None, rotation: np.ndarray | None, sett
     return fitted_grid(extent, n, padding=float(settings["padding"]))
 
 
-def _extract(
-    f: Any, settings: dict, rotation: np.ndarray | None, derived: dict, support: Support | None = None
-) -> Shape:
-    """Extract ``f`` (rotated) on its fitted grid; ``support`` is the unrotated solid's."""
+def _extract(f: Any, settings: dict, rotation: np.ndarray | None, derived: dict) -> Shape:
+    """Extract ``f`` (rotated) on its grid, fitted to its support."""
     from ao4d.marching.march import extract_field
 
     g = _rotated_field(f, rotation)
-    grid = _grid_for(g, support, rotation, settings)
+    grid = _grid_for(f, g, rotation, settings)
     mesh = extract_field(
         g,
         grid["shape"],
@@ -339,10 +248,7 @@ def _field_kind(name: str) -> Kind:
 
     def build(params_: dict, settings: dict, rng: np.random.Generator, rotation) -> Shape:
         del rng
-        f = func(**params_)  # validates the parameters
-        bound = signature.bind(**params_)
-        bound.apply_defaults()
-        return _extract(f, settings, rotation, {}, shape_support(name, bound.arguments))
+        return _extract(func(**params_), settings, rotation, {})  # the constructor validates
 
     return Kind(params, build, (func.__doc__ or "").strip().splitlines()[0])
 
@@ -369,12 +275,8 @@ def _metaballs(p: dict, settings: dict, rng: np.random.Generator, rotation) -> S
     centres = rng.uniform(-spread, spread, size=(n, 4))
     radii = radius * rng.uniform(1 - jitter, 1 + jitter, size=n)
     sharpness = float(p.get("sharpness", 2.0))
-    f = fields.metaballs(centres, radii, sharpness=sharpness)
-    # a bound: outside every ball of radius r_i sqrt(1 + ln(n) / s) each of the n terms is
-    # below 1/n, so the field is positive (the reach ao4d.fields.metaballs uses for its extent)
-    reach = radii * math.sqrt(1.0 + math.log(n) / sharpness)
-    support = _union([_translated(lambda u, r=r: r * _norm(u), c) for c, r in zip(centres, reach)])
-    return _extract(f, settings, rotation, {"centers": centres, "radii": radii}, support)
+    f = fields.metaballs(centres, radii, sharpness=sharpness)  # its support: a bound
+    return _extract(f, settings, rotation, {"centers": centres, "radii": radii})
 
 
 def _tesseracts(p: dict, settings: dict, rng: np.random.Generator, rotation) -> Shape:
@@ -386,23 +288,20 @@ def _tesseracts(p: dict, settings: dict, rng: np.random.Generator, rotation) -> 
     operation = p.get("operation", "union")
     if operation not in ("union", "difference"):
         raise ValueError(f"`operation` must be 'union' or 'difference', got {operation!r}")
-    parts, supports, shifts, rotations = [], [], [], []
+    parts, shifts, rotations = [], [], []
     for i in range(n):
         q = random_rotation(rng)
         shift = np.zeros(4) if (operation == "difference" and i == 0) else rng.uniform(-spread, spread, 4)
         size = half * (1.5 if (operation == "difference" and i == 0) else 1.0)
         round_ = min(rounding, 0.9 * size)
         parts.append(fields.translate(_rotated_field(fields.tesseract(size, round_), q), shift))
-        supports.append(_translated(_rotated(_cube_support(size, round_), q), shift))
         shifts.append(shift)
         rotations.append(q)
-    if operation == "union":  # exact: the union's support is the parts' largest
+    if operation == "union":  # support exact: the parts' largest
         f = fields.union(*parts) if n > 1 else parts[0]
-        support = _union(supports)
-    else:  # a bound: the first part, from which the others are cut
+    else:  # support a bound: the first part's, from which the others are cut
         f = parts[0] if n == 1 else fields.difference(parts[0], fields.union(*parts[1:]))
-        support = supports[0]
-    return _extract(f, settings, rotation, {"shifts": shifts, "rotations": rotations}, support)
+    return _extract(f, settings, rotation, {"shifts": shifts, "rotations": rotations})
 
 
 def _gyroid_ball(p: dict, settings: dict, rng: np.random.Generator, rotation) -> Shape:
@@ -414,7 +313,7 @@ def _gyroid_ball(p: dict, settings: dict, rng: np.random.Generator, rotation) ->
     f = fields.intersection(
         fields.gyroid(float(p.get("period", 1.0)), float(p.get("thickness", 0.3))), fields.hypersphere(radius)
     )
-    return _extract(f, settings, rotation, {}, lambda u: radius * _norm(u))  # a bound: the ball
+    return _extract(f, settings, rotation, {})  # support a bound: the ball's
 
 
 # --------------------------------------------------------------------------- lifted families

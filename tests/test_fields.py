@@ -251,3 +251,86 @@ def test_fields_carry_their_expression_tree_and_plain_callables_none():
     assert F.union(F.hypersphere(1.0), plain).program is None
     assert F.smooth_union(plain, F.hypersphere(1.0)).program is None
     assert F.rotate(plain, (0, 1), 0.3).program is None
+
+
+# --------------------------------------------------------------------------- support functions
+
+# Every constructor with a support, by what it promises: exact (tight) or a containing bound.
+SUPPORTS_EXACT = {
+    **ANALYTIC,
+    "hypersphere_3d": F.hypersphere(0.6, [0.1, 0.2, -0.1]),
+    "tesseract_2d": F.tesseract(0.7, 0.2, dim=2),
+    "union": F.union(F.hypersphere(0.5, [0.4, 0, 0, 0]), F.tesseract(0.4, 0.1)),
+    "translate": F.translate(F.tiger(0.6, 0.5, 0.2), [0.3, -0.2, 0.1, 0.4]),
+    "rotate_translate_scale": F.rotate(
+        F.translate(F.scale(F.duocylinder(0.7, 0.4), 1.3), [0.2, 0, 0, -0.1]), (0, 2), 1.1
+    ),
+}
+SUPPORTS_BOUND = {
+    "metaballs": F.metaballs([[-0.4, 0, 0, 0], [0.4, 0.1, 0, 0], [0, 0.5, 0, 0.2]], [0.4, 0.3, 0.35]),
+    "intersection": F.intersection(F.hypersphere(0.8), F.tesseract(0.6)),
+    "difference": F.difference(F.tesseract(0.7), F.hypersphere(0.5, [0.3, 0, 0, 0])),
+    "gyroid_ball": F.preset("gyroid"),
+}
+
+
+def _support_check(field: F.Field, n: int, *, tight: bool, seed: int = 0) -> None:
+    """The support against the field sampled on an n^d grid over its padded extent, in 64
+    random unit directions u: no point with ``f <= 0`` lies beyond ``h(u)``; where ``tight``,
+    some point with ``f <= r`` reaches ``h(u) - r``, r being the half diagonal of a cell (the
+    fields are 1-Lipschitz, so every point of the solid has such a grid point that near)."""
+    lo, hi = field.extent
+    pad = 0.25 * (hi - lo)
+    axes = F.grid_axes(n, (lo - pad, hi + pad), dim=field.dim)
+    pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, field.dim)
+    values = field(pts)
+    u = np.random.default_rng(seed).standard_normal((64, field.dim))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    h = field.support(u)
+    assert h.shape == (64,)
+    inside = pts[values <= 0]
+    assert len(inside) > 0
+    assert np.all((inside @ u.T).max(axis=0) <= h + 1e-9)
+    if tight:
+        r = math.sqrt(sum(((a[1] - a[0]) / 2) ** 2 for a in axes))
+        assert np.all((pts[values <= r] @ u.T).max(axis=0) >= h - r - 1e-9)
+
+
+@pytest.mark.parametrize("name", sorted(SUPPORTS_EXACT))
+def test_support_bounds_the_solid_and_is_tight_within_a_cell(name):
+    field = SUPPORTS_EXACT[name]
+    _support_check(field, {2: 400, 3: 60}.get(field.dim, 24), tight=True)
+
+
+@pytest.mark.parametrize("name", sorted(SUPPORTS_BOUND))
+def test_support_of_metaballs_and_cut_solids_bounds_them(name):
+    _support_check(SUPPORTS_BOUND[name], 24, tight=False)
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    name=st.sampled_from(["spheritorus", "torisphere", "ditorus", "tiger", "duocylinder", "tesseract_round"]),
+    offset=st.lists(st.floats(-0.5, 0.5), min_size=4, max_size=4),
+    factor=st.floats(0.5, 1.5),
+    plane=st.sampled_from([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]),
+    angle=st.floats(-math.pi, math.pi),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_transformed_support_is_tight(name, offset, factor, plane, angle, seed):
+    """translate, scale and rotate carry the support exactly, in any order."""
+    field = F.translate(F.rotate(F.scale(ANALYTIC[name], factor), plane, angle), offset)
+    _support_check(field, 16, tight=True, seed=seed)
+
+
+def test_unbounded_and_unknown_solids_have_no_support():
+    def plain(p):
+        return np.linalg.norm(p, axis=-1) - 1.0
+
+    assert F.gyroid().support is None and F.ground().support is None
+    assert F.Field(plain, dim=4, name="plain").support is None
+    assert F.union(F.hypersphere(1.0), plain).support is None
+    assert F.translate(plain, [1, 0, 0, 0]).support is None
+    assert F.smooth_union(F.hypersphere(1.0), F.hypersphere(0.5)).support is None
+    # an intersection is bounded by its operands that have a support
+    assert F.intersection(F.gyroid(), F.hypersphere(0.5)).support(np.eye(4)).tolist() == [0.5] * 4
+    assert F.intersection(F.gyroid(), F.ground()).support is None
