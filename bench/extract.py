@@ -9,8 +9,9 @@ scalars) on one thread (``vtkSMPTools`` backend ``Sequential``) and on all threa
 threaded backend, named in the output). 4D: a hypersphere on 64^4 and 96^4 grids, both methods,
 device against the numpy engine. Every case runs once untimed (table loading, kernel builds,
 first-touch pages), then ``--rounds`` times in turn, so that machine load falls on all cases
-alike, each group's order rotated by one case every round (see ``_rotated``); the table shows
-the median with the min-max spread, and ratios of medians. ao4d's times
+alike, each group's order rotated by one case every round (see ``_rotated``), each round behind
+the load gate of ``bench._protocol`` (which also gives the machine line, printed first); the
+table shows the median with the min-max spread, and ratios of medians. ao4d's times
 are what the user waits for: ``ao4d.extract`` from the array to the SimplexMesh, checks
 included.
 
@@ -19,9 +20,11 @@ build with an empty and with a warm kernel cache, extraction) and a 128^4 spheri
 slab by slab with ``extract_field`` on both backends (time and peak resident memory, VmHWM),
 beside the time the field's evaluation alone takes.
 
-    python bench/extract.py                     # everything, 5 rounds (about 7 min, quiet 2 cores)
-    python bench/extract.py --sizes3 256 --sizes4 64 --rounds 3 --torus 0
-    python bench/extract.py --profile           # also the device engine's time per stage
+    python -m bench.extract                     # everything, 5 rounds (about 7 min, quiet 2 cores)
+    python -m bench.extract --sizes3 256 --sizes4 64 --rounds 3 --torus 0
+    python -m bench.extract --profile           # also the device engine's time per stage
+
+(run from the repository root).
 """
 
 from __future__ import annotations
@@ -30,48 +33,17 @@ import argparse
 import gc
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
-# this checkout's ao4d, whichever one is installed
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from bench import _protocol as protocol
 
-
-def machine_line() -> tuple[str, float]:
-    """(a line naming the CPU, its SIMD, caches, the OpenCL device and the load; load average)."""
-    from ao4d.opencl import cl
-
-    model, flags = platform.processor() or "unknown CPU", set()
-    try:
-        with open("/proc/cpuinfo") as info:
-            for line in info:
-                if line.startswith("model name"):
-                    model = line.split(":", 1)[1].strip()
-                elif line.startswith("flags"):
-                    flags = set(line.split(":", 1)[1].split())
-    except OSError:
-        pass
-    simd = "/".join(x for x in ("avx512f", "avx2", "fma", "sse4_2", "neon") if x in flags) or "?"
-    caches = []
-    for level in ("L2", "L3"):
-        try:
-            out = subprocess.run(["lscpu"], capture_output=True, text=True, check=False).stdout
-            row = [r for r in out.splitlines() if r.startswith(f"{level} cache")]
-            caches.append(f"{level} {row[0].split(':', 1)[1].strip()}" if row else f"{level} ?")
-        except OSError:
-            caches.append(f"{level} ?")
-    load = os.getloadavg()
-    device = cl.describe(cl.get_runtime(warn=False))
-    line = (
-        f"machine: {model}, {os.cpu_count()} CPUs, SIMD {simd}, {', '.join(caches)}; OpenCL: "
-        f"{device}; load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}"
-    )
-    return line, load[0]
+ROOT = Path(__file__).resolve().parent.parent  # the fresh processes run from it: this checkout's ao4d
 
 
 def _vtk_runner(values: np.ndarray, backend: str):
@@ -228,22 +200,24 @@ def _rotated(cases: list, r: int) -> list:
 
 
 def _subprocess(code: str, *args: str, env: dict | None = None) -> dict:
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    """Run ``code`` in a fresh Python from the repository root; its last line of output as JSON."""
     env = {**os.environ, **(env or {})}
-    env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")  # this checkout's ao4d
-    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, env=env, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", code, *args], capture_output=True, text=True, env=env, cwd=ROOT, check=True
+    )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def _spread(xs: list[float]) -> str:
-    return f"{np.median(xs):8.3f} ({min(xs):.3f}-{max(xs):.3f})"
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The options."""
+    parser = argparse.ArgumentParser(
+        prog="python -m bench.extract",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("--sizes3", type=int, nargs="*", default=[256, 384])
     parser.add_argument("--sizes4", type=int, nargs="*", default=[64, 96])
-    parser.add_argument("--rounds", type=int, default=5, help="timed rounds, cases in turn")
+    protocol.add_rounds(parser, 5, "timed rounds, cases in turn")
     parser.add_argument("--torus", type=int, default=128, help="spheritorus grid (0: skip)")
     parser.add_argument("--no-first-call", action="store_true", help="skip the fresh processes")
     parser.add_argument(
@@ -251,38 +225,35 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="also print the device engine's time per stage (drains the queue after every stage)",
     )
-    args = parser.parse_args(argv)
-    start = time.perf_counter()
+    return parser.parse_args(argv)
 
-    from ao4d.marching import cells_device
 
-    line, load = machine_line()
-    print(line)
-    if load > 0.5:
-        print(
-            f"WARNING: load average {load:.2f} > 0.5: other work shares the CPUs, times are "
-            "noisy (the rounds run in turn, so ratios suffer less than times)"
-        )
-    threaded = vtk_threaded_backend() if args.sizes3 else "Sequential"
-    if args.sizes3:
-        print(f"VTK's vtkSMPTools backends: Sequential (1 thread) and {threaded} (all threads) in this wheel")
-    cases = _cases(args.sizes3, args.sizes4, threaded)
+def time_cases(cases: list, rounds: protocol.Rounds) -> tuple[dict, dict]:
+    """Every case once untimed, then once a round in turn: (group, name) -> seconds per round,
+    and (group, name) -> the simplices it made."""
     times: dict[tuple[str, str], list[float]] = {(g, n): [] for g, n, _, _ in cases}
     outputs: dict[tuple[str, str], int] = {}
     for group, name, _, run in cases:  # warm-up: tables, kernel builds, first-touch pages
         gc.collect()
         outputs[(group, name)] = run()
-    for r in range(args.rounds):  # in turn, so machine load affects all cases alike
+    for r in rounds:  # in turn, so machine load affects all cases alike
         for group, name, _, run in _rotated(cases, r):
             gc.collect()  # a mesh sits in a reference cycle: free the last one before timing
             t0 = time.perf_counter()
             outputs[(group, name)] = run()
             times[(group, name)].append(time.perf_counter() - t0)
+    return times, outputs
 
+
+def print_cases(cases: list, times: dict, outputs: dict, rounds: protocol.Rounds) -> None:
+    """The table: per case the median time (min-max), cells per second, simplices, and the
+    device engine's advantage."""
     print(
-        f"\nmedian (min-max) of {args.rounds} rounds taken in turn; 'device is': the other's "
+        f"\nmedian (min-max) of {len(rounds)} rounds taken in turn; 'device is': the other's "
         "median time over the device's (higher: ao4d's device engine faster)"
     )
+    if rounds.warning():
+        print(rounds.warning())
     print(
         f"{'case':20s} {'engine':22s} {'time s (min-max)':>24s} {'Mcells/s':>9s} {'simplices':>10s} {'device is':>10s}"
     )
@@ -293,70 +264,99 @@ def main(argv: list[str] | None = None) -> int:
             med = float(np.median(times[(group, name)]))
             cells = int(np.prod(np.array(values.shape) - 1))
             ratio = "" if name == "ao4d device" else f"{med / dev:9.2f}x"
+            spread = protocol.format_spread(times[(group, name)], ".3f", "-")
             print(
-                f"{group:20s} {name:22s} {_spread(times[(group, name)]):>24s} "
+                f"{group:20s} {name:22s} {spread:>24s} "
                 f"{cells / med / 1e6:9.2f} {outputs[(group, name)]:10d} {ratio:>10s}"
             )
 
+
+def first_call_report() -> None:
+    """The first call at 256^3 in a fresh process, with an empty and a warm kernel cache."""
+    with tempfile.TemporaryDirectory() as cache:
+        cold = _subprocess(_FIRST_CALL, env={"XDG_CACHE_HOME": cache})
+        warm = _subprocess(_FIRST_CALL, env={"XDG_CACHE_HOME": cache})
+    print(f"\nfirst call in a fresh process, 256^3 sphere ({cold['device']}), once:")
+    print(
+        f"  empty kernel cache: first {cold['first']:.3f} s (programs compiled: "
+        f"{cold['stats']['compiled']}), second {cold['second']:.3f} s"
+    )
+    print(
+        f"  warm kernel cache:  first {warm['first']:.3f} s (programs from cache: "
+        f"{warm['stats']['from_cache']}), second {warm['second']:.3f} s"
+    )
+
+
+def torus_report(n: int) -> None:
+    """The spheritorus on ``n``^4 slab by slab on both backends, and its sampling alone, each in
+    a fresh process: time and peak resident memory."""
+    print(f"\nspheritorus {n}^4, extract_field slab by slab, one fresh process each, once:")
+    res = {be: _subprocess(_TORUS, str(n), be) for be in ("numpy", "auto", "sample")}
+    for be, r in res.items():
+        label = {"auto": "device", "numpy": "numpy", "sample": "sampling the field alone"}[be]
+        print(f"  {label:6s} {r['time']:8.2f} s  peak {r['peak_mib']:7.0f} MiB  {r['simplices']:,} simplices")
+    print(
+        f"  device is {res['numpy']['time'] / res['auto']['time']:.2f}x faster, peak memory "
+        f"{res['auto']['peak_mib'] / res['numpy']['peak_mib']:.2f}x the numpy path's; "
+        f"the numpy path's extraction alone (minus its host sampling): "
+        f"{res['numpy']['time'] - res['sample']['time']:.2f} s (the device samples the field itself)"
+    )
+
+
+def profile_report(sizes3: list[int], sizes4: list[int]) -> None:
+    """The device engine's seconds per stage (queue drained after each), once per grid."""
+    import ao4d
+    from ao4d import fields
+    from ao4d.marching import cells_device
+
+    print("\ndevice engine stages (seconds, summed over slabs; queue drained after each):")
+    cells_device.PROFILE = True
+    profiled = [
+        (f"3D sphere {n}^3", ao4d.sample(fields.hypersphere(1.0, dim=3), n, (-1.2, 1.2)), "cubes") for n in sizes3
+    ] + [
+        (f"4D {m} {n}^4", ao4d.sample(fields.hypersphere(1.0), n, (-1.2, 1.2)), m)
+        for n in sizes4
+        for m in ("cubes", "simplices")
+    ]
+    for label, values, method in profiled:
+        ao4d.extract(values, 0.0, method=method, progress=False)  # warm
+        gc.collect()
+        cells_device.profile.clear()
+        t0 = time.perf_counter()
+        ao4d.extract(values, 0.0, method=method, progress=False)
+        total = time.perf_counter() - t0
+        stages = dict(cells_device.profile)
+        rest = total - sum(stages.values())
+        print(
+            f"  {label:20s} total {total:6.3f}: "
+            + ", ".join(f"{k} {v:.3f}" for k, v in stages.items())
+            + f", outside the engine {rest:.3f}"
+        )
+    cells_device.PROFILE = False
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark (``argv``: the options)."""
+    args = parse_args(argv)
+    start = time.perf_counter()
+    print(protocol.machine_line(protocol.opencl_runtime()))
+    print(f"load average before: {protocol.load_average()}", flush=True)
+    threaded = vtk_threaded_backend() if args.sizes3 else "Sequential"
+    if args.sizes3:
+        print(f"VTK's vtkSMPTools backends: Sequential (1 thread) and {threaded} (all threads) in this wheel")
+    cases = _cases(args.sizes3, args.sizes4, threaded)
+    rounds = protocol.Rounds(args.rounds)
+    times, outputs = time_cases(cases, rounds)
+    print_cases(cases, times, outputs, rounds)
     if not args.no_first_call:
-        with tempfile.TemporaryDirectory() as cache:
-            cold = _subprocess(_FIRST_CALL, env={"XDG_CACHE_HOME": cache})
-            warm = _subprocess(_FIRST_CALL, env={"XDG_CACHE_HOME": cache})
-        print(f"\nfirst call in a fresh process, 256^3 sphere ({cold['device']}), once:")
-        print(
-            f"  empty kernel cache: first {cold['first']:.3f} s (programs compiled: "
-            f"{cold['stats']['compiled']}), second {cold['second']:.3f} s"
-        )
-        print(
-            f"  warm kernel cache:  first {warm['first']:.3f} s (programs from cache: "
-            f"{warm['stats']['from_cache']}), second {warm['second']:.3f} s"
-        )
-
+        protocol.gate("first call")
+        first_call_report()
     if args.torus:
-        n = args.torus
-        print(f"\nspheritorus {n}^4, extract_field slab by slab, one fresh process each, once:")
-        res = {be: _subprocess(_TORUS, str(n), be) for be in ("numpy", "auto", "sample")}
-        for be, r in res.items():
-            label = {"auto": "device", "numpy": "numpy", "sample": "sampling the field alone"}[be]
-            print(f"  {label:6s} {r['time']:8.2f} s  peak {r['peak_mib']:7.0f} MiB  {r['simplices']:,} simplices")
-        print(
-            f"  device is {res['numpy']['time'] / res['auto']['time']:.2f}x faster, peak memory "
-            f"{res['auto']['peak_mib'] / res['numpy']['peak_mib']:.2f}x the numpy path's; "
-            f"the numpy path's extraction alone (minus its host sampling): "
-            f"{res['numpy']['time'] - res['sample']['time']:.2f} s (the device samples the field itself)"
-        )
-
+        protocol.gate("spheritorus")
+        torus_report(args.torus)
     if args.profile:
-        import ao4d
-        from ao4d import fields
-
-        print("\ndevice engine stages (seconds, summed over slabs; queue drained after each):")
-        cells_device.PROFILE = True
-        profiled = [
-            (f"3D sphere {n}^3", ao4d.sample(fields.hypersphere(1.0, dim=3), n, (-1.2, 1.2)), "cubes")
-            for n in args.sizes3
-        ] + [
-            (f"4D {m} {n}^4", ao4d.sample(fields.hypersphere(1.0), n, (-1.2, 1.2)), m)
-            for n in args.sizes4
-            for m in ("cubes", "simplices")
-        ]
-        for label, values, method in profiled:
-            ao4d.extract(values, 0.0, method=method, progress=False)  # warm
-            gc.collect()
-            cells_device.profile.clear()
-            t0 = time.perf_counter()
-            ao4d.extract(values, 0.0, method=method, progress=False)
-            total = time.perf_counter() - t0
-            stages = dict(cells_device.profile)
-            rest = total - sum(stages.values())
-            print(
-                f"  {label:20s} total {total:6.3f}: "
-                + ", ".join(f"{k} {v:.3f}" for k, v in stages.items())
-                + f", outside the engine {rest:.3f}"
-            )
-        cells_device.PROFILE = False
-    line, _ = machine_line()
-    print(f"\nafter: {line.split('; ')[-1]}; the whole run took {time.perf_counter() - start:.0f} s")
+        profile_report(args.sizes3, args.sizes4)
+    print(f"\nafter: load average {protocol.load_average()}; the whole run took {time.perf_counter() - start:.0f} s")
     return 0
 
 
