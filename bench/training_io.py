@@ -1,16 +1,18 @@
 """Benchmark: what a training loop waits for when it reads a dataset, and what an export costs.
 
-On a dataset folder (``--dataset DIR``; made from ``--config`` into a scratch folder when not
-given), taken in turn over ``--rounds`` rounds:
+On a dataset folder (``--dataset DIR``; made from ``--config``, by default :data:`SMALL`, into a
+scratch folder when not given), taken in turn over ``--rounds`` rounds:
 
 - an epoch of every item as ``datasets_gen.load(DIR)[i]`` gives it (mesh, AO, samples, record);
 - an epoch of the samples only, ``load(DIR, keys=("points", "occupancy", "surface_points"))``;
 - the same from the WebDataset and the Parquet export of the dataset.
 
 and once: the bytes of the dataset's item files against each export's shards. Prints the machine
-line, each round's load, and the median (min–max) of every time and ratio.
+line, each round's load gate, and the median (min–max) of every time and ratio (``bench._protocol``).
 
-    python bench/training_io.py --dataset data/occ --rounds 5
+    python -m bench.training_io --dataset data/occ --rounds 5
+
+(run from the repository root).
 """
 
 from __future__ import annotations
@@ -21,12 +23,23 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _protocol as protocol  # noqa: E402  (bench/_protocol.py)
-
-protocol.use_checkout(__file__)
+from bench import _protocol as protocol
 
 SAMPLES = ("points", "occupancy", "surface_points")
+# the dataset made when neither --dataset nor --config is given: small items with learning samples
+SMALL = {
+    "name": "training-io-bench",
+    "seed": 5,
+    "defaults": {
+        "grid": 12,
+        "ao": {"samples": 8},
+        "samples": {"uniform": 4096, "near_surface": 4096, "sigmas": [0.01, 0.05], "surface": 4096},
+    },
+    "family": [
+        {"kind": "hypersphere", "count": 4, "params": {"radius": {"uniform": [0.6, 0.9]}}},
+        {"kind": "spheritorus", "count": 4, "params": {"R": {"uniform": [0.6, 0.8]}, "r": {"uniform": [0.25, 0.35]}}},
+    ],
+}
 ITEM_FILES = ("mesh.npz", "ao.npz", "samples.npz", "sequence.npz", "record.json")
 
 
@@ -39,21 +52,25 @@ def epoch(ds) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    """Run the benchmark (``argv``: the options)."""
+    parser = argparse.ArgumentParser(prog="python -m bench.training_io", description=__doc__.split("\n\n")[0])
     parser.add_argument("--dataset", type=Path, help="a datasets_gen output folder (default: made from --config)")
-    parser.add_argument("--config", default="smoke", help="the config made when --dataset is not given")
-    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument(
+        "--config", help="the config made when --dataset is not given (default: 8 small items with samples)"
+    )
+    parser.add_argument("--workers", type=int, default=2, help="processes that make the dataset (2)")
+    protocol.add_rounds(parser, 5, "rounds taken in turn (5)")
     args = parser.parse_args(argv)
 
     import datasets_gen
     from datasets_gen.export import export
 
-    print(protocol.machine_line(), flush=True)
+    print(protocol.machine_line(protocol.opencl_runtime()), flush=True)
     with tempfile.TemporaryDirectory(prefix="ao4d-training-io-") as scratch:
         folder = args.dataset
         if folder is None:
             folder = Path(scratch) / "dataset"
-            datasets_gen.run(args.config, folder, workers=2, progress=False)
+            datasets_gen.run(args.config or SMALL, folder, workers=args.workers, progress=False)
         stored = sum(p.stat().st_size for p in Path(folder).glob("items/*/*") if p.name in ITEM_FILES)
         exports = {}
         for fmt in ("webdataset", "parquet"):
@@ -76,12 +93,14 @@ def main(argv: list[str] | None = None) -> int:
         }
         n = len(datasets_gen.load(folder))
         times: dict[str, list[float]] = {name: [] for name in cases}
-        for r in range(args.rounds):
-            protocol.check_round(r, args.rounds)
+        rounds = protocol.Rounds(args.rounds)
+        for _ in rounds:
             for name, make in cases.items():
                 times[name].append(epoch(make()))
     base = times["folder, whole items"]
     print(f"\nan epoch of {n} items, median (min–max) of {args.rounds} rounds taken in turn:")
+    if rounds.warning():
+        print(rounds.warning())
     for name, values in times.items():
         m, lo, hi = protocol.spread(values)
         ratio = protocol.format_ratio(b / v for b, v in zip(base, values))
