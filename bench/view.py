@@ -18,9 +18,16 @@ without GPU slicing would have to run per frame (and then upload the triangles).
 The design target is a GPU: 1 M tetrahedra at 60 fps; SwiftShader on this machine's cores
 stands in for one here, far slower.
 
-    python bench/view.py                       # 10k, 100k, 1M tets, 1024x640 window
-    python bench/view.py --sizes 10000 100000 --window 800 600
-    python bench/view.py --screenshots docs    # also write docs/view_*.png
+Of ``bench._protocol`` it uses the machine line (printed first: the CPU SwiftShader runs on; no
+OpenCL device takes part) and the load gate before the table. It takes no rounds: a 1 M-tet
+page takes minutes to load in SwiftShader, and each figure is already a mean over many frames
+(the CPU slice: the median of three).
+
+    python -m bench.view                       # 10k, 100k, 1M tets, 1024x640 window
+    python -m bench.view --sizes 10000 100000 --window 800 600
+    python -m bench.view --screenshots docs    # also write docs/view_*.png
+
+(run from the repository root).
 """
 
 from __future__ import annotations
@@ -34,8 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
-# the headless-Chromium client lives with the tests (tests/_chromium.py)
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from bench import _protocol as protocol
+from tests._chromium import Chromium, find_chromium  # the headless-Chromium client of the tests
 
 
 def _hypersphere(target: int):
@@ -73,8 +80,7 @@ def _play_fps(browser, seconds: float = 3.0) -> float:
 
 
 def bench(sizes, window, out_dir: Path) -> list[dict]:
-    from _chromium import Chromium
-
+    """Per size: the page's figures and the CPU slice's, a row each (printed as it comes)."""
     import ao4d
 
     rows = []
@@ -132,8 +138,6 @@ def _row(r: dict) -> str:
 
 def screenshots(out: Path, window) -> list[Path]:
     """The two README pictures: a 4D tiger with its 4D AO, and the demo scene."""
-    from _chromium import Chromium
-
     import ao4d
     from ao4d.commands.demo import run_demo
 
@@ -164,7 +168,8 @@ def screenshots(out: Path, window) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    """Run the benchmark (``argv``: the options); 2 without Chromium."""
+    parser = argparse.ArgumentParser(prog="python -m bench.view", description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000], help="approximate tetrahedra per mesh"
     )
@@ -173,14 +178,14 @@ def main(argv: list[str] | None = None) -> int:
         "--screenshots", type=Path, metavar="DIR", help="write the README pictures into DIR instead of benchmarking"
     )
     args = parser.parse_args(argv)
-    from _chromium import find_chromium
-
     if find_chromium() is None:
-        print("bench/view.py needs Chromium (Debian: apt-get install chromium)", file=sys.stderr)
+        print("bench.view needs Chromium (Debian: apt-get install chromium)", file=sys.stderr)
         return 2
     if args.screenshots is not None:
         screenshots(args.screenshots, (1100, 640))
         return 0
+    print(protocol.machine_line(), flush=True)
+    protocol.gate("the table")
     with tempfile.TemporaryDirectory() as tmp:
         print(HEADER, flush=True)
         rows = bench(args.sizes, args.window, Path(tmp))
