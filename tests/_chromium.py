@@ -1,8 +1,8 @@
 """Headless Chromium over the DevTools protocol on a pipe: a tiny client for tests and benches.
 
 A helper of the tests (``tests/test_viewer.py``, ``test_image_viewer.py``, ``test_pages.py``) and of
-``bench/view.py`` and ``bench/view_image.py`` (which put ``tests/`` on ``sys.path``); not part of the
-package. :func:`browser_or_skip`, :func:`open_page` and :func:`capture` are the steps every browser
+``bench.view`` and ``bench.view_image`` (which import it as ``tests._chromium``, run from the
+repository root); not part of the package. :func:`browser_or_skip`, :func:`open_page` and :func:`capture` are the steps every browser
 test takes: start a browser (or skip without one), load a page until it is drawn, read its pixels.
 
 No websocket, no extra package: Chromium is started with ``--remote-debugging-pipe`` and reads

@@ -845,7 +845,7 @@ def test_hit_rays_are_kept_as_they_were_at_the_call(cl_runtime):
 
 
 def _dense_4d_surfaces():
-    """Small 4D surfaces with dense mutual occlusion (as bench/ao.py's tori and metaballs):
+    """Small 4D surfaces with dense mutual occlusion (as bench._shapes' tori and metaballs):
     three interlocked torispheres around a ball, and a cluster of six metaballs."""
     f = ao4d.fields
     torus = f.torisphere(0.9, 0.28)
