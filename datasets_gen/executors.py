@@ -22,7 +22,7 @@ import os
 import signal
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -234,22 +234,29 @@ class Dask(Executor):
     probe_seconds : float
         How long a ``tcp://`` address may take to greet a connection before it is refused
         as not a dask scheduler.
+    local_workers : int or None
+        N of ``"local:N"``, None for an address: ``scheduler`` parsed once, when the executor
+        is made (a malformed one is refused then).
     """
 
     scheduler: str
     workers_write: bool = True
     probe_seconds: float = SCHEDULER_PROBE_SECONDS
+    local_workers: int | None = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "local_workers", _parse_scheduler(self.scheduler))
 
     def check(self) -> None:
-        _check_scheduler(self.scheduler)
-        _probe_scheduler(self.scheduler, self.probe_seconds)
+        if self.local_workers is None:
+            _probe_scheduler(self.scheduler, self.probe_seconds)
 
     def make(self, todo: list[Job], store: Store, summary: RunSummary, bar: Any) -> None:
         import uuid
 
         from distributed import Client, LocalCluster, as_completed
 
-        count = _check_scheduler(self.scheduler)
+        count = self.local_workers
         cluster = None
         try:
             if count is not None:
@@ -318,14 +325,14 @@ def executor_for(workers: int = 1, scheduler: str | None = None) -> Executor:
         A malformed ``scheduler``, or both ``workers`` and ``scheduler`` given.
     """
     if scheduler is not None:
-        _check_scheduler(scheduler)
+        executor = Dask(scheduler)  # a malformed address is refused here
         if workers != 1:
             raise ValueError(f"give `workers` ({workers}) or `scheduler` ({scheduler!r}), not both")
-        return Dask(scheduler)
+        return executor
     return ProcessPool(workers) if workers > 1 else InProcess()
 
 
-def _check_scheduler(scheduler: Any) -> int | None:
+def _parse_scheduler(scheduler: Any) -> int | None:
     """The worker count of ``"local:N"``, None for an address; errors name the parameter."""
     if not isinstance(scheduler, str) or not scheduler.strip():
         raise TypeError(f"`scheduler` must be an address or 'local:N', got {scheduler!r}")
@@ -349,13 +356,12 @@ def _probe_scheduler(scheduler: str, seconds: float = SCHEDULER_PROBE_SECONDS) -
     never answers stalls the client for minutes, and an HTTP server's reply is read as a frame
     length (``Unable to allocate 3.07 EiB``). A dask scheduler writes its handshake, an 8-byte
     length and a small message, as soon as it accepts; this reads those 8 bytes and closes.
-    Other protocols (``tls://``, ``ucx://``, ``inproc://``) are left to dask.
+    Other protocols (``tls://``, ``ucx://``, ``inproc://``) are left to dask; ``scheduler``
+    is an address, not ``"local:N"``.
     """
     import socket
     from urllib.parse import urlsplit
 
-    if scheduler.startswith("local:"):
-        return
     parts = urlsplit(scheduler if "://" in scheduler else f"tcp://{scheduler}")
     if parts.scheme != "tcp":
         return
