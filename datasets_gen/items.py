@@ -49,6 +49,7 @@ __all__ = [
     "own_file",
     "foreign_files",
     "make_item",
+    "resolved_backend",
     "write_item",
     "versions",
 ]
@@ -115,8 +116,9 @@ class Job:
         The run's seed.
     out : str
         The run's output (a folder or an fsspec URL), as the process making the item sees it.
-    backend : str
-        The AO and render backend (``"auto"``, ``"opencl"``, ``"numpy"``).
+    backend : {"opencl", "numpy"}
+        The backend that computes the AO, the renders and the samples' rays: the config's
+        resolved once per run (:func:`resolved_backend`).
     run_sha256 : str
         sha256 of the output's ``run.json``: a process that reads the same sees the same output.
     split : str, optional
@@ -306,24 +308,71 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
     dict
         ``{"index": index, "seconds": {stage: seconds}}``.
     """
-    from .families import build_shape, random_rotation
-    from .samples import normalization
-
     start = time.perf_counter()
     spec = job.spec
     store = open_store(job.out) if store is None else store
     timing: dict[str, float] = {}
     settings = spec.family.settings
     write = _Writer(store, spec.index, timing, [r["name"] for r in settings["renders"]])
-    # spawn(5)'s first three children are spawn(3)'s: samples left the meshes, AO and renders as they were
-    params_ss, rotation_ss, ao_ss, samples_ss, sequence_ss = item_seed(job.seed, spec.index).spawn(5)
-    rng = np.random.default_rng(params_ss)
-    params = sample_params(spec.family.params, rng)
-    rotation = random_rotation(np.random.default_rng(rotation_ss)) if settings["rotation"] == "random" else None
-    ao_seed = int(ao_ss.generate_state(1)[0])
+    draw = _Draw.of(job)
+    made = _build(job, draw, timing, write)
+    if settings["ao"] or settings["renders"]:
+        with _stage(timing, "bvh"):
+            _build_bvh(made.shape.mesh, job.backend)
+    occlusion = _occlusion(made.shape.mesh, settings, draw.ao_seed, job.backend, timing, write)
+    extra = _learning(job, draw, made.shape, occlusion, timing, write)
+    for render in settings["renders"]:
+        title = f"item {spec.index}: {spec.family.name} ({spec.family.kind}), looking along +w"
+        png = _render(render, made.shape.mesh, occlusion, settings, draw.ao_seed, job.backend, title, timing)
+        write(f"{render['name']}.png", png)
+    with _stage(timing, "write"):
+        record = _record(job, draw, made, occlusion, dict(write.hashes), extra)
+    timing["total"] = time.perf_counter() - start
+    write.close(json_bytes({"seconds": timing, "pid": os.getpid()}), json_bytes(record))
+    return {"index": spec.index, "seconds": timing}
+
+
+@dataclass(frozen=True)
+class _Draw:
+    """What item ``job.spec.index`` draws from its seed: its parameters, rotation and AO seed,
+    and the generators of its builder, samples and frames."""
+
+    params: dict[str, Any]
+    rotation: np.ndarray | None
+    ao_seed: int
+    rng: np.random.Generator  # the builder's, after the parameters were drawn from it
+    samples_ss: np.random.SeedSequence
+    sequence_ss: np.random.SeedSequence
+
+    @classmethod
+    def of(cls, job: Job) -> _Draw:
+        from .families import random_rotation
+
+        # spawn(5)'s first three children are spawn(3)'s: samples left the meshes, AO and renders as they were
+        params_ss, rotation_ss, ao_ss, samples_ss, sequence_ss = item_seed(job.seed, job.spec.index).spawn(5)
+        rng = np.random.default_rng(params_ss)
+        params = sample_params(job.spec.family.params, rng)
+        random = job.spec.family.settings["rotation"] == "random"
+        rotation = random_rotation(np.random.default_rng(rotation_ss)) if random else None
+        return cls(params, rotation, int(ao_ss.generate_state(1)[0]), rng, samples_ss, sequence_ss)
+
+
+@dataclass(frozen=True)
+class _Built:
+    """An item's shape and what its check measured."""
+
+    shape: Any  # datasets_gen.families.Shape
+    report: Any  # ao4d.topology.MeshReport
+    volume: float
+    measure: float
+
+
+def _build(job: Job, draw: _Draw, timing: dict[str, float], write: _Writer) -> _Built:
+    """Build the item's mesh, check and measure it, and write ``mesh.npz``."""
+    from .families import build_shape
 
     with _stage(timing, "build"):
-        shape = build_shape(spec.family.kind, params, settings, rng, rotation)
+        shape = build_shape(job.spec.family.kind, draw.params, job.spec.family.settings, draw.rng, draw.rotation)
     mesh = shape.mesh
     with _stage(timing, "check"):
         report = mesh.check()
@@ -331,43 +380,54 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
     with _stage(timing, "write"):
         data = written_bytes("mesh.npz", mesh.save)
     write("mesh.npz", data)
+    return _Built(shape, report, volume, measure)
 
-    occlusion = None
-    if settings["ao"] or settings["renders"]:
-        with _stage(timing, "bvh"):
-            _build_bvh(mesh, job.backend)
-    if settings["ao"]:
-        import ao4d
 
-        ao = settings["ao"]
-        with _stage(timing, "ao"):
-            # ao.tolerance (with confidence, max_samples) instead of samples: the config allows one
-            accuracy = {k: ao[k] for k in ("tolerance", "confidence", "max_samples") if k in ao}
-            occlusion, error = ao4d.ambient_occlusion(
-                mesh,
-                samples=64 if accuracy else ao["samples"],
-                max_distance=ao["max_distance"],
-                at=ao["at"],
-                seed=ao_seed,
-                backend=job.backend,
-                progress=False,
-                return_error=True,
-                **accuracy,
-            )
-        arrays = {"occlusion": np.asarray(occlusion, np.float64)}
-        if accuracy:  # the standard errors of a tolerance's values
-            arrays["error"] = np.asarray(error, np.float64)
-        write.npz("ao.npz", arrays)
+def _occlusion(
+    mesh: Any, settings: dict, seed: int, backend: str, timing: dict[str, float], write: _Writer
+) -> np.ndarray | None:
+    """The item's occlusion (written as ``ao.npz``), or None when the config asks for none."""
+    if not settings["ao"]:
+        return None
+    import ao4d
 
+    ao = settings["ao"]
+    with _stage(timing, "ao"):
+        # ao.tolerance (with confidence, max_samples) instead of samples: the config allows one
+        accuracy = {k: ao[k] for k in ("tolerance", "confidence", "max_samples") if k in ao}
+        occlusion, error = ao4d.ambient_occlusion(
+            mesh,
+            samples=64 if accuracy else ao["samples"],
+            max_distance=ao["max_distance"],
+            at=ao["at"],
+            seed=seed,
+            backend=backend,
+            progress=False,
+            return_error=True,
+            **accuracy,
+        )
+    arrays = {"occlusion": np.asarray(occlusion, np.float64)}
+    if accuracy:  # the standard errors of a tolerance's values
+        arrays["error"] = np.asarray(error, np.float64)
+    write.npz("ao.npz", arrays)
+    return occlusion
+
+
+def _learning(
+    job: Job, draw: _Draw, shape: Any, occlusion: Any, timing: dict[str, float], write: _Writer
+) -> dict[str, Any]:
+    """The learning samples and the frames the config asks for (``samples.npz``,
+    ``sequence.npz``), and their entries of the record."""
+    settings, kind = job.spec.family.settings, job.spec.family.kind
     extra: dict[str, Any] = {}
     ao_at = settings["ao"]["at"] if settings["ao"] else "vertices"
-    inputs = dict(occlusion=occlusion, ao_at=ao_at, backend=job.backend)  # for the labelled points and the frames
+    inputs = dict(occlusion=occlusion, ao_at=ao_at, backend=job.backend)
     if settings.get("samples"):
         from .samples import make_samples
 
         with _stage(timing, "samples"):
-            samples_rng = np.random.default_rng(samples_ss)
-            arrays, extra["samples"] = make_samples(shape, spec.family.kind, settings["samples"], samples_rng, **inputs)
+            rng = np.random.default_rng(draw.samples_ss)
+            arrays, extra["samples"] = make_samples(shape, kind, settings["samples"], rng, **inputs)
         write.npz("samples.npz", arrays)
     if settings.get("sequence"):
         from .sequence import make_sequence
@@ -375,61 +435,85 @@ def make_item(job: Job, store: Store | None = None) -> dict[str, Any]:
         with _stage(timing, "sequence"):
             arrays, extra["sequence"] = make_sequence(
                 shape,
-                spec.family.kind,
+                kind,
                 settings["sequence"],
                 samples=settings.get("samples") or None,
-                rng=np.random.default_rng(sequence_ss),
+                rng=np.random.default_rng(draw.sequence_ss),
                 **inputs,
             )
         write.npz("sequence.npz", arrays)
+    return extra
 
-    for render in settings["renders"]:
-        title = f"item {spec.index}: {spec.family.name} ({spec.family.kind}), looking along +w"
-        write(f"{render['name']}.png", _render(render, mesh, occlusion, settings, ao_seed, job.backend, title, timing))
 
-    with _stage(timing, "write"):
-        expected = shape.volume_expected
-        record = {
-            "format": RUN_FORMAT,
-            "index": spec.index,
-            "family": spec.family.name,
-            "kind": spec.family.kind,
-            "number": spec.number,
-            "seed": {"run": job.seed, "entropy": [job.seed, spec.index], "ao": ao_seed},
-            "params": params,
-            "derived": shape.derived,
-            "rotation": rotation,
-            "settings": {k: v for k, v in settings.items() if k != "renders"},
-            "renders": settings["renders"],
-            "grid": shape.grid,
-            "versions": versions(),
-            "mesh": {
-                "vertices": mesh.n_vertices,
-                "simplices": mesh.n_simplices,
-                "check": {**asdict(report), "ok": report.ok},
-                "volume": volume,
-                "measure": measure,
-                "volume_expected": expected,
-                "volume_rel_error": None if not expected else volume / expected - 1.0,
-                "bounds": mesh.bounds,
-            },
-            "ao": None
-            if occlusion is None
-            else {
-                "mean": float(np.mean(occlusion)),
-                "min": float(np.min(occlusion)),
-                "max": float(np.max(occlusion)),
-                "values": len(occlusion),
-                "backend": _backend_ran(job.backend),
-            },
-            "files": dict(write.hashes),
-            "split": job.split,
-            "normalization": normalization(mesh),
-            **extra,
-        }
-    timing["total"] = time.perf_counter() - start
-    write.close(json_bytes({"seconds": timing, "pid": os.getpid()}), json_bytes(record))
-    return {"index": spec.index, "seconds": timing}
+def _record(
+    job: Job, draw: _Draw, made: _Built, occlusion: Any, files: dict[str, str], extra: dict[str, Any]
+) -> dict[str, Any]:
+    """The item's ``record.json``: what it is, how it was made, what it measures, its files' hashes."""
+    from .samples import normalization
+
+    spec, settings, shape, mesh = job.spec, job.spec.family.settings, made.shape, made.shape.mesh
+    expected = shape.volume_expected
+    return {
+        "format": RUN_FORMAT,
+        "index": spec.index,
+        "family": spec.family.name,
+        "kind": spec.family.kind,
+        "number": spec.number,
+        "seed": {"run": job.seed, "entropy": [job.seed, spec.index], "ao": draw.ao_seed},
+        "params": draw.params,
+        "derived": shape.derived,
+        "rotation": draw.rotation,
+        "settings": {k: v for k, v in settings.items() if k != "renders"},
+        "renders": settings["renders"],
+        "grid": shape.grid,
+        "versions": versions(),
+        "mesh": {
+            "vertices": mesh.n_vertices,
+            "simplices": mesh.n_simplices,
+            "check": {**asdict(made.report), "ok": made.report.ok},
+            "volume": made.volume,
+            "measure": made.measure,
+            "volume_expected": expected,
+            "volume_rel_error": None if not expected else made.volume / expected - 1.0,
+            "bounds": mesh.bounds,
+        },
+        "ao": None
+        if occlusion is None
+        else {
+            "mean": float(np.mean(occlusion)),
+            "min": float(np.min(occlusion)),
+            "max": float(np.max(occlusion)),
+            "values": len(occlusion),
+            "backend": job.backend,
+        },
+        "files": files,
+        "split": job.split,
+        "normalization": normalization(mesh),
+        **extra,
+    }
+
+
+def resolved_backend(backend: str) -> str:
+    """The backend that computes for a config's ``backend`` (``"auto"`` resolves to one).
+
+    Parameters
+    ----------
+    backend : {"auto", "opencl", "numpy"}
+        The configuration's backend.
+
+    Returns
+    -------
+    {"opencl", "numpy"}
+        ``"opencl"`` when an OpenCL device computes, else ``"numpy"``.
+
+    Raises
+    ------
+    ao4d.opencl.cl.NoOpenCLDeviceError
+        ``"opencl"`` and no OpenCL device works.
+    """
+    from ao4d.opencl import cl
+
+    return cl.backend_name(cl.resolve_backend(backend, warn=False))
 
 
 def _build_bvh(mesh: Any, backend: str) -> None:
@@ -439,13 +523,6 @@ def _build_bvh(mesh: Any, backend: str) -> None:
     from ao4d.raycast import get_bvh
 
     get_bvh(mesh, runtime=cl.resolve_backend(backend, warn=False))
-
-
-def _backend_ran(backend: str) -> str:
-    """The backend that computes for a requested ``backend`` ("auto" resolves to one)."""
-    from ao4d.opencl import cl
-
-    return cl.backend_name(cl.resolve_backend(backend, warn=False))
 
 
 def _render(
@@ -481,25 +558,17 @@ def _render(
     else:
         camera = ao4d.Camera4D.framing(mesh.bounds, fov=float(render.get("fov", 40.0)), margin=1.0)
     vertex_ao = occlusion is not None and settings["ao"]["at"] == "vertices"
-    # the item's own mesh (not a copy), so the render traces the BVH already built for it; the
-    # mesh file is written, and the occlusion is attached only for the render
-    if vertex_ao:
-        mesh.point_data["ao"] = occlusion
-    try:
-        with _stage(timing, f"render_{render['name']}"):
-            result = ao4d.render(
-                mesh,
-                camera,
-                tuple(render.get("shape", (32, 32, 32))),
-                ao="vertices" if vertex_ao else "hits",
-                samples=int(render.get("samples", 32)),
-                seed=seed,
-                backend=backend,
-                progress=False,
-            )
-    finally:
-        if vertex_ao:
-            del mesh.point_data["ao"]
+    with _stage(timing, f"render_{render['name']}"):
+        result = ao4d.render(
+            mesh,  # the item's own mesh: the render traces the BVH already built for it
+            camera,
+            tuple(render.get("shape", (32, 32, 32))),
+            ao=occlusion if vertex_ao else "hits",
+            samples=int(render.get("samples", 32)),
+            seed=seed,
+            backend=backend,
+            progress=False,
+        )
     # a fixed colour scale (shade = 1 - A in [0, 1]) makes items comparable, and a flat,
     # unoccluded view shows white rather than an arbitrary stretch of a constant image
     with _stage(timing, f"picture_{render['name']}"):

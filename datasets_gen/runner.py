@@ -43,11 +43,11 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ._store import is_url, open_store
+from ._store import Store, is_url, open_store
 from .config import Config, load_config
 from .executors import Executor, executor_for
 from .index import RunSummary, check_same_run, claim_out, device_name, write_index
-from .items import Job, foreign_files, item_complete, item_seed
+from .items import Job, foreign_files, item_complete, item_seed, resolved_backend
 from .splits import empty_splits, split_counts, split_of
 
 __all__ = ["run", "RunSummary", "item_seed", "main"]
@@ -113,6 +113,8 @@ def run(
         filesystem that lives in this process (``memory://``), an ``AO4D_DEVICE`` that names
         no working device (:class:`ao4d.opencl.cl.DeviceSelectionError`). After the items: the index
         cannot be written (a full disk; the message names the file, the items are kept).
+    ao4d.opencl.cl.NoOpenCLDeviceError
+        Before any work: the config's ``backend`` is ``"opencl"`` and no OpenCL device works.
 
     Warns
     -----
@@ -121,18 +123,37 @@ def run(
         few items): it exists, empty; ``summary.json`` lists it under ``empty_splits``. An
         item to be remade holds files no run writes (they are left as they are).
     """
-    from ao4d import _progress
+    cfg = config if isinstance(config, Config) else load_config(config)
+    executor = _executor(workers, scheduler, executor)
+    store = _open_out(out, executor, lasting=False)
+    return _make(cfg, store, out, executor, seed, progress)
+
+
+def _executor(workers: Any, scheduler: str | None, executor: Executor | None) -> Executor:
+    """The executor of ``workers`` and ``scheduler``, or ``executor`` given in full."""
     from ao4d._validate import check_positive_int
 
-    from .executors import ProcessPool
-
-    cfg = config if isinstance(config, Config) else load_config(config)
     workers = check_positive_int(workers, "workers")
     if executor is None:
-        executor = executor_for(workers, scheduler)
-    elif workers != 1 or scheduler is not None:
+        return executor_for(workers, scheduler)
+    if workers != 1 or scheduler is not None:
         raise ValueError(f"give `executor` ({executor!r}) or `workers`/`scheduler`, not both")
+    return executor
+
+
+def _open_out(out: str | os.PathLike, executor: Executor, *, lasting: bool) -> Store:
+    """The run's output, refused before any work when it lives in this process only
+    (``memory://``) and must outlive it (``lasting``: the command line) or be written by
+    other processes (``workers > 1``)."""
+    from .executors import ProcessPool
+
     store = open_store(out)  # an unknown URL protocol fails here, before any work
+    if store.process_local and lasting:
+        raise ValueError(
+            f"`--out` {out!r} is a filesystem inside this process: "
+            "everything written there is gone when the command exits; give a "
+            "folder or a URL that outlives it (file://, s3://, ...)"
+        )
     if store.process_local and isinstance(executor, ProcessPool) and executor.workers > 1:
         raise ValueError(
             f"`out` {store.name!r} lives in this process only, so the "
@@ -140,12 +161,23 @@ def run(
             "`workers` processes could not write their items into it: use "
             "workers=1, a folder, or a URL every process reaches (file://, s3://)"
         )
+    return store
+
+
+def _make(
+    cfg: Config, store: Store, out: str | os.PathLike, executor: Executor, seed: int | None, progress: bool | None
+) -> RunSummary:
+    """:func:`run` once its options are checked and its output opened."""
+    from ao4d import _progress
+    from ao4d._validate import check_positive_int
+
     executor.check()  # a scheduler address that is no scheduler: before the output is touched
     seed = cfg.seed if seed is None else check_positive_int(seed, "seed", minimum=0)
     device_name()  # an impossible AO4D_DEVICE fails here, before the folder is touched
+    backend = resolved_backend(cfg.backend)  # once per run: every item computes on it
     splits = None if cfg.split is None else split_counts(cfg.split, seed, cfg.n_items)
     if splits and empty_splits(splits):  # said before any work: the user may rather change the fractions
-        warnings.warn(empty_split_message(cfg, seed, splits), UserWarning, stacklevel=2)
+        warnings.warn(empty_split_message(cfg, seed, splits), UserWarning, stacklevel=3)
     claim_out(store, cfg, seed)
     run_sha256 = store.sha256("run.json")
     items = cfg.items()
@@ -156,7 +188,7 @@ def run(
         if item_complete(store, spec.index):
             summary.skipped += 1
         else:
-            todo.append(Job(spec, seed, str(out), cfg.backend, run_sha256, split_of(cfg.split, seed, spec.index)))
+            todo.append(Job(spec, seed, str(out), backend, run_sha256, split_of(cfg.split, seed, spec.index)))
     foreign = {}  # files no run writes in folders of items to be remade: kept, and said so
     for job in todo:
         names = foreign_files(store, job.spec.index, [r["name"] for r in job.spec.family.settings["renders"]])
@@ -169,7 +201,7 @@ def run(
             f"`out` {store.name!r}: items to be remade hold files this run does not write ({shown}{more}); "
             "they are left as they are (not hashed in the manifest)",
             UserWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
 
     # on a terminal a bar; in a log a line every few seconds (items take seconds to minutes)
@@ -242,6 +274,8 @@ def main(argv: list[str] | None = None) -> int:
     ADDRESS|local:N] [--seed S]``."""
     import argparse
 
+    from ao4d.opencl.cl import NoOpenCLDeviceError
+
     from .config import ConfigError, describe, shipped_configs
 
     parser = argparse.ArgumentParser(
@@ -296,12 +330,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.out is None:
             parser.error("the following arguments are required: --out")
-        if open_store(args.out).process_local:
-            raise ValueError(
-                f"`--out` {args.out!r} is a filesystem inside this process: "
-                "everything written there is gone when the command exits; give a "
-                "folder or a URL that outlives it (file://, s3://, ...)"
-            )
+        executor = _executor(args.workers, args.scheduler, None)
+        store = _open_out(args.out, executor, lasting=True)
         if args.no_progress:
             from ao4d import _progress
 
@@ -310,15 +340,8 @@ def main(argv: list[str] | None = None) -> int:
             # warnings (an empty split, foreign files kept) as plain lines, each when it happens
             warnings.simplefilter("always", UserWarning)
             warnings.showwarning = _show_warning
-            summary = run(
-                cfg,
-                args.out,
-                workers=args.workers,
-                scheduler=args.scheduler,
-                seed=args.seed,
-                progress=False if args.no_progress else None,
-            )
-    except (FileNotFoundError, FileExistsError, ConfigError, ValueError, TypeError) as exc:
+            summary = _make(cfg, store, args.out, executor, args.seed, False if args.no_progress else None)
+    except (FileNotFoundError, FileExistsError, ConfigError, ValueError, TypeError, NoOpenCLDeviceError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -13,13 +13,22 @@ import pytest
 from datasets_gen import load_config, run
 from datasets_gen._files import sha256_file
 from datasets_gen._store import LocalStore, MemoryStore
-from datasets_gen.items import Job, item_complete, item_folder, item_seed, make_item, versions, write_item
+from datasets_gen.items import (
+    Job,
+    item_complete,
+    item_folder,
+    item_seed,
+    make_item,
+    resolved_backend,
+    versions,
+    write_item,
+)
 from datasets_gen.runner import main
 
 
 def _job(config: Path, index: int, out: Path) -> Job:
     cfg = load_config(config)
-    return Job(cfg.items()[index], cfg.seed, str(out), cfg.backend)
+    return Job(cfg.items()[index], cfg.seed, str(out), resolved_backend(cfg.backend))
 
 
 def test_item_does_not_depend_on_order_or_neighbours(tiny_reference, tiny_config, tmp_path):
@@ -155,3 +164,28 @@ def test_records_name_what_the_marching_table_proves_and_it_holds(tiny_reference
         computed = {k: v for k, v in dataclasses.asdict(full).items() if k not in ("proved", "hint")}
         assert {k: check[k] for k in computed} == computed, folder.name
     assert kinds == {True, False}
+
+
+def test_backend_is_resolved_to_the_one_that_computes():
+    assert resolved_backend("numpy") == "numpy"
+    assert resolved_backend("auto") in ("opencl", "numpy")
+    with pytest.raises(ValueError, match="backend"):
+        resolved_backend("cuda")
+
+
+def test_render_takes_the_occlusion_as_data_and_leaves_the_mesh_alone():
+    """An item's render shades the per-vertex occlusion it is given (as data: nothing is
+    attached to the item's mesh); without one it traces AO at the hits (none on a ball)."""
+    import ao4d
+    from datasets_gen import items
+
+    mesh = ao4d.extract_field(ao4d.fields.hypersphere(0.8), 8, (-1, 1), progress=False)
+    render = {"name": "view", "shape": [6, 6, 6], "samples": 2}
+    shaded = {}
+    ramp = np.linspace(0.0, 1.0, mesh.n_vertices)
+    for name, occlusion in (("zero", np.zeros(mesh.n_vertices)), ("ramp", ramp), ("hits", None)):
+        settings = {"ao": None if occlusion is None else {"at": "vertices"}}
+        shaded[name] = items._render(render, mesh, occlusion, settings, 1, "numpy", "t", {})
+        assert "ao" not in mesh.point_data
+    assert shaded["zero"] == shaded["hits"]  # a convex solid occludes nothing
+    assert shaded["ramp"] != shaded["zero"]
