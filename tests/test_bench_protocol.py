@@ -5,7 +5,11 @@ where the script has small sizes)."""
 
 from __future__ import annotations
 
+import argparse
 import os
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -14,8 +18,10 @@ import pytest
 from bench import _embree
 from bench import _protocol as protocol
 from bench import ao as ao_bench
+from tests._chromium import find_chromium
 
 ROOT = Path(__file__).resolve().parent.parent
+SCRIPTS = ("ao", "ao_accuracy", "cast", "datasets", "extract", "scale", "training_io", "view", "view_image")
 
 LSCPU = """Architecture:                            x86_64
 Model name:                              AMD EPYC 7B13
@@ -92,6 +98,69 @@ def test_a_busy_round_is_flagged_loudly(capsys):
     assert "WARNING" not in capsys.readouterr().out
 
 
+def test_the_gate_names_its_step(capsys):
+    assert protocol.gate("first call", limit=-1.0, pause=0.01) is False
+    out = capsys.readouterr().out
+    assert out.startswith("first call: load average ")
+    assert "!!! WARNING: first call starts on a busy machine" in out
+
+
+def test_rounds_are_taken_in_turn_each_behind_the_gate(capsys):
+    rounds = protocol.Rounds(3, limit=-1.0, pause=0.01)  # every round busy
+    assert len(rounds) == 3 and rounds.warning() == ""  # nothing measured yet
+    seen = []
+    for index in rounds:
+        seen.append(index)
+        assert len(rounds.quiet) == index + 1  # the gate ran before the round
+    assert seen == [0, 1, 2] and rounds.noisy == [1, 2, 3]
+    assert rounds.warning().startswith("!!! WARNING: rounds [1, 2, 3] started on a busy machine")
+    out = capsys.readouterr().out
+    assert [line.split(":")[0] for line in out.splitlines() if "load average" in line] == [
+        "round 1/3",
+        "round 2/3",
+        "round 3/3",
+    ]
+    quiet = protocol.Rounds(2, limit=1e9, pause=0.01)
+    assert list(quiet) == [0, 1] and quiet.noisy == [] and quiet.warning() == ""
+    with pytest.raises(ValueError, match="at least 1"):
+        protocol.Rounds(0)
+
+
+def test_rounds_option_takes_at_least_one(capsys):
+    parser = argparse.ArgumentParser()
+    protocol.add_rounds(parser, 5, "rounds", "--repeat")
+    assert parser.parse_args([]).rounds == 5
+    assert parser.parse_args(["--repeat", "2"]).rounds == 2
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--rounds", "0"])
+    assert "must be at least 1, got 0" in capsys.readouterr().err
+
+
+def test_spreads_format_median_min_and_max():
+    assert protocol.format_spread([0.2, 0.1, 0.4]) == "0.200 (0.100–0.400)"
+    assert protocol.format_spread([3.0, 1.0], ".1f", "-") == "2.0 (1.0-3.0)"
+
+
+def test_timed_gives_the_median_of_repeats_and_the_result():
+    calls = []
+
+    def step():
+        calls.append(1)
+        time.sleep(0.01 * len(calls))  # 10, 20, 30 ms: the median 20
+        return len(calls)
+
+    seconds, result = protocol.timed(step, 3)
+    assert result == 3 and 0.019 <= seconds < 0.2
+
+
+def test_the_clock_laps_wall_and_cpu_time():
+    clock = protocol.Clock()
+    time.sleep(0.02)
+    wall, cpu = clock.lap()
+    assert wall >= 0.02 and 0 <= cpu < wall
+    assert clock.lap()[0] < 0.02  # a lap starts where the last ended
+
+
 def test_others_load_is_a_cpu_count():
     load = protocol.others_load(0.05)
     assert load is None or 0.0 <= load <= 64
@@ -153,3 +222,81 @@ def test_cache_ceiling_is_the_trace_ratio_times_the_gain_of_a_tree_in_cache(caps
         ["metaballs:", f"{3e6 * c:.0f}", f"{2.4e6 * c:.0f}", "15.0", "10.0", f"{2e5 * c:.1f}", f"{2.4e5 * c:.1f}"]
         + ["1.25x", "(1.00–1.50)", "0.75x", "(0.50–1.00)"]
     ]
+
+
+def _bench(*args: str, timeout: float = 120) -> str:
+    """``python -m bench.NAME ARGS`` from the repository root; its output (it must succeed)."""
+    run = subprocess.run(
+        [sys.executable, "-m", *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout, check=False
+    )
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-3000:]
+    return run.stdout
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_every_script_runs_as_a_module_of_the_package(name):
+    out = _bench(f"bench.{name}", "--help")
+    assert out.startswith(f"usage: python -m bench.{name}")
+    assert not (ROOT / "bench" / f"{name}.py").read_text(encoding="utf-8").count("sys.path")
+
+
+def _machine_first(out: str, rounds: int = 1) -> None:
+    """The machine line comes first, and every round starts behind the load gate."""
+    assert out.startswith("machine: ")
+    for k in range(1, rounds + 1):
+        assert f"round {k}/{rounds}: load average" in out
+
+
+# tiny real runs, a few seconds each (the gate's pause included); the slower ones under -m slow
+def test_extract_runs_tiny(cl_runtime):
+    out = _bench("bench.extract", "--sizes3", "16", "--sizes4", "6", "--rounds", "1", "--torus", "0", "--no-first-call")
+    _machine_first(out)
+    rows = [line for line in out.splitlines() if line.startswith(("3D sphere 16^3", "4D cubes 6^4"))]
+    assert len(rows) == 7 and all("(" in row and "-" in row for row in rows)  # median (min-max)
+
+
+def test_ao_runs_tiny(cl_runtime):
+    out = _bench(
+        "bench.ao",
+        *("--tets", "2000", "--shapes", "spheritorus", "--rounds", "1", "--quality-points", "50"),
+        *("--numpy-tets", "2000", "--numpy-points", "20", "--no-per-ray", "--no-cache-ceiling"),
+    )
+    _machine_first(out)
+    assert "spheritorus, ao4d " in out and "BVH speed-up over brute force" in out
+
+
+def test_datasets_runs_tiny(cl_runtime):
+    out = _bench("bench.datasets", "--skip-writes", "--rounds", "1", "--grid", "10")
+    _machine_first(out)
+    assert "median (min–max) over 1 rounds: extract " in out
+
+
+def test_scale_runs_one_case_in_its_fresh_process():
+    out = _bench("bench.scale", "--_case", "slab", "--grid", "10")
+    assert '"case": "slab"' in out and '"closed": true' in out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("bench.cast", "--triangles", "2000", "--tets", "2000", "--points", "100", "--samples", "8", "--rounds", "1"),
+        ("bench.ao_accuracy", "--shapes", "spheritorus", "--tets", "2000", "--reference", "256", "--rounds", "1"),
+        ("bench.training_io", "--rounds", "1", "--workers", "1"),
+    ],
+    ids=lambda args: args[0],
+)
+def test_slower_scripts_run_tiny(cl_runtime, args):
+    _machine_first(_bench(*args, timeout=300))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(find_chromium() is None, reason="Chromium is not installed")
+@pytest.mark.parametrize(
+    "args",
+    [("bench.view", "--sizes", "2000", "--window", "320", "200"), ("bench.view_image", "--sizes", "16")],
+    ids=lambda args: args[0],
+)
+def test_browser_benches_run_tiny(args):
+    out = _bench(*args, timeout=300)
+    assert out.startswith("machine: ")
