@@ -1,19 +1,19 @@
 """Benchmark: ambient occlusion rays per second, BVH build included, against Embree.
 
 Run ``python -m bench.ao`` from the repository root (``--quick`` for small meshes, ``--help``
-for sizes). Each of the
-``--rounds`` rounds (5) takes every measurement once, in turn, so that all see the same machine
-load; the tables show medians, and every ratio its median with the minimum and maximum over the
-rounds (each round's ao4d figure against the same round's Open3D figure). The machine line (CPU,
-SIMD width, L2, L3, OpenCL device and driver) comes first; a round that starts on a busy machine
-is flagged loudly (``bench._protocol``).
+for sizes). Each of the ``--rounds`` rounds (5) takes every measurement once, in turn, so that
+all see the same machine load; the tables show medians, and every ratio its median with the
+minimum and maximum over the rounds (each round's ao4d figure against the same round's Open3D
+figure). The machine line (CPU, SIMD width, L2, L3, OpenCL device and driver) comes first; a
+round that starts on a busy machine is flagged loudly (``bench._protocol``).
 
 * ao4d OpenCL, every vertex of a 4D mesh of about ``--tets`` tetrahedra, ``--samples`` rays per
   vertex (cosine-weighted, any hit), on six 4D shapes (``--shapes``): the spheritorus, the
   tiger, the ditorus, a CSG of tesseracts (a tesseract with four tesseract-shaped pockets,
   deep concavities), and two with dense mutual occlusion: three interlocked 4D tori around a
-  ball (``tori``) and a cluster of 40 4D metaballs (``metaballs``), mean AO 0.17-0.18. "first call" is a first ``ambient_occlusion(mesh, samples=64)`` on a fresh
-  mesh (the device builder runs inside it: build + trace); "trace" is the second call on the
+  ball (``tori``) and a cluster of 40 4D metaballs (``metaballs``), mean AO 0.17-0.18
+  (``bench._shapes``). "first call" is a first ``ambient_occlusion(mesh, samples=64)`` on a
+  fresh mesh (the device builder runs inside it: build + trace); "trace" is the second call on the
   same mesh, "build" the difference; "reach d/4" a call with ``max_distance`` a quarter of the
   bounding box's diagonal. Traced by the packet kernel (``ao_bvh``: a point's rays together) and,
   as "per-ray kernel", by the kernel it replaces (``ao_bvh_rays``, one ray at a time).
@@ -23,12 +23,13 @@ is flagged loudly (``bench._protocol``).
   ao4d's directions, from as many points spread evenly over the torus), once with unlimited
   reach and once with ``tfar`` a quarter of the torus's bounding-box diagonal. Build is the scene
   construction and the first query. For the two dense shapes Open3D also traces their 3D
-  analogues (``dense3d_trimesh``: three tori around a ball, 40 metaballs; as many triangles and
+  analogues (``bench._embree.dense3d_trimesh``: three tori around a ball, 40 metaballs; as many triangles and
   rays per point; ``--no-dense-3d`` leaves them out), which says how Embree fares with dense
   mutual occlusion in its own dimension: context printed beside the ratios, whose peer stays
-  the torus. The worker runs under ``AO4D_BENCH_OPEN3D_PYTHON`` when set
-  (a virtual environment with Open3D, made with ``--system-site-packages``), else this Python. ``--embreex`` adds trimesh's ``intersects_any`` (embreex:
-  Embree from one Python thread) and ``--host-tree`` ao4d with the numpy-built tree.
+  the torus. The worker (``python -m bench._embree``) runs under ``AO4D_BENCH_OPEN3D_PYTHON``
+  when set (a virtual environment with Open3D, made with ``--system-site-packages``), else this
+  Python. ``--embreex`` adds trimesh's ``intersects_any`` (embreex: Embree from one Python
+  thread) and ``--host-tree`` ao4d with the numpy-built tree.
 * Traversal work per AO ray on ``--quality-points`` vertices (``ao4d.raycast.traversal_counts``,
   deterministic, unlike the timings): wide nodes fetched and leaf blocks fetched, per-ray kernel
   (before) and packet kernel (after); SAH cost and the wide tree's nodes, slot use and depth.
