@@ -190,9 +190,10 @@ class Open3D:
         return self._answer()
 
     def close(self) -> None:
-        """End the worker."""
+        """End the worker (its input closed, its exit awaited, its output closed)."""
         self.proc.stdin.close()
         self.proc.wait(timeout=60)
+        self.proc.stdout.close()
 
 
 def have_open3d() -> str | None:

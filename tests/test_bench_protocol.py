@@ -300,3 +300,60 @@ def test_slower_scripts_run_tiny(cl_runtime, args):
 def test_browser_benches_run_tiny(args):
     out = _bench(*args, timeout=300)
     assert out.startswith("machine: ")
+
+
+STUB_OPEN3D = """
+import numpy as np
+
+
+class _Tensor:
+    def __init__(self, array):
+        self.array = np.asarray(array)
+
+    def __getitem__(self, key):
+        return _Tensor(self.array[key])
+
+    def __len__(self):
+        return len(self.array)
+
+    def numpy(self):
+        return self.array
+
+
+class _Scene:
+    def add_triangles(self, vertices, faces):
+        self.faces = faces
+
+    def test_occlusions(self, rays, tfar=float("inf")):
+        return _Tensor(np.zeros(len(rays), dtype=bool))
+
+
+class core:
+    Tensor = _Tensor
+
+
+class t:
+    class geometry:
+        RaycastingScene = _Scene
+"""
+
+
+def test_the_open3d_worker_serves_jobs_from_its_own_process(tmp_path, monkeypatch):
+    # a stand-in for open3d (no hits): the worker starts as python -m bench._embree from the
+    # repository root and answers each job with one JSON line
+    (tmp_path / "open3d").mkdir()
+    (tmp_path / "open3d" / "__init__.py").write_text(STUB_OPEN3D, encoding="utf-8")
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
+    monkeypatch.delenv("AO4D_BENCH_OPEN3D_PYTHON", raising=False)
+    assert _embree.have_open3d() is None
+    worker = _embree.Open3D()
+    try:
+        assert worker.info == {"ready": True}
+        for reach, kind in ((0.0, "torus"), (0.25, "tori")):
+            answer = worker.run(2000, 50, 4, reach, kind)
+            assert answer["rays"] == 200 and answer["hit"] == 0.0
+            assert len(answer["build"]) == len(answer["trace"]) == 2
+            assert answer["first"] == pytest.approx([b + t for b, t in zip(answer["build"], answer["trace"])])
+    finally:
+        worker.close()
+    assert worker.proc.returncode == 0
