@@ -316,7 +316,7 @@ def test_random_flat_tetrahedron_is_seen_where_it_is(corners, w):
     np.testing.assert_allclose(img.depth[img.hit], 3.0 + w, rtol=1e-6)
 
 
-# -- illumination beyond AO: specular, shadows, depth cue, colour, transparency (issue 15) ------
+# -- illumination beyond AO: specular, shadows, depth cue, colour, transparency ------------------
 
 SPEC_GRID = 24  # hypersphere grid for the specular tests: 24^4 over [-1.2, 1.2]^4, h = 0.104
 
@@ -568,8 +568,8 @@ def test_opaque_front_object_hides_the_back_one():
     assert img.info["layer_rays"] == 0
 
 
-def _old_render_shade(mesh, cam, shape, *, ambient, diffuse, light, normals, occlusion=None):
-    """The renderer's formula before issue 15, on the same closest hits:
+def _ao_lambert_shade(mesh, cam, shape, *, ambient, diffuse, light, normals, occlusion=None):
+    """The AO-and-Lambert-only formula, on the same closest hits:
     ambient * (1 - A) + diffuse * max(0, n . l) (two-sided normals, per-vertex AO)."""
     from ao4d.raycast import cast_rays
 
@@ -601,7 +601,7 @@ def test_without_new_terms_the_images_are_the_previous_ones_exactly(touching_pai
     cam = Camera4D([0.3, 0.8, -0.2, -4], [0, 0, 0, 0], fov=50)
     shape = (20, 12, 12)
     light = [0.3, 0.5, -0.2, -1.0]
-    expected = _old_render_shade(
+    expected = _ao_lambert_shade(
         mesh, cam, shape, ambient=0.7, diffuse=0.3, light=light, normals=normals, occlusion=mesh.point_data["ao"]
     )
     for extra in ({}, {"shadows": False, "specular": 0.0}):
@@ -862,7 +862,7 @@ def test_render_command_errors(ball_over_ground, tmp_path, capsys, extra, match)
     assert re.search(match, capsys.readouterr().err)
 
 
-# -- issue 12: render inputs out of range, and what info says ------------------------------------
+# -- render inputs out of range, and what info says ----------------------------------------------
 
 
 def _small_scene():
@@ -878,7 +878,7 @@ def test_stored_ao_with_nan_or_outside_0_1_is_refused_before_the_work():
         (1.5, r"`point_data\['ao'\]` must be occlusion in \[0, 1\]"),
     ]:
         values = np.zeros(mesh.n_vertices)
-        values[3] = bad  # before: NaN shade, or 1.5 clamped silently
+        values[3] = bad  # would give NaN shade, or 1.5 clamped silently
         mesh.point_data["ao"] = values
         with pytest.raises(ValueError, match=match):
             render(mesh, cam, (8, 8, 8), backend="numpy")
@@ -886,7 +886,7 @@ def test_stored_ao_with_nan_or_outside_0_1_is_refused_before_the_work():
 
 def test_weights_that_can_exceed_one_warn():
     mesh, cam = _small_scene()
-    # before: ambient + diffuse > 1 gave shade above 1 although the docs say [0, 1]
+    # ambient + diffuse > 1 can give shade above 1, although the docs say [0, 1]: a warning says so
     with pytest.warns(ao4d.rendering.ShadeRangeWarning, match=r"= 1.5 > 1: shade can exceed 1"):
         img = render(mesh, cam, (8, 8, 8), ao="none", ambient=1.0, diffuse=0.5, light=[0, 0, 0, -1], backend="numpy")
     assert img.shade.max() > 1.0  # the warning was right
@@ -895,7 +895,7 @@ def test_weights_that_can_exceed_one_warn():
 
 
 def test_info_names_the_backend_that_ran():
-    # issue 10: info["backend"] stored the request ("auto")
+    # the backend that ran ("opencl" or "numpy"), never the request ("auto")
     from ao4d.opencl import cl
 
     mesh, cam = _small_scene()
