@@ -116,9 +116,9 @@ def _start_worker(threads: int) -> None:
     for name in _THREAD_VARIABLES:  # read when a runtime starts: OpenCL and scipy's BLAS
         os.environ.setdefault(name, str(threads))
     if os.environ["OPENBLAS_NUM_THREADS"] == str(threads):  # numpy's BLAS is loaded already
-        from threadpoolctl import threadpool_limits
+        from ao4d._optional import require
 
-        threadpool_limits(threads, user_api="blas")
+        require("threadpoolctl", "limiting the workers' BLAS threads").threadpool_limits(threads, user_api="blas")
     _keep_freed_memory()
 
 

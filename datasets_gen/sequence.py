@@ -302,8 +302,9 @@ def triangles_distance(vertices: np.ndarray, faces: np.ndarray, points: np.ndarr
     times faster than :func:`datasets_gen.samples.corners_distance`, which serves 4D meshes;
     both agree to round-off (tests/test_sequence.py). Points are taken relative to the
     triangles' first vertex so that far coordinates lose nothing."""
-    import igl
+    from ao4d._optional import require
 
+    igl = require("igl", "distances of a sequence's frame samples")
     shift = vertices[0] if len(vertices) else np.zeros(3)
     squared, _, _ = igl.point_mesh_squared_distance(
         np.ascontiguousarray(points, np.float64) - shift, np.ascontiguousarray(vertices - shift), faces
