@@ -172,7 +172,7 @@ def measure(runtime: Any) -> Rates:
     from .camera import Camera4D
     from .marching.march import extract_field
     from .opencl import cl
-    from .raycast import cast_rays
+    from .rays.api import cast_rays
     from .rendering import render
 
     started = time.perf_counter()

@@ -5,7 +5,7 @@ Definition (DESIGN.md): at a point p with unit normal n,
 from p along w hits the mesh within ``max_distance``. Directions are cosine-weighted
 (:mod:`ao4d.sampling`), so the estimate is the fraction of occluded rays. 1 = fully occluded.
 
-The rays are traced by :func:`ao4d.raycast.count_occluded`: the same rays on both backends (a
+The rays are traced by :func:`ao4d.rays.api.count_occluded`: the same rays on both backends (a
 shared Sobol table and per-point integer-hash offsets), through the same BVH.
 
 Rays start at ``p + offset * n`` with ``offset = 1e-4 * (bounding-box diagonal)`` so that they do
@@ -36,12 +36,14 @@ from ._validate import (
     check_positive_int,
     check_seed,
 )
+from .bvh import get_bvh
 from .bvh.host import nondegenerate_given
 from .bvh.layout import Frame
 from .geometry import vertex_sums
 from .mesh import SimplexMesh, as_mesh, warn_if_inside_out
 from .opencl import cl
-from .raycast import ACCELS, check_distance, count_occluded, get_bvh, mesh_arrays, progress_bar, unit_rows
+from .rays.api import ACCELS, count_occluded
+from .rays.rows import check_distance, mesh_arrays, progress_bar, unit_rows
 from .topology import GRID_EDGE_KEY
 
 __all__ = [

@@ -1,6 +1,6 @@
 """Render 4D meshes into 3D image volumes with a :class:`~ao4d.camera.Camera4D`.
 
-One primary ray per voxel (closest hit through :func:`ao4d.raycast.trace`). At a hit with
+One primary ray per voxel (closest hit through :func:`ao4d.rays.api.trace`). At a hit with
 ambient occlusion ``A`` (DESIGN.md definition), normal ``n`` turned towards the viewer and, per
 light k, unit direction ``l_k`` towards it, shadow visibility ``V_k`` and intensity ``I_k``::
 
@@ -72,7 +72,8 @@ from .compositing import over, unpremultiply
 from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, lambert
 from .mesh import SimplexMesh, as_meshes, concatenate, warn_if_inside_out
 from .opencl import cl
-from .raycast import Tracer, check_distance, trace
+from .rays.api import trace
+from .rays.rows import Tracer, check_distance
 from .screen_ao import (
     DENOISE_PER_SECOND,
     LOOKUPS_PER_SECOND,
@@ -431,7 +432,7 @@ def render(
         Shading normals interpolated from vertex normals, or the hit simplex's own.
     backend : {"auto", "opencl", "numpy"}
         Resolved once (:func:`ao4d.opencl.cl.resolve_backend`); primary, layer and shadow rays
-        (:func:`ao4d.raycast.trace`) and AO (:func:`ao4d.ambient_occlusion`) all run on it.
+        (:func:`ao4d.rays.api.trace`) and AO (:func:`ao4d.ambient_occlusion`) all run on it.
     progress : bool, optional
         Progress bars (:mod:`ao4d._progress`: silenced by ``--no-progress``); default on for
         images of 2^18 voxels or more.
@@ -780,7 +781,7 @@ def _screen_steps(scene: _Scene, camera, opts: _Options) -> int:
 
 
 def _cast(run: _Run, origins, directions, desc, *, closest=True, max_distance=math.inf):
-    """Hits of many rays: ``t``, ``simplex``, barycentric weights; one :func:`ao4d.raycast.trace`
+    """Hits of many rays: ``t``, ``simplex``, barycentric weights; one :func:`ao4d.rays.api.trace`
     per batch of ``_CHUNK`` rays on the render's tracer (progress bar over rays)."""
     n = len(origins)
     t = np.full(n, np.inf)

@@ -181,7 +181,7 @@ class DepthVolume:
 
     @classmethod
     def trace(cls, mesh, camera: Camera4D, shape, *, backend: str = "auto") -> DepthVolume:
-        """Cast one primary ray per voxel (closest hit, :func:`ao4d.raycast.cast_rays`) and keep
+        """Cast one primary ray per voxel (closest hit, :func:`ao4d.rays.api.cast_rays`) and keep
         the depth and viewer-facing simplex normal of each first hit: the volume
         :func:`ao4d.render` builds for ``ao="screen"`` (:meth:`of_first_hits`).
 
@@ -209,7 +209,7 @@ class DepthVolume:
         ValueError
             If it is not 4D.
         """
-        from .raycast import cast_rays
+        from .rays.api import cast_rays
 
         mesh = as_mesh(mesh)
         shape = _camera_shape(camera, shape)

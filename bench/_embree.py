@@ -92,7 +92,8 @@ def dense3d_trimesh(kind: str, triangles: int):
 def torus_rays(triangles: int, n_points: int, samples: int, kind: str = "torus"):
     """The torus (or the :func:`dense3d_trimesh` of ``kind``), the AO points (Morton order) and
     their rays: (mesh, points, normals, o, w)."""
-    from ao4d import ao, raycast, sampling
+    from ao4d import ao, sampling
+    from ao4d.rays import rows
 
     tm = torus_trimesh(triangles) if kind == "torus" else dense3d_trimesh(kind, triangles)
     # as many points as the 4D mesh has, evenly spread over the vertex list (trimesh's torus
@@ -100,7 +101,7 @@ def torus_rays(triangles: int, n_points: int, samples: int, kind: str = "torus")
     # sorts its points by
     idx = np.linspace(0, len(tm.vertices) - 1, n_points).round().astype(np.int64)
     q, m = tm.vertices[idx], tm.vertex_normals[idx]
-    order = raycast._morton_order(q)
+    order = rows._morton_order(q)
     q, m = q[order], m[order]
     diagonal = float(np.linalg.norm(np.ptp(tm.vertices, axis=0)))
     w = sampling.cosine_hemisphere(m, samples, seed=0).reshape(-1, 3)

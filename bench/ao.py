@@ -30,7 +30,7 @@ round that starts on a busy machine is flagged loudly (``bench._protocol``).
   when set (a virtual environment with Open3D, made with ``--system-site-packages``), else this
   Python. ``--embreex`` adds trimesh's ``intersects_any`` (embreex: Embree from one Python
   thread) and ``--host-tree`` ao4d with the numpy-built tree.
-* Traversal work per AO ray on ``--quality-points`` vertices (``ao4d.raycast.traversal_counts``,
+* Traversal work per AO ray on ``--quality-points`` vertices (``ao4d.rays.api.traversal_counts``,
   deterministic, unlike the timings): wide nodes fetched and leaf blocks fetched, per-ray kernel
   (before) and packet kernel (after); SAH cost and the wide tree's nodes, slot use and depth.
 * Bytes per tetrahedron of the traversed tree: wide nodes and leaf blocks, beside L2 and L3.
@@ -71,7 +71,7 @@ def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, reach: fl
     reach > 0 both with ``max_distance`` = reach times the bounding box's diagonal. With
     ``traces`` > 1 the trace is the median of that many calls (short calls on small meshes)."""
     import ao4d
-    from ao4d import bvh, raycast
+    from ao4d import bvh
 
     mesh = ao4d.SimplexMesh(vertices, simplices)
     mesh.vertex_normals  # noqa: B018 - computed (and cached) before the clock starts
@@ -80,10 +80,10 @@ def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, reach: fl
         kwargs["max_distance"] = reach * float(np.linalg.norm(np.ptp(vertices, axis=0)))
     clock = protocol.Clock()
     if builder == "host":  # the numpy tree, built and uploaded before the first call
-        bvh.device_tree(mesh, raycast.get_bvh(mesh, builder="host"), runtime)
+        bvh.device_tree(mesh, bvh.get_bvh(mesh, builder="host"), runtime)
     occlusion = ao4d.ambient_occlusion(mesh, **kwargs)
     first = clock.lap()
-    tree = raycast.get_bvh(mesh)
+    tree = bvh.get_bvh(mesh)
     assert (builder == "device") == (type(tree).__name__ == "DeviceBVH")
     laps = []
     for _ in range(traces):
@@ -101,36 +101,37 @@ def ao4d_run(vertices, simplices, builder: str, runtime, samples: int, reach: fl
 
 @functools.lru_cache(maxsize=None)
 def _reference_traversal():
-    from ao4d import raycast
+    from ao4d.rays import launches
 
-    return functools.partial(raycast._ao_opencl, traversal="rays")
+    return functools.partial(launches._ao_opencl, traversal="rays")
 
 
 def per_ray_run(vertices, simplices, runtime, samples: int, reach: float = 0.0) -> dict:
     """The trace of ao4d_run with the per-ray kernel (``ao_bvh_rays``), the one before packets."""
-    from ao4d import raycast
+    from ao4d.rays import launches
 
-    packet = raycast._ao_opencl
-    raycast._ao_opencl = _reference_traversal()
+    packet = launches._ao_opencl
+    launches._ao_opencl = _reference_traversal()
     try:
         return ao4d_run(vertices, simplices, "device", runtime, samples, reach)
     finally:
-        raycast._ao_opencl = packet
+        launches._ao_opencl = packet
 
 
 def quality(vertices, simplices, runtime, samples, n_points, rng) -> dict:
     import ao4d
-    from ao4d import ao, bvh, raycast
+    from ao4d import ao, bvh
+    from ao4d.rays import api
 
     mesh = ao4d.SimplexMesh(vertices, simplices)
-    tree = raycast.get_bvh(mesh, builder="device", runtime=runtime)
+    tree = bvh.get_bvh(mesh, builder="device", runtime=runtime)
     normals = mesh.vertex_normals
     ok = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)
     idx = np.sort(rng.choice(ok, size=min(n_points, ok.size), replace=False))
     out = {}
     for reach in (0.0, 0.25):
         for traversal in ("rays", "packet"):
-            out[traversal, reach] = raycast.traversal_counts(
+            out[traversal, reach] = api.traversal_counts(
                 mesh,
                 mesh.vertices[idx],
                 normals[idx],
@@ -160,10 +161,10 @@ def tree_bytes(vertices, simplices, runtime) -> dict:
     """Bytes of the traversed tree (the wide nodes and the leaf blocks the kernels fetch) of
     the mesh, in all and per tetrahedron, and the leaf blocks' lane occupancy."""
     import ao4d
-    from ao4d import bvh, raycast
+    from ao4d import bvh
 
     mesh = ao4d.SimplexMesh(vertices, simplices)
-    tree = raycast.get_bvh(mesh, builder="device", runtime=runtime)
+    tree = bvh.get_bvh(mesh, builder="device", runtime=runtime)
     lanes, width = bvh.block_lanes(runtime, 4), bvh.node_width(runtime)
     d = tree.dim
     _, children, _, _, _ = bvh.widen_topology(tree, lanes, width)
@@ -363,7 +364,7 @@ def traversal_report(args, runtime, work: dict, rng) -> dict:
             )
         tests[name] = sum(qd["counts"]["packet", 0.0][2:])
         # box and block tests per ray differ a little: the packets' nearest-first order changes which
-        # tests a ray makes before its first hit (tests/test_raycast.py bounds the difference)
+        # tests a ray makes before its first hit (tests/test_rays.py bounds the difference)
     return tests
 
 
@@ -532,10 +533,10 @@ def ceiling_report(runs, shapes, tests) -> None:
 def numpy_and_brute(args, runtime, rng) -> None:
     """The numpy backend, and the BVH kernel against brute force, on a smaller 4D mesh."""
     import ao4d
-    from ao4d import raycast
+    from ao4d import bvh
 
     small = shape_mesh("spheritorus", args.numpy_tets)
-    small_tree = raycast.get_bvh(small, runtime=runtime)
+    small_tree = bvh.get_bvh(small, runtime=runtime)
     ok = np.flatnonzero(np.linalg.norm(small.vertex_normals, axis=1) > 0.5)
     pick = rng.choice(ok, size=min(args.numpy_points, ok.size), replace=False)
     p2, n2 = small.vertices[pick], small.vertex_normals[pick]

@@ -1,4 +1,4 @@
-"""Benchmark: ``ao4d.raycast.cast_rays`` (render's primary and shadow rays) against Embree.
+"""Benchmark: ``ao4d.rays.api.cast_rays`` (render's primary and shadow rays) against Embree.
 
 Run ``python -m bench.cast`` from the repository root (``--help`` for sizes; ``--quick`` for a
 small run). Each of the
@@ -39,10 +39,12 @@ class KernelClock:
     runtime reports through an event callback: the launches are left to overlap with the
     host's work as they do in ``cast_rays``; the rest of the call's wall time is host time."""
 
-    def __init__(self, raycast):
-        self._raycast = raycast
-        self._original = raycast._traversal_kernel
-        self._original_refine = raycast._refine_kernel
+    def __init__(self):
+        from ao4d.rays import launches, refine
+
+        self._launching, self._refining = launches, refine  # the modules whose kernels are timed
+        self._original = launches._traversal_kernel
+        self._original_refine = refine._refine_kernel
         self._launches: list[list[float]] = []  # [enqueued, completed]
 
     @property
@@ -78,22 +80,22 @@ class KernelClock:
             kernel, head = self._original(*args, **kwargs)
             return Timed(kernel), head
 
-        self._raycast._traversal_kernel = wrapped
+        self._launching._traversal_kernel = wrapped
         # the closest hits' refinement runs on fp64 devices as a kernel too
-        self._raycast._refine_kernel = lambda *args, **kwargs: Timed(self._original_refine(*args, **kwargs))
+        self._refining._refine_kernel = lambda *args, **kwargs: Timed(self._original_refine(*args, **kwargs))
         return self
 
     def __exit__(self, *exc):
-        self._raycast._traversal_kernel = self._original
-        self._raycast._refine_kernel = self._original_refine
+        self._launching._traversal_kernel = self._original
+        self._refining._refine_kernel = self._original_refine
 
 
 def ao4d_cast(mesh, o, w, closest: bool) -> dict:
-    from ao4d import raycast
+    from ao4d.rays import api
 
-    with KernelClock(raycast) as kc:
+    with KernelClock() as kc:
         start = time.perf_counter()
-        hits = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl")
+        hits = api.cast_rays(mesh, o, w, closest=closest, backend="opencl")
         if closest:
             hits.t, hits.barycentric  # what render reads
         wall = time.perf_counter() - start
@@ -103,11 +105,12 @@ def ao4d_cast(mesh, o, w, closest: bool) -> dict:
 def rays_4d(tets: float, samples: int):
     """AO rays of a 4D spheritorus (every vertex, ``samples`` each): mesh, origins, directions."""
     import ao4d
-    from ao4d import ao, raycast, sampling
+    from ao4d import ao, sampling
+    from ao4d.rays import rows
 
     mesh = shape_mesh("spheritorus", tets)
     p, n = mesh.vertices, mesh.vertex_normals
-    order = raycast._morton_order(p)
+    order = rows._morton_order(p)
     p, n = p[order], n[order]
     w = sampling.cosine_hemisphere(n, samples, seed=0).reshape(-1, 4)
     diagonal = float(np.linalg.norm(np.ptp(p, axis=0)))
@@ -139,15 +142,16 @@ def workloads(args, runtime) -> dict:
     """The 3D torus and the 4D spheritorus with their rays, trees built and kernels loaded:
     name -> (mesh, origins, directions)."""
     import ao4d
-    from ao4d import raycast
+    from ao4d import bvh
+    from ao4d.rays import api
 
     tm, _, _, o3, w3 = torus_rays(int(args.triangles), args.points, args.samples)
     torus = ao4d.SimplexMesh(tm.vertices, tm.faces)
     mesh4, o4, w4 = rays_4d(args.tets, args.samples)
     out = {"3D": (torus, o3, w3), "4D": (mesh4, o4, w4)}
     for mesh, o, w in out.values():
-        raycast.get_bvh(mesh, runtime=runtime)
-        raycast.cast_rays(mesh, o[:1], w[:1], backend="opencl")  # device copies and kernels
+        bvh.get_bvh(mesh, runtime=runtime)
+        api.cast_rays(mesh, o[:1], w[:1], backend="opencl")  # device copies and kernels
     return out
 
 

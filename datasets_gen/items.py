@@ -519,8 +519,8 @@ def resolved_backend(backend: str) -> str:
 def _build_bvh(mesh: Any, backend: str) -> None:
     """Build (and cache on ``mesh``) the BVH that the AO rays and the renders will trace, on
     the device they run on, so that its time is a stage of its own."""
+    from ao4d.bvh import get_bvh
     from ao4d.opencl import cl
-    from ao4d.raycast import get_bvh
 
     get_bvh(mesh, runtime=cl.resolve_backend(backend, warn=False))
 

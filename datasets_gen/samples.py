@@ -400,7 +400,7 @@ def mesh_occupancy(mesh: Any, points: np.ndarray, rng: np.random.Generator, back
     """Inside test against a closed outward-oriented mesh: three rays per point in random
     directions; a ray that first leaves through a simplex (its outward normal along the ray)
     votes inside; the majority decides."""
-    from ao4d.raycast import cast_rays
+    from ao4d.rays.api import cast_rays
 
     points = np.asarray(points, np.float64)
     votes = np.zeros(len(points), np.int64)

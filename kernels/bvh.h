@@ -16,7 +16,7 @@
 
 // -D COUNT_VISITS builds a debug variant whose any-hit traversal also counts the wide nodes it
 // visits (visits[0]) and the leaf blocks it tests (visits[1]); callers pass `visits` along
-// (ao4d.raycast.traversal_counts). Without it the macros vanish.
+// (ao4d.rays.api.traversal_counts). Without it the macros vanish.
 // The packet traversal (trace_packet) also counts the ray-node box tests (visits[2]) and the
 // ray-block tests (visits[3]); for the one-ray traversal these equal visits[0] and visits[1].
 #ifdef COUNT_VISITS

@@ -1,6 +1,6 @@
 // cast_rays' any-hit rays that share an origin, traced PACKET at a time (trace_packet), as the
 // AO kernel traces a point's rays: a node is fetched once per packet, not once per ray. Host
-// side: ao4d.raycast._trace_opencl, which finds runs of rows with bit-identical origins.
+// side: ao4d.rays.launches._trace_opencl, which finds runs of rows with bit-identical origins.
 // Each ray's hit / miss answer is trace_any's (bvh.h: the packet makes the same tests with the
 // same arithmetic), and each row is mapped by map_ray (rows.h) and load_ray (bvh.h), as
 // cast_rows_bvh maps and loads it, so every ray is traced from the same float32 bits; the hit

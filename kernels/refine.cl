@@ -1,6 +1,6 @@
-// Closest hits refined in float64 on the device (host side: ao4d.raycast._refine_on_device):
+// Closest hits refined in float64 on the device (host side: ao4d.rays.refine._refine_on_device):
 // for each hit, the distance t and the barycentric weights on the hit simplex, with the
-// operations of ao4d.raycast._refine_block on the host, in its order, so that both give the
+// operations of ao4d.rays.refine._refine_block on the host, in its order, so that both give the
 // same bits. Devices with cl_khr_fp64 only; elsewhere the host refines.
 //
 // Compile with -D DIM=2|3|4 and -D RAY_T=float|double (the type of the caller's rows).

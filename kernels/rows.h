@@ -5,7 +5,7 @@
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 
 // Rows of DIM RAY_T values, mapped into the tree's frame here, in double, with the operations
-// and in the order of ao4d.raycast._Rays.chunk on the host, so that the kernels trace the same
+// and in the order of ao4d.rays.rows._Rays.chunk on the host, so that the kernels trace the same
 // float32 bits: origins float((o - centre) * scale), directions
 // float(w * (double)float(1 / sqrt(w0^2 + w1^2 + ...))), the squares summed in column order.
 // OpenCL C rounds double +, -, *, /, sqrt and the conversion to float correctly, as numpy does.

@@ -13,10 +13,12 @@ import numpy as np
 import pyopencl as pcl
 
 import ao4d
-from ao4d import bvh, raycast
+from ao4d import bvh
 from ao4d.bvh import device
 from ao4d.marching import fields_device
 from ao4d.opencl import cl
+from ao4d.rays import api, launches
+from ao4d.rays import rows as ray_rows
 
 ran: set[str] = set()
 
@@ -79,34 +81,34 @@ def main() -> int:
         w = rng.normal(size=(48, d))
         w[::3, 0] = 0.0  # exact zero components
         for closest in (True, False):
-            fast = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl")
-            slow = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel="brute")
-            ref = raycast.cast_rays(mesh, o, w, closest=closest, backend="numpy")
+            fast = api.cast_rays(mesh, o, w, closest=closest, backend="opencl")
+            slow = api.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel="brute")
+            ref = api.cast_rays(mesh, o, w, closest=closest, backend="numpy")
             check(
                 f"{d}D cast closest={closest}: BVH equals brute force",
                 np.array_equal(fast.hit, slow.hit) and (not closest or np.array_equal(fast.t, slow.t)),
             )
             check(f"{d}D cast closest={closest}: near numpy", np.mean(fast.hit == ref.hit) >= 0.95)
             # the other ray mapping (cast_rows_* map on fp64 devices, cast_* take the host's rays)
-            raycast.MAP_ON_DEVICE = not raycast.MAP_ON_DEVICE
+            launches.MAP_ON_DEVICE = not launches.MAP_ON_DEVICE
             for accel, want in (("bvh", fast), ("brute", slow)):
-                other = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel=accel)
+                other = api.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel=accel)
                 check(
                     f"{d}D cast closest={closest} {accel}: both ray mappings hit alike",
                     np.array_equal(other.simplex, want.simplex),
                 )
-            raycast.MAP_ON_DEVICE = not raycast.MAP_ON_DEVICE
+            launches.MAP_ON_DEVICE = not launches.MAP_ON_DEVICE
         if "cl_khr_fp64" in runtime.device.extensions:  # any-hit rays sharing origins as packets
             shared = np.repeat(o[:6], 8, axis=0)  # runs of 8 rows, a zero component among them
-            raycast.CAST_PACKETS = True
-            packets = raycast.cast_rays(mesh, shared, w, closest=False, backend="opencl")
-            raycast.CAST_PACKETS = "auto"
-            slow = raycast.cast_rays(mesh, shared, w, closest=False, backend="opencl", accel="brute")
+            launches.CAST_PACKETS = True
+            packets = api.cast_rays(mesh, shared, w, closest=False, backend="opencl")
+            launches.CAST_PACKETS = "auto"
+            slow = api.cast_rays(mesh, shared, w, closest=False, backend="opencl", accel="brute")
             check(f"{d}D cast packets: brute force's hits", np.array_equal(packets.hit, slow.hit))
         if "cl_khr_fp64" in runtime.device.extensions:  # the device's ray mapping: the host's bits
             frame = bvh.Frame.fit(mesh.vertices)
-            got = raycast.device_ray_mapping(runtime, frame, o, w, "double")
-            want = raycast._Rays(frame, o, w).chunk(0, len(o), np.float32, 4)
+            got = launches.device_ray_mapping(runtime, frame, o, w, "double")
+            want = ray_rows._Rays(frame, o, w).chunk(0, len(o), np.float32, 4)
             check(
                 f"{d}D map_rays: the host's bits",
                 all(np.array_equal(a.view(np.uint32), b.view(np.uint32)) for a, b in zip(got, want)),
@@ -117,19 +119,21 @@ def main() -> int:
         check(f"{d}D AO: BVH equals brute force", np.array_equal(a, b))
         # both AO kernels (packets of a point's rays, one ray at a time), 37 samples: a cut packet
         counts = {
-            t: raycast._ao_opencl(mesh, tree, runtime, p, n, 37, 0, 0.0, np.inf, "bvh", raycast._NullBar(), traversal=t)
-            for t in raycast.AO_TRAVERSALS
+            t: launches._ao_opencl(
+                mesh, tree, runtime, p, n, 37, 0, 0.0, np.inf, "bvh", ray_rows._NullBar(), traversal=t
+            )
+            for t in launches.AO_TRAVERSALS
         }
         check(f"{d}D AO: packet kernel equals per-ray kernel", np.array_equal(*counts.values()))
-        for traversal in raycast.AO_TRAVERSALS:
-            nodes, blocks = raycast.traversal_counts(
+        for traversal in launches.AO_TRAVERSALS:
+            nodes, blocks = api.traversal_counts(
                 mesh, p, n, samples=8, offset=0.0, runtime=runtime, traversal=traversal
             )
             check(f"{d}D traversal counts ({traversal})", nodes > 0.0 and 0.0 <= blocks)
-        dirs = raycast.sample_directions(runtime, n, 8, 0)
+        dirs = launches.sample_directions(runtime, n, 8, 0)
         check(f"{d}D sample directions are unit", np.allclose(np.linalg.norm(dirs, axis=2), 1, atol=1e-5))
-        eight = raycast.sample_directions(runtime, n, 11, 0, eight=True)
-        check(f"{d}D directions eight at a time", np.array_equal(eight, raycast.sample_directions(runtime, n, 11, 0)))
+        eight = launches.sample_directions(runtime, n, 11, 0, eight=True)
+        check(f"{d}D directions eight at a time", np.array_equal(eight, launches.sample_directions(runtime, n, 11, 0)))
         # extraction (kernels/march.cl): both methods, thin slabs, the numpy engine's arrays
         values = rng.standard_normal((5, 4, 6, 3)[:d])
         # rows of 35 points: classify's 16-point vectors (the last reading past the slab's

@@ -10,7 +10,9 @@ import pytest
 from _scenes import embree_scene, flat_patch, sphere_hull, sphere_over_ground, up_points
 
 import ao4d
-from ao4d import ao, raycast, sampling
+from ao4d import ao, bvh, sampling
+from ao4d.rays import api, launches
+from ao4d.rays import reference as ray_reference
 
 DIMS = (2, 3, 4)
 
@@ -56,7 +58,7 @@ def test_parallel_plane(d, h, L, backend):
     samples = 256
     a = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=samples, max_distance=L, backend=backend)
     # rays start ORIGIN_OFFSET diagonals above the point: the plane is that much closer
-    eps = ao.ORIGIN_OFFSET * raycast.get_bvh(mesh).world_diagonal
+    eps = ao.ORIGIN_OFFSET * bvh.get_bvh(mesh).world_diagonal
     expected = parallel_plane_occlusion(d, h - eps, L)
     assert abs(a.mean() - expected) <= binomial_tolerance(expected, a.size * samples)
     if d == 4 and (h, L) == (1.0, 2.0):
@@ -115,7 +117,7 @@ def test_points_inside_a_closed_surface_are_fully_occluded(d, backend):
     assert (a == 1.0).all()
     # aimed exactly at the hull's vertices (shared by many simplices): still no leak
     target = mesh.vertices[rng.choice(len(mesh.vertices), 200)]
-    hits = raycast.cast_rays(mesh, np.zeros((200, d)), target, backend=backend)
+    hits = api.cast_rays(mesh, np.zeros((200, d)), target, backend=backend)
     assert hits.hit.all()
     np.testing.assert_allclose(hits.t, 1.0, atol=1e-9)  # the vertices lie on the unit sphere
     # from outside, a convex surface does not occlude itself: exactly zero at its vertices
@@ -192,7 +194,7 @@ def test_ao_matches_embree_with_the_same_directions(backend):
     samples = 64
     ours = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=samples, backend=backend)
     w = sampling.cosine_hemisphere(n, samples).reshape(-1, 3)
-    origins = np.repeat(p + ao.ORIGIN_OFFSET * raycast.get_bvh(mesh).world_diagonal * n, samples, axis=0)
+    origins = np.repeat(p + ao.ORIGIN_OFFSET * bvh.get_bvh(mesh).world_diagonal * n, samples, axis=0)
     theirs = RayMeshIntersector(scene).intersects_any(origins, w).reshape(-1, samples).mean(1)
     # identical rays: per point at most a couple of grazing rays differ, and no bias
     assert np.abs(ours - theirs).max() <= 3 / samples
@@ -276,7 +278,7 @@ def test_launch_size_does_not_change_results(monkeypatch, cl_runtime):
     rng = np.random.default_rng(1500)
     mesh = sphere_over_ground(rng, 4)
     whole = ao4d.ambient_occlusion(mesh, samples=32, backend="opencl")
-    monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 1000)
+    monkeypatch.setattr(launches, "RAYS_PER_LAUNCH", 1000)
     np.testing.assert_array_equal(whole, ao4d.ambient_occlusion(mesh, samples=32, backend="opencl"))
 
 
@@ -284,7 +286,7 @@ def test_numpy_step_size_does_not_change_results(monkeypatch):
     rng = np.random.default_rng(1600)
     mesh = sphere_over_ground(rng, 3)
     whole = ao4d.ambient_occlusion(mesh, samples=16, backend="numpy")
-    monkeypatch.setattr(raycast, "_NUMPY_RAYS_PER_STEP", 100)
+    monkeypatch.setattr(ray_reference, "_NUMPY_RAYS_PER_STEP", 100)
     np.testing.assert_array_equal(whole, ao4d.ambient_occlusion(mesh, samples=16, backend="numpy"))
 
 
@@ -493,8 +495,8 @@ def test_interrupt_between_launches_leaves_a_usable_state(monkeypatch, request, 
             if InterruptingBar.calls == 2:
                 raise KeyboardInterrupt  # what Ctrl-C raises after a launch returns
 
-    monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 500)
-    monkeypatch.setattr(raycast, "_NUMPY_RAYS_PER_STEP", 500)
+    monkeypatch.setattr(launches, "RAYS_PER_LAUNCH", 500)
+    monkeypatch.setattr(ray_reference, "_NUMPY_RAYS_PER_STEP", 500)
     with monkeypatch.context() as patch:
         patch.setattr(ao, "progress_bar", lambda *args: InterruptingBar())
         with pytest.raises(KeyboardInterrupt):

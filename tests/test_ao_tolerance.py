@@ -10,7 +10,8 @@ import pytest
 from _scenes import flat_patch
 
 import ao4d
-from ao4d import ao, raycast
+from ao4d import ao, bvh
+from ao4d.rays import api, launches, reference
 
 T_7 = 2.364624251592785  # Student's t, 7 degrees of freedom (8 replicates), at 0.975
 
@@ -31,7 +32,7 @@ def roof_scene(d, m, seed):
     points[:, :-1] = rng.uniform(-0.3, 0.3, (m, d - 1))
     points[:, -1] = 1.0 - h
     normals = np.tile(np.eye(d)[-1], (m, 1))
-    eps = ao.ORIGIN_OFFSET * raycast.get_bvh(mesh).world_diagonal
+    eps = ao.ORIGIN_OFFSET * bvh.get_bvh(mesh).world_diagonal
     exact = (1.0 - np.minimum(h - eps, 1.0) ** 2) ** ((d - 1) / 2)
     return mesh, points, normals, exact
 
@@ -123,8 +124,8 @@ def test_same_bytes_whatever_the_launch_size(monkeypatch, backend):
     mesh = sphere_over_ground(rng, 4)
     kw = dict(tolerance=0.05, seed=3, return_error=True, backend=backend)
     whole = ao4d.ambient_occlusion(mesh, **kw)
-    monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 1000)
-    monkeypatch.setattr(raycast, "_NUMPY_RAYS_PER_STEP", 100)
+    monkeypatch.setattr(launches, "RAYS_PER_LAUNCH", 1000)
+    monkeypatch.setattr(reference, "_NUMPY_RAYS_PER_STEP", 100)
     again = ao4d.ambient_occlusion(ao4d.SimplexMesh(mesh.vertices, mesh.simplices), **kw)
     for x, y in zip((*whole, whole.rays), (*again, again.rays)):
         assert x.tobytes() == y.tobytes()
@@ -140,12 +141,12 @@ def test_a_points_rays_depend_on_its_index_only(backend):
     p, n = up_points(rng, 4, 50, 0.8)
     runtime = ao4d.opencl.cl.resolve_backend(backend)
     trace = dict(samples=24, seed=5, offset=1e-4, max_distance=math.inf, runtime=runtime)
-    every = raycast.count_occluded(mesh, p, n, **trace)
+    every = api.count_occluded(mesh, p, n, **trace)
     some = np.arange(1, 50, 3)
-    assert (raycast.count_occluded(mesh, p[some], n[some], **trace, index=some) == every[some]).all()
+    assert (api.count_occluded(mesh, p[some], n[some], **trace, index=some) == every[some]).all()
     # and a later call continues the sequence: rows 0-9 then 10-23 are the 24 rows
-    head = raycast.count_occluded(mesh, p, n, **{**trace, "samples": 10})
-    tail = raycast.count_occluded(mesh, p, n, **{**trace, "samples": 14}, first=10)
+    head = api.count_occluded(mesh, p, n, **{**trace, "samples": 10})
+    tail = api.count_occluded(mesh, p, n, **{**trace, "samples": 14}, first=10)
     assert (head + tail == every).all()
 
 

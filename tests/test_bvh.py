@@ -9,7 +9,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 import ao4d
-from ao4d import bvh, raycast
+from ao4d import bvh
 from ao4d.geometry import cross
 
 DIMS = (2, 3, 4)
@@ -102,10 +102,10 @@ def test_bvh_is_cached_on_the_mesh_and_rebuilt_after_edits():
     rng = np.random.default_rng(9)
     vertices, simplices = random_soup(rng, 3, 40)
     mesh = ao4d.SimplexMesh(vertices, simplices)
-    first = raycast.get_bvh(mesh)
-    assert raycast.get_bvh(mesh) is first
+    first = bvh.get_bvh(mesh)
+    assert bvh.get_bvh(mesh) is first
     mesh.vertices = vertices + 1.0
-    second = raycast.get_bvh(mesh)
+    second = bvh.get_bvh(mesh)
     assert second is not first
     # trees hold their mesh in its own frame: the same local geometry, a moved centre
     np.testing.assert_allclose(second.frame.centre, first.frame.centre + 1.0)
@@ -120,22 +120,22 @@ def test_fallback_cache_for_plain_objects():
     rng = np.random.default_rng(10)
     obj = Plain()
     obj.vertices, obj.simplices = random_soup(rng, 3, 10)
-    first = raycast.get_bvh(obj)
-    assert raycast.get_bvh(obj) is first
+    first = bvh.get_bvh(obj)
+    assert bvh.get_bvh(obj) is first
     obj.vertices = obj.vertices * 2  # arrays replaced: the fingerprint changes
-    assert raycast.get_bvh(obj) is not first
+    assert bvh.get_bvh(obj) is not first
 
 
 def test_get_bvh_takes_a_trimesh_and_a_pair():
     trimesh = pytest.importorskip("trimesh")
     tm = trimesh.creation.icosphere(subdivisions=1)
-    ref = raycast.get_bvh(ao4d.SimplexMesh(tm.vertices, tm.faces))
+    ref = bvh.get_bvh(ao4d.SimplexMesh(tm.vertices, tm.faces))
     for mesh in (tm, (tm.vertices, tm.faces)):
-        tree = raycast.get_bvh(mesh)
+        tree = bvh.get_bvh(mesh)
         np.testing.assert_array_equal(tree.prim, ref.prim)
         np.testing.assert_array_equal(tree.origin, ref.origin)
     with pytest.raises(TypeError, match="`mesh` must be a SimplexMesh"):
-        raycast.get_bvh(tm.vertices)
+        bvh.get_bvh(tm.vertices)
 
 
 def test_bad_inputs(build_bvh):

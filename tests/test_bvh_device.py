@@ -2,7 +2,7 @@
 
 Structure, bounds, degenerate simplices and bad input are checked for both builders in
 tests/test_bvh.py (fixture ``build_bvh``), the numpy traversal of both trees in
-tests/test_raycast.py. Here: per-simplex data equal to the host's bit for bit, OpenCL hits equal
+tests/test_rays.py. Here: per-simplex data equal to the host's bit for bit, OpenCL hits equal
 to brute force with the device tree and with the host tree, identical AO, tree quality (SAH
 cost), independence of the work decomposition, and the cache on the mesh.
 """
@@ -14,8 +14,9 @@ import pytest
 from _scenes import random_rays, random_soup, soup_scene, sphere_over_ground
 
 import ao4d
-from ao4d import bvh, raycast
+from ao4d import bvh
 from ao4d.bvh import cache, device
+from ao4d.rays import api
 
 DIMS = (2, 3, 4)
 
@@ -141,8 +142,8 @@ def test_flat_centroids_and_duplicates(cl_runtime):
         leaves = tree.meta[tree.meta[:, 0] < 0]
         assert leaves[:, 1].max() <= 16 and leaves[:, 1].sum() == 300
     mesh = ao4d.SimplexMesh(v, simplices)
-    raycast.get_bvh(mesh, builder="device", runtime=cl_runtime)
-    hits = raycast.cast_rays(mesh, [[0.2, 0.2, -1.0], [0.9, 0.9, -1]], [[0, 0, 1], [0, 0, 1]], backend="opencl")
+    bvh.get_bvh(mesh, builder="device", runtime=cl_runtime)
+    hits = api.cast_rays(mesh, [[0.2, 0.2, -1.0], [0.9, 0.9, -1]], [[0, 0, 1], [0, 0, 1]], backend="opencl")
     assert hits.simplex[0] >= 0 and hits.simplex[1] == -1
     assert hits.t[0] == pytest.approx(1.0)
 
@@ -155,7 +156,7 @@ def test_all_degenerate_and_bad_parameters(cl_runtime):
     with pytest.raises(ValueError, match="`chunk`"):
         device.build(np.eye(3), [[0, 1, 2]], runtime=cl_runtime, chunk=0)
     with pytest.raises(ValueError, match="`builder` must be one of"):
-        raycast.get_bvh(ao4d.SimplexMesh(np.eye(3), [[0, 1, 2]]), builder="gpu")
+        bvh.get_bvh(ao4d.SimplexMesh(np.eye(3), [[0, 1, 2]]), builder="gpu")
 
 
 # -- tracing both trees -----------------------------------------------------------------------
@@ -164,7 +165,7 @@ def test_all_degenerate_and_bad_parameters(cl_runtime):
 def mesh_with_tree(mesh, builder, runtime):
     """A fresh copy of ``mesh`` whose cached tree comes from ``builder``."""
     fresh = ao4d.SimplexMesh(mesh.vertices, mesh.simplices)
-    raycast.get_bvh(fresh, builder=builder, runtime=runtime)
+    bvh.get_bvh(fresh, builder=builder, runtime=runtime)
     return fresh
 
 
@@ -179,10 +180,10 @@ def test_both_trees_give_brute_force_hits_and_the_same_ao(d, lanes, cl_runtime, 
     results = {}
     for builder in ("host", "device"):
         mesh = mesh_with_tree(scene, builder, cl_runtime)
-        assert isinstance(raycast.get_bvh(mesh), device.DeviceBVH) == (builder == "device")
+        assert isinstance(bvh.get_bvh(mesh), device.DeviceBVH) == (builder == "device")
         for closest in (True, False):
-            fast = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl")
-            slow = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel="brute")
+            fast = api.cast_rays(mesh, o, w, closest=closest, backend="opencl")
+            slow = api.cast_rays(mesh, o, w, closest=closest, backend="opencl", accel="brute")
             np.testing.assert_array_equal(fast.hit, slow.hit)
             assert 0.05 < fast.hit.mean() < 0.95
             if closest:
@@ -203,8 +204,8 @@ def test_numpy_backend_traces_a_device_tree(d, cl_runtime):
     rng = np.random.default_rng(50 + d)
     mesh = mesh_with_tree(soup_scene(rng, d), "device", cl_runtime)
     o, w = random_rays(rng, d, 500)
-    numpy_hits = raycast.cast_rays(mesh, o, w, backend="numpy")
-    host_hits = raycast.cast_rays(mesh_with_tree(mesh, "host", None), o, w, backend="numpy")
+    numpy_hits = api.cast_rays(mesh, o, w, backend="numpy")
+    host_hits = api.cast_rays(mesh_with_tree(mesh, "host", None), o, w, backend="numpy")
     np.testing.assert_array_equal(numpy_hits.simplex, host_hits.simplex)
     np.testing.assert_array_equal(numpy_hits.t, host_hits.t)
 
@@ -223,13 +224,13 @@ def test_tree_is_built_once_and_reused_by_render(cl_runtime, monkeypatch):
     mesh = sphere_over_ground(rng, 4)
     ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
     assert len(builds) == 1
-    tree = raycast.get_bvh(mesh)
+    tree = bvh.get_bvh(mesh)
     assert isinstance(tree, device.DeviceBVH)
     camera = ao4d.Camera4D(eye=(0, -3, 1, 0), target=(0, 0, 0.3, 0), up=(0, 0, 1, 0), over=(0, 0, 0, 1))
     ao4d.render(mesh, camera, (8, 8, 4), ao="vertices", backend="opencl")
     ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
-    raycast.cast_rays(mesh, [[0, 0, 3, 0]], [[0, 0, -1, 0]], backend="opencl")
-    assert len(builds) == 1 and raycast.get_bvh(mesh) is tree
+    api.cast_rays(mesh, [[0, 0, 3, 0]], [[0, 0, -1, 0]], backend="opencl")
+    assert len(builds) == 1 and bvh.get_bvh(mesh) is tree
     mesh.vertices = mesh.vertices * 2.0  # an edited mesh drops its tree
     ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
     assert len(builds) == 2
@@ -239,19 +240,19 @@ def test_numpy_backend_builds_on_the_host(monkeypatch):
     monkeypatch.setattr(device, "build", lambda *a, **k: pytest.fail("the device builder ran"))
     mesh = soup_scene(np.random.default_rng(70), 3, n=50)
     ao4d.ambient_occlusion(mesh, samples=4, backend="numpy")
-    assert not isinstance(raycast.get_bvh(mesh), device.DeviceBVH)
+    assert not isinstance(bvh.get_bvh(mesh), device.DeviceBVH)
 
 
 def test_traversal_counts_of_a_one_leaf_tree(cl_runtime):
     # one triangle: the wide tree is a root with one leaf slot, so every ray visits one node and
     # tests the leaf block iff it meets the triangle's box; rays away from it test none
     mesh = ao4d.SimplexMesh([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], [[0, 1, 2]])
-    raycast.get_bvh(mesh, runtime=cl_runtime)
+    bvh.get_bvh(mesh, runtime=cl_runtime)
     up = np.tile([0.0, 0.0, 1.0], (50, 1))
     points = np.column_stack([np.zeros((50, 2)), np.ones(50)])
-    nodes, blocks = raycast.traversal_counts(mesh, points, up, samples=16, offset=0.0, runtime=cl_runtime)
+    nodes, blocks = api.traversal_counts(mesh, points, up, samples=16, offset=0.0, runtime=cl_runtime)
     assert (nodes, blocks) == (1.0, 0.0)
-    nodes, blocks = raycast.traversal_counts(mesh, points, -up, samples=64, offset=0.0, runtime=cl_runtime)
+    nodes, blocks = api.traversal_counts(mesh, points, -up, samples=64, offset=0.0, runtime=cl_runtime)
     occluded = ao4d.ambient_occlusion(mesh, points=points, normals=-up, samples=64, backend="opencl")
     assert nodes == 1.0
     assert occluded.mean() <= blocks <= 1.0  # every hit tested the block; so did near misses
@@ -267,11 +268,11 @@ def test_single_precision_devices(d, cl_runtime, monkeypatch):
     scene = soup_scene(rng, d, n=400)
     mesh = mesh_with_tree(scene, "device", cl_runtime)
     o, w = random_rays(rng, d, 3000)
-    fast = raycast.cast_rays(mesh, o, w, backend="opencl")
-    slow = raycast.cast_rays(mesh, o, w, backend="opencl", accel="brute")
+    fast = api.cast_rays(mesh, o, w, backend="opencl")
+    slow = api.cast_rays(mesh, o, w, backend="opencl", accel="brute")
     np.testing.assert_array_equal(fast.hit, slow.hit)
     np.testing.assert_array_equal(fast.t, slow.t)
-    host = raycast.cast_rays(mesh_with_tree(scene, "host", None), o, w, backend="opencl")
+    host = api.cast_rays(mesh_with_tree(scene, "host", None), o, w, backend="opencl")
     assert (fast.hit != host.hit).mean() <= 1e-3  # float32 inverses: only grazing rays differ
     ground = sphere_over_ground(rng, d)
     a = ao4d.ambient_occlusion(mesh_with_tree(ground, "device", cl_runtime), samples=32, backend="opencl")
@@ -314,11 +315,11 @@ def test_build_copies_are_freed_once_the_traversed_tree_exists(cl_runtime):
     # the build's device copies of the mesh (1.4 GB at 55 M tets) stayed for the mesh's lifetime
     rng = np.random.default_rng(2100)
     mesh = soup_scene(rng, 4, n=500)
-    tree = raycast.get_bvh(mesh, builder="device", runtime=cl_runtime)
+    tree = bvh.get_bvh(mesh, builder="device", runtime=cl_runtime)
     assert tree.device_source is None and tree.device_wide  # the traversed form stays
     o, w = random_rays(rng, 4, 2000)
-    hits = raycast.cast_rays(mesh, o, w, backend="opencl")
-    brute = raycast.cast_rays(mesh, o, w, backend="opencl", accel="brute")
+    hits = api.cast_rays(mesh, o, w, backend="opencl")
+    brute = api.cast_rays(mesh, o, w, backend="opencl", accel="brute")
     np.testing.assert_array_equal(hits.simplex >= 0, brute.simplex >= 0)
     # the traced form is the one filled at the build: freeing the copies made the first trace
     # widen the tree again on the host (3.4 of a first AO call's 7.9 s at 1.2 M tets)
@@ -344,7 +345,7 @@ def test_trees_on_recycled_buffers_trace_as_trees_on_fresh_ones(d, cl_runtime, m
 
     def traced(scene):
         mesh = ao4d.SimplexMesh(scene.vertices, scene.simplices)  # no tree yet
-        hits = raycast.cast_rays(mesh, o, w, backend="opencl")
+        hits = api.cast_rays(mesh, o, w, backend="opencl")
         return mesh, hits.simplex, ao4d.ambient_occlusion(mesh, samples=16, backend="opencl")
 
     device.release_buffers()
@@ -355,7 +356,7 @@ def test_trees_on_recycled_buffers_trace_as_trees_on_fresh_ones(d, cl_runtime, m
         device.release_buffers()  # each on fresh buffers
     assert pool.TREES.nbytes() == 0
     held, _, _ = traced(scenes[0])  # this mesh keeps its tree
-    (traversed,) = raycast.get_bvh(held).device_wide.values()
+    (traversed,) = bvh.get_bvh(held).device_wide.values()
     mine = {traversed[key].int_ptr for key in ("boxes", "children", "blocks")}
 
     def recycled():
@@ -367,14 +368,14 @@ def test_trees_on_recycled_buffers_trace_as_trees_on_fresh_ones(d, cl_runtime, m
         mesh, got_simplex, got_ao = traced(scene)
         np.testing.assert_array_equal(got_simplex, simplex)
         np.testing.assert_array_equal(got_ao, ao)
-        (dev,) = raycast.get_bvh(mesh).device_wide.values()
+        (dev,) = bvh.get_bvh(mesh).device_wide.values()
         theirs = {dev[key].int_ptr for key in ("boxes", "children", "blocks")}
         del mesh, dev
         gc.collect()
         assert theirs <= recycled()  # back for the next tree once the mesh went
         assert not recycled() & mine
     # the held tree was never built over
-    np.testing.assert_array_equal(raycast.cast_rays(held, o, w, backend="opencl").simplex, fresh[0][0])
+    np.testing.assert_array_equal(api.cast_rays(held, o, w, backend="opencl").simplex, fresh[0][0])
     device.release_buffers()
     assert pool.TREES.nbytes() == 0
 
@@ -384,8 +385,8 @@ def test_leaf_size_beyond_the_leaf_encoding_is_refused_up_front(lanes, cl_runtim
     monkeypatch.setattr(cache, "block_lanes", lambda runtime, dim=None: lanes)
     mesh = soup_scene(np.random.default_rng(2200), 3, n=50)
     with pytest.raises(ValueError, match=rf"`leaf_size` must be at most {4 * lanes} on this device"):
-        raycast.get_bvh(mesh, leaf_size=4 * lanes + 1, runtime=cl_runtime)
-    assert raycast.get_bvh(mesh, leaf_size=4 * lanes, runtime=cl_runtime).n_prims == 50
+        bvh.get_bvh(mesh, leaf_size=4 * lanes + 1, runtime=cl_runtime)
+    assert bvh.get_bvh(mesh, leaf_size=4 * lanes, runtime=cl_runtime).n_prims == 50
 
 
 def test_block_lanes_follow_the_device_and_the_dimension():
@@ -406,12 +407,12 @@ def test_block_lanes_follow_the_device_and_the_dimension():
 
 def test_a_3d_tree_on_this_device_has_the_devices_block_lanes(cl_runtime):
     mesh = soup_scene(np.random.default_rng(2250), 3, n=300)
-    tree = raycast.get_bvh(mesh, runtime=cl_runtime)
+    tree = bvh.get_bvh(mesh, runtime=cl_runtime)
     dev = bvh.device_tree(mesh, tree, cl_runtime)
     assert dev["lanes"] == cache.block_lanes(cl_runtime, 3)
     lanes = dev["lanes"]
     with pytest.raises(ValueError, match=rf"`leaf_size` must be at most {4 * lanes} on this device"):
-        raycast.get_bvh(mesh, leaf_size=4 * lanes + 1, runtime=cl_runtime)
+        bvh.get_bvh(mesh, leaf_size=4 * lanes + 1, runtime=cl_runtime)
 
 
 # a tetrahedron of R^4 at the degeneracy threshold: |n| / L^3 falls between the one rounding of
@@ -437,11 +438,11 @@ def test_sliver_at_the_degeneracy_threshold_traces_alike_on_both_backends(double
         monkeypatch.setattr(device, "_has_double", lambda device: False)
     h = SLIVER_H
     o, w = [(0.3, 0.3, -1.0, h / 4)], [(0.0, 0.0, 1.0, 0.0)]
-    hits = {b: raycast.cast_rays(sliver_mesh(first), o, w, backend=b) for b in ("numpy", "opencl")}
+    hits = {b: api.cast_rays(sliver_mesh(first), o, w, backend=b) for b in ("numpy", "opencl")}
     np.testing.assert_array_equal(hits["opencl"].simplex, hits["numpy"].simplex)
     np.testing.assert_array_equal(hits["opencl"].t, hits["numpy"].t)  # closest hit: t in float64
     assert hits["numpy"].simplex[0] == (0 if first else 1) and hits["numpy"].t[0] == 1.0
-    any_hit = raycast.cast_rays(sliver_mesh(first), o, w, closest=False, backend="opencl")
+    any_hit = api.cast_rays(sliver_mesh(first), o, w, closest=False, backend="opencl")
     np.testing.assert_array_equal(any_hit.simplex, hits["numpy"].simplex)
 
 
@@ -466,13 +467,13 @@ def test_both_builders_keep_the_same_simplices_without_doubles(d, cl_runtime, mo
     simplices = scene.simplices.copy()
     simplices[flat, -1] = len(scene.vertices) + np.arange(60)
     mesh = ao4d.SimplexMesh(v, simplices)
-    dev = raycast.get_bvh(mesh_with_tree(mesh, "device", cl_runtime), builder="device")
-    cpu = raycast.get_bvh(mesh_with_tree(mesh, "host", None), builder="host")
+    dev = bvh.get_bvh(mesh_with_tree(mesh, "device", cl_runtime), builder="device")
+    cpu = bvh.get_bvh(mesh_with_tree(mesh, "host", None), builder="host")
     assert cpu.n_skipped > 0
     assert dev.n_skipped == cpu.n_skipped
     np.testing.assert_array_equal(np.sort(dev.prim), np.sort(cpu.prim))
     o, w = random_rays(rng, d, 2000)
-    fast = raycast.cast_rays(mesh_with_tree(mesh, "device", cl_runtime), o, w, backend="opencl")
+    fast = api.cast_rays(mesh_with_tree(mesh, "device", cl_runtime), o, w, backend="opencl")
     assert np.isfinite(fast.t[fast.hit]).all()  # the float64 refinement of every closest hit
 
 
@@ -493,7 +494,7 @@ def test_a_traced_mesh_and_its_tree_go_with_the_last_name(cl_runtime):
 
     mesh = sphere_over_ground(np.random.default_rng(2190), 4)
     ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
-    mesh_ref, tree_ref = weakref.ref(mesh), weakref.ref(raycast.get_bvh(mesh))
+    mesh_ref, tree_ref = weakref.ref(mesh), weakref.ref(bvh.get_bvh(mesh))
     gc.collect()
     gc.disable()
     try:

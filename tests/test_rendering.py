@@ -250,7 +250,7 @@ def test_closed_mesh_smooth_normals_are_never_flipped():
     # max(0, n_s . l) with n_s the interpolated vertex normal as is. Near silhouettes and sharp
     # edges n_s may lean away from the ray although the face is seen from its front; flipping
     # it there lit the far side and sprinkled dark voxels over the demo's images.
-    from ao4d.raycast import cast_rays
+    from ao4d.rays.api import cast_rays
 
     cube = ao4d.extract_field(ao4d.fields.tesseract(0.6), (10,) * 4, (-0.8, 0.8))
     cam = Camera4D([1.3, 1.6, -1.1, -3.2], [0, 0, 0, 0], fov=50)
@@ -571,7 +571,7 @@ def test_opaque_front_object_hides_the_back_one():
 def _ao_lambert_shade(mesh, cam, shape, *, ambient, diffuse, light, normals, occlusion=None):
     """The AO-and-Lambert-only formula, on the same closest hits:
     ambient * (1 - A) + diffuse * max(0, n . l) (two-sided normals, per-vertex AO)."""
-    from ao4d.raycast import cast_rays
+    from ao4d.rays.api import cast_rays
 
     o, w = (a.reshape(-1, 4) for a in cam.rays(shape))
     hits = cast_rays(mesh, o, w, closest=True)
@@ -968,11 +968,12 @@ def test_booleans_are_not_numbers(option):
 
 
 def test_ray_budget_is_checked_before_any_ray_and_can_be_lifted(monkeypatch):
-    from ao4d import _budget, raycast
+    from ao4d import _budget
+    from ao4d.rays import api
 
     mesh, cam = _small_scene()
     cast = []
-    monkeypatch.setattr(ao4d.rendering, "trace", lambda *a, **k: cast.append(1) or raycast.trace(*a, **k))
+    monkeypatch.setattr(ao4d.rendering, "trace", lambda *a, **k: cast.append(1) or api.trace(*a, **k))
     with pytest.raises(ValueError, match=r"pass max_rays=math.inf \(CLI: --force\)"):
         render(mesh, cam, (16, 16, 16), ao="hits", samples=200000, backend="numpy")
     assert not cast  # before: the primary rays ran first, and render had no max_rays
@@ -986,13 +987,13 @@ def test_ray_budget_is_checked_before_any_ray_and_can_be_lifted(monkeypatch):
 @pytest.mark.parametrize("backend", ["numpy", "opencl"])
 def test_screen_ao_and_its_filter_are_budgeted_before_any_ray(backend, request, monkeypatch):
     # --samples 10000000 and --denoise 30 ran for minutes on numpy without an estimate
-    from ao4d import raycast
+    from ao4d.rays import api
 
     if backend == "opencl":
         request.getfixturevalue("cl_runtime")
     mesh, cam = _small_scene()
     cast = []
-    monkeypatch.setattr(ao4d.rendering, "trace", lambda *a, **k: cast.append(1) or raycast.trace(*a, **k))
+    monkeypatch.setattr(ao4d.rendering, "trace", lambda *a, **k: cast.append(1) or api.trace(*a, **k))
     with pytest.raises(ValueError, match=r"`samples`=60000 \(.* depth look-ups.*about \d+ (h|days) on the"):
         render(mesh, cam, (128, 128, 128), ao="screen", samples=60_000, backend=backend)
     if backend == "numpy":
@@ -1142,16 +1143,16 @@ def test_shading_flat_differs_and_the_removed_normals_keyword_is_refused():
 def test_one_trace_per_ray_batch_on_one_tracer(monkeypatch):
     # every batch of rays is one internal trace on the tracer resolved once: no public
     # cast_rays re-validating rays and re-resolving the backend and tree per batch
-    from ao4d import raycast
+    from ao4d.rays import api
 
     mesh, cam = _small_scene()
     calls = []
     monkeypatch.setattr(
         ao4d.rendering,
         "trace",
-        lambda tracer, o, w, **k: calls.append((tracer, len(o))) or raycast.trace(tracer, o, w, **k),
+        lambda tracer, o, w, **k: calls.append((tracer, len(o))) or api.trace(tracer, o, w, **k),
     )
-    monkeypatch.setattr(raycast, "cast_rays", lambda *a, **k: pytest.fail("public cast_rays re-entered"))
+    monkeypatch.setattr(api, "cast_rays", lambda *a, **k: pytest.fail("public cast_rays re-entered"))
     img = render(mesh, cam, (48, 48, 32), ao="none", light=(0, 1, 0, -1), shadows=True, backend="numpy")
     chunk = ao4d.rendering._CHUNK
     primary = 48 * 48 * 32

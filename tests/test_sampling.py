@@ -167,11 +167,11 @@ def test_bad_inputs():
 
 @pytest.mark.parametrize("d", DIMS)
 def test_opencl_directions_equal_numpy(cl_runtime, d):
-    from ao4d import raycast
+    from ao4d.rays import launches
 
     rng = np.random.default_rng(60 + d)
     normals = _unit(rng, 40, d)
-    dev = raycast.sample_directions(cl_runtime, normals, 37, 11)
+    dev = launches.sample_directions(cl_runtime, normals, 37, 11)
     host = sampling.cosine_hemisphere(normals, 37, seed=11)
     # same integers and formulas; float32 trigonometry and frame: a few ulp of 1
     np.testing.assert_allclose(dev, host, atol=1e-5)

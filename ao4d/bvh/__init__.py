@@ -11,7 +11,7 @@
 =========================  ======================================================================
 
 Data flow one way: layout <- host, collapse <- blocks <- device <- cache. The ray-casting
-module (:mod:`ao4d.raycast`) asks :func:`get_bvh` for a mesh's tree and :func:`device_tree`
+module (:mod:`ao4d.rays`) asks :func:`get_bvh` for a mesh's tree and :func:`device_tree`
 for its device copies, and traverses them.
 """
 

@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from ..mesh import SimplexMesh
     from ..mesh_files import SUFFIXES, MeshArrays, read_field_data, write
     from ..opencl import cl
-    from ..raycast import check_distance
+    from ..rays.rows import check_distance
 
     out = check_output_file(args.out, "--out", SUFFIXES)  # before any work
     if args.samples < 1:

@@ -116,9 +116,9 @@ def run_demo(
     from .._atomic import all_or_nothing, check_output_folder
     from .._validate import check_choice
     from ..ao import ambient_occlusion
+    from ..bvh import get_bvh
     from ..mesh import concatenate
     from ..opencl import cl
-    from ..raycast import get_bvh
     from ..rendering import render
     from ..scenes import QUALITY, default_scene, extract_scene
 

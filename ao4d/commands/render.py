@@ -239,7 +239,7 @@ def _estimate(args: argparse.Namespace, scene, camera, size: tuple[int, int, int
     from .._budget import RAYS_PER_SECOND
     from .._calibration import rates, render_seconds, seconds_text
     from ..opencl import cl
-    from ..raycast import cast_rays
+    from ..rays.api import cast_rays
     from ..screen_ao import DENOISE_PER_SECOND, LOOKUPS_PER_SECOND, march_steps
 
     runtime = cl.resolve_backend(args.backend, warn=False)

@@ -13,7 +13,7 @@ import numpy as np
 from skimage.measure import marching_cubes
 
 import ao4d
-from ao4d import raycast, sampling
+from ao4d import bvh, sampling
 from ao4d.ao import ORIGIN_OFFSET
 
 # %%
@@ -46,7 +46,7 @@ except ImportError:  # embreex is installed with ao4d on x86-64 only
     RayMeshIntersector = None
 
 directions = sampling.cosine_hemisphere(point_normals, 64).reshape(-1, 3)
-offset = ORIGIN_OFFSET * raycast.get_bvh(mesh).world_diagonal
+offset = ORIGIN_OFFSET * bvh.get_bvh(mesh).world_diagonal
 origins = np.repeat(points + offset * point_normals, 64, axis=0)
 if RayMeshIntersector is not None:
     scene = trimesh.Trimesh(mesh.vertices, mesh.simplices, process=False)

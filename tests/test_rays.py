@@ -1,4 +1,4 @@
-"""Tests for ao4d.raycast: closest and any hits on both backends, BVH against brute force, Embree.
+"""Tests for ao4d.rays: closest and any hits on both backends, BVH against brute force, Embree.
 
 Hits are compared with brute force over every simplex, between OpenCL (float32) and numpy
 (float64), and with Embree (trimesh + embreex) on the same 3D rays.
@@ -13,8 +13,12 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 import ao4d
-from ao4d import bvh, raycast
+from ao4d import bvh
 from ao4d.opencl import cl
+from ao4d.rays import api, reference
+from ao4d.rays import launches as ray_launches
+from ao4d.rays import refine as ray_refine
+from ao4d.rays import rows as ray_rows
 
 DIMS = (2, 3, 4)
 
@@ -33,8 +37,8 @@ def _shifted_soup(seed, d, shift):
 def test_bvh_equals_brute_force(d, closest, shift, backend):
     mesh, o, w = _shifted_soup(900 + d, d, shift)
     for max_distance in (np.inf, 0.7):
-        fast = raycast.cast_rays(mesh, o, w, closest=closest, backend=backend, max_distance=max_distance)
-        slow = raycast.cast_rays(mesh, o, w, closest=closest, backend=backend, accel="brute", max_distance=max_distance)
+        fast = api.cast_rays(mesh, o, w, closest=closest, backend=backend, max_distance=max_distance)
+        slow = api.cast_rays(mesh, o, w, closest=closest, backend=backend, accel="brute", max_distance=max_distance)
         # same primitive test on the same data; the boxes are conservative: identical answers
         np.testing.assert_array_equal(fast.hit, slow.hit)
         assert 0.01 < fast.hit.mean() < 0.95  # a scene where the question is not trivial
@@ -56,8 +60,8 @@ def test_box_margin_keeps_corner_hits(d, shift, backend):
     o = np.repeat(corners, 500, axis=0) + rng.normal(size=(500 * d, d))
     w = np.repeat(corners, 500, axis=0) - o
     w /= np.linalg.norm(w, axis=1, keepdims=True)
-    fast = raycast.cast_rays(mesh, o, w, backend=backend, closest=False)
-    slow = raycast.cast_rays(mesh, o, w, backend=backend, closest=False, accel="brute")
+    fast = api.cast_rays(mesh, o, w, backend=backend, closest=False)
+    slow = api.cast_rays(mesh, o, w, backend=backend, closest=False, accel="brute")
     np.testing.assert_array_equal(fast.hit, slow.hit)
     assert slow.hit.mean() > 0.5  # the primitive test takes most of them (BARY_EPS)
 
@@ -73,7 +77,7 @@ def test_gpu_block_layout_gives_the_same_answers(d, cl_runtime, monkeypatch):
     results = {}
     for lanes in (16, 4):
         monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime, dim=None, lanes=lanes: lanes)
-        hits = raycast.cast_rays(mesh, o, w, backend="opencl")
+        hits = api.cast_rays(mesh, o, w, backend="opencl")
         occ = ao4d.ambient_occlusion(mesh, points=pts, normals=nrm, samples=32, backend="opencl")
         results[lanes] = hits, occ
     (h16, a16), (h4, a4) = results[16], results[4]
@@ -98,11 +102,11 @@ def test_node_widths_give_the_same_answers(d, cl_runtime, monkeypatch):
     results = {}
     for width in (8, 16):
         monkeypatch.setattr(bvh.cache, "node_width", lambda runtime, width=width: width)
-        closest = raycast.cast_rays(mesh, o, w, backend="opencl")
-        anyhit = raycast.cast_rays(mesh, o, w, backend="opencl", closest=False, max_distance=2.0)
+        closest = api.cast_rays(mesh, o, w, backend="opencl")
+        anyhit = api.cast_rays(mesh, o, w, backend="opencl", closest=False, max_distance=2.0)
         occ = ao4d.ambient_occlusion(mesh, points=pts, normals=nrm, samples=40, backend="opencl")
         results[width] = closest.simplex, closest.t, anyhit.simplex >= 0, occ
-        tree = raycast.get_bvh(mesh, runtime=cl_runtime)
+        tree = bvh.get_bvh(mesh, runtime=cl_runtime)
         assert bvh.device_tree(mesh, tree, cl_runtime)["width"] == width
     for a, b in zip(results[8], results[16]):
         np.testing.assert_array_equal(a, b)
@@ -114,8 +118,8 @@ def test_hits_are_consistent(d, backend):
     rng = np.random.default_rng(1000 + d)
     mesh = soup_scene(rng, d)
     o, w = random_rays(rng, d, 2000)
-    hits = raycast.cast_rays(mesh, o, w, backend=backend)
-    anyhit = raycast.cast_rays(mesh, o, w, backend=backend, closest=False)
+    hits = api.cast_rays(mesh, o, w, backend=backend)
+    anyhit = api.cast_rays(mesh, o, w, backend=backend, closest=False)
     np.testing.assert_array_equal(hits.hit, anyhit.hit)
     assert (anyhit.t[anyhit.hit] >= hits.t[hits.hit]).all()
     h = hits.hit
@@ -126,7 +130,7 @@ def test_hits_are_consistent(d, backend):
     points = np.einsum("si,sid->sd", hits.barycentric[h], corners)
     np.testing.assert_allclose(points, o[h] + hits.t[h, None] * w[h], atol=1e-9)
     # nothing closer: the closest hit of a ray shortened to just below t is a miss
-    short = raycast.cast_rays(mesh, o[h], w[h], backend=backend, max_distance=1.0)
+    short = api.cast_rays(mesh, o[h], w[h], backend=backend, max_distance=1.0)
     assert (short.hit == (hits.t[h] <= 1.0)).all()
 
 
@@ -135,8 +139,8 @@ def test_opencl_and_numpy_agree(d, cl_runtime):
     rng = np.random.default_rng(1100 + d)
     mesh = soup_scene(rng, d)
     o, w = random_rays(rng, d, 5000)
-    gpu = raycast.cast_rays(mesh, o, w, backend="opencl")
-    cpu = raycast.cast_rays(mesh, o, w, backend="numpy")
+    gpu = api.cast_rays(mesh, o, w, backend="opencl")
+    cpu = api.cast_rays(mesh, o, w, backend="numpy")
     # float32 vs float64 decide differently only for rays grazing an edge: < 0.1%
     assert (gpu.hit != cpu.hit).mean() <= 1e-3
     both = gpu.hit & cpu.hit & (gpu.simplex == cpu.simplex)
@@ -157,7 +161,7 @@ def test_closest_hits_match_embree(backend):
     rng = np.random.default_rng(1200)
     scene, mesh = embree_scene(rng)
     o, w = random_rays(rng, 3, 20000)
-    ours = raycast.cast_rays(mesh, o, w, backend=backend)
+    ours = api.cast_rays(mesh, o, w, backend=backend)
     locations, index_ray, index_tri = RayMeshIntersector(scene).intersects_location(o, w, multiple_hits=False)
     theirs = np.zeros(len(o), dtype=bool)
     theirs[index_ray] = True
@@ -192,11 +196,11 @@ def test_bad_inputs():
     mesh = sphere_over_ground(rng, 3)
     o, w = random_rays(rng, 3, 5)
     with pytest.raises(ValueError, match="`directions` has 1 zero-length"):
-        raycast.cast_rays(mesh, o, np.r_[w[:4], [[0, 0, 0]]], backend="numpy")
+        api.cast_rays(mesh, o, np.r_[w[:4], [[0, 0, 0]]], backend="numpy")
     with pytest.raises(ValueError, match="`origins` and `directions` must have the same length"):
-        raycast.cast_rays(mesh, o, w[:3], backend="numpy")
+        api.cast_rays(mesh, o, w[:3], backend="numpy")
     with pytest.raises(TypeError, match="`closest`"):
-        raycast.cast_rays(mesh, o, w, closest="yes", backend="numpy")
+        api.cast_rays(mesh, o, w, closest="yes", backend="numpy")
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -219,8 +223,8 @@ def test_numpy_bvh_traversal_equals_brute_force(d, seed, n, leaf_size, max_dista
     w = rng.normal(size=(200, d))
     w /= np.linalg.norm(w, axis=1, keepdims=True)
     for any_hit in (True, False):
-        t1, p1 = raycast._trace_numpy_bvh(tree, o, w, max_distance, any_hit)
-        t2, p2 = raycast._trace_numpy_brute(tree, o, w, max_distance, any_hit)
+        t1, p1 = reference._trace_numpy_bvh(tree, o, w, max_distance, any_hit)
+        t2, p2 = reference._trace_numpy_brute(tree, o, w, max_distance, any_hit)
         np.testing.assert_array_equal(p1 >= 0, p2 >= 0)
         if not any_hit:
             np.testing.assert_array_equal(t1, t2)
@@ -257,8 +261,8 @@ def test_far_scene_with_zero_direction_components(d, closest, backend):
     w[np.arange(n), rng.integers(0, d, n)] = 0.0  # one exactly zero component
     axis = rng.integers(0, d, n // 2)
     w[: n // 2] = np.eye(d)[axis] * rng.choice([-1.0, 1.0], size=(n // 2, 1))  # axis-aligned
-    fast = raycast.cast_rays(mesh, o * scale, w, closest=closest, backend=backend)
-    slow = raycast.cast_rays(mesh, o * scale, w, closest=closest, backend=backend, accel="brute")
+    fast = api.cast_rays(mesh, o * scale, w, closest=closest, backend=backend)
+    slow = api.cast_rays(mesh, o * scale, w, closest=closest, backend=backend, accel="brute")
     assert slow.hit.sum() > 100  # the question is not trivial
     np.testing.assert_array_equal(fast.hit, slow.hit)
     if closest:
@@ -270,7 +274,7 @@ def test_no_rays_give_empty_results(d, backend):
     # OpenCL refused buffers of zero bytes (INVALID_BUFFER_SIZE); numpy returned empty arrays
     mesh = soup_scene(np.random.default_rng(1400 + d), d, n=20)
     for closest in (True, False):
-        hits = raycast.cast_rays(mesh, np.zeros((0, d)), np.zeros((0, d)), closest=closest, backend=backend)
+        hits = api.cast_rays(mesh, np.zeros((0, d)), np.zeros((0, d)), closest=closest, backend=backend)
         assert hits.t.shape == (0,) and hits.simplex.shape == (0,) and hits.barycentric.shape == (0, d)
     occ = ao4d.ambient_occlusion(mesh, points=np.zeros((0, d)), normals=np.zeros((0, d)), backend=backend)
     assert occ.shape == (0,)
@@ -289,25 +293,25 @@ def test_traversal_stack_size_comes_from_python(cl_runtime, monkeypatch):
     mesh = soup_scene(rng, 3, n=2000)
     o, w = random_rays(rng, 3, 3000)
     width = bvh.node_width(cl_runtime)
-    depth = bvh.wide(raycast.get_bvh(mesh, runtime=cl_runtime), bvh.block_lanes(cl_runtime, 3), width).depth
+    depth = bvh.wide(bvh.get_bvh(mesh, runtime=cl_runtime), bvh.block_lanes(cl_runtime, 3), width).depth
     assert depth >= 3
     needed = depth * (width - 1) + 1
-    brute = raycast.cast_rays(mesh, o, w, backend="opencl", accel="brute")
+    brute = api.cast_rays(mesh, o, w, backend="opencl", accel="brute")
     sizes = {}
     for stack in (needed, 4 * needed):
         monkeypatch.setattr(bvh.layout, "STACK_SIZE", stack)
         fresh = ao4d.SimplexMesh(mesh.vertices, mesh.simplices)  # no cached device tree
-        hits = raycast.cast_rays(fresh, o, w, backend="opencl")
+        hits = api.cast_rays(fresh, o, w, backend="opencl")
         np.testing.assert_array_equal(hits.simplex >= 0, brute.simplex >= 0)
         np.testing.assert_array_equal(hits.t, brute.t)
-        kernel = raycast._kernels(cl_runtime, 3, bvh.block_lanes(cl_runtime, 3))["cast_bvh"]
+        kernel = ray_launches._kernels(cl_runtime, 3, bvh.block_lanes(cl_runtime, 3))["cast_bvh"]
         sizes[stack] = _private_bytes(cl_runtime, kernel)
     if sizes[needed] > 0:  # runtimes that report private memory: it follows the stack
         assert sizes[4 * needed] >= sizes[needed] + 3 * needed * 4
     monkeypatch.setattr(bvh.layout, "STACK_SIZE", needed - 1)
     fresh = ao4d.SimplexMesh(mesh.vertices, mesh.simplices)
     with pytest.raises(RuntimeError, match="too deep for the kernels' traversal stack"):
-        raycast.cast_rays(fresh, o, w, backend="opencl")
+        api.cast_rays(fresh, o, w, backend="opencl")
 
 
 # -- geometry recentred and scaled in float64 before the float32 kernels ------------------------
@@ -332,8 +336,8 @@ def test_far_and_scaled_scene_traces_as_at_the_origin(hypersphere14, shift, scal
     w = rng.normal(size=(n, 4))
     w /= np.linalg.norm(w, axis=1, keepdims=True)
     o = rng.uniform(-0.3, 0.3, size=(n, 4))  # inside: every ray crosses the surface once
-    ref = raycast.cast_rays(base, o, w, backend=backend)
-    got = raycast.cast_rays(moved, o * scale + shift, w, backend=backend)
+    ref = api.cast_rays(base, o, w, backend=backend)
+    got = api.cast_rays(moved, o * scale + shift, w, backend=backend)
     assert ref.hit.all() and got.hit.all()
     assert (got.simplex == ref.simplex).mean() > 0.995  # other simplices only on shared faces
     np.testing.assert_allclose(got.t / scale, ref.t, rtol=1e-7)
@@ -365,11 +369,11 @@ def test_hit_exactly_at_max_distance_counts(backend):
         patch = ao4d.SimplexMesh(*flat_patch(d, -1.0, 1.0, 1.0, n=2))
         o = np.zeros((1, d))
         w = np.eye(d)[-1:]
-        assert raycast.cast_rays(patch, o, w, max_distance=1.0, backend=backend).hit[0]
+        assert api.cast_rays(patch, o, w, max_distance=1.0, backend=backend).hit[0]
         short = 1.0 - 2.0**-20  # a float32 value: the kernels' t_max is float32
-        assert not raycast.cast_rays(patch, o, w, max_distance=short, backend=backend).hit[0]
+        assert not api.cast_rays(patch, o, w, max_distance=short, backend=backend).hit[0]
         for closest in (True, False):
-            hit = raycast.cast_rays(patch, o, w, max_distance=1.0, closest=closest, backend=backend)
+            hit = api.cast_rays(patch, o, w, max_distance=1.0, closest=closest, backend=backend)
             assert hit.hit[0] and hit.t[0] == 1.0
 
 
@@ -390,8 +394,8 @@ def test_rays_at_the_barycentric_tolerance_equal_brute_force(d, backend):
     w = -np.repeat(normals, d, axis=0) + 0.3 * rng.normal(size=(len(targets), d))
     w /= np.linalg.norm(w, axis=1, keepdims=True)
     o = targets - 1e-4 * w
-    fast = raycast.cast_rays(mesh, o, w, backend=backend, closest=False)
-    slow = raycast.cast_rays(mesh, o, w, backend=backend, closest=False, accel="brute")
+    fast = api.cast_rays(mesh, o, w, backend=backend, closest=False)
+    slow = api.cast_rays(mesh, o, w, backend=backend, closest=False, accel="brute")
     assert slow.hit.mean() > 0.9  # the primitive test accepts them
     np.testing.assert_array_equal(fast.hit, slow.hit)
 
@@ -404,14 +408,14 @@ def _surface_points(mesh, runtime, every: int = 1):
     ``runtime`` and the AO rays' origin offset."""
     normals = mesh.vertex_normals
     keep = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)[::every]
-    tree = raycast.get_bvh(mesh, runtime=runtime)
+    tree = bvh.get_bvh(mesh, runtime=runtime)
     return mesh.vertices[keep], normals[keep], tree, ao4d.ao.ORIGIN_OFFSET * tree.diagonal
 
 
 def _ao_counts(mesh, runtime, points, normals, samples, offset, max_distance, *, traversal="packet", accel="bvh"):
     # _ao_opencl takes points in the tree's frame; offset and reach below are tree lengths
-    tree = raycast.get_bvh(mesh, runtime=runtime)
-    return raycast._ao_opencl(
+    tree = bvh.get_bvh(mesh, runtime=runtime)
+    return ray_launches._ao_opencl(
         mesh,
         tree,
         runtime,
@@ -422,7 +426,7 @@ def _ao_counts(mesh, runtime, points, normals, samples, offset, max_distance, *,
         offset,
         max_distance,
         accel,
-        raycast._NullBar(),
+        ray_rows._NullBar(),
         traversal=traversal,
     )
 
@@ -441,18 +445,18 @@ def _surface_scene(rng, d, shift):
 @pytest.mark.parametrize("d", DIMS)
 @pytest.mark.parametrize("lanes", [16, 4])
 @pytest.mark.parametrize("shift", [0.0, 1000.0])  # far from the coordinate origin: float32 slabs
-@pytest.mark.parametrize("packet_size", [32, 64])  # GPUs' and CPUs' (raycast.ao_packet)
+@pytest.mark.parametrize("packet_size", [32, 64])  # GPUs' and CPUs' (ray_launches.ao_packet)
 def test_packet_traversal_gives_the_per_ray_and_brute_force_counts(
     d, lanes, shift, packet_size, cl_runtime, monkeypatch
 ):
     # the packet kernel tests, per ray, exactly the boxes and blocks of the per-ray kernel with
     # the same arithmetic: bit-identical counts, also for packets cut short (40 and 70 samples
-    # are not multiples of raycast.ao_packet's 32 or 64) and with a finite reach
+    # are not multiples of ray_launches.ao_packet's 32 or 64) and with a finite reach
     monkeypatch.setattr(bvh.cache, "block_lanes", lambda runtime, dim=None: lanes)
-    monkeypatch.setattr(raycast, "ao_packet", lambda runtime: packet_size)
+    monkeypatch.setattr(ray_launches, "ao_packet", lambda runtime: packet_size)
     rng = np.random.default_rng(1600 + d)
     mesh, p, n = _surface_scene(rng, d, shift)
-    tree = raycast.get_bvh(mesh, runtime=cl_runtime)
+    tree = bvh.get_bvh(mesh, runtime=cl_runtime)
     offset = ao4d.ao.ORIGIN_OFFSET * tree.diagonal
     for max_distance in (np.inf, 0.25 * tree.diagonal):
         for samples in (40, 70):
@@ -489,10 +493,10 @@ def test_packet_traversal_shares_node_visits(cl_runtime):
     mesh = ao4d.extract_field(field, (15, 15, 15, 7), ((-1.5, -1.5, -1.5, -0.5), (1.5, 1.5, 1.5, 0.5)))
     normals = mesh.vertex_normals
     keep = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)[::5]
-    tree = raycast.get_bvh(mesh, runtime=cl_runtime)
+    tree = bvh.get_bvh(mesh, runtime=cl_runtime)
     kw = dict(samples=64, offset=ao4d.ao.ORIGIN_OFFSET * tree.world_diagonal, runtime=cl_runtime, detail=True)
-    per_ray = raycast.traversal_counts(mesh, mesh.vertices[keep], normals[keep], traversal="rays", **kw)
-    packet = raycast.traversal_counts(mesh, mesh.vertices[keep], normals[keep], traversal="packet", **kw)
+    per_ray = api.traversal_counts(mesh, mesh.vertices[keep], normals[keep], traversal="rays", **kw)
+    packet = api.traversal_counts(mesh, mesh.vertices[keep], normals[keep], traversal="packet", **kw)
     assert per_ray[0] == per_ray[2] and per_ray[1] == per_ray[3]
     assert 0.9 * per_ray[2] < packet[2] < 1.15 * per_ray[2]
     assert 0.9 * per_ray[3] < packet[3] < 1.15 * per_ray[3]
@@ -507,8 +511,8 @@ def test_directions_eight_at_a_time_are_the_same_bits(d, cl_runtime):
     normals = rng.normal(size=(3000, d))
     normals[:40] = np.eye(d)[rng.integers(0, d, 40)] * rng.choice([-1.0, 1.0], size=(40, 1))
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    one = raycast.sample_directions(cl_runtime, normals, 77, 5)  # 77: a last group of five
-    eight = raycast.sample_directions(cl_runtime, normals, 77, 5, eight=True)
+    one = ray_launches.sample_directions(cl_runtime, normals, 77, 5)  # 77: a last group of five
+    eight = ray_launches.sample_directions(cl_runtime, normals, 77, 5, eight=True)
     np.testing.assert_array_equal(eight, one)
     assert np.all(np.einsum("nsd,nd->ns", one, normals) >= -1e-6)  # in the normals' hemispheres
 
@@ -519,10 +523,10 @@ def test_packet_kernel_private_memory_is_bounded(cl_runtime):
     import pyopencl as pcl
 
     for d in (2, 3, 4):
-        kernel = raycast._kernels(cl_runtime, d, bvh.block_lanes(cl_runtime, d))["ao_bvh"]
+        kernel = ray_launches._kernels(cl_runtime, d, bvh.block_lanes(cl_runtime, d))["ao_bvh"]
         assert kernel.get_work_group_info(pcl.kernel_work_group_info.LOCAL_MEM_SIZE, cl_runtime.device) == 0
         private = _private_bytes(cl_runtime, kernel)
-        packet = raycast.ao_packet(cl_runtime)
+        packet = ray_launches.ao_packet(cl_runtime)
         needed = packet * 5 * d * 4 + bvh.STACK_SIZE * (8 + packet // 8)  # node, key, ray mask
         if private > 0:  # runtimes that report it: the packet and the stack, little more
             assert needed <= private <= needed + 4096
@@ -532,20 +536,20 @@ def test_ao_uses_the_packet_kernel_on_cpus(cl_runtime, monkeypatch):
     import pyopencl as pcl
 
     used = []
-    real = raycast._traversal_kernel
+    real = ray_launches._traversal_kernel
 
     def spy(runtime, dim, dev, name, accel, count_visits=False, suffix="", ray_type=None):
         used.append(suffix)
         return real(runtime, dim, dev, name, accel, count_visits, suffix, ray_type)
 
-    monkeypatch.setattr(raycast, "_traversal_kernel", spy)
+    monkeypatch.setattr(ray_launches, "_traversal_kernel", spy)
     rng = np.random.default_rng(1800)
     mesh = soup_scene(rng, 3, n=50)
     ao4d.ambient_occlusion(mesh, samples=8, backend="opencl")
     cpu = bool(cl_runtime.device.type & pcl.device_type.CPU)
     assert used == ["" if cpu else "_rays"]  # ao_bvh (packets) on CPUs, ao_bvh_rays elsewhere
     with pytest.raises(ValueError, match="`traversal` must be one of"):
-        raycast.traversal_counts(
+        api.traversal_counts(
             mesh, mesh.vertices[:3], np.eye(3)[[0, 1, 2]], samples=4, offset=0.0, runtime=cl_runtime, traversal="wide"
         )
 
@@ -561,7 +565,7 @@ def test_any_hit_traversal_stops_at_its_first_hit(cl_runtime):
     mesh = ao4d.SimplexMesh(vertices, simplices)
     rng = np.random.default_rng(1900)
     p, n = up_points(rng, d, 200, 1.0)
-    nodes, blocks = raycast.traversal_counts(
+    nodes, blocks = api.traversal_counts(
         mesh, p, n, samples=16, offset=0.0, runtime=cl_runtime, max_distance=100.0, traversal="rays"
     )
     occ = ao4d.ambient_occlusion(mesh, points=p, normals=n, samples=16, backend="opencl")
@@ -592,13 +596,13 @@ def _reference_chunk(frame, origins, directions, dtype, width):
 @pytest.mark.parametrize("shift", [0.0, 1e6])  # far from the origin: the float64 mapping matters
 def test_ray_mapping_gives_the_plain_formulas_bits(d, in_dtype, shift, monkeypatch):
     # block-wise (blocks of 1000 rows here, a last one cut short) = column by column over all rays
-    monkeypatch.setattr(raycast, "_ROW_BLOCK", 1000)
+    monkeypatch.setattr(ray_rows, "_ROW_BLOCK", 1000)
     rng = np.random.default_rng(2800 + d)
     n = 4321
     origins = (rng.normal(size=(n, d)) * 3 + shift).astype(in_dtype)
     directions = (rng.normal(size=(n, d)) * rng.uniform(1e-3, 1e3, (n, 1))).astype(in_dtype)
     frame = bvh.Frame.fit(origins[:50].astype(np.float64) * 0.5 + shift * 0.5)
-    rays = raycast._Rays(frame, origins, directions)
+    rays = ray_rows._Rays(frame, origins, directions)
     for dtype, width in ((np.float32, 4), (np.float64, d)):
         for start, stop in ((0, n), (1500, 3999)):
             got = rays.chunk(start, stop, dtype, width)
@@ -633,7 +637,7 @@ def test_device_ray_mapping_gives_the_hosts_bits(d, in_dtype, shift, cl_runtime)
     origins, directions = origins.astype(in_dtype), directions.astype(in_dtype)
     want = _reference_chunk(frame, origins, directions, np.float32, 4)
     for ray_type in ("float", "double") if in_dtype == np.float32 else ("double",):
-        got = raycast.device_ray_mapping(cl_runtime, frame, origins, directions, ray_type)
+        got = ray_launches.device_ray_mapping(cl_runtime, frame, origins, directions, ray_type)
         for a, b in zip(got, want):
             np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))
 
@@ -645,26 +649,26 @@ def test_rays_mapped_on_the_device_or_the_host_hit_alike(d, cl_runtime, monkeypa
     # zero-length direction in a later launch is named as on the host
     _needs_fp64(cl_runtime)
     mesh, o, w = _shifted_soup(3200 + d, d, 500.0)
-    monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 600)
+    monkeypatch.setattr(ray_launches, "RAYS_PER_LAUNCH", 600)
     for oo, ww in ((o, w), (o.astype(np.float32), w.astype(np.float32)), (o.astype(np.float32), w)):
         got = {}
         for on_device in (True, False):
-            monkeypatch.setattr(raycast, "MAP_ON_DEVICE", on_device)
+            monkeypatch.setattr(ray_launches, "MAP_ON_DEVICE", on_device)
             for closest in (False, True):
-                hits = raycast.cast_rays(mesh, oo, ww, closest=closest, backend="opencl", max_distance=3.0)
+                hits = api.cast_rays(mesh, oo, ww, closest=closest, backend="opencl", max_distance=3.0)
                 got[on_device, closest] = (hits.simplex, hits.t, hits.barycentric)
         for closest in (False, True):
             for a, b in zip(got[True, closest], got[False, closest]):
                 np.testing.assert_array_equal(a, b)
         assert (got[True, True][0] >= 0).mean() > 0.03  # 90 hits of 3000 rays at least
-    monkeypatch.setattr(raycast, "MAP_ON_DEVICE", True)
-    before = raycast.cast_rays(mesh, o, w, backend="opencl", max_distance=3.0)
+    monkeypatch.setattr(ray_launches, "MAP_ON_DEVICE", True)
+    before = api.cast_rays(mesh, o, w, backend="opencl", max_distance=3.0)
     bad = w.copy()
     bad[[1500, 1700]] = 0.0
     with pytest.raises(ValueError, match=r"`directions` has 2 zero-length row\(s\), first at index 1500"):
-        raycast.cast_rays(mesh, o, bad, backend="opencl")
+        api.cast_rays(mesh, o, bad, backend="opencl")
     # the error left no launch buffer mapped or busy: the next call answers as before
-    after = raycast.cast_rays(mesh, o, w, backend="opencl", max_distance=3.0)
+    after = api.cast_rays(mesh, o, w, backend="opencl", max_distance=3.0)
     for a, b in ((after.simplex, before.simplex), (after.t, before.t), (after.barycentric, before.barycentric)):
         np.testing.assert_array_equal(a, b)
 
@@ -681,15 +685,19 @@ def test_any_hit_rays_sharing_origins_go_as_packets_with_the_same_answers(d, shi
     runs = [1, 3, 64, 130, 7] * 12
     o = np.repeat(o[: len(runs)], runs, axis=0)
     w = np.random.default_rng(d).normal(size=(len(o), d))
-    built, original = [], raycast._traversal_kernel
-    monkeypatch.setattr(raycast, "_traversal_kernel", lambda *a, **k: built.append(a[3]) or original(*a, **k))
+    built, original = [], ray_launches._traversal_kernel
+    monkeypatch.setattr(ray_launches, "_traversal_kernel", lambda *a, **k: built.append(a[3]) or original(*a, **k))
     for oo, ww in ((o, w), (o.astype(np.float32), w.astype(np.float32))):
         got = {}
-        for packets, launch in ((True, raycast.RAYS_PER_LAUNCH), (True, 1000), (False, raycast.RAYS_PER_LAUNCH)):
-            monkeypatch.setattr(raycast, "CAST_PACKETS", packets)
-            monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", launch)
-            got[packets, launch] = raycast.cast_rays(mesh, oo, ww, closest=False, backend="opencl")
-        brute = raycast.cast_rays(mesh, oo, ww, closest=False, backend="opencl", accel="brute")
+        for packets, launch in (
+            (True, ray_launches.RAYS_PER_LAUNCH),
+            (True, 1000),
+            (False, ray_launches.RAYS_PER_LAUNCH),
+        ):
+            monkeypatch.setattr(ray_launches, "CAST_PACKETS", packets)
+            monkeypatch.setattr(ray_launches, "RAYS_PER_LAUNCH", launch)
+            got[packets, launch] = api.cast_rays(mesh, oo, ww, closest=False, backend="opencl")
+        brute = api.cast_rays(mesh, oo, ww, closest=False, backend="opencl", accel="brute")
         assert 0.02 < brute.hit.mean() < 0.95  # 90 hits of 2460 rays at least
         for hits in got.values():
             np.testing.assert_array_equal(hits.hit, brute.hit)
@@ -698,9 +706,9 @@ def test_any_hit_rays_sharing_origins_go_as_packets_with_the_same_answers(d, shi
     assert "cast_packets" in built and "cast_rows" in built
     bad = w.copy()
     bad[[70, 300]] = 0.0  # zero-length directions inside packets
-    monkeypatch.setattr(raycast, "CAST_PACKETS", True)
+    monkeypatch.setattr(ray_launches, "CAST_PACKETS", True)
     with pytest.raises(ValueError, match=r"`directions` has 2 zero-length row\(s\), first at index 70"):
-        raycast.cast_rays(mesh, o, bad, closest=False, backend="opencl")
+        api.cast_rays(mesh, o, bad, closest=False, backend="opencl")
 
 
 @given(runs=st.lists(st.integers(1, 200), min_size=1, max_size=30), size=st.sampled_from([32, 64]), f32=st.booleans())
@@ -711,7 +719,7 @@ def test_shared_origin_packets_cover_the_runs(runs, size, f32):
     dtype = np.float32 if f32 else np.float64
     starts = np.arange(len(runs), dtype=dtype)
     origins = np.repeat(np.stack([starts, -starts, starts * 0.5], axis=1), runs, axis=0)
-    packets = raycast.shared_origin_packets(origins, size)
+    packets = ray_launches.shared_origin_packets(origins, size)
     if sum(runs) < 4 * len(runs):
         assert packets is None
         return
@@ -733,14 +741,14 @@ def test_hits_refined_on_the_device_or_the_host_alike(d, shift, cl_runtime, monk
     _needs_fp64(cl_runtime)
     mesh, o, w = _shifted_soup(3300 + d, d, shift)
     w = w * np.exp(np.random.default_rng(d).uniform(-20, 20, (len(w), 1)))  # lengths 1e-9 to 1e9
-    built, original = [], raycast._refine_kernel
-    monkeypatch.setattr(raycast, "_refine_kernel", lambda *args: built.append(args) or original(*args))
+    built, original = [], ray_refine._refine_kernel
+    monkeypatch.setattr(ray_refine, "_refine_kernel", lambda *args: built.append(args) or original(*args))
     for oo, ww in ((o, w), (o.astype(np.float32), w.astype(np.float32)), (o, w.astype(np.float32))):
         got = {}
         for on_device in (True, False):
-            monkeypatch.setattr(raycast, "REFINE_ON_DEVICE", on_device)
+            monkeypatch.setattr(ray_refine, "REFINE_ON_DEVICE", on_device)
             before = len(built)
-            hits = raycast.cast_rays(mesh, oo, ww, backend="opencl")
+            hits = api.cast_rays(mesh, oo, ww, backend="opencl")
             got[on_device] = hits
             hits.t  # noqa: B018 (refined now)
             assert len(built) - before == int(on_device)  # the kernel refined, or the host
@@ -764,13 +772,13 @@ def test_refinement_of_no_hits_and_of_a_host_tree_on_the_device(cl_runtime):
     # no hit: nothing to refine on the device; a tree built on the host (no device vertices)
     # is refined on the host, with the device-built tree's bits
     mesh, o, w = _shifted_soup(3400, 4, 10.0)
-    away = raycast.cast_rays(mesh, o + 1e3, np.abs(w), backend="opencl")
+    away = api.cast_rays(mesh, o + 1e3, np.abs(w), backend="opencl")
     assert not away.hit.any() and np.isinf(away.t).all() and not away.barycentric.any()
-    device_tree = raycast.cast_rays(mesh, o, w, backend="opencl")
+    device_tree = api.cast_rays(mesh, o, w, backend="opencl")
     host_mesh = ao4d.SimplexMesh(mesh.vertices, mesh.simplices)
-    bvh.device_tree(host_mesh, raycast.get_bvh(host_mesh, builder="host"), cl_runtime)
-    host_tree = raycast.cast_rays(host_mesh, o, w, backend="opencl")
-    assert type(raycast.get_bvh(host_mesh)).__name__ == "BVH" and device_tree.hit.mean() > 0.03
+    bvh.device_tree(host_mesh, bvh.get_bvh(host_mesh, builder="host"), cl_runtime)
+    host_tree = api.cast_rays(host_mesh, o, w, backend="opencl")
+    assert type(bvh.get_bvh(host_mesh)).__name__ == "BVH" and device_tree.hit.mean() > 0.03
     np.testing.assert_array_equal(host_tree.hit, device_tree.hit)
     same = host_tree.simplex == device_tree.simplex  # another simplex only on exact ties
     np.testing.assert_array_equal(host_tree.t, device_tree.t)
@@ -785,14 +793,14 @@ def test_cast_rays_over_many_launches_equals_brute_force(d, shift, cl_runtime, m
     # simplices, t and barycentrics those of one launch for all, misses included (-1, inf, 0)
     mesh, o, w = _shifted_soup(2900 + d, d, shift)
     whole = {
-        closest: raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", max_distance=0.7)
+        closest: api.cast_rays(mesh, o, w, closest=closest, backend="opencl", max_distance=0.7)
         for closest in (False, True)
     }
-    monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 700)
+    monkeypatch.setattr(ray_launches, "RAYS_PER_LAUNCH", 700)
     for closest in (False, True):
         for max_distance in (np.inf, 0.7):
-            fast = raycast.cast_rays(mesh, o, w, closest=closest, backend="opencl", max_distance=max_distance)
-            slow = raycast.cast_rays(
+            fast = api.cast_rays(mesh, o, w, closest=closest, backend="opencl", max_distance=max_distance)
+            slow = api.cast_rays(
                 mesh, o, w, closest=closest, backend="opencl", accel="brute", max_distance=max_distance
             )
             np.testing.assert_array_equal(fast.hit, slow.hit)
@@ -817,19 +825,19 @@ def test_kept_launch_buffers_serve_later_and_concurrent_calls(cl_runtime, monkey
     from concurrent.futures import ThreadPoolExecutor
 
     mesh, o, w = _shifted_soup(2911, 3, 0.0)
-    monkeypatch.setattr(raycast, "RAYS_PER_LAUNCH", 500)
-    raycast.release_buffers()
+    monkeypatch.setattr(ray_launches, "RAYS_PER_LAUNCH", 500)
+    ray_launches.release_buffers()
     parts = [slice(0, len(o)), slice(0, 300), slice(100, len(o)), slice(7, 611)]
-    want = [raycast.cast_rays(mesh, o[p], w[p], accel="brute", backend="opencl").hit for p in parts]
+    want = [api.cast_rays(mesh, o[p], w[p], accel="brute", backend="opencl").hit for p in parts]
     for p, expected in zip(parts, want):  # one after another: large, small, large again
-        np.testing.assert_array_equal(raycast.cast_rays(mesh, o[p], w[p], backend="opencl").hit, expected)
-    assert raycast._launch_pool.nbytes() > 0, "no launch buffers were kept"
+        np.testing.assert_array_equal(api.cast_rays(mesh, o[p], w[p], backend="opencl").hit, expected)
+    assert ray_launches._launch_pool.nbytes() > 0, "no launch buffers were kept"
     with ThreadPoolExecutor(4) as pool:
-        got = list(pool.map(lambda p: raycast.cast_rays(mesh, o[p], w[p], backend="opencl").hit, parts * 6))
+        got = list(pool.map(lambda p: api.cast_rays(mesh, o[p], w[p], backend="opencl").hit, parts * 6))
     for hit, expected in zip(got, want * 6):
         np.testing.assert_array_equal(hit, expected)
-    raycast.release_buffers()
-    assert raycast._launch_pool.nbytes() == 0
+    ray_launches.release_buffers()
+    assert ray_launches._launch_pool.nbytes() == 0
 
 
 def test_hit_rays_are_kept_as_they_were_at_the_call(cl_runtime):
@@ -837,7 +845,7 @@ def test_hit_rays_are_kept_as_they_were_at_the_call(cl_runtime):
     mesh = ao4d.SimplexMesh([[0, 0, 1], [1, 0, 1], [0, 1, 1]], [[0, 1, 2]])
     o = np.array([[0.2, 0.2, 0.0]])
     w = np.array([[0.0, 0.0, 2.0]])
-    hits = raycast.cast_rays(mesh, o, w, backend="opencl")
+    hits = api.cast_rays(mesh, o, w, backend="opencl")
     o[:] = 5.0
     w[:] = 1.0
     assert hits.t[0] == 1.0 and hits.simplex[0] == 0
@@ -896,8 +904,8 @@ def test_cast_rays_takes_a_trimesh_and_a_pair(form, closest):
     rng = np.random.default_rng(7)
     o = rng.normal(size=(300, 3)) * 2.0
     w = -o + rng.normal(size=(300, 3)) * 0.3  # most rays aim at the sphere
-    want = raycast.cast_rays(mesh, o, w, closest=closest, backend="numpy")
-    got = raycast.cast_rays(forms[form], o, w, closest=closest, backend="numpy")
+    want = api.cast_rays(mesh, o, w, closest=closest, backend="numpy")
+    got = api.cast_rays(forms[form], o, w, closest=closest, backend="numpy")
     assert (want.simplex >= 0).sum() > 100
     np.testing.assert_array_equal(got.simplex, want.simplex)
     np.testing.assert_array_equal(got.t, want.t)
@@ -905,8 +913,8 @@ def test_cast_rays_takes_a_trimesh_and_a_pair(form, closest):
     # a 4D pair too
     soup = soup_scene(np.random.default_rng(3), 4)
     o4, w4 = random_rays(np.random.default_rng(4), 4, 500)
-    want4 = raycast.cast_rays(soup, o4, w4, backend="numpy")
-    got4 = raycast.cast_rays((soup.vertices, soup.simplices), o4, w4, backend="numpy")
+    want4 = api.cast_rays(soup, o4, w4, backend="numpy")
+    got4 = api.cast_rays((soup.vertices, soup.simplices), o4, w4, backend="numpy")
     np.testing.assert_array_equal(got4.simplex, want4.simplex)
     np.testing.assert_array_equal(got4.t, want4.t)
 
@@ -918,8 +926,8 @@ def test_count_occluded_takes_a_trimesh_and_a_pair(form):
     points[::2] *= 0.0  # half of them at the centre, facing out: every ray hits
     args = dict(samples=16, seed=2, offset=1e-6, max_distance=np.inf, runtime=None)
     normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
-    want = raycast.count_occluded(mesh, points, normals, **args)
-    got = raycast.count_occluded(forms[form], points, normals, **args)
+    want = api.count_occluded(mesh, points, normals, **args)
+    got = api.count_occluded(forms[form], points, normals, **args)
     assert want[::2].tolist() == [16] * len(want[::2]) and want[1::2].max() == 0
     np.testing.assert_array_equal(got, want)
 
@@ -930,20 +938,20 @@ def test_traversal_counts_takes_a_trimesh_and_a_pair(form, cl_runtime):
     points, normals = np.asarray(mesh.vertices) * 0.5, np.asarray(mesh.vertices)
     normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
     args = dict(samples=8, offset=0.0, runtime=cl_runtime)
-    want = raycast.traversal_counts(mesh, points, normals, **args)
-    got = raycast.traversal_counts(forms[form], points, normals, **args)
+    want = api.traversal_counts(mesh, points, normals, **args)
+    got = api.traversal_counts(forms[form], points, normals, **args)
     assert got == want
 
 
 @pytest.mark.parametrize(
     "call",
     [
-        lambda bad: raycast.cast_rays(bad, [[0, 0, 0]], [[0, 0, 1]], backend="numpy"),
-        lambda bad: raycast.count_occluded(
+        lambda bad: api.cast_rays(bad, [[0, 0, 0]], [[0, 0, 1]], backend="numpy"),
+        lambda bad: api.count_occluded(
             bad, np.zeros((1, 3)), np.eye(3)[:1], samples=4, seed=0, offset=0.0, max_distance=1.0, runtime=None
         ),
-        lambda bad: raycast.traversal_counts(bad, np.zeros((1, 3)), np.eye(3)[:1], samples=4, offset=0.0, runtime=None),
-        lambda bad: raycast.mesh_arrays(bad),
+        lambda bad: api.traversal_counts(bad, np.zeros((1, 3)), np.eye(3)[:1], samples=4, offset=0.0, runtime=None),
+        lambda bad: ray_rows.mesh_arrays(bad),
     ],
 )
 def test_a_wrong_mesh_type_is_a_type_error_naming_mesh(call):
