@@ -169,11 +169,11 @@ def measure(runtime: Any) -> Rates:
     from . import fields
     from .ao import ambient_occlusion
     from .bvh import get_bvh
-    from .camera import Camera4D
     from .marching.march import extract_field
     from .opencl import cl
     from .rays.api import cast_rays
-    from .rendering import render
+    from .rendering.camera import Camera4D
+    from .rendering.pipeline import render
 
     started = time.perf_counter()
     backend = cl.backend_name(runtime)

@@ -23,7 +23,7 @@ import numpy as np
 
 from ._atomic import atomic_path
 from ._validate import as_array, as_real, as_vector, check_choice, check_positive_int
-from .compositing import over
+from .rendering.compositing import over
 from .volumes import pyvista_offscreen, volume_array
 
 __all__ = [

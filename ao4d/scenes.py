@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ._validate import as_real, check_choice
-from .camera import Camera4D
+from .rendering.camera import Camera4D
 
 __all__ = ["SceneObject", "Scene", "default_scene", "box", "extract_scene", "QUALITY"]
 

@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 
 import ao4d
-from ao4d.camera import Camera4D
 from ao4d.mesh import SimplexMesh
 from ao4d.opencl.cl import BACKENDS
+from ao4d.rendering.camera import Camera4D
 
 __all__ = ["raw_scenes", "closed_scenes", "thesis_camera", "render_pair", "render_full", "main", "SCENES"]
 

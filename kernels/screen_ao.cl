@@ -1,4 +1,4 @@
-// Screen-space ambient occlusion on a 4D camera's 3D image (host side: ao4d/screen_ao.py, whose
+// Screen-space ambient occlusion on a 4D camera's 3D image (host side: ao4d/rendering/screen_ao.py, whose
 // numpy path is the reference). DIM is 4. Points arrive relative to the eye (float64 on the
 // host, then float32), normals and the camera's basis in world axes.
 // One work-item per query point: `samples` cosine-weighted directions (sampling.h, the same as
@@ -149,7 +149,7 @@ inline void gbuffer_surface(const float4 g, const int ix, const int iy, const in
     *s = perspective ? d * normalize(centre) : (float4)(centre.x, centre.y, centre.z, d);
 }
 
-// Depth- and normal-aware box filter of an occlusion image (ao4d.screen_ao.denoise): the mean
+// Depth- and normal-aware box filter of an occlusion image (ao4d.rendering.screen_ao.denoise): the mean
 // over the (2 radius + 1)^3 voxels around v that see a surface whose normal is within
 // normal_min (cosine) of v's and whose hit point lies within `tolerance` voxel sizes (at v's
 // depth) of v's tangent hyperplane. NaN on background.

@@ -167,7 +167,7 @@ def main() -> int:
             ),
         )
     # screen-space AO and its filter on a tiny image (9 directions: a cut group of eight)
-    from ao4d.screen_ao import DepthVolume, denoise, screen_space_occlusion
+    from ao4d.rendering.screen_ao import DepthVolume, denoise, screen_space_occlusion
 
     pair = ao4d.extract_field(
         ao4d.fields.union(ao4d.fields.hypersphere(0.5, [-0.5, 0, 0, 0]), ao4d.fields.hypersphere(0.5, [0.5, 0, 0, 0])),

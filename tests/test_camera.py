@@ -10,8 +10,8 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from ao4d.camera import Camera4D
 from ao4d.geometry import cross
+from ao4d.rendering.camera import Camera4D
 
 # tolerance for float64 basis algebra on O(1) vectors (a few ulps times a few operations)
 EPS = 1e-10

@@ -95,7 +95,8 @@ def eager_progress(monkeypatch):
     import tqdm
     import tqdm.auto
 
-    from ao4d import _progress, rendering
+    from ao4d import _progress
+    from ao4d.rendering import pipeline as rendering
 
     monkeypatch.setattr(_progress, "LOG_INTERVAL", 0.0)
     monkeypatch.setattr(rendering, "_PROGRESS_VOXELS", 1)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ao4d.compositing import over, unpremultiply
+from ao4d.rendering.compositing import over, unpremultiply
 
 
 def test_two_layers_front_to_back_exact():

@@ -171,8 +171,8 @@ def test_demo_times_every_file_step_and_the_times_add_up(tmp_path, monkeypatch):
     import io as stdio
     import time
 
-    from ao4d import rendering
     from ao4d.commands.demo import run_demo
+    from ao4d.rendering import pipeline as rendering
 
     real = rendering.write_mhd
 

@@ -304,7 +304,7 @@ def test_render_png_failure_leaves_no_vti_behind(mesh_file, tmp_path, capsys, mo
 
 def test_render_refuses_bad_outputs_before_rendering(mesh_file, tmp_path, capsys, monkeypatch):
     rendered = []
-    monkeypatch.setattr("ao4d.rendering.render", lambda *a, **k: rendered.append(1))
+    monkeypatch.setattr("ao4d.rendering.pipeline.render", lambda *a, **k: rendered.append(1))
     for extra, problem in [
         (["--out", tmp_path / "img.nii"], "`--out` must end in .vti or .mhd"),
         (["--out", tmp_path / "img.vti", "--png", tmp_path / "img.jpg"], "`--png` must end in .png"),

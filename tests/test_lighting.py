@@ -1,4 +1,4 @@
-"""ao4d.lighting: lights and the shading terms against closed forms in R^4."""
+"""ao4d.rendering.lighting: lights and the shading terms against closed forms in R^4."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ao4d
-from ao4d.lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, half_vectors, lambert
+from ao4d.rendering.lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, half_vectors, lambert
 
 angles = st.floats(-1.5, 1.5, allow_nan=False, allow_subnormal=False)
 

@@ -137,7 +137,7 @@ def test_no_callable_modules():
 def test_render_is_the_function_whatever_the_import_order():
     # issue 10: after `import ao4d.render`, ao4d.render was a module masquerading as the function
     code = (
-        "import inspect, ao4d.rendering as m, ao4d\n"
+        "import inspect, ao4d.rendering.pipeline as m, ao4d\n"
         "assert ao4d.render is m.render and callable(ao4d.render)\n"
         "assert 'camera' in inspect.signature(ao4d.render).parameters\n"
         "assert m.RenderResult is ao4d.RenderResult\n"
@@ -185,7 +185,9 @@ SUBPACKAGES = sorted(m.removesuffix(".__init__") for m in MODULES if m.count("."
 
 
 def test_subpackages_are_the_issues_and_named_for_no_exported_function():
-    assert {"ao4d.marching", "ao4d.browser", "ao4d.opencl", "ao4d.bvh", "ao4d.rays"} <= set(SUBPACKAGES)
+    assert {"ao4d.marching", "ao4d.browser", "ao4d.opencl", "ao4d.bvh", "ao4d.rays", "ao4d.rendering"} <= set(
+        SUBPACKAGES
+    )
     # (the command modules are named for their commands: `ao4d render` runs ao4d.render)
     leaves = {m.removesuffix(".__init__").rpartition(".")[2] for m in MODULES if not m.startswith("ao4d.commands.")}
     assert not leaves & set(ao4d.__all__), sorted(leaves & set(ao4d.__all__))
@@ -209,6 +211,7 @@ _TESTED_ELSEWHERE = {
     "ao4d.bvh.collapse": "test_bvh_collapse.py",
     "ao4d.opencl.binaries": "test_cl.py",  # kernel binaries reused across processes, unwritable caches
     "ao4d.opencl.tbb": "test_cl.py",  # the foreign TBB, Open3D in either order
+    "ao4d.rendering.pipeline": "test_rendering.py",
     "ao4d.rays.api": "test_rays.py",
     "ao4d.rays.launches": "test_rays.py",
     "ao4d.rays.reference": "test_rays.py",

@@ -165,7 +165,7 @@ def _renamed(path, name):
 
 def test_screen_space_occlusion_refuses_work_above_the_budget():
     # the work is checked, not only the direction table's memory: samples=10**7 would run for minutes
-    from ao4d.screen_ao import DepthVolume, screen_space_occlusion
+    from ao4d.rendering.screen_ao import DepthVolume, screen_space_occlusion
 
     cam = ao4d.Camera4D([0, 0, 0, -4], [0, 0, 0, 0], projection="orthographic", half_width=1)
     shape = (16, 16, 16)
@@ -351,7 +351,7 @@ def test_slice_by_a_huge_normal_is_the_slice_by_its_direction(ball_file, tmp_pat
 
 def test_screen_space_ao_refuses_more_directions_than_it_can_resolve(ball_file, tmp_path, capsys):
     from ao4d.cli import main
-    from ao4d.screen_ao import MAX_SAMPLES, check_samples
+    from ao4d.rendering.screen_ao import MAX_SAMPLES, check_samples
 
     assert check_samples(MAX_SAMPLES) == MAX_SAMPLES
     with pytest.raises(ValueError, match="`samples` of screen-space AO must be at most 65536"):

@@ -11,10 +11,10 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 import ao4d
-from ao4d.camera import Camera4D
-from ao4d.lighting import Light
 from ao4d.mesh import SimplexMesh
-from ao4d.rendering import RenderResult, prepare_scene, render
+from ao4d.rendering.camera import Camera4D
+from ao4d.rendering.lighting import Light
+from ao4d.rendering.pipeline import RenderResult, prepare_scene, render
 
 R = 1.0
 GRID = 20  # 20^4 samples over [-1.2, 1.2]^4: spacing h = 0.126
@@ -478,7 +478,7 @@ def test_transparent_ball_lets_light_through(ball_over_ground):
     np.testing.assert_allclose(img.shade[clear & ~shadow], 0.3 + 0.7 * lam, atol=1e-6)
 
 
-@pytest.mark.filterwarnings("ignore::ao4d.rendering.ShadeRangeWarning")  # two lights
+@pytest.mark.filterwarnings("ignore::ao4d.rendering.pipeline.ShadeRangeWarning")  # two lights
 def test_backends_agree_on_shadows_highlights_and_layers(ball_over_ground, cl_runtime):
     # the same image from both ray casters: directional and point light, specular, shadows
     # through a transparent ball, two layers; rays grazing an edge may differ
@@ -614,7 +614,7 @@ def test_without_new_terms_the_images_are_the_previous_ones_exactly(touching_pai
     assert (expected > 0.75).any() and (expected < 0.5).any()  # light and AO both matter
 
 
-@pytest.mark.filterwarnings("ignore::ao4d.rendering.ShadeRangeWarning")  # two lights: shade up to 1.1
+@pytest.mark.filterwarnings("ignore::ao4d.rendering.pipeline.ShadeRangeWarning")  # two lights: shade up to 1.1
 def test_two_coloured_lights_add_up(sphere):
     # a white object under a red light from one side and a blue one from the other: R holds
     # ambient + diffuse * max(0, n . l_red), B the same for blue, G the ambient alone
@@ -750,7 +750,7 @@ def test_rgba_volume_picture_shows_the_colours(tmp_path, backend):
     assert ((px[:, 2] > 0.7) & (px[:, 0] < 0.3) & (px[:, 1] < 0.3)).sum() > 50
 
 
-@pytest.mark.filterwarnings("ignore::ao4d.rendering.ShadeRangeWarning")  # 0.7 + 1.5 x 0.5
+@pytest.mark.filterwarnings("ignore::ao4d.rendering.pipeline.ShadeRangeWarning")  # 0.7 + 1.5 x 0.5
 def test_render_command_with_lights_colours_and_opacity(ball_over_ground, tmp_path, capsys):
     from ao4d import cli
 
@@ -887,7 +887,7 @@ def test_stored_ao_with_nan_or_outside_0_1_is_refused_before_the_work():
 def test_weights_that_can_exceed_one_warn():
     mesh, cam = _small_scene()
     # ambient + diffuse > 1 can give shade above 1, although the docs say [0, 1]: a warning says so
-    with pytest.warns(ao4d.rendering.ShadeRangeWarning, match=r"= 1.5 > 1: shade can exceed 1"):
+    with pytest.warns(ao4d.rendering.pipeline.ShadeRangeWarning, match=r"= 1.5 > 1: shade can exceed 1"):
         img = render(mesh, cam, (8, 8, 8), ao="none", ambient=1.0, diffuse=0.5, light=[0, 0, 0, -1], backend="numpy")
     assert img.shade.max() > 1.0  # the warning was right
     img = render(mesh, cam, (8, 8, 8), ao="none", ambient=0.6, diffuse=0.4, light=[0, 0, 0, -1], backend="numpy")
@@ -973,7 +973,7 @@ def test_ray_budget_is_checked_before_any_ray_and_can_be_lifted(monkeypatch):
 
     mesh, cam = _small_scene()
     cast = []
-    monkeypatch.setattr(ao4d.rendering, "trace", lambda *a, **k: cast.append(1) or api.trace(*a, **k))
+    monkeypatch.setattr(ao4d.rendering.pipeline, "trace", lambda *a, **k: cast.append(1) or api.trace(*a, **k))
     with pytest.raises(ValueError, match=r"pass max_rays=math.inf \(CLI: --force\)"):
         render(mesh, cam, (16, 16, 16), ao="hits", samples=200000, backend="numpy")
     assert not cast  # before: the primary rays ran first, and render had no max_rays
@@ -993,7 +993,7 @@ def test_screen_ao_and_its_filter_are_budgeted_before_any_ray(backend, request, 
         request.getfixturevalue("cl_runtime")
     mesh, cam = _small_scene()
     cast = []
-    monkeypatch.setattr(ao4d.rendering, "trace", lambda *a, **k: cast.append(1) or api.trace(*a, **k))
+    monkeypatch.setattr(ao4d.rendering.pipeline, "trace", lambda *a, **k: cast.append(1) or api.trace(*a, **k))
     with pytest.raises(ValueError, match=r"`samples`=60000 \(.* depth look-ups.*about \d+ (h|days) on the"):
         render(mesh, cam, (128, 128, 128), ao="screen", samples=60_000, backend=backend)
     if backend == "numpy":
@@ -1047,7 +1047,7 @@ def test_render_command_refuses_a_non_ascii_mhd_before_rendering(tmp_path, capsy
     mesh.save(tmp_path / "ball.npz")
     (tmp_path / "keep_é.raw").write_bytes(b"old")
     rendered = []
-    monkeypatch.setattr("ao4d.rendering.render", lambda *a, **k: rendered.append(1))
+    monkeypatch.setattr("ao4d.rendering.pipeline.render", lambda *a, **k: rendered.append(1))
     code = cli.main(
         [
             "render",
@@ -1072,7 +1072,7 @@ def test_stored_ao_skips_the_inside_out_check(monkeypatch):
     flipped = mesh.flipped()
     flipped.point_data["ao"] = np.zeros(flipped.n_vertices)  # AO from elsewhere, checked there
     calls = []
-    monkeypatch.setattr(ao4d.rendering, "warn_if_inside_out", lambda *a, **k: calls.append(1))
+    monkeypatch.setattr(ao4d.rendering.pipeline, "warn_if_inside_out", lambda *a, **k: calls.append(1))
     img = render(flipped, cam, (6, 6, 6), ao="vertices", backend="numpy")
     assert img.hit.any() and not calls
     render(mesh, cam, (6, 6, 6), ao="hits", samples=4, backend="numpy")
@@ -1148,13 +1148,13 @@ def test_one_trace_per_ray_batch_on_one_tracer(monkeypatch):
     mesh, cam = _small_scene()
     calls = []
     monkeypatch.setattr(
-        ao4d.rendering,
+        ao4d.rendering.pipeline,
         "trace",
         lambda tracer, o, w, **k: calls.append((tracer, len(o))) or api.trace(tracer, o, w, **k),
     )
     monkeypatch.setattr(api, "cast_rays", lambda *a, **k: pytest.fail("public cast_rays re-entered"))
     img = render(mesh, cam, (48, 48, 32), ao="none", light=(0, 1, 0, -1), shadows=True, backend="numpy")
-    chunk = ao4d.rendering._CHUNK
+    chunk = ao4d.rendering.pipeline._CHUNK
     primary = 48 * 48 * 32
     assert [n for _, n in calls[:2]] == [chunk, primary - chunk]  # two batches of primary rays
     assert len({id(tracer) for tracer, _ in calls}) == 1

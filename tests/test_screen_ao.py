@@ -10,10 +10,10 @@ import pytest
 from _scenes import flat_patch
 
 import ao4d
-from ao4d.camera import Camera4D
 from ao4d.mesh import SimplexMesh, concatenate
-from ao4d.rendering import render
-from ao4d.screen_ao import DepthVolume, default_steps, denoise, screen_space_occlusion
+from ao4d.rendering.camera import Camera4D
+from ao4d.rendering.pipeline import render
+from ao4d.rendering.screen_ao import DepthVolume, default_steps, denoise, screen_space_occlusion
 
 BETA = math.radians(30.0)  # the wall scene's camera looks this far down onto the floor
 WALL_X, REACH = 1.0, 1.0

@@ -2,7 +2,7 @@
 
 :func:`view_image` writes an HTML file holding the page (``ao4d/browser/image_page.html``, in the frame and
 with the script every ao4d page shares, :mod:`ao4d.browser._page`) and the image
-of :func:`ao4d.render` (a :class:`~ao4d.rendering.RenderResult`, or the ``.vti`` / ``.mhd`` file
+of :func:`ao4d.render` (a :class:`~ao4d.rendering.pipeline.RenderResult`, or the ``.vti`` / ``.mhd`` file
 ``ao4d render`` writes). The page ray-marches the volume on the GPU every frame, with a transfer
 function (colour map presets and an opacity ramp dragged on the page), axis-aligned clipping
 planes and the orbit camera of the slicing page (:mod:`ao4d.browser.viewer`). It needs no network and
@@ -83,7 +83,7 @@ from typing import Any
 import numpy as np
 
 from .._validate import as_real, check_bool, check_choice
-from ..compositing import over
+from ..rendering.compositing import over
 from ._page import b64_size, check_max_bytes, scene_json, template, wrap_degrees, write_page
 from .viewer import HALF_FOV_DEG, MARGIN, ZOOM_RANGE, Camera, Frame, camera, merged_state
 

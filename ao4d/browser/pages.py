@@ -1,7 +1,7 @@
 """Pages for people: a whole result in one file, and any page shown inline in Jupyter.
 
 :func:`view` is ``ao4d.view``: meshes go to the slicing page (:mod:`ao4d.browser.viewer`), a rendered
-image (a :class:`~ao4d.rendering.RenderResult`, or the ``.vti`` / ``.mhd`` file of ``ao4d render``)
+image (a :class:`~ao4d.rendering.pipeline.RenderResult`, or the ``.vti`` / ``.mhd`` file of ``ao4d render``)
 to the ray-marching page (:mod:`ao4d.browser.image_viewer`). With a path it writes the page and returns a
 :class:`Page` (a :class:`pathlib.Path`); without one it returns an :class:`InlinePage`. Both
 have ``_repr_html_``, so a notebook shows the page in its output: an ``iframe`` whose ``srcdoc``

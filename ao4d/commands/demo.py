@@ -119,7 +119,7 @@ def run_demo(
     from ..bvh import get_bvh
     from ..mesh import concatenate
     from ..opencl import cl
-    from ..rendering import render
+    from ..rendering.pipeline import render
     from ..scenes import QUALITY, default_scene, extract_scene
 
     check_choice(quality, "quality", tuple(QUALITY))

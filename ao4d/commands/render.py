@@ -122,7 +122,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def parse_light(tokens: list[str]):
     """One ``--light`` value: ``[point] X Y Z W [R G B [I]]`` -> :class:`ao4d.Light`."""
-    from ..lighting import Light
+    from ..rendering.lighting import Light
 
     words = list(tokens)
     kind = words.pop(0) if words and words[0] in ("point", "dir", "direction") else "dir"
@@ -168,9 +168,9 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from .._atomic import all_or_nothing, check_output_file
-    from ..camera import Camera4D
     from ..mesh import SimplexMesh, concatenate
-    from ..rendering import render
+    from ..rendering.camera import Camera4D
+    from ..rendering.pipeline import render
     from ..volumes import check_mhd_path
 
     # every output checked before the work; .mhd also writes its .raw
@@ -240,7 +240,7 @@ def _estimate(args: argparse.Namespace, scene, camera, size: tuple[int, int, int
     from .._calibration import rates, render_seconds, seconds_text
     from ..opencl import cl
     from ..rays.api import cast_rays
-    from ..screen_ao import DENOISE_PER_SECOND, LOOKUPS_PER_SECOND, march_steps
+    from ..rendering.screen_ao import DENOISE_PER_SECOND, LOOKUPS_PER_SECOND, march_steps
 
     runtime = cl.resolve_backend(args.backend, warn=False)
     backend = cl.backend_name(runtime)

@@ -2,7 +2,7 @@
 
 Each scene is rendered with the same camera, image, seed and reach: ``ao="hits"`` (64 AO rays
 per hit through the BVH), ``ao="screen"`` with the same 64 directions (marched in
-:func:`ao4d.screen_ao.default_steps` points each against the image's own depth volume), and
+:func:`ao4d.rendering.screen_ao.default_steps` points each against the image's own depth volume), and
 ``ao="screen"`` with 8 directions and ``denoise=1`` (the usual real-time trade). The primary rays
 are the same, so all give an occlusion at every hit voxel; the table compares each screen-space
 variant with the ray-traced AO there: mean absolute error, Pearson correlation, mean signed
@@ -167,9 +167,9 @@ def measure(size: int, repeats: int, quick: bool) -> tuple[list[dict], list[dict
 
 def step_sweep(size: int, repeats: int, quick: bool) -> list[dict]:
     """MAE and time of screen-space AO versus march points per direction (demo scene, both
-    reaches), with the default of :func:`ao4d.screen_ao.default_steps` marked."""
+    reaches), with the default of :func:`ao4d.rendering.screen_ao.default_steps` marked."""
     from ao4d import render
-    from ao4d.screen_ao import DepthVolume, default_steps, screen_space_occlusion
+    from ao4d.rendering.screen_ao import DepthVolume, default_steps, screen_space_occlusion
 
     rows = []
     shape = (size,) * 3

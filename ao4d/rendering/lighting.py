@@ -3,7 +3,7 @@
 A :class:`Light` is directional (at infinity, given by the direction *towards* it) or a point light
 (given by its position; no fall-off with distance). At a surface point with unit normal ``n``
 (turned towards the viewer), unit direction ``l`` towards a light and unit direction ``v``
-towards the eye, :mod:`ao4d.rendering` adds per light
+towards the eye, :mod:`ao4d.rendering.pipeline` adds per light
 
 * the Lambert term ``max(0, n . l)`` (:func:`lambert`),
 * the Blinn-Phong term ``max(0, n . h)^shininess`` with ``h = (l + v) / |l + v|``, only where
@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import as_array, as_real, as_vector
+from .._validate import as_array, as_real, as_vector
 
 __all__ = ["Light", "as_lights", "lambert", "blinn_phong", "half_vectors", "depth_cue", "check_depth_cue"]
 

@@ -79,12 +79,12 @@ from functools import cached_property
 
 import numpy as np
 
-from ._budget import RAYS_PER_SECOND, check_rays
-from ._validate import as_array, as_real, check_int, check_memory, check_positive_int, check_seed
+from .._budget import RAYS_PER_SECOND, check_rays
+from .._validate import as_array, as_real, check_int, check_memory, check_positive_int, check_seed
+from ..mesh import as_mesh
+from ..opencl import cl
+from ..sampling import cosine_hemisphere, sobol_table
 from .camera import Camera4D, image_shape
-from .mesh import as_mesh
-from .opencl import cl
-from .sampling import cosine_hemisphere, sobol_table
 
 __all__ = [
     "DepthVolume",
@@ -209,7 +209,7 @@ class DepthVolume:
         ValueError
             If it is not 4D.
         """
-        from .rays.api import cast_rays
+        from ..rays.api import cast_rays
 
         mesh = as_mesh(mesh)
         shape = _camera_shape(camera, shape)
@@ -324,7 +324,7 @@ class DepthVolume:
 
 
 def _camera_shape(camera: Camera4D, shape) -> tuple[int, int, int]:
-    """``shape`` checked (:func:`ao4d.camera.image_shape`) once ``camera`` is a Camera4D."""
+    """``shape`` checked (:func:`ao4d.rendering.camera.image_shape`) once ``camera`` is a Camera4D."""
     if not isinstance(camera, Camera4D):
         raise TypeError(f"`camera` must be an ao4d.Camera4D, got {type(camera).__name__}")
     return image_shape(shape)
@@ -436,7 +436,7 @@ def screen_space_occlusion(
     0.0
     """
     if not isinstance(volume, DepthVolume):
-        raise TypeError(f"`volume` must be an ao4d.screen_ao.DepthVolume, got {type(volume).__name__}")
+        raise TypeError(f"`volume` must be an ao4d.rendering.screen_ao.DepthVolume, got {type(volume).__name__}")
     pts = as_array(points, "points", ndim=2, shape_tail=(4,), dtype=np.float64, finite=True)
     nrm = as_array(normals, "normals", ndim=2, shape_tail=(4,), dtype=np.float64, finite=True)
     if len(pts) != len(nrm):
@@ -576,7 +576,7 @@ def denoise(
         NaN on background.
     """
     if not isinstance(volume, DepthVolume):
-        raise TypeError(f"`volume` must be an ao4d.screen_ao.DepthVolume, got {type(volume).__name__}")
+        raise TypeError(f"`volume` must be an ao4d.rendering.screen_ao.DepthVolume, got {type(volume).__name__}")
     occ = as_array(occlusion, "occlusion", dtype=np.float64)
     if occ.shape != volume.shape:
         raise ValueError(f"`occlusion` must have the volume's shape {volume.shape}, got {occ.shape}")

@@ -1,4 +1,4 @@
-"""Render 4D meshes into 3D image volumes with a :class:`~ao4d.camera.Camera4D`.
+"""Render 4D meshes into 3D image volumes with a :class:`~ao4d.rendering.camera.Camera4D`.
 
 One primary ray per voxel (closest hit through :func:`ao4d.rays.api.trace`). At a hit with
 ambient occlusion ``A`` (DESIGN.md definition), normal ``n`` turned towards the viewer and, per
@@ -9,7 +9,7 @@ light k, unit direction ``l_k`` towards it, shadow visibility ``V_k`` and intens
             * cue(depth)
 
 with ``h_k`` the 4D Blinn-Phong half-vector of ``l_k`` and the direction to the eye, the
-specular term only where ``n . l_k > 0``, and ``cue`` the depth cue (:mod:`ao4d.lighting`; 1
+specular term only where ``n . l_k > 0``, and ``cue`` the depth cue (:mod:`ao4d.rendering.lighting`; 1
 without ``depth_cue``). ``V_k`` is 1, or with ``shadows=True`` 0 where an any-hit 4D shadow ray
 from the hit finds the light blocked (with transparent objects: the product of ``1 - opacity``
 over the surfaces the shadow ray crosses). The colour of a hit on an object of RGB colour ``c`` is::
@@ -25,7 +25,7 @@ direction (one white light), ``specular=0``, ``shadows=False`` and no depth cue,
 ``ambient * (1 - A) + diffuse * max(0, n . l)`` to the bit: terms whose weight is 0 or factor
 is 1 are left out of the sum, not added as zeros or multiplied in.
 
-With ``ao="screen"`` the occlusion comes from the image itself (:mod:`ao4d.screen_ao`): the first
+With ``ao="screen"`` the occlusion comes from the image itself (:mod:`ao4d.rendering.screen_ao`): the first
 hits' depths, points and viewer-facing normals form a depth volume, and every shaded hit (those
 behind transparent surfaces too, against the same first-hit volume) reads its occlusion there.
 
@@ -54,9 +54,9 @@ from typing import Any, Literal
 
 import numpy as np
 
-from . import _progress
-from ._budget import RAYS_PER_SECOND, check_rays
-from ._validate import (
+from .. import _progress
+from .._budget import RAYS_PER_SECOND, check_rays
+from .._validate import (
     as_array,
     as_real,
     check_bool,
@@ -66,14 +66,15 @@ from ._validate import (
     check_positive_int,
     check_seed,
 )
-from .ao import ORIGIN_OFFSET, ambient_occlusion
+from ..ao import ORIGIN_OFFSET, ambient_occlusion
+from ..mesh import SimplexMesh, as_meshes, concatenate, warn_if_inside_out
+from ..opencl import cl
+from ..rays.api import trace
+from ..rays.rows import Tracer, check_distance
+from ..volumes import write_mhd, write_vti
 from .camera import Camera4D, ImageGeometry, image_shape
 from .compositing import over, unpremultiply
 from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, lambert
-from .mesh import SimplexMesh, as_meshes, concatenate, warn_if_inside_out
-from .opencl import cl
-from .rays.api import trace
-from .rays.rows import Tracer, check_distance
 from .screen_ao import (
     DENOISE_PER_SECOND,
     LOOKUPS_PER_SECOND,
@@ -85,7 +86,6 @@ from .screen_ao import (
     viewer_side,
 )
 from .screen_ao import denoise as denoise_occlusion
-from .volumes import write_mhd, write_vti
 
 __all__ = [
     "render",
@@ -180,7 +180,7 @@ class RenderResult:
 
     def _repr_html_(self) -> str:
         """The image's ray-marching page (:mod:`ao4d.browser.image_viewer`), shown inline in Jupyter."""
-        from .browser.pages import inline
+        from ..browser.pages import inline
 
         return inline(self)._repr_html_()
 
@@ -381,7 +381,7 @@ def render(
         viewer (exact per voxel and right for open, two-sided geometry). ``"screen"``: 4D
         screen-space AO at every hit, read from the image's own depth volume (first hits,
         their points and viewer-facing normals) with the same directions as ``"hits"``
-        (:func:`ao4d.screen_ao.screen_space_occlusion`, :func:`ao4d.screen_ao.default_steps` look-ups
+        (:func:`ao4d.rendering.screen_ao.screen_space_occlusion`, :func:`ao4d.rendering.screen_ao.default_steps` look-ups
         per direction; no AO rays): fast, but blind to what the image does not show.
         ``"none"``: A = 0.
     samples : int
@@ -393,7 +393,7 @@ def render(
         AO random seed, in ``[0, 2**32)`` (results are deterministic).
     denoise : int
         With ``ao="screen"``: radius in voxels of the depth- and normal-aware box filter
-        (:func:`ao4d.screen_ao.denoise`) applied to the first hits' occlusion before shading, so
+        (:func:`ao4d.rendering.screen_ao.denoise`) applied to the first hits' occlusion before shading, so
         that few ``samples`` suffice; 0 (default) for none.
     ambient : float, optional
         Weight of the ambient term ``1 - A`` (default 1 without a light, 0.7 with lights). Shade
@@ -418,7 +418,7 @@ def render(
     depth_cue : (3,) array_like, optional
         ``(near, far, strength)``: shade and colour are multiplied by ``1 - strength *
         clip((t - near) / (far - near), 0, 1)`` with ``t`` the 4D distance along the view ray
-        (:func:`ao4d.lighting.depth_cue`); ``0 <= near < far``, ``strength`` in [0, 1].
+        (:func:`ao4d.rendering.lighting.depth_cue`); ``0 <= near < far``, ``strength`` in [0, 1].
     color : (3,) or (n_objects, 3) array_like, optional
         RGB in [0, 1] of all objects, or one row per object id; default white (then ``rgba``
         is the clipped ``shade`` for white lights).
@@ -771,7 +771,7 @@ def _check_budget(scene: _Scene, opts: _Options, camera, backend: str, max_rays)
 
 
 def _screen_steps(scene: _Scene, camera, opts: _Options) -> int:
-    """An upper bound of :func:`ao4d.screen_ao.default_steps` before the image exists: the
+    """An upper bound of :func:`ao4d.rendering.screen_ao.default_steps` before the image exists: the
     reach clamped to the scene's diagonal (the visible points' box is inside it)."""
     reach = min(opts.max_distance, scene.diagonal)
     return march_steps(reach / camera.geometry(opts.shape).spacing)

@@ -25,8 +25,8 @@ from typing import Literal
 
 import numpy as np
 
-from ._validate import as_array, as_real, as_vector, check_choice, check_memory, check_positive_int
-from .geometry import cross
+from .._validate import as_array, as_real, as_vector, check_choice, check_memory, check_positive_int
+from ..geometry import cross
 
 __all__ = ["Camera4D", "ImageGeometry", "image_shape"]
 
