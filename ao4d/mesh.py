@@ -29,9 +29,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from . import mesh_files, slicing, topology
+from . import slicing, topology
 from ._validate import as_array, as_real
 from .geometry import simplex_normals, vertex_sums
+from .io import mesh_files
 from .topology import InsideOutWarning, MeshReport, warn_if_inside_out  # noqa: F401 (re-exported)
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -700,7 +701,7 @@ class SimplexMesh:
 
         ``.npz``: lossless, every point/cell data array, byte-reproducible; ``.vtu``: VTK
         unstructured grid for ParaView (4D: x, y, z as points, w as point array ``"w"``); any
-        other suffix (``.txt``): plain text, geometry only. See :mod:`ao4d.mesh_files`.
+        other suffix (``.txt``): plain text, geometry only. See :mod:`ao4d.io.mesh_files`.
 
         Parameters
         ----------

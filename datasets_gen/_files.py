@@ -26,7 +26,7 @@ __all__ = ["write_npz", "write_json", "json_bytes", "sha256_file", "to_jsonable"
 def written_bytes(name: str, write: Callable[[Path], Any]) -> bytes:
     """The bytes that ``write(path)`` puts in a file called ``name``.
 
-    For writers that take only a path (``SimplexMesh.save``, ``ao4d.pictures.save_montage``):
+    For writers that take only a path (``SimplexMesh.save``, ``ao4d.io.pictures.save_montage``):
     they write into a private scratch folder, so that the caller can hand the bytes to a
     :class:`~datasets_gen._store.Store`. The name keeps the suffix that chooses the format.
     """

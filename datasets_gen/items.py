@@ -2,7 +2,7 @@
 
 An item's files live in ``items/<index:05d>/`` of the run's :class:`~datasets_gen._store.Store`::
 
-    mesh.npz      the closed 4D mesh (ao4d.mesh_files npz layout: SimplexMesh.load reads it)
+    mesh.npz      the closed 4D mesh (ao4d.io.mesh_files npz layout: SimplexMesh.load reads it)
     ao.npz        occlusion per vertex (or per simplex), float64
     <render>.png  optional renders (z-slice montage of the shaded 3D image)
     samples.npz   optional learning samples (datasets_gen.samples)
@@ -541,7 +541,7 @@ def _render(
     camera framing the whole 4D bounding sphere leaves most of the image empty).
     """
     import ao4d
-    from ao4d.pictures import save_montage
+    from ao4d.io.pictures import save_montage
 
     lo, hi = mesh.bounds
     if render.get("projection", "orthographic") == "orthographic":

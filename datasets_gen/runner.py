@@ -3,7 +3,7 @@
 Layout of an output folder::
 
     run.json                  configuration text, seed, ao4d version, lut checksum
-    items/00000/mesh.npz      the closed 4D mesh (ao4d.mesh_files npz layout: SimplexMesh.load reads it)
+    items/00000/mesh.npz      the closed 4D mesh (ao4d.io.mesh_files npz layout: SimplexMesh.load reads it)
     items/00000/ao.npz        occlusion per vertex (or per simplex), float64
     items/00000/<render>.png  optional renders (z-slice montage of the shaded 3D image)
     items/00000/samples.npz   optional learning samples (datasets_gen.samples)

@@ -238,7 +238,7 @@ def side_by_side_png(path: Path, results: dict, size: int, samples: int) -> Path
     """One row per scene: raw without AO, with AO, full model; the same closed (middle z-slice)."""
     import matplotlib
 
-    from ao4d.pictures import figure, over_background, save_figure
+    from ao4d.io.pictures import figure, over_background, save_figure
 
     columns = [
         ("raw", "no AO"),

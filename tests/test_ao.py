@@ -589,7 +589,8 @@ def test_cli_ao_counts_nan_values_instead_of_printing_their_range(tmp_path, caps
 
 
 def test_cli_ao_keeps_the_input_files_field_data(tmp_path):
-    from ao4d import cli, mesh_files
+    from ao4d import cli
+    from ao4d.io import mesh_files
 
     rng = np.random.default_rng(2105)
     mesh = sphere_over_ground(rng, 3)

@@ -224,7 +224,7 @@ def test_bad_inputs():
 
 def test_cli_tolerance_writes_the_error(tmp_path, capsys):
     from ao4d.cli import main
-    from ao4d.mesh_files import read
+    from ao4d.io.mesh_files import read
 
     mesh = ao4d.extract_field(ao4d.fields.hypersphere(1.0), (10,) * 4, (-1.3, 1.3))
     path = tmp_path / "ball.npz"

@@ -287,7 +287,7 @@ def test_process_workers_pickle_the_tasks(tmp_path):
         LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster,
         Client(cluster),
     ):
-        from ao4d.readers import read_grid
+        from ao4d.io.grids import read_grid
 
         grid = read_grid(tmp_path / "v.npy", chunks=(4, 5, 9, 3))  # file-backed, by name
         # dask's default worker environment is slow for ao4d, and ao4d says so, once

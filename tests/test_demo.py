@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ao4d import cli
-from ao4d import volumes as io
+from ao4d.io import volumes as io
 from ao4d.mesh import SimplexMesh
 
 EXPECTED = [

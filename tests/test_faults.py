@@ -137,7 +137,7 @@ def test_cli_turns_a_write_fault_into_one_line(mesh_file, tmp_path, capsys, monk
     def refuse(*args, **kwargs):
         raise PermissionError(13, "Permission denied", str(tmp_path / "out.npz"))
 
-    monkeypatch.setattr("ao4d.mesh_files.write", refuse)
+    monkeypatch.setattr("ao4d.io.mesh_files.write", refuse)
     code, text = _cli(capsys, "ao", mesh_file, "--out", tmp_path / "out.npz", "--samples", "2", "--backend", "numpy")
     assert code == 2 and "Permission denied" in text and "Traceback" not in text
 
@@ -282,7 +282,7 @@ def test_render_png_failure_leaves_no_vti_behind(mesh_file, tmp_path, capsys, mo
     def fail(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr("ao4d.pictures.save_montage", fail)
+    monkeypatch.setattr("ao4d.io.pictures.save_montage", fail)
     code, text = _cli(
         capsys,
         "render",

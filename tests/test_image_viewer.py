@@ -192,7 +192,7 @@ def test_mhd_offers_only_the_shade_it_holds(sphere_image, tmp_path, capsys):
         assert f"`--array` '{array}'" in err and "holds only 'shade' (a .mhd file holds shade alone)" in err
     assert not (tmp_path / "o.html").exists()
     assert iv.encode(_box()).arrays == ("shade",)  # a bare array: shade alone
-    vti = ao4d.volumes.write_vti(tmp_path / "two.vti", {"shade": _box(), "depth": _box(2.0)})
+    vti = ao4d.io.volumes.write_vti(tmp_path / "two.vti", {"shade": _box(), "depth": _box(2.0)})
     assert iv.load_image(vti).arrays == ("shade", "depth")
 
 
@@ -210,7 +210,7 @@ def test_foreign_image_is_shown_over_its_own_range(tmp_path, capsys, lo, hi):
     # [0, 1000] drew saturated and [-5, -1] drew nothing, without a word
     unit, inside = _foreign(lambda v: v)
     values = lo + (hi - lo) * unit  # background at lo, the ball in [lo + 0.2 (hi - lo), hi]
-    path = ao4d.volumes.write_vti(tmp_path / "ct.vti", {"density": values.astype(np.float32)})
+    path = ao4d.io.volumes.write_vti(tmp_path / "ct.vti", {"density": values.astype(np.float32)})
     data = iv.load_image(path)
     assert data.ranges["shade"] == (lo, hi) and len(data.notes) == 1
     assert f"shade spans [{lo:g}, {hi:g}]" in data.notes[0] and "mapped linearly" in data.notes[0]

@@ -786,7 +786,7 @@ def test_cli_extract_closed_and_refused_options(tmp_path, capsys):
     assert main(["extract", "--input", str(tmp_path / "v.npy"), "--closed", "--out", str(out)]) == 0
     assert "=> OK" in capsys.readouterr().out
     assert ao4d.SimplexMesh.load(out).check().ok
-    from ao4d.mesh_files import read_field_data
+    from ao4d.io.mesh_files import read_field_data
 
     info = read_field_data(out)
     assert bool(info["closed"]) and str(info["source"]) == str(tmp_path / "v.npy")

@@ -1,4 +1,4 @@
-"""Tests for ao4d.mesh_files: .npz, .vtu and text round trips (SimplexMesh.save/load), slice meshes.
+"""Tests for ao4d.io.mesh_files: .npz, .vtu and text round trips (SimplexMesh.save/load), slice meshes.
 
 .vtu files are read back by VTK (pyvista); slice meshes by trimesh.
 """
@@ -10,7 +10,7 @@ import pytest
 import trimesh
 from _shapes import ball_polytope, graded_icosphere, simplex_boundary
 
-from ao4d import mesh_files, pictures
+from ao4d.io import mesh_files, pictures
 from ao4d.mesh import SimplexMesh
 
 DIMS = (2, 3, 4)

@@ -185,9 +185,15 @@ SUBPACKAGES = sorted(m.removesuffix(".__init__") for m in MODULES if m.count("."
 
 
 def test_subpackages_are_the_issues_and_named_for_no_exported_function():
-    assert {"ao4d.marching", "ao4d.browser", "ao4d.opencl", "ao4d.bvh", "ao4d.rays", "ao4d.rendering"} <= set(
-        SUBPACKAGES
-    )
+    assert {
+        "ao4d.marching",
+        "ao4d.browser",
+        "ao4d.opencl",
+        "ao4d.bvh",
+        "ao4d.rays",
+        "ao4d.rendering",
+        "ao4d.io",
+    } <= set(SUBPACKAGES)
     # (the command modules are named for their commands: `ao4d render` runs ao4d.render)
     leaves = {m.removesuffix(".__init__").rpartition(".")[2] for m in MODULES if not m.startswith("ao4d.commands.")}
     assert not leaves & set(ao4d.__all__), sorted(leaves & set(ao4d.__all__))
@@ -211,6 +217,14 @@ _TESTED_ELSEWHERE = {
     "ao4d.bvh.collapse": "test_bvh_collapse.py",
     "ao4d.opencl.binaries": "test_cl.py",  # kernel binaries reused across processes, unwritable caches
     "ao4d.opencl.tbb": "test_cl.py",  # the foreign TBB, Open3D in either order
+    "ao4d.io.sources": "test_readers.py",
+    "ao4d.io.nifti": "test_readers.py",
+    "ao4d.io.hdf5": "test_readers.py",
+    "ao4d.io.zarr_files": "test_readers.py",
+    "ao4d.io.metaimage": "test_readers.py",
+    "ao4d.io.vti": "test_readers.py",
+    "ao4d.io.frames": "test_readers.py",
+    "ao4d.io.grids": "test_readers.py",
     "ao4d.rendering.pipeline": "test_rendering.py",
     "ao4d.rays.api": "test_rays.py",
     "ao4d.rays.launches": "test_rays.py",

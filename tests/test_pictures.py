@@ -1,4 +1,4 @@
-"""Tests for ao4d.pictures: montages, volume renderings (pyvista and numpy), slice pictures, colours."""
+"""Tests for ao4d.io.pictures: montages, volume renderings (pyvista and numpy), slice pictures, colours."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from _shapes import graded_icosphere
 
-from ao4d import pictures
+from ao4d.io import pictures
 
 pv = pytest.importorskip("pyvista")
 

@@ -1,4 +1,4 @@
-"""ao4d.readers: every format on files written here (values, spacing, origin) and every bad file."""
+"""ao4d.io: every format on files written here (values, spacing, origin) and every bad file."""
 
 from __future__ import annotations
 
@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 import ao4d
-from ao4d.readers import ObliqueAffineWarning, natural_key, read_grid
+from ao4d.io.frames import natural_key
+from ao4d.io.grids import read_grid
+from ao4d.io.sources import ObliqueAffineWarning
 
 nib = pytest.importorskip("nibabel", reason="nibabel is a dependency of ao4d")
 h5py = pytest.importorskip("h5py", reason="h5py is a dependency of ao4d")
@@ -495,7 +497,7 @@ def test_nifti_time_axis_is_not_taken_as_a_length(tmp_path, grid4):
 
 def test_cli_records_and_prints_the_w_scale(tmp_path, capsys):
     from ao4d.cli import main
-    from ao4d.mesh_files import read_field_data
+    from ao4d.io.mesh_files import read_field_data
 
     x = np.linspace(-1, 1, 7)
     r = np.sqrt(sum(g * g for g in np.meshgrid(x, x, x, x, indexing="ij")))
@@ -602,13 +604,13 @@ def test_nifti_chunks_keep_array_data_out_of_the_graph(tmp_path):
 def test_a_glob_of_compressed_mhd_frames_is_not_decompressed_to_scan_headers(tmp_path, grid4, monkeypatch):
     import zlib
 
-    from ao4d import readers
+    from ao4d.io import metaimage
 
     for k in range(grid4.shape[3]):
         _write_mhd(tmp_path / f"f{k}.mhd", grid4[..., k], spacing=(1, 1, 1), offset=(0, 0, 0), compressed=True)
     calls = []
     real = zlib.decompress
-    monkeypatch.setattr(readers.zlib, "decompress", lambda *a: calls.append(1) or real(*a))
+    monkeypatch.setattr(metaimage.zlib, "decompress", lambda *a: calls.append(1) or real(*a))
     vol = read_grid(tmp_path / "f*.mhd")
     assert calls == []  # the header scan reads no data
     np.testing.assert_array_equal(vol.values.compute(), grid4)

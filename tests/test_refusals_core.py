@@ -138,7 +138,7 @@ def test_extract_refuses_a_fifo_instead_of_blocking(fifo, tmp_path, capsys):
 
 @pytest.mark.parametrize("name", ["fifo.npy", "frames_*.npy"])
 def test_read_grid_refuses_fifos_and_folders(fifo, tmp_path, name):
-    from ao4d.readers import read_grid
+    from ao4d.io.grids import read_grid
 
     np.save(tmp_path / "frames_0.npy", np.zeros((3, 3, 3)))
     os.mkfifo(tmp_path / "frames_1.npy")
@@ -188,7 +188,7 @@ _PNG = b"\x89PNG\r\n\x1a\n" + bytes(64)
     [(_PNG, "looks like a PNG image"), (bytes(range(256)) * 4, "no .npy header"), (b"", "it is empty")],
 )
 def test_a_file_that_is_no_npy_says_so_without_the_pickle_hint(tmp_path, content, reason):
-    from ao4d.readers import read_grid
+    from ao4d.io.grids import read_grid
 
     path = tmp_path / "x.npy"
     path.write_bytes(content)
@@ -200,7 +200,7 @@ def test_a_file_that_is_no_npy_says_so_without_the_pickle_hint(tmp_path, content
 
 
 def test_object_arrays_are_never_loaded(tmp_path):
-    from ao4d.readers import read_grid
+    from ao4d.io.grids import read_grid
 
     np.save(tmp_path / "obj.npy", np.array([[{"a": 1}] * 2] * 2, dtype=object), allow_pickle=True)
     with pytest.raises(ValueError, match="Python objects") as info:

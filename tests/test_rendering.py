@@ -197,12 +197,12 @@ def test_save_round_trip(sphere, tmp_path):
     img = render(sphere, cam, (10, 9, 8), ao="none")
     assert isinstance(img, RenderResult)
     vti = img.save(tmp_path / "r.vti")
-    back = ao4d.volumes.read_vti(vti, array="depth")
+    back = ao4d.io.volumes.read_vti(vti, array="depth")
     np.testing.assert_array_equal(np.isnan(back.data), ~img.hit)
     np.testing.assert_allclose(back.data[img.hit], img.depth[img.hit])
     assert back.spacing == pytest.approx((img.geometry.spacing,) * 3)
-    np.testing.assert_array_equal(ao4d.volumes.read_vti(vti, array="object_id").data, img.object_id)
-    mhd = ao4d.volumes.read_mhd(img.save(tmp_path / "r.mhd"))
+    np.testing.assert_array_equal(ao4d.io.volumes.read_vti(vti, array="object_id").data, img.object_id)
+    mhd = ao4d.io.volumes.read_mhd(img.save(tmp_path / "r.mhd"))
     np.testing.assert_array_equal(mhd.data, img.shade)
     assert mhd.origin == pytest.approx(img.geometry.origin)
 
@@ -666,7 +666,7 @@ def test_rgba_is_saved_as_direct_colours(sphere, tmp_path):
     assert img.rgba.dtype == np.float32 and img.rgba.shape == (10, 9, 8, 4)
     assert img.rgba.min() >= 0 and img.rgba.max() <= 1
     path = img.save(tmp_path / "c.vti")
-    back = ao4d.volumes.read_vti(path, array="rgba")
+    back = ao4d.io.volumes.read_vti(path, array="rgba")
     np.testing.assert_array_equal(back.data, img.rgba8)
     reader = vtk.vtkXMLImageDataReader()
     reader.SetFileName(str(path))
@@ -677,7 +677,7 @@ def test_rgba_is_saved_as_direct_colours(sphere, tmp_path):
     np.testing.assert_array_equal(vtk_to_numpy(direct), vtk_to_numpy(array))
     # voxel (i, j, k) is VTK point i + nx (j + ny k)
     np.testing.assert_array_equal(vtk_to_numpy(array)[5 + 10 * (4 + 9 * 3)], img.rgba8[5, 4, 3])
-    assert ao4d.volumes.read_vti(path).name == "shade"  # the active array is unchanged
+    assert ao4d.io.volumes.read_vti(path).name == "shade"  # the active array is unchanged
 
 
 def test_result_repr_is_short(sphere):
@@ -728,7 +728,7 @@ def _png_pixels(path):
 
 
 def test_rgba_montage_shows_the_colours(tmp_path):
-    from ao4d.pictures import save_rgba_montage
+    from ao4d.io.pictures import save_rgba_montage
 
     path = save_rgba_montage(tmp_path / "m.png", _red_blue_image(), n_slices=2)
     px = _png_pixels(path).reshape(-1, 3)
@@ -742,7 +742,7 @@ def test_rgba_montage_shows_the_colours(tmp_path):
 
 @pytest.mark.parametrize("backend", ["numpy", "pyvista"])
 def test_rgba_volume_picture_shows_the_colours(tmp_path, backend):
-    from ao4d.pictures import save_rgba_volume_png
+    from ao4d.io.pictures import save_rgba_volume_png
 
     path = save_rgba_volume_png(tmp_path / "v.png", _red_blue_image(), backend=backend)
     px = _png_pixels(path).reshape(-1, 3)
@@ -824,8 +824,8 @@ def test_render_command_with_lights_colours_and_opacity(ball_over_ground, tmp_pa
     assert cli.main(argv) == 0
     printed = capsys.readouterr().out
     assert "RenderResult(16x16x16 voxels" in printed
-    ids = ao4d.volumes.read_vti(out, array="object_id").data
-    rgba = ao4d.volumes.read_vti(out, array="rgba").data
+    ids = ao4d.io.volumes.read_vti(out, array="object_id").data
+    rgba = ao4d.io.volumes.read_vti(out, array="rgba").data
     assert (ids == 1).sum() > 50 and (ids == 0).sum() > 50
     ball_px, ground_px = rgba[ids == 1].astype(int), rgba[ids == 0].astype(int)
     # a red ball and a green ground (white highlights add to every channel), opaque
@@ -949,7 +949,7 @@ def test_default_weights_with_a_light_stay_in_0_1_and_match_the_cli(tmp_path):
         == 0
     )
     ao4d._progress.set_enabled(True)
-    from ao4d.volumes import read_mhd
+    from ao4d.io.volumes import read_mhd
 
     seen = read_mhd(tmp_path / "a.mhd").data
     framed = Camera4D.framing(

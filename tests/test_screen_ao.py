@@ -219,7 +219,7 @@ def test_cli_render_with_screen_ao(touching_pair, tmp_path, capsys):
         )
         == 0
     )
-    back = ao4d.volumes.read_vti(out, array="occlusion").data
+    back = ao4d.io.volumes.read_vti(out, array="occlusion").data
     assert np.nanmax(back) > 0 and np.nanmin(back) >= 0
 
 

@@ -104,7 +104,7 @@ def test_describe_hyperplane():
 def test_single_slice_title_describes_the_hyperplane_cut(scene, tmp_path, monkeypatch):
     # `--normal 1 0 0 0 --w 0.3` cuts the hyperplane x = 0 through (0, 0, 0, 0.3): the title
     # names that hyperplane, not "w = 0.3"
-    import ao4d.pictures
+    import ao4d.io.pictures
 
     titles = []
 
@@ -112,7 +112,7 @@ def test_single_slice_title_describes_the_hyperplane_cut(scene, tmp_path, monkey
         titles.append(kwargs["title"])
         return path
 
-    monkeypatch.setattr(ao4d.pictures, "save_slice_png", record)
+    monkeypatch.setattr(ao4d.io.pictures, "save_slice_png", record)
     path, _ = scene
     args = ["slice", str(path), "--out", str(tmp_path / "s.ply"), "--png", str(tmp_path / "s.png")]
     assert main([*args, "--normal", "1", "0", "0", "0", "--w", "0.3"]) == 0

@@ -1,11 +1,11 @@
-"""Tests for ao4d.volumes: MetaImage (by hand) and .vti (by VTK) files, read back by VTK's own readers."""
+"""Tests for ao4d.io.volumes: MetaImage (by hand) and .vti (by VTK) files, read back by VTK's own readers."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from ao4d import volumes as io
+from ao4d.io import volumes as io
 
 pv = pytest.importorskip("pyvista")
 vtk = pytest.importorskip("vtk")

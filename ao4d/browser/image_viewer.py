@@ -353,7 +353,7 @@ def load_image(path: str | os.PathLike) -> ImageData:
     FileNotFoundError
         If there is no such file.
     """
-    from ..volumes import read_mhd, read_vtk_image
+    from ..io.volumes import read_mhd, read_vtk_image
 
     p = Path(path)
     suffix = check_choice(p.suffix.lower(), "image extension", (".vti", ".mhd"))

@@ -61,8 +61,8 @@ def run(args: argparse.Namespace) -> int:
     from .._calibration import ao_seconds, rates, seconds_text
     from .._validate import check_seed
     from ..ao import ambient_occlusion, minimum_samples
+    from ..io.mesh_files import SUFFIXES, MeshArrays, read_field_data, write
     from ..mesh import SimplexMesh
-    from ..mesh_files import SUFFIXES, MeshArrays, read_field_data, write
     from ..opencl import cl
     from ..rays.rows import check_distance
 

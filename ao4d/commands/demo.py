@@ -235,7 +235,7 @@ def _write_files(out: Path, scene, image, settings, seconds: dict[str, float], *
     done("scene.npz", out / "scene.npz")
     done("image.mhd", image.save(out / "image.mhd"), out / "image.raw")
     done("image.vti", image.save(out / "image.vti"))
-    from ..pictures import save_montage, save_rgba_montage, save_rgba_volume_png, save_slice_png, save_volume_png
+    from ..io.pictures import save_montage, save_rgba_montage, save_rgba_volume_png, save_slice_png, save_volume_png
     from .render import shade_picture
 
     done(
@@ -279,7 +279,7 @@ def _write_files(out: Path, scene, image, settings, seconds: dict[str, float], *
             origin=geo.origin,
         ),
     )
-    from ..mesh_files import save_slice_mesh
+    from ..io.mesh_files import save_slice_mesh
 
     tri = scene.slice([0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0], attributes=["ao"])
     done("slice")

@@ -129,8 +129,8 @@ def run(args: argparse.Namespace) -> int:
     import warnings
 
     from .._atomic import all_or_nothing, check_output_file
+    from ..io.mesh_files import SUFFIXES, MeshArrays, write
     from ..marching.march import EmptyMeshWarning
-    from ..mesh_files import SUFFIXES, MeshArrays, write
 
     _check_options(args)
     outputs = [check_output_file(args.out, "--out", SUFFIXES)]  # before any work
@@ -208,8 +208,8 @@ def _from_input(args: argparse.Namespace) -> tuple[Any, str, dict, None]:
 
     import numpy as np
 
+    from ..io.grids import read_grid
     from ..marching.march import extract
-    from ..readers import read_grid
 
     grid = read_grid(
         args.input,

@@ -65,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .._atomic import check_output_file
-    from ..mesh_files import SUFFIXES
+    from ..io.mesh_files import SUFFIXES
 
     check_output_file(args.out, "--out", SUFFIXES)  # before any work
     return _sweep(args)
@@ -92,7 +92,7 @@ def _sweep(args: argparse.Namespace) -> int:
             raise ValueError(f"`--times-range` needs START < STOP, got {start:g} {stop:g}")
         times = np.linspace(start, stop, len(frames))
     mesh = lift.sweep(frames, times)
-    mesh.save(args.out)  # atomic (ao4d.mesh_files)
+    mesh.save(args.out)  # atomic (ao4d.io.mesh_files)
     t = np.arange(len(frames), dtype=float) if times is None else np.asarray(times, dtype=float)
     report = mesh.check()
     print(

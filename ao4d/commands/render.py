@@ -168,10 +168,10 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from .._atomic import all_or_nothing, check_output_file
+    from ..io.volumes import check_mhd_path
     from ..mesh import SimplexMesh, concatenate
     from ..rendering.camera import Camera4D
     from ..rendering.pipeline import render
-    from ..volumes import check_mhd_path
 
     # every output checked before the work; .mhd also writes its .raw
     outputs = [check_output_file(args.out, "--out", (".vti", ".mhd"))]
@@ -283,7 +283,7 @@ def _estimate(args: argparse.Namespace, scene, camera, size: tuple[int, int, int
 
 
 def _write(args: argparse.Namespace, image, size) -> list:
-    from ..pictures import save_montage, save_rgba_montage, save_rgba_volume_png, save_volume_png
+    from ..io.pictures import save_montage, save_rgba_montage, save_rgba_volume_png, save_volume_png
 
     written = [image.save(args.out)]
     if args.png is not None:
@@ -304,8 +304,8 @@ def _write(args: argparse.Namespace, image, size) -> list:
 
 
 def shade_picture(save: Callable[..., Path], path, image, title: str, **options) -> Path:
-    """One picture of a rendered image's shade: ``save`` (:func:`ao4d.pictures.save_montage` or
-    :func:`ao4d.pictures.save_volume_png`) on ``image.shade`` in world coordinates, the voxels no
+    """One picture of a rendered image's shade: ``save`` (:func:`ao4d.io.pictures.save_montage` or
+    :func:`ao4d.io.pictures.save_volume_png`) on ``image.shade`` in world coordinates, the voxels no
     ray hit drawn as background; ``options`` go to ``save`` (``cmap``...). Returns its path."""
     geo = image.geometry
     return save(

@@ -95,9 +95,9 @@ def _g(value: float, digits: int = 6) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from .._atomic import all_or_nothing, check_output_file, check_output_folder
+    from ..io.mesh_files import SLICE_SUFFIXES, save_slice_mesh
+    from ..io.pictures import save_slice_png
     from ..mesh import SimplexMesh
-    from ..mesh_files import SLICE_SUFFIXES, save_slice_mesh
-    from ..pictures import save_slice_png
 
     if args.w_range is None and args.count is not None:
         raise ValueError("`--count` needs `--w-range START STOP`")
@@ -182,7 +182,7 @@ def write_series(mesh, ws, out: Path, *, progress=None) -> list[dict]:
     """Slice ``mesh`` at each w of ``ws`` into ``out``: ``slice_NNNN.ply`` and ``.vtp`` per step
     and ``series.pvd`` (timestep = w). Every file is written atomically; returns per-step info."""
     from .._atomic import atomic_open
-    from ..mesh_files import save_slice_mesh
+    from ..io.mesh_files import save_slice_mesh
 
     digits = max(4, len(str(len(ws) - 1)))
     steps = []

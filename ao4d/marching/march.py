@@ -140,7 +140,7 @@ def extract(
         Iso-value.
     spacing : float or (d,) array_like
         Grid step per axis (> 0); a ``None`` entry keeps that axis at the default step 1
-        (``spacing=(None, None, None, 0.5)`` sets only w, as in :func:`ao4d.readers.read_grid`).
+        (``spacing=(None, None, None, 0.5)`` sets only w, as in :func:`ao4d.io.grids.read_grid`).
     origin : float or (d,) array_like
         Position of ``values[0, ..., 0]``.
     method : {"cubes", "simplices"}
@@ -160,7 +160,7 @@ def extract(
         box. Vertices inside the grid are those of ``closed=False``, bit for bit.
     affine : (d + 1, d + 1) or (d, d + 1) array_like, optional
         Place vertices at ``affine @ (i_0, ..., i_{d-1}, 1)`` (grid index to coordinates, e.g. a
-        NIfTI affine: :attr:`ao4d.readers.Grid.affine`) instead of ``origin + spacing * i``
+        NIfTI affine: :attr:`ao4d.io.grids.Grid.affine`) instead of ``origin + spacing * i``
         (leave ``spacing`` and ``origin`` at their defaults). Its linear part must be invertible;
         an affine map keeps the mesh closed, and a negative determinant reverses the simplices
         so that the normals still point out of the solid.

@@ -6,7 +6,7 @@ premultiplied) and opacity ``a`` adds::
 
     C += (1 - A) a c,    A += (1 - A) a
 
-:func:`ao4d.render` composites the surfaces along each 4D ray with it, :mod:`ao4d.pictures`
+:func:`ao4d.render` composites the surfaces along each 4D ray with it, :mod:`ao4d.io.pictures`
 the slices of a 3D image along an axis, and :func:`ao4d.browser.image_viewer.reference_march` the
 samples of the page's ray-march.
 

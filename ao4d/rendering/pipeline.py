@@ -67,11 +67,11 @@ from .._validate import (
     check_seed,
 )
 from ..ao import ORIGIN_OFFSET, ambient_occlusion
+from ..io.volumes import write_mhd, write_vti
 from ..mesh import SimplexMesh, as_meshes, concatenate, warn_if_inside_out
 from ..opencl import cl
 from ..rays.api import trace
 from ..rays.rows import Tracer, check_distance
-from ..volumes import write_mhd, write_vti
 from .camera import Camera4D, ImageGeometry, image_shape
 from .compositing import over, unpremultiply
 from .lighting import Light, as_lights, blinn_phong, check_depth_cue, depth_cue, lambert

@@ -67,11 +67,11 @@ plt.show()
 
 # %%
 # The whole image volume seen from outside, as the demo's volume picture draws it
-# (:func:`ao4d.pictures.surface_view`: the hit voxels' smoothed outer surface in their shade).
+# (:func:`ao4d.io.pictures.surface_view`: the hit voxels' smoothed outer surface in their shade).
 hit = np.isfinite(image.depth)
 colours = plt.cm.magma(np.where(hit, image.shade, 0.0))[..., :3]
 geometry = image.geometry
-picture, shown, extent, _ = ao4d.pictures.surface_view(
+picture, shown, extent, _ = ao4d.io.pictures.surface_view(
     hit, colours, spacing=geometry.spacing, origin=geometry.origin, width=400
 )
 fig, ax = plt.subplots(figsize=(5, 4))

@@ -35,9 +35,9 @@ from typing import Any
 
 import numpy as np
 
-from ._atomic import all_or_nothing, atomic_open
-from ._optional import require
-from ._validate import as_array, as_vector, check_choice
+from .._atomic import all_or_nothing, atomic_open
+from .._optional import require
+from .._validate import as_array, as_vector, check_choice
 
 __all__ = [
     "Volume",

@@ -21,9 +21,9 @@ from typing import Literal
 
 import numpy as np
 
-from ._atomic import atomic_path
-from ._validate import as_array, as_real, as_vector, check_choice, check_positive_int
-from .rendering.compositing import over
+from .._atomic import atomic_path
+from .._validate import as_array, as_real, as_vector, check_choice, check_positive_int
+from ..rendering.compositing import over
 from .volumes import pyvista_offscreen, volume_array
 
 __all__ = [
@@ -1191,7 +1191,7 @@ def save_slice_png(
     tri : trimesh.Trimesh
         The slice mesh (:meth:`ao4d.SimplexMesh.slice`).
     occlusion : (V,) array_like or str, optional
-        As in :func:`ao4d.mesh_files.save_slice_mesh`; without it the mesh is drawn in one colour.
+        As in :func:`ao4d.io.mesh_files.save_slice_mesh`; without it the mesh is drawn in one colour.
     title : str
         Title above the slice.
     cmap : str

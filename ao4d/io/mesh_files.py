@@ -44,10 +44,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ._atomic import atomic_open, atomic_path
-from ._npz import npz_member_problem, write_npz
-from ._optional import require
-from ._validate import check_choice, regular_file
+from .._atomic import atomic_open, atomic_path
+from .._npz import npz_member_problem, write_npz
+from .._optional import require
+from .._validate import check_choice, regular_file
 from .pictures import ao_colors, slice_scalars
 
 __all__ = [
