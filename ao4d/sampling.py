@@ -50,7 +50,7 @@ _SCALE = 1.0 / (1 << BITS)
 
 
 def hash32(x: np.ndarray) -> np.ndarray:
-    """Integer hash of uint32 values ("lowbias32", C. Wellons); ``kernels/sampling.h`` matches it.
+    """Integer hash of uint32 values ("lowbias32", C. Wellons); ``kernels/common/sampling.h`` matches it.
 
     Parameters
     ----------

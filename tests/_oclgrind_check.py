@@ -63,7 +63,9 @@ def main() -> int:
     rng = np.random.default_rng(0)
     x = np.arange(8, dtype=np.float32)
     buf = pcl.Buffer(runtime.context, pcl.mem_flags.READ_WRITE | pcl.mem_flags.COPY_HOST_PTR, hostbuf=x)
-    cl.build_kernels(runtime, "selftest.cl", {"SCALE": 3})["scale_add"](runtime.queue, (8,), None, buf, np.float32(1))
+    cl.build_kernels(runtime, "testing/selftest.cl", {"SCALE": 3})["scale_add"](
+        runtime.queue, (8,), None, buf, np.float32(1)
+    )
     out = np.empty_like(x)
     pcl.enqueue_copy(runtime.queue, out, buf)
     check("selftest scale_add", np.array_equal(out, 3 * x + 1))
@@ -134,7 +136,7 @@ def main() -> int:
         check(f"{d}D sample directions are unit", np.allclose(np.linalg.norm(dirs, axis=2), 1, atol=1e-5))
         eight = launches.sample_directions(runtime, n, 11, 0, eight=True)
         check(f"{d}D directions eight at a time", np.array_equal(eight, launches.sample_directions(runtime, n, 11, 0)))
-        # extraction (kernels/march.cl): both methods, thin slabs, the numpy engine's arrays
+        # extraction (kernels/marching/march.cl): both methods, thin slabs, the numpy engine's arrays
         values = rng.standard_normal((5, 4, 6, 3)[:d])
         # rows of 35 points: classify's 16-point vectors (the last reading past the slab's
         # last point) and its scalar row ends
@@ -156,7 +158,7 @@ def main() -> int:
         except ValueError as error:
             found = "contains 2 non-finite" in str(error)
         check(f"{d}D extraction finds NaN on the device", found)
-        # the shape library's fields sampled on the device (kernels/fields.cl): numpy's values
+        # the shape library's fields sampled on the device (kernels/marching/fields.cl): numpy's values
         field = ao4d.fields.spheritorus() if d == 4 else ao4d.fields.hypersphere(0.7, [0.1] * d)
         axes = ao4d.fields.grid_axes((5, 4, 6, 3)[:d], (-1.2, 1.1))
         check(

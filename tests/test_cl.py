@@ -90,7 +90,7 @@ def test_a_device_works_on_this_machine():
 def test_tiny_kernel_through_build_kernels(cl_runtime):
     import pyopencl as pcl
 
-    kernels = cl.build_kernels(cl_runtime, "selftest.cl", {"SCALE": 3})
+    kernels = cl.build_kernels(cl_runtime, "testing/selftest.cl", {"SCALE": 3})
     x = np.arange(1000, dtype=np.float32)
     buf = pcl.Buffer(cl_runtime.context, pcl.mem_flags.READ_WRITE | pcl.mem_flags.COPY_HOST_PTR, hostbuf=x)
     kernels["scale_add"](cl_runtime.queue, x.shape, None, buf, np.float32(0.5))
@@ -98,12 +98,12 @@ def test_tiny_kernel_through_build_kernels(cl_runtime):
     pcl.enqueue_copy(cl_runtime.queue, out, buf)
     np.testing.assert_array_equal(out, 3 * x + 0.5)
     # built once per context and options: the second call returns the same kernel objects
-    assert cl.build_kernels(cl_runtime, "selftest.cl", {"SCALE": 3}) is kernels
+    assert cl.build_kernels(cl_runtime, "testing/selftest.cl", {"SCALE": 3}) is kernels
 
 
 def test_build_error_shows_compiler_log(cl_runtime):
-    with pytest.raises(RuntimeError, match="selftest.cl") as info:
-        cl.build_kernels(cl_runtime, "selftest.cl", {"SCALE": "not_a_number("})
+    with pytest.raises(RuntimeError, match="testing/selftest.cl") as info:
+        cl.build_kernels(cl_runtime, "testing/selftest.cl", {"SCALE": "not_a_number("})
     message = str(info.value)
     log = message.split("compiler log:", 1)[1]
     assert "not_a_number" in log and "error" in log.lower(), message
@@ -459,7 +459,7 @@ import json, os
 from ao4d.opencl import cl
 rt = cl.get_runtime(warn=False)
 assert rt is not None
-cl.build_kernels(rt, 'selftest.cl', {{'SCALE': {scale}}})
+cl.build_kernels(rt, 'testing/selftest.cl', {{'SCALE': {scale}}})
 print(json.dumps(dict(cl.kernel_build_stats(), folder=str(cl.kernel_cache_dir()))))
 """
 
@@ -517,7 +517,7 @@ def test_no_writable_cache_still_builds(cl_runtime, monkeypatch):
 
     monkeypatch.setattr(_kernel_binaries, "kernel_cache_dir", lambda: None)
     before = cl.kernel_build_stats()
-    kernels = cl.build_kernels(cl_runtime, "selftest.cl", {"SCALE": 7})
+    kernels = cl.build_kernels(cl_runtime, "testing/selftest.cl", {"SCALE": 7})
     assert "scale_add" in kernels
     after = cl.kernel_build_stats()
     assert after["compiled"] == before["compiled"] + 1 and after["from_cache"] == before["from_cache"]

@@ -287,7 +287,7 @@ def _private_bytes(runtime, kernel) -> int:
 
 
 def test_traversal_stack_size_comes_from_python(cl_runtime, monkeypatch):
-    # one stack size, written once: Python passes it (-D STACK_SIZE) to kernels/bvh.h and
+    # one stack size, written once: Python passes it (-D STACK_SIZE) to kernels/bvh/bvh.h and
     # refuses trees whose traversal could overflow it
     rng = np.random.default_rng(1500)
     mesh = soup_scene(rng, 3, n=2000)
@@ -304,7 +304,7 @@ def test_traversal_stack_size_comes_from_python(cl_runtime, monkeypatch):
         hits = api.cast_rays(fresh, o, w, backend="opencl")
         np.testing.assert_array_equal(hits.simplex >= 0, brute.simplex >= 0)
         np.testing.assert_array_equal(hits.t, brute.t)
-        kernel = ray_launches._kernels(cl_runtime, 3, bvh.block_lanes(cl_runtime, 3))["cast_bvh"]
+        kernel = ray_launches._kernels(cl_runtime, 3, bvh.block_lanes(cl_runtime, 3), source="rays/cast.cl")["cast_bvh"]
         sizes[stack] = _private_bytes(cl_runtime, kernel)
     if sizes[needed] > 0:  # runtimes that report private memory: it follows the stack
         assert sizes[4 * needed] >= sizes[needed] + 3 * needed * 4
@@ -400,7 +400,7 @@ def test_rays_at_the_barycentric_tolerance_equal_brute_force(d, backend):
     np.testing.assert_array_equal(fast.hit, slow.hit)
 
 
-# -- the AO kernel's shared-origin packets (kernels/bvh.h trace_packet) -------------------------
+# -- the AO kernel's shared-origin packets (kernels/bvh/bvh.h trace_packet) -------------------------
 
 
 def _surface_points(mesh, runtime, every: int = 1):
@@ -734,7 +734,7 @@ def test_shared_origin_packets_cover_the_runs(runs, size, f32):
 @pytest.mark.parametrize("d", DIMS)
 @pytest.mark.parametrize("shift", [0.0, 2e4])
 def test_hits_refined_on_the_device_or_the_host_alike(d, shift, cl_runtime, monkeypatch):
-    # kernels/refine.cl repeats the host's float64 operations in order: the same bits of t and
+    # kernels/rays/refine.cl repeats the host's float64 operations in order: the same bits of t and
     # the barycentrics for float32, float64 and mixed rows, far from the origin too; and the
     # refined hit lies on its simplex (the weights rebuild the hit point, sum to one, and are
     # within the kernels' tolerance of the simplex)

@@ -4,7 +4,7 @@
 :mod:`~ao4d.bvh.layout`    the binary tree (:class:`BVH`), its 8-wide kernel form
                            (:class:`WideBVH`), the tree's frame (:class:`Frame`), the ray test
 :mod:`~ao4d.bvh.host`      the reference builder in numpy (binned SAH, level by level)
-:mod:`~ao4d.bvh.device`    the same kind of tree built by OpenCL kernels (``kernels/bvh_build.cl``)
+:mod:`~ao4d.bvh.device`    the same kind of tree built by OpenCL kernels (``kernels/bvh/bvh_build.cl``)
 :mod:`~ao4d.bvh.collapse`  the SAH-optimal collapse of the binary tree into 8-wide nodes
 :mod:`~ao4d.bvh.blocks`    leaf blocks and the wide tree, filled on the host or on the device
 :mod:`~ao4d.bvh.cache`     :func:`get_bvh` and :func:`device_tree`: the one entry for a mesh's tree

@@ -1,4 +1,4 @@
-"""The BVH built by OpenCL kernels on the device that traces it (``kernels/bvh_build.cl``).
+"""The BVH built by OpenCL kernels on the device that traces it (``kernels/bvh/bvh_build.cl``).
 
 It builds the kind of tree :func:`ao4d.bvh.host.build` builds (binned SAH along the longest
 centroid axis, 32 bins, 16 for nodes of at most 256 simplices; median splits for nodes of at
@@ -161,7 +161,7 @@ def _kernels(runtime, dim: int, use_double: bool) -> dict[str, Any]:
         defines["USE_DOUBLE"] = 1
     else:  # the float64 degeneracy test comes from the host
         defines["KEEP_GIVEN"] = 1
-    return cl.build_kernels(runtime, "bvh_build.cl", defines)
+    return cl.build_kernels(runtime, "bvh/bvh_build.cl", defines)
 
 
 def _has_double(device) -> bool:

@@ -36,7 +36,7 @@ def _keep(edges: list[np.ndarray], normals: np.ndarray) -> tuple[np.ndarray, np.
     components (component-major, float64).
 
     A simplex is kept when ``|n| > 1e-12 * L^(d-1)`` (L its longest edge from vertex 0) and
-    ``|n| > 0``. ``kernels/bvh_build.cl`` repeats these operations in this order, the power as
+    ``|n| > 0``. ``kernels/bvh/bvh_build.cl`` repeats these operations in this order, the power as
     products left to right (``L * L * L`` in 4D): ``np.power`` rounds once where the products
     round twice, and a simplex in that gap would be kept by one side and skipped by the other.
     """

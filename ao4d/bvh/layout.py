@@ -3,7 +3,7 @@
 Each simplex is stored as the inverse of the matrix ``[e1 .. e_{d-1} | n]`` (edges from vertex 0
 and the normal, as columns) plus vertex 0, so a ray test costs d+1 dot products: the last row
 gives the height over the simplex's hyperplane, the others the barycentric coordinates
-(``kernels/geometry.h`` and :func:`intersect` use the same formula). Degenerate simplices (zero
+(``kernels/common/geometry.h`` and :func:`intersect` use the same formula). Degenerate simplices (zero
 (d-1)-measure) can never be hit by a ray and are left out of the tree.
 
 Boxes are stored in float32, rounded outwards and enlarged by the barycentric tolerance and
@@ -50,7 +50,7 @@ _BOX_FMA_MARGIN = 0.1
 WIDTH = 8  # children per node of the kernels' tree by default: one float8 per box coordinate (16 on
 # AVX-512 CPUs: cache.node_width)
 LANES = 16  # simplices per leaf block: one float16 per simplex coordinate (kernels' LANES)
-STACK_SIZE = 256  # traversal stack entries, passed to kernels/bvh.h as -D STACK_SIZE (1 KiB of ints)
+STACK_SIZE = 256  # traversal stack entries, passed to kernels/bvh/bvh.h as -D STACK_SIZE (1 KiB of ints)
 LEAF_BLOCKS = 1  # most leaf blocks per leaf slot of a wide node (the encoding allows 4)
 MAX_LEAF_BLOCKS = 4  # most leaf blocks one slot can name: leaves of at most 4 * lanes simplices
 
@@ -326,7 +326,7 @@ def sah_cost(tree: BVH, *, traversal: float = 1.0, intersection: float = 1.0) ->
 def intersect(
     inverse: np.ndarray, origin: np.ndarray, ray_o: np.ndarray, ray_w: np.ndarray, t_max: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Ray-simplex tests for matched pairs (float64; the formula of ``kernels/geometry.h``).
+    """Ray-simplex tests for matched pairs (float64; the formula of ``kernels/common/geometry.h``).
 
     Parameters
     ----------

@@ -167,7 +167,7 @@ class Geometry:
         first point (in the larger grid, with :attr:`offset`), the origin and the spacing. The
         vertex of slab point ``i`` (engine index), ``t`` along direction ``m`` lies at
         ``origin + spacing * ((i + index) + t * m)`` on each axis, integers added first: the
-        same float in every slab and block, and on the device (kernels/march.cl)."""
+        same float in every slab and block, and on the device (kernels/marching/march.cl)."""
         start = [0] * len(self.shape) if self.offset is None else [int(k) for k in self.offset]
         index = [(z0 if e == 0 else 0) + start[axis] for e, axis in enumerate(self.perm)]
         return (

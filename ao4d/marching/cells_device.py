@@ -1,4 +1,4 @@
-"""The marching engine of :mod:`ao4d.marching.cells` on the OpenCL device (``kernels/march.cl``): the
+"""The marching engine of :mod:`ao4d.marching.cells` on the OpenCL device (``kernels/marching/march.cl``): the
 whole march, from the values as stored to the final arrays.
 
 It gives the arrays the numpy engine gives, vertex for vertex and simplex for simplex, so
@@ -99,7 +99,7 @@ IN_PLACE = True
 PROFILE = False
 profile: dict[str, float] = {}
 
-# value dtype -> (OpenCL type as stored, VKIND of kernels/march.cl)
+# value dtype -> (OpenCL type as stored, VKIND of kernels/marching/march.cl)
 _NATIVE = {
     "f2": ("half", 1),
     "f4": ("float", 0),
@@ -234,7 +234,7 @@ class _Engine:
         mask_size = 2 if plan.n_dirs > 8 else 1
         carry = geom.layer * plan.n_dirs * 4
         # new vertices found from per-block bases in 2D and 3D (half a byte a point), from
-        # per-point first indices in 4D (8 bytes a point; kernels/march.cl's new_vertex says why)
+        # per-point first indices in 4D (8 bytes a point; kernels/marching/march.cl's new_vertex says why)
         self.vertex_blocks = d < 4
         cl.check_device_memory(
             runtime,
@@ -258,7 +258,7 @@ class _Engine:
         if vtype not in self._built:
             self._built[vtype] = cl.build_kernels(
                 self.runtime,
-                "march.cl",
+                "marching/march.cl",
                 {
                     "DIM": self.d,
                     "NDIRS": self.n_dirs,

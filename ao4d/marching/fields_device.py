@@ -1,10 +1,10 @@
-"""The shape library's fields sampled on the OpenCL device (``kernels/fields.cl``), where the
+"""The shape library's fields sampled on the OpenCL device (``kernels/marching/fields.cl``), where the
 grid is marched.
 
 A :class:`ao4d.fields.Field` built by :mod:`ao4d.fields` (primitives, CSG, smooth union,
 translations, rotations, scaling, metaballs, gyroid, ground) carries ``program``, an expression
 tree of its operations. Here that tree becomes an OpenCL function (one generated function per
-node, calling the primitives of ``kernels/fields.cl``; the parameters in a constant buffer, so a
+node, calling the primitives of ``kernels/marching/fields.cl``; the parameters in a constant buffer, so a
 program is built once per shape of tree), and a kernel samples it on a slab of grid layers:
 
 * :func:`ao4d.marching.march.extract_field` hands the device engine (:mod:`ao4d.marching.cells_device`) slabs that
@@ -217,7 +217,7 @@ def device_source(field: Any, dim: int) -> tuple[str, np.ndarray] | None:
     Returns
     -------
     (str, (P,) float64 ndarray) or None
-        The OpenCL source appended to ``kernels/fields.cl`` (it defines ``field_value``) and the
+        The OpenCL source appended to ``kernels/marching/fields.cl`` (it defines ``field_value``) and the
         parameters it reads; ``None`` when the field must be sampled on the host.
     """
     program = getattr(field, "program", None)
@@ -235,7 +235,7 @@ def device_source(field: Any, dim: int) -> tuple[str, np.ndarray] | None:
 
 
 def _kernel(runtime: cl.Runtime, generated: str, dim: int) -> Any:
-    """The ``sample_field`` kernel of ``kernels/fields.cl`` with ``generated`` appended, built once
+    """The ``sample_field`` kernel of ``kernels/marching/fields.cl`` with ``generated`` appended, built once
     per context and source (and kept in the binary cache across processes)."""
     from .._resources import data_dir
     from ..opencl import binaries as _kernel_binaries
@@ -243,7 +243,7 @@ def _kernel(runtime: cl.Runtime, generated: str, dim: int) -> Any:
     lanes = host_matches()["lanes"]
     text = (
         f"#define DIM {dim}\n#define SUMSQ_LANES {lanes}\n"
-        + (data_dir("kernels") / "fields.cl").read_text()
+        + (data_dir("kernels") / "marching/fields.cl").read_text()
         + "\n"
         + generated
     )
@@ -255,7 +255,7 @@ def _kernel(runtime: cl.Runtime, generated: str, dim: int) -> Any:
             options = ["-cl-std=CL1.2"]
             try:
                 program = _kernel_binaries.built_program(
-                    clmod, runtime.context, runtime.device, "fields.cl", text, options
+                    clmod, runtime.context, runtime.device, "marching/fields.cl", text, options
                 )
             except clmod.RuntimeError as exc:
                 raise RuntimeError(

@@ -864,7 +864,7 @@ def build_kernels(runtime: Runtime, source: str, defines: dict[str, Any] | None 
     runtime : Runtime
         The device to build for.
     source : str
-        A file name in ``kernels/``.
+        A path in ``kernels/`` (``"rays/ao.cl"``: the folders mirror the package's stages).
     defines : dict, optional
         Preprocessor definitions, passed as ``-D NAME=VALUE``.
 
@@ -887,7 +887,7 @@ def build_kernels(runtime: Runtime, source: str, defines: dict[str, Any] | None 
         raise FileNotFoundError(f"kernel source {source!r} not found in {folder}")
     text = path.read_text()
     # every header is part of the cache keys, so that an edited header rebuilds
-    includes = "".join(f"\n// {p.name}\n{p.read_text()}" for p in sorted(folder.glob("*.h")))
+    includes = "".join(f"\n// {p.relative_to(folder)}\n{p.read_text()}" for p in sorted(folder.rglob("*.h")))
     defs = tuple(sorted((defines or {}).items()))
     digest = hashlib.sha256((text + includes).encode()).hexdigest()
     key = (id(runtime.context), source, defs, digest)

@@ -1,9 +1,9 @@
-"""The OpenCL side of ray casting: kernel builds (``kernels/ao.cl`` with ``kernels/bvh.h``;
-``kernels/cast_packets.cl``), launches of at most ``RAYS_PER_LAUNCH`` rays in two sets of buffers
+"""The OpenCL side of ray casting: kernel builds (``kernels/rays/ao.cl`` with ``kernels/bvh/bvh.h``;
+``kernels/rays/cast_packets.cl``), launches of at most ``RAYS_PER_LAUNCH`` rays in two sets of buffers
 that take turns, shared-origin packets, and the AO kernels (cosine rays generated on the device).
 
 On CPUs the AO kernel traces the rays of a point together as one packet from their shared origin
-(``trace_packet`` in ``kernels/bvh.h``): every wide node is fetched and walked once per packet, and
+(``trace_packet`` in ``kernels/bvh/bvh.h``): every wide node is fetched and walked once per packet, and
 each ray still meets exactly the boxes and leaf blocks the one-ray traversal tests, so the counts
 are the same bits. Work is split into launches with a tqdm bar; Ctrl-C stops between launches.
 """
@@ -36,7 +36,7 @@ __all__ = [
 ]
 
 
-AO_PACKET = 32  # rays of a point traced together by the AO kernel on GPUs (kernels/bvh.h trace_packet)
+AO_PACKET = 32  # rays of a point traced together by the AO kernel on GPUs (kernels/bvh/bvh.h trace_packet)
 
 
 AO_PACKET_CPU = 64  # on CPUs: a node fetched once serves twice the rays (5-6 % less trace time, measured)
@@ -55,7 +55,7 @@ def _kernels(
     count_visits: bool = False,
     ray_type: str | None = None,
     width: int | None = None,
-    source: str = "ao.cl",
+    source: str = "rays/ao.cl",
 ) -> dict[str, Any]:
     defines = {
         "DIM": dim,
@@ -86,7 +86,7 @@ def ao_packet(runtime) -> int:
     Returns
     -------
     int
-        32 or 64 (``PACKET`` of kernels/bvh.h).
+        32 or 64 (``PACKET`` of kernels/bvh/bvh.h).
     """
     import pyopencl as pcl
 
@@ -106,7 +106,7 @@ def _trace_opencl(dev, tree, runtime, rays, max_distance, any_hit, accel, bar, r
 
     On a device with ``cl_khr_fp64`` each launch's rows are copied as they are into device
     buffers and the ``cast_rows_*`` kernels map them into the tree's frame in double, with the
-    host's operations (the same float32 bits: ``map_ray`` in kernels/ao.cl); a zero-length
+    host's operations (the same float32 bits: ``map_ray`` in kernels/rays/ao.cl); a zero-length
     direction comes back as -2 and is named here. That costs the host a copy of the rows
     (17 GB/s) instead of the float64 mapping (13 ns a ray: 0.135 s of a 0.92 s 3D any-hit call
     of 10 M rays, cProfile).
@@ -259,8 +259,8 @@ def _traversal_kernel(
 ):
     """The ``{name}_bvh{suffix}`` or ``{name}_brute`` kernel and its leading scene arguments
     (``ray_type``: the build of the ``cast_rows_*`` kernels for rows of that C type; the
-    ``cast_packets`` kernel comes from kernels/cast_packets.cl, the others from ao.cl)."""
-    source = "cast_packets.cl" if name == "cast_packets" else "ao.cl"
+    ``cast_packets`` kernel comes from kernels/rays/cast_packets.cl, the others from ao.cl)."""
+    source = {"ao": "rays/ao.cl", "cast_packets": "rays/cast_packets.cl"}.get(name, "rays/cast.cl")
     kernels = _kernels(runtime, dim, dev["lanes"], count_visits, ray_type, dev["width"], source)
     if accel == "bvh":
         return kernels[f"{name}_bvh{suffix}"], [dev["boxes"], dev["children"], dev["blocks"]]
@@ -278,7 +278,7 @@ def _ao_traversal(runtime) -> str:
     return "packet" if runtime.device.type & pcl.device_type.CPU else "rays"
 
 
-#: cast_rays' any-hit rays that share an origin go as packets (kernels/cast_packets.cl):
+#: cast_rays' any-hit rays that share an origin go as packets (kernels/rays/cast_packets.cl):
 #: "auto" on CPUs, like the AO kernel (:func:`_ao_traversal`); True or False always or never
 #: (tests). Read when a trace starts.
 CAST_PACKETS: bool | str = "auto"
@@ -441,7 +441,9 @@ def sample_directions(runtime, normals: np.ndarray, samples: int, seed: int, *, 
     ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
     out = np.empty((n * samples, 4), dtype=np.float32)
     buf = pcl.Buffer(ctx, pcl.mem_flags.WRITE_ONLY, out.nbytes)
-    _kernels(runtime, d, _bvh.block_lanes(runtime, d))["sample_directions8" if eight else "sample_directions"](
+    _kernels(runtime, d, _bvh.block_lanes(runtime, d), source="testing/directions.cl")[
+        "sample_directions8" if eight else "sample_directions"
+    ](
         queue,
         (n,),
         None,
@@ -488,7 +490,7 @@ def device_ray_mapping(runtime, frame, origins: np.ndarray, directions: np.ndarr
     frame_buf = pcl.Buffer(ctx, ro, hostbuf=_frame_values(frame))
     out = [np.empty((n, 4), dtype=np.float32) for _ in range(2)]
     bufs = [pcl.Buffer(ctx, pcl.mem_flags.WRITE_ONLY, a.nbytes) for a in out]
-    _kernels(runtime, d, _bvh.block_lanes(runtime, d), ray_type=ray_type)["map_rays"](
+    _kernels(runtime, d, _bvh.block_lanes(runtime, d), ray_type=ray_type, source="rays/cast.cl")["map_rays"](
         queue, (n,), None, *ins, frame_buf, *bufs
     )
     for a, b in zip(out, bufs):

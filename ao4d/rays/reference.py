@@ -18,7 +18,7 @@ _NUMPY_RAYS_PER_STEP = 1 << 14  # bounds the (ray, node) frontier of the numpy t
 
 
 def _box_hits(lo, hi, o, inv_w, t_max):
-    """Slab test in float64 like ``hit_boxes`` in kernels/geometry.h (which keeps the inverse
+    """Slab test in float64 like ``hit_boxes`` in kernels/common/geometry.h (which keeps the inverse
     direction finite instead; both are conservative for rays parallel to a slab)."""
     with np.errstate(invalid="ignore"):
         t0, t1 = (lo - o) * inv_w, (hi - o) * inv_w

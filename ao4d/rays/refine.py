@@ -1,5 +1,5 @@
 """Hits refined in float64: a hit's ``t`` and barycentrics recomputed on the hit simplex when
-first read, by ``kernels/refine.cl`` on fp64 devices with a device-built tree, else by the host,
+first read, by ``kernels/rays/refine.cl`` on fp64 devices with a device-built tree, else by the host,
 the same operations in the same order: the same bits.
 """
 
@@ -13,7 +13,7 @@ from .rows import _ROW_BLOCK, Tracer, _frame_values, _miss_values, _row_types
 __all__ = ["REFINE_ON_DEVICE"]
 
 
-#: Let fp64 devices refine the hits of a device-built tree themselves (kernels/refine.cl); tests
+#: Let fp64 devices refine the hits of a device-built tree themselves (kernels/rays/refine.cl); tests
 #: clear it to take the host's refinement, which gives the same bits. Read when a trace starts.
 REFINE_ON_DEVICE = True
 
@@ -30,15 +30,15 @@ def _refines_on_device(tree, runtime) -> bool:
 
 
 def _refine_kernel(runtime, dim: int, ray_type: str):
-    """The ``refine_hits`` kernel (kernels/refine.cl) for rows of C type ``ray_type``."""
-    return cl.build_kernels(runtime, "refine.cl", {"DIM": dim, "RAY_T": ray_type})["refine_hits"]
+    """The ``refine_hits`` kernel (kernels/rays/refine.cl) for rows of C type ``ray_type``."""
+    return cl.build_kernels(runtime, "rays/refine.cl", {"DIM": dim, "RAY_T": ray_type})["refine_hits"]
 
 
 def _refine_block(inv: np.ndarray, origin: np.ndarray, o: np.ndarray, w: np.ndarray):
     """Ray parameters (tree units) and barycentrics of rays ``o + t w`` (float64, tree frame)
     hitting simplices of inverse frames ``inv`` (k, d, d) and vertex 0 ``origin`` (k, d).
 
-    Products and sums one column at a time, left to right: ``kernels/refine.cl`` repeats these
+    Products and sums one column at a time, left to right: ``kernels/rays/refine.cl`` repeats these
     operations in this order, so the device's refinement gives the same bits (numpy's
     ``einsum`` chooses its own summation order).
     """
@@ -101,7 +101,7 @@ def _refine_on_device(
     w: np.ndarray,
     out: tuple[np.ndarray, np.ndarray] | None = None,
 ):
-    """:func:`_refine_hits`' answer (the same bits) from ``kernels/refine.cl``: one work-item per
+    """:func:`_refine_hits`' answer (the same bits) from ``kernels/rays/refine.cl``: one work-item per
     hit (mesh simplex ``simplex``, ray rows ``o``, ``w`` as the caller gave them) writes its row
     of ``t`` and the barycentrics (into ``out`` when given, as :func:`_refine_hits`), in place
     where the device shares the host's memory (CPUs). The tree's float64 vertices and the

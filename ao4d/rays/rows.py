@@ -153,7 +153,7 @@ def _row_types(origins: np.ndarray, directions: np.ndarray) -> tuple[type, str]:
 
 
 def _frame_values(frame) -> np.ndarray:
-    """A tree frame as the kernels read it (``map_ray`` in kernels/rows.h, kernels/refine.cl):
+    """A tree frame as the kernels read it (``map_ray`` in kernels/rays/rows.h, kernels/rays/refine.cl):
     its centre's coordinates, then its scale, in float64."""
     return np.append(np.asarray(frame.centre, dtype=np.float64), np.float64(frame.scale))
 
@@ -256,7 +256,7 @@ _ROW_BLOCK = 1 << 14  # rows per step of the host's ray mapping: its float64 tem
 
 def _inverse_lengths(directions: np.ndarray) -> np.ndarray:
     """``1 / sqrt(w0^2 + w1^2 + ...)`` per row in float64, the squares summed in column order
-    (the order ``map_ray`` in kernels/ao.cl follows); ``inf`` for a zero-length row."""
+    (the order ``map_ray`` in kernels/rays/ao.cl follows); ``inf`` for a zero-length row."""
     square = directions.astype(np.float64)
     square *= square
     length2 = square[:, 0].copy()

@@ -282,7 +282,7 @@ class DepthVolume:
 
     @cached_property
     def gbuffer(self) -> np.ndarray:
-        """(nx * ny * nz, 4) float64: the kernel's G-buffer (``kernels/screen_ao.cl``): the
+        """(nx * ny * nz, 4) float64: the kernel's G-buffer (``kernels/rendering/screen_ao.cl``): the
         viewer-facing normal in the camera's basis, its last component's sign carried by the
         depth in the fourth column (inf on background). Computed once, read-only."""
         # einsum, not matmul: matmul would start BLAS threads that compete for the cores with
@@ -402,7 +402,7 @@ def screen_space_occlusion(
     seed : int
         Seeds the directions, in ``[0, 2**32)`` (deterministic: the same seed gives the same result).
     backend : {"auto", "opencl", "numpy"}
-        OpenCL kernel ``kernels/screen_ao.cl`` or the numpy reference (float64); they agree up
+        OpenCL kernel ``kernels/rendering/screen_ao.cl`` or the numpy reference (float64); they agree up
         to float32 rounding at the voxel and depth thresholds.
     max_rays : float, optional
         Refuse, before any work, when the ``N * samples * steps`` depth look-ups, counted as
@@ -642,7 +642,7 @@ def _opencl_denoise(runtime, volume, occ, f, radius, tolerance, normal_min) -> n
     cl.check_device_memory(
         runtime, {"the G-buffer": n_vox * 16, "the occlusion": n_vox * 8}, task="denoising screen-space AO"
     )
-    kernel = cl.build_kernels(runtime, "screen_ao.cl", {"DIM": 4})["denoise"]
+    kernel = cl.build_kernels(runtime, "rendering/screen_ao.cl", {"DIM": 4})["denoise"]
     ctx, queue = runtime.context, runtime.queue
     ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
     values = np.ascontiguousarray(np.where(volume.hit, occ, 0.0).reshape(-1), dtype=np.float32)
@@ -746,14 +746,14 @@ def _numpy_counts(volume: DepthVolume, pts, nrm, *, samples, steps, reach, bias,
 
 
 def _opencl_counts(runtime, volume: DepthVolume, pts, nrm, *, samples, steps, reach, bias, thickness, seed):
-    """The same counts from ``kernels/screen_ao.cl`` (float32, camera basis)."""
+    """The same counts from ``kernels/rendering/screen_ao.cl`` (float32, camera basis)."""
     import pyopencl as pcl
 
     n_vox = volume.depth.size
     n = len(pts)
     cl.check_device_memory(runtime, {"the G-buffer": n_vox * 16, "the AO points": n * 36}, task="screen-space AO")
     f = _frame(volume, pts, nrm)
-    kernel = cl.build_kernels(runtime, "screen_ao.cl", {"DIM": 4})["screen_ao"]
+    kernel = cl.build_kernels(runtime, "rendering/screen_ao.cl", {"DIM": 4})["screen_ao"]
     ctx, queue = runtime.context, runtime.queue
     ro = pcl.mem_flags.READ_ONLY | pcl.mem_flags.COPY_HOST_PTR
     f4 = lambda a: np.ascontiguousarray(a, dtype=np.float32).reshape(-1, 4)  # noqa: E731

@@ -6,7 +6,7 @@
 #ifndef AO4D_BVH_H
 #define AO4D_BVH_H
 
-#include "geometry.h"
+#include "common/geometry.h"
 
 // traversal stack entries: ao4d.bvh.STACK_SIZE, passed by the host, which refuses trees with
 // depth * (WIDTH - 1) + 1 > STACK_SIZE (a node visit pops one entry and pushes at most WIDTH)
@@ -135,7 +135,7 @@ inline int trace_any(__global const floatW *boxes, __global const int *children,
 #ifndef PACKET
 #define PACKET 32
 #endif
-// -D PACKET_HITS (kernels/cast_packets.cl): trace_packet also records, per ray, the hit that
+// -D PACKET_HITS (kernels/rays/cast_packets.cl): trace_packet also records, per ray, the hit that
 // retired it (LANES * block + lane, the answer trace_any gives for some hit) in hit_of[r]
 #ifdef PACKET_HITS
 #define HITS_PARAM , int *hit_of

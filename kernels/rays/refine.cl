@@ -12,7 +12,7 @@ typedef double real;
 // numpy's rounding, operation by operation: no fused multiply-adds anywhere in this file
 #pragma OPENCL FP_CONTRACT OFF
 
-#include "simplex.h"
+#include "common/simplex.h"
 
 // hit k: ray rows origins / directions[k] (the caller's, DIM values each), the mesh simplex
 // simplex[k] (vertices in the tree's frame: frame[0 .. DIM) the centre, frame[DIM] the scale),

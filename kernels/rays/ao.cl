@@ -1,11 +1,11 @@
-// Ambient occlusion and ray casting on simplex meshes in R^DIM (DIM = 2, 3 or 4).
+// Ambient occlusion on simplex meshes in R^DIM (DIM = 2, 3 or 4).
 // Host side: ao4d/ao.py. Vectors are float4 with zeros beyond DIM.
 // vec_type_hint(float4) keeps CPU runtimes (Intel's) from vectorising across work-items: rays
 // traverse the tree divergently, so masked lanes across rays run far slower than scalar
 // work-items that use float4/float8 within one ray (figures: the benchmarks guide). GPUs ignore
 // the hint.
-#include "bvh.h"
-#include "sampling.h"
+#include "bvh/bvh.h"
+#include "common/sampling.h"
 
 inline int trace(const int use_bvh, __global const floatW *boxes, __global const int *children,
                  __global const floatL *blocks, const int n_blocks, const float4 o,
@@ -110,112 +110,4 @@ __kernel __attribute__((vec_type_hint(float4))) void ao_brute(__global const flo
     VISITS_DECL
     counts[i] = occlusion_count(0, 0, 0, blocks, n_blocks, points[i], normals[i], index[i],
                                 table, samples, seed, offset, max_distance VISITS_ARG);
-}
-
-// one ray per work-item: closest (any_hit = 0) or any hit within max_distance; hit_out is
-// LANES * leaf block + lane (the host maps it to a simplex) or -1
-__kernel __attribute__((vec_type_hint(float4))) void cast_bvh(__global const floatW *boxes, __global const int *children,
-                       __global const floatL *blocks, __global const float4 *origins, __global const float4 *directions,
-                       const float max_distance, const int any_hit, __global float *t_out,
-                       __global int *hit_out)
-{
-    const size_t i = get_global_id(0);
-    VISITS_DECL
-    float t;
-    hit_out[i] = trace_bvh(boxes, children, blocks, origins[i], directions[i], max_distance,
-                           any_hit, &t VISITS_ARG);
-    t_out[i] = t;
-}
-
-__kernel __attribute__((vec_type_hint(float4))) void cast_brute(__global const floatL *blocks, const int n_blocks,
-                         __global const float4 *origins, __global const float4 *directions,
-                         const float max_distance, const int any_hit, __global float *t_out,
-                         __global int *hit_out)
-{
-    const size_t i = get_global_id(0);
-    float t;
-    hit_out[i] = trace_brute(blocks, n_blocks, origins[i], directions[i], max_distance, any_hit,
-                             &t);
-    t_out[i] = t;
-}
-
-// -- cast_rays' rays as the caller gave them (-D RAY_T=float|double; cl_khr_fp64) -------------
-#ifdef RAY_T
-#include "rows.h"
-
-#define CAST_ROWS_PARAMS                                                                            \
-    __global const RAY_T *origins, __global const RAY_T *directions,                               \
-    __global const double *frame, const float max_distance, const int any_hit, __global int *hit_out
-
-// cast_bvh on the caller's rows (launch-sized copies of them): hit_out as cast_bvh's, or -2 for a zero-length direction
-__kernel __attribute__((vec_type_hint(float4))) void cast_rows_bvh(
-    __global const floatW *boxes, __global const int *children, __global const floatL *blocks,
-    CAST_ROWS_PARAMS)
-{
-    const size_t i = get_global_id(0);
-    VISITS_DECL
-    float4 o, w;
-    float t;
-    hit_out[i] = map_ray(origins, directions, frame, i, &o, &w)
-                     ? trace_bvh(boxes, children, blocks, o, w, max_distance, any_hit, &t VISITS_ARG)
-                     : -2;
-}
-
-// cast_brute on the caller's rows (as cast_rows_bvh)
-__kernel __attribute__((vec_type_hint(float4))) void cast_rows_brute(
-    __global const floatL *blocks, const int n_blocks, CAST_ROWS_PARAMS)
-{
-    const size_t i = get_global_id(0);
-    float4 o, w;
-    float t;
-    hit_out[i] = map_ray(origins, directions, frame, i, &o, &w)
-                     ? trace_brute(blocks, n_blocks, o, w, max_distance, any_hit, &t)
-                     : -2;
-}
-
-// the float4 rays cast_rows_bvh traces (for tests: the bits of _Rays.chunk); w = 0 for a
-// zero-length direction
-__kernel void map_rays(__global const RAY_T *origins, __global const RAY_T *directions,
-                       __global const double *frame, __global float4 *o_out, __global float4 *w_out)
-{
-    const size_t i = get_global_id(0);
-    float4 o = (float4)(0.0f), w = (float4)(0.0f);
-    map_ray(origins, directions, frame, i, &o, &w);
-    o_out[i] = o;
-    w_out[i] = w;
-}
-#endif
-
-// the parameters of the two direction kernels below (tests call them alike)
-#define DIRECTIONS_PARAMS                                                                           \
-    __global const float4 *normals, __global const uint *index, __global const uint *table,        \
-    const int samples, const uint seed, __global float4 *out
-
-// the directions of sample_directions, generated eight at a time (cosine_directions8) as the
-// packet kernel does: for tests, which check that they are the same bits
-__kernel void sample_directions8(DIRECTIONS_PARAMS)
-{
-    const size_t i = get_global_id(0);
-    uint shift[DIM - 1];
-    float4 frame[DIM - 1];
-    point_sampling(normals[i], index[i], seed, shift, frame);
-    for (int s0 = 0; s0 < samples; s0 += 8) {
-        float8 w[DIM];
-        cosine_directions8(normals[i], frame, table, s0, samples, shift, w);
-        float c[4][8] = {{0.0f}};
-        for (int j = 0; j < DIM; ++j) vstore8(w[j], 0, c[j]);
-        for (int k = 0; k < min(8, samples - s0); ++k)
-            out[i * samples + s0 + k] = (float4)(c[0][k], c[1][k], c[2][k], c[3][k]);
-    }
-}
-
-// the directions ao_* trace for each point (for tests: must equal ao4d.sampling.cosine_hemisphere)
-__kernel void sample_directions(DIRECTIONS_PARAMS)
-{
-    const size_t i = get_global_id(0);
-    uint shift[DIM - 1];
-    float4 frame[DIM - 1];
-    point_sampling(normals[i], index[i], seed, shift, frame);
-    for (int s = 0; s < samples; ++s)
-        out[i * samples + s] = cosine_direction(normals[i], frame, table, s, shift);
 }

@@ -40,7 +40,7 @@ typedef float real;
 
 // -- per-simplex geometry (double with USE_DOUBLE) ----------------------------------------------
 
-#include "simplex.h"
+#include "common/simplex.h"
 
 // the neighbours of a finite float towards -inf / +inf (nextafter, without its slow generic path)
 inline float next_down(const float x)

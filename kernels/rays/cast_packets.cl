@@ -8,8 +8,8 @@
 //
 // Compile with -D DIM, WIDTH, LANES, STACK_SIZE, PACKET, BARY_EPS as ao.cl, and -D RAY_T.
 #define PACKET_HITS
-#include "bvh.h"
-#include "rows.h"
+#include "bvh/bvh.h"
+#include "rays/rows.h"
 
 // packets[i] = (first row, rows): rays of one origin; hit_out as cast_rows_bvh's (-2: a
 // zero-length direction, which the host names)

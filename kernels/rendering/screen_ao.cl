@@ -12,7 +12,7 @@
 // the sign of its d component (inf on background); that component is +-sqrt(1 - x^2 - y^2 -
 // z^2). The hit point is the voxel's own ray at that depth. Projections are linear in r along a
 // direction, so they are set up once per direction and stepped.
-#include "sampling.h"
+#include "common/sampling.h"
 
 // |u . m| below which the voxel's tangent hyperplane is too oblique to extend to a neighbouring
 // view ray: the voxel's own depth is used instead
