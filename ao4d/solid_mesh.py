@@ -249,7 +249,7 @@ class SolidMesh:
         Parameters
         ----------
         path : str or path-like
-            The file to write.
+            The file to write, its suffix naming the format.
 
         Returns
         -------

@@ -233,13 +233,7 @@ def extract(
         return mesh
     if is_dask_array(values):  # blocks as tasks on the active dask scheduler
         return _extract_dask(values, level, spacing, origin, method, inside, chunk, progress, closed, backend)
-    arr = values if isinstance(values, np.ndarray) else as_array(values, "values")
-    if arr.ndim not in (2, 3, 4):
-        raise ValueError(f"`values` must be a 2D, 3D or 4D array, got shape {arr.shape}")
-    if any(n < 2 for n in arr.shape):
-        raise ValueError(f"`values` needs at least 2 points along every axis, got shape {arr.shape}")
-    if arr.dtype.kind not in "fiub":
-        raise TypeError(f"`values` must hold real numbers, got dtype {arr.dtype}")
+    arr = _check_grid(values if isinstance(values, np.ndarray) else as_array(values, "values"))
     d = arr.ndim
     level = as_real(level, "level")
     spacing = as_vector(spacing, "spacing", d, positive=True)
@@ -312,6 +306,31 @@ def _check_lengths(spacing: np.ndarray, origin: np.ndarray, shape: Any, name: st
     n = np.asarray(shape, dtype=np.float64)
     extent = np.maximum(np.abs(origin - spacing), np.abs(origin + spacing * n))
     check_grid_lengths(spacing, extent, name)
+
+
+def _check_grid(arr: np.ndarray) -> np.ndarray:
+    """``arr`` if it is a 2D, 3D or 4D grid of real numbers with 2 points or more along every
+    axis, else an error naming ``values``."""
+    if arr.ndim not in (2, 3, 4):
+        raise ValueError(f"`values` must be a 2D, 3D or 4D array, got shape {arr.shape}")
+    if any(n < 2 for n in arr.shape):
+        raise ValueError(f"`values` needs at least 2 points along every axis, got shape {arr.shape}")
+    if arr.dtype.kind not in "fiub":
+        raise TypeError(f"`values` must hold real numbers, got dtype {arr.dtype}")
+    return arr
+
+
+def _field_axes(field: Any, shape: Any, bounds: Any) -> list[np.ndarray]:
+    """The grid axes of ``field`` sampled on ``shape`` points in ``bounds`` (2D to 4D), else an
+    error naming ``field`` or ``shape``."""
+    from ..fields import grid_axes
+
+    if not callable(field):
+        raise TypeError(f"`field` must be callable on (..., d) points, got {type(field).__name__}")
+    axes = grid_axes(shape, bounds, dim=getattr(field, "dim", None))
+    if len(axes) not in (2, 3, 4):
+        raise ValueError(f"`shape` must describe a 2D, 3D or 4D grid, got {len(axes)} axes")
+    return axes
 
 
 def _padded_reader(
@@ -501,14 +520,10 @@ def extract_field(
     >>> mesh.check().ok
     True
     """
-    from ..fields import evaluate_layers, grid_axes
+    from ..fields import evaluate_layers
 
-    if not callable(field):
-        raise TypeError(f"`field` must be callable on (..., d) points, got {type(field).__name__}")
-    axes = grid_axes(shape, bounds, dim=getattr(field, "dim", None))
+    axes = _field_axes(field, shape, bounds)
     d = len(axes)
-    if d not in (2, 3, 4):
-        raise ValueError(f"`shape` must describe a 2D, 3D or 4D grid, got {len(axes)} axes")
     level = as_real(level, "level")
     check_choice(method, "method", METHODS)
     check_choice(inside, "inside", _INSIDE)

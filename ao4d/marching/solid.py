@@ -753,17 +753,11 @@ def extract_solid(
     >>> round(solid.volume, 2), solid.simplices.shape[1]
     (3.12, 3)
     """
-    from .march import _check_lengths
+    from .march import _check_grid, _check_lengths
 
     if isinstance(values, np.ma.MaskedArray):
         raise ValueError("`values` is a masked array: fill the masked entries first (values.filled(...))")
-    arr = values if isinstance(values, np.ndarray) else np.asarray(values)
-    if arr.ndim not in (2, 3, 4):
-        raise ValueError(f"`values` must be a 2D, 3D or 4D array, got shape {arr.shape}")
-    if any(n < 2 for n in arr.shape):
-        raise ValueError(f"`values` needs at least 2 points along every axis, got shape {arr.shape}")
-    if arr.dtype.kind not in "fiub":
-        raise TypeError(f"`values` must hold real numbers, got dtype {arr.dtype}")
+    arr = _check_grid(values if isinstance(values, np.ndarray) else np.asarray(values))
     d = arr.ndim
     method = check_choice(method, "method", _METHODS)
     inside = check_choice(inside, "inside", _INSIDE)
@@ -800,12 +794,9 @@ def extract_solid_field(
 
     Parameters
     ----------
-    field : callable
-        Maps (..., d) points to (...) values (see :mod:`ao4d.fields`).
-    shape : int or sequence of int
-        Grid points per axis (>= 2 each); an int needs a field of known ``dim``.
-    bounds : (lo, hi)
-        Grid box, scalars or (d,) sequences; point i at ``lo + (hi - lo) * i / (n - 1)``.
+    field, shape, bounds
+        The field and its grid, as in :func:`ao4d.extract_field` (a (..., d) -> (...) callable,
+        points per axis, the grid's box).
     level, upper : float
         As in :func:`extract_solid`.
     method : {"simplices", "cubes"}
@@ -828,15 +819,9 @@ def extract_solid_field(
     >>> abs(solid.volume / (math.pi**2 / 2) - 1) < 0.1  # chords of a 12-point grid
     True
     """
-    from ..fields import grid_axes
-    from .march import _check_lengths
+    from .march import _check_lengths, _field_axes
 
-    if not callable(field):
-        raise TypeError(f"`field` must be callable on (..., d) points, got {type(field).__name__}")
-    axes = grid_axes(shape, bounds, dim=getattr(field, "dim", None))
-    d = len(axes)
-    if d not in (2, 3, 4):
-        raise ValueError(f"`shape` must describe a 2D, 3D or 4D grid, got {len(axes)} axes")
+    axes = _field_axes(field, shape, bounds)
     method = check_choice(method, "method", _METHODS)
     inside = check_choice(inside, "inside", _INSIDE)
     levels = _levels(level, upper, inside, method)
