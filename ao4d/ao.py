@@ -222,7 +222,7 @@ def _query_points(mesh, at, points, normals, d, frame: Frame | None = None):
     check_choice(at, "at", ("vertices", "simplices"))
     # at the vertices, kept in the mesh's cache (cleared when the mesh changes; (V, d) values, as
     # much as the vertex normals): the normals and the degeneracy test were a third of a repeated
-    # call's time at a million simplices (benchmarks guide). Per simplex it would hold 2 (S, d).
+    # call's time at a million simplices (the benchmarks log). Per simplex it would hold 2 (S, d).
     key = "ao4d.ao.query_points.vertices"
     cached = mesh.cache.get(key) if at == "vertices" else None
     if cached is not None:

@@ -18,7 +18,7 @@ import numpy as np
 __all__ = ["cross", "cross_components", "edge_blocks", "signed_volumes", "simplex_normals", "vertex_sums"]
 
 # Simplices per block when gathering corners: the block's temporaries (about 30 arrays) stay in
-# a core's L2 cache, which larger blocks overflow (figures in the benchmarks guide)
+# a core's L2 cache, which larger blocks overflow (figures in the benchmarks log)
 _BLOCK = 1 << 14
 
 

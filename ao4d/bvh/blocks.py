@@ -51,7 +51,7 @@ def widen(tree: BVH, lanes: int = LANES, width: int = WIDTH) -> WideBVH:
 
     Each binary leaf becomes ``ceil(count / lanes)`` consecutive leaf blocks of ``lanes``
     (4, 8 or 16) simplices. :mod:`ao4d.ao` asks for 16 on CPUs (one AVX-512 register per row of
-    a block test, faster than 4 or 8 lanes: the benchmarks guide) and 4 on GPUs, whose work-items
+    a block test, faster than 4 or 8 lanes: the benchmarks log) and 4 on GPUs, whose work-items
     run vector lanes one after another and would only pay for wide vectors in registers.
 
     Parameters

@@ -139,7 +139,7 @@ def block_lanes(runtime, dim: int | None = None) -> int:
     operations per step; in 3D its rows are short enough that the halved work and the fuller
     blocks pay for the extra block fetches: 3D ``cast_rays`` any hit traced in 0.91-0.93x the
     time with 8 lanes, 3D AO in 0.94x; 4D AO and 4D ``cast_rays`` did not change beyond the
-    noise (0.96-1.03x), so 4D keeps 16 (a 2-core AMD EPYC with AVX2, the benchmarks guide).
+    noise (0.96-1.03x), so 4D keeps 16 (a 2-core AMD EPYC with AVX2, the benchmarks log).
 
     Parameters
     ----------
@@ -167,7 +167,7 @@ def node_width(runtime) -> int:
     16 (AVX-512 CPUs: a node's 16 child boxes cost one vector operation per bound, and rays visit
     fewer nodes), else 8 (AVX2 CPUs, where 16 traced 3 % slower, and GPUs).
 
-    Measured on a 2-core AMD EPYC with AVX-512 (the benchmarks guide): AO traced 8-14 % faster
+    Measured on a 2-core AMD EPYC with AVX-512 (the benchmarks log): AO traced 8-14 % faster
     with 16 children; with the same runtime compiling for AVX2, 3 % slower.
 
     Parameters

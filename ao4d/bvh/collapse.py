@@ -10,7 +10,7 @@ down, the choices give each wide node its slots. Everything is vectorised over a
 
 Why not a greedy collapse (open the child of largest area until the node is full): it leaves
 about half the slots empty, so the tree has more wide nodes and rays visit more of them (the
-benchmarks guide has the figures).
+benchmarks log has the figures).
 """
 
 from __future__ import annotations

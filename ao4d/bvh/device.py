@@ -7,7 +7,7 @@ same :class:`ao4d.bvh.BVH`, so :func:`ao4d.bvh.blocks.widen` and both traversals
 difference: splits follow the SAH bins exactly, where the host builder rounds a left side to
 whole leaves of 16; not rounding costs more, partly filled leaf blocks but gives a much better
 tree: lower SAH cost, fewer leaf blocks tested per AO ray, faster AO (figures: the benchmarks
-guide).
+log).
 
 Work is split so that the device does every pass over the simplices and the host only
 bookkeeping per node:

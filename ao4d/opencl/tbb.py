@@ -14,7 +14,7 @@ loaded (two copies of TBB in one process would be worse) and :func:`foreign_tbb`
 that discovery can say why the platform is missing and what to do.
 
 Costs at import: one ``stat`` when the runtime is absent; otherwise importing ``ctypes`` and
-mapping the library, a few milliseconds (the benchmarks guide has the figures). It imports
+mapping the library, a few milliseconds (the benchmarks log has the figures). It imports
 neither pyopencl nor anything that touches a device. ``AO4D_PRELOAD_TBB=0`` turns it off.
 """
 

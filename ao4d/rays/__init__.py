@@ -4,7 +4,7 @@
 :mod:`~ao4d.rays.api`          the public traversals: :func:`cast_rays`, :func:`trace`,
                                :func:`count_occluded`, :func:`traversal_counts`, :class:`RayHits`
 :mod:`~ao4d.rays.rows`         rays as every traversal takes them: checks, the mapping into a
-                               tree's frame, the answers' arrays, :class:`Tracer`, ray budgets
+                               tree's frame, the answers' arrays, :class:`Tracer`, the bar
 :mod:`~ao4d.rays.launches`     the OpenCL kernels' builds and launches, packets, AO on the device
 :mod:`~ao4d.rays.reference`    the numpy reference traversals (float64, binary tree)
 :mod:`~ao4d.rays.refine`       hits' ``t`` and barycentrics refined in float64

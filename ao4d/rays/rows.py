@@ -1,7 +1,7 @@
 """Rays as every traversal takes them: the caller's arrays checked, mapped into a tree's frame
 (:class:`_Rays`, in float64 before the kernels round them), the answers' arrays filled launch by
-launch (:class:`_Results`), a mesh's tree on a resolved backend (:class:`Tracer`), ray budgets and
-the progress bar.
+launch (:class:`_Results`), a mesh's tree on a resolved backend (:class:`Tracer`) and the progress
+bar (ray budgets: :mod:`ao4d._budget`).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 // Host side: ao4d/ao.py. Vectors are float4 with zeros beyond DIM.
 // vec_type_hint(float4) keeps CPU runtimes (Intel's) from vectorising across work-items: rays
 // traverse the tree divergently, so masked lanes across rays run far slower than scalar
-// work-items that use float4/float8 within one ray (figures: the benchmarks guide). GPUs ignore
+// work-items that use float4/float8 within one ray (figures: the benchmarks log). GPUs ignore
 // the hint.
 #include "bvh/bvh.h"
 #include "common/sampling.h"
