@@ -88,6 +88,14 @@ class KernelClock:
     def __exit__(self, *exc):
         self._launching._traversal_kernel = self._original
         self._refining._refine_kernel = self._original_refine
+        # the runtime reports completions from its own thread, possibly after cast_rays has
+        # returned (it waited on the answers, not on the callbacks): a launch still without its
+        # time would count as no kernel time at all
+        deadline = time.perf_counter() + 5.0
+        while any(completed != completed for _, completed in self._launches):  # NaN: not yet
+            if time.perf_counter() > deadline:
+                raise RuntimeError("an OpenCL launch never reported its completion to the kernel clock")
+            time.sleep(0.001)
 
 
 def ao4d_cast(mesh, o, w, closest: bool) -> dict:
