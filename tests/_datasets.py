@@ -12,6 +12,8 @@ import copy
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from datasets_gen import run
 from datasets_gen.config import config_text
 
@@ -57,6 +59,27 @@ TINY = config(
     ao={"samples": 4},
 )
 TINY_ITEMS = 5
+
+
+def learning(
+    name: str, seed: int, families: list[dict], *, split: dict, points: tuple[int, int, int], **defaults: Any
+) -> dict[str, Any]:
+    """A small learning dataset: grids of 7 points unless ``grid`` says otherwise, random rotations,
+    4 AO samples, and ``points`` = (uniform, near-surface at sigma 0.02, surface) samples."""
+    uniform, near, surface = points
+    samples = {"uniform": uniform, "near_surface": near, "sigmas": [0.02], "surface": surface}
+    settings = {"grid": 7, "padding": 0.15, "rotation": "random", "ao": {"samples": 4}, **defaults}
+    return config(name, seed, families, split=split, **settings, samples=samples)
+
+
+def made_once(data: dict[str, Any]):
+    """A module-scoped ``dataset`` fixture: the dataset of ``data``, made once per test module."""
+
+    @pytest.fixture(scope="module")
+    def dataset(tmp_path_factory):
+        return make(tmp_path_factory.mktemp(data["name"]), data)
+
+    return dataset
 
 
 def tiny(name: str = "tiny", **defaults: Any) -> dict[str, Any]:

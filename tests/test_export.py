@@ -10,28 +10,21 @@ import sys
 
 import numpy as np
 import pytest
-from _datasets import BALL, config, family, make
+from _datasets import BALL, config, family, learning, made_once, make
 
 from datasets_gen import DatasetError, load
 from datasets_gen import export as export_mod
 from datasets_gen.export import export, item_arrays, parse_size
 
-CONFIG = config(
+CONFIG = learning(
     "export",
     4,
     [family("hypersphere", 4, BALL), family("spheritorus", 1, {"R": 0.7, "r": 0.3}, ao=False, sequence={"frames": 2})],
     split={"train": 0.5, "test": 0.5},
-    grid=7,
-    padding=0.15,
-    rotation="random",
-    ao={"samples": 4},
-    samples={"uniform": 200, "near_surface": 50, "sigmas": [0.02], "surface": 100},
+    points=(200, 50, 100),
 )
 
-
-@pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    return make(tmp_path_factory.mktemp("export"), CONFIG)
+dataset = made_once(CONFIG)
 
 
 def _same(a: np.ndarray, b: np.ndarray) -> None:

@@ -9,28 +9,22 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 import pytest
-from _datasets import BALL, BOX_PRISM, config, family, make
+from _datasets import BALL, BOX_PRISM, config, family, learning, made_once, make
 
 import datasets_gen
 from datasets_gen import DatasetError, load
 
-CONFIG = config(
+CONFIG = learning(
     "loader",
     1,
     [family("hypersphere", 3, BALL), family("lifted", 1, BOX_PRISM, rotation="none")],
     split={"train": 0.5, "val": 0.25, "test": 0.25},
+    points=(300, 100, 200),
     grid=8,
-    padding=0.15,
-    rotation="random",
-    ao={"samples": 4},
     sequence={"frames": 3},
-    samples={"uniform": 300, "near_surface": 100, "sigmas": [0.02], "surface": 200},
 )
 
-
-@pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    return make(tmp_path_factory.mktemp("loader"), CONFIG)
+dataset = made_once(CONFIG)
 
 
 def test_items_hold_the_files_arrays_and_record(dataset):

@@ -10,28 +10,21 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 import pytest
-from _datasets import BALL, BOX_PRISM, config, family, make
+from _datasets import BALL, BOX_PRISM, config, family, learning, made_once, make
 
 import datasets_gen
 from datasets_gen import collate, load
 from datasets_gen.transforms import SubsamplePoints
 
-CONFIG = config(
+CONFIG = learning(
     "batches",
     2,
     [family("hypersphere", 3, BALL), family("lifted", 1, BOX_PRISM, rotation="none")],
     split={"train": 0.75, "test": 0.25},
-    grid=7,
-    padding=0.15,
-    rotation="random",
-    ao={"samples": 4},
-    samples={"uniform": 120, "near_surface": 40, "sigmas": [0.02], "surface": 60},
+    points=(120, 40, 60),
 )
 
-
-@pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    return make(tmp_path_factory.mktemp("batches"), CONFIG)
+dataset = made_once(CONFIG)
 
 
 def test_fixed_rows_taken_together_from_each_group(dataset):

@@ -21,3 +21,10 @@ def add_backend(parser: argparse.ArgumentParser, *, help: str | None = None) -> 
 def add_force(parser: argparse.ArgumentParser, *, help: str) -> None:
     """``--force``: go on although the estimate is above the command's time limit."""
     parser.add_argument("--force", action="store_true", help=help)
+
+
+def add_pair(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup, flag: str, *, metavar: tuple[str, str], help: str
+) -> None:
+    """An option of two numbers (a range, or a box's two bounds), as a list of two floats."""
+    parser.add_argument(flag, type=float, nargs=2, metavar=metavar, help=help)

@@ -6,7 +6,7 @@ import argparse
 import time
 from typing import Any
 
-from ._options import add_force
+from ._options import add_force, add_pair
 
 HELP = "extract a closed, oriented simplex mesh from a named shape or a 2D/3D/4D data file"
 EXAMPLES = """  ao4d extract --shape spheritorus --grid 48 --out torus.npz
@@ -34,12 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="MESH.npz", help="output mesh (.npz)")
     parser.add_argument("--vtu", metavar="MESH.vtu", help="also write a VTK unstructured grid")
     parser.add_argument("--grid", type=int, default=48, help="points per axis for --shape (48)")
-    parser.add_argument(
-        "--bounds",
-        type=float,
-        nargs=2,
-        metavar=("LO", "HI"),
-        help="grid box for --shape (default: the shape's extent plus 10%%)",
+    add_pair(
+        parser, "--bounds", metavar=("LO", "HI"), help="grid box for --shape (default: the shape's extent plus 10%%)"
     )
     parser.add_argument("--level", type=float, default=0.0, help="iso-value (0)")
     parser.add_argument("--method", choices=METHODS, default="cubes", help="cell split (cubes)")

@@ -10,6 +10,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from ._options import add_pair
+
 HELP = "make a 4D mesh from 3D solids: sweep frames of a moving solid through time (w = t)"
 EXAMPLES = """  ao4d lift sweep ball_*.ply --out bounce.npz               # frames at t = 0, 1, 2, ...
   ao4d lift sweep f0.obj f1.obj f2.obj --times 0 0.25 1 --out motion.npz
@@ -51,10 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="T",
         help="one time per frame, strictly increasing (default 0 1 2 ...)",
     )
-    when.add_argument(
+    add_pair(
+        when,
         "--times-range",
-        type=float,
-        nargs=2,
         metavar=("START", "STOP"),
         help="frames evenly spaced in time from START to STOP (both included)",
     )

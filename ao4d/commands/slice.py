@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._options import add_pair
+
 # the library's parameters that arguments become under another name (errors name the argument)
 PARAMETERS = {"path": "MESH.npz"}
 
@@ -35,10 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--w", type=float, help="slice at w = W (default 0)")
     where.add_argument("--point", type=float, nargs=4, metavar="X", help="a point of the hyperplane (with --normal)")
-    where.add_argument(
+    add_pair(
+        where,
         "--w-range",
-        type=float,
-        nargs=2,
         metavar=("START", "STOP"),
         help="a series of slices w = const from START to STOP (both included)",
     )
