@@ -794,9 +794,12 @@ def extract_solid_field(
 
     Parameters
     ----------
-    field, shape, bounds
-        The field and its grid, as in :func:`ao4d.extract_field` (a (..., d) -> (...) callable,
-        points per axis, the grid's box).
+    field : callable
+        As in :func:`ao4d.extract_field`: (..., d) points to (...) values.
+    shape : int or sequence of int
+        As in :func:`ao4d.extract_field`: grid points per axis.
+    bounds : (lo, hi)
+        As in :func:`ao4d.extract_field`: the grid's box.
     level, upper : float
         As in :func:`extract_solid`.
     method : {"simplices", "cubes"}
