@@ -266,8 +266,10 @@ def tetrahedralize(
             )
     edge_length = as_real(edge_length, "edge_length", gt=0, le=1)
     threads = check_positive_int(threads, "threads")
-    import pytetwild
+    from ._optional import require
 
+    # pytetwild (a core dependency) imports pyvista when it loads, which ao4d[vtk] installs
+    pytetwild = require("pytetwild", "tetrahedralising a solid with fTetWild", extra="vtk")
     with _scratch_cwd():
         points, tets = pytetwild.tetrahedralize(
             np.asarray(surface.vertices, dtype=np.float64),
