@@ -660,7 +660,7 @@ class SimplexMesh:
             missing = [a for a in names if a not in self._point_data]
             if missing:
                 raise KeyError(f"`attributes` names unknown point_data {missing}; have {sorted(self._point_data)}")
-        return slicing.slice_mesh(self, origin, n, names)
+        return slicing.slice_mesh(self, origin, n, {name: self._point_data[name] for name in names})
 
     # ---------------------------------------------------------------- conversions and I/O
     def to_trimesh(self) -> trimesh.Trimesh:

@@ -7,6 +7,7 @@ mesh in the hyperplane's own coordinates (:func:`hyperplane_basis`). Used by
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -123,7 +124,7 @@ def _slice_cases() -> list[list[tuple[tuple[int, int], ...]]]:
 SLICE_CASES = _slice_cases()
 
 
-def slice_mesh(mesh: Any, origin: np.ndarray, normal: np.ndarray, names: list[str], candidates=None):
+def slice_mesh(mesh: Any, origin: np.ndarray, normal: np.ndarray, attributes: Mapping[str, Any], candidates=None):
     """The cut of ``mesh`` (a 4D SimplexMesh) by the plane through ``origin`` with unit ``normal``.
 
     See :meth:`ao4d.SimplexMesh.slice` for the conventions; no validation here.
@@ -136,8 +137,9 @@ def slice_mesh(mesh: Any, origin: np.ndarray, normal: np.ndarray, names: list[st
         A point of the hyperplane.
     normal : (4,) float64 numpy.ndarray
         The hyperplane's unit normal.
-    names : list of str
-        Point data arrays of ``mesh`` to interpolate onto the cut.
+    attributes : mapping of str to (V, ...) array_like
+        Per-vertex values to interpolate onto the cut, by name (``mesh.point_data``'s, or values
+        the caller has for the mesh's vertices without storing them on it).
     candidates : (k,) int numpy.ndarray, optional
         Increasing indices of the simplices that may cross the plane (a superset of those that
         do: a caller cutting many parallel planes finds them from the simplices' extents along
@@ -200,7 +202,7 @@ def slice_mesh(mesh: Any, origin: np.ndarray, normal: np.ndarray, names: list[st
 
     points = lerp(vertices)
     coords = (points - origin) @ hyperplane_basis(normal).T
-    vertex_attributes = {name: lerp(np.asarray(mesh.point_data[name], dtype=np.float64)) for name in names}
+    vertex_attributes = {name: lerp(np.asarray(values, dtype=np.float64)) for name, values in attributes.items()}
     face_attributes = {"simplex": sources}
     face_attributes.update({k: np.asarray(v)[sources] for k, v in mesh.cell_data.items()})
     # drop output vertices only referenced by removed zero-area triangles

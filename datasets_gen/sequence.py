@@ -120,27 +120,17 @@ def make_sequence(
     normal[k] = 1.0
     basis = hyperplane_basis(normal)
     vertex_ao = occlusion is not None and ao_at == "vertices"
-    if vertex_ao:
-        mesh.point_data["ao"] = np.asarray(occlusion, np.float64)
+    # the vertex AO interpolated onto each frame, given as data (the mesh is not changed)
+    attributes = {"ao": np.asarray(occlusion, np.float64)} if vertex_ao else {}
     # one pass over the simplices: their extents along the axis say which ones each frame's
     # hyperplane x[k] = v may cut (min < v <= max, the slice's own sign rule), so a frame costs
     # its crossed simplices, not the whole mesh
     along = mesh.vertices[:, k][mesh.simplices]
     low, high = along.min(axis=1), along.max(axis=1)
-    try:
-        slices = [
-            slice_mesh(
-                mesh,
-                normal * v,
-                normal,
-                ["ao"] if vertex_ao else [],
-                candidates=np.flatnonzero((low < v) & (high >= v)),
-            )
-            for v in value
-        ]
-    finally:
-        if vertex_ao:
-            del mesh.point_data["ao"]
+    slices = [
+        slice_mesh(mesh, normal * v, normal, attributes, candidates=np.flatnonzero((low < v) & (high >= v)))
+        for v in value
+    ]
     counts_v = [len(s.vertices) for s in slices]
     counts_f = [len(s.faces) for s in slices]
     arrays: dict[str, np.ndarray] = {

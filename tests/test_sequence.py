@@ -83,6 +83,7 @@ def test_frame_ao():
     assert record["frames"] == 17 and "frame_samples" not in record and frame_samples_of(arrays) == []
     for f in frames_of(arrays):  # x is linear: interpolated exactly onto the slice's vertices (basis: x, y, z)
         np.testing.assert_allclose(f.vertex_attributes["ao"], f.vertices[:, 0], atol=1e-6)
+    assert "ao" not in shape.mesh.point_data  # the values went to the slices as data
 
 
 FRAMES = 5
